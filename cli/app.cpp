@@ -1,0 +1,166 @@
+#include "app.hpp"
+
+#include <fmt/format.h>
+
+#include <csignal>
+#include <cstdlib>
+#include <iostream>
+
+#include "kscfg/error.hpp"
+#include "kscfg/parse.hpp"
+#include "kscfg/session.hpp"
+
+namespace kscfg::cli {
+
+static const App* g_app = nullptr;
+const App& current_app() { return *g_app; }
+
+static void add_tree(App& a, CLI::App& parent, Command& c) {
+  CLI::App* sub = parent.add_subcommand(c.name(), c.brief());
+  a.command_of[sub] = &c;
+  c.add_cli(*sub);
+  auto children = c.children();
+  for (Command* ch : children) add_tree(a, *sub, *ch);
+  if (!children.empty()) sub->require_subcommand(1);
+}
+
+std::unique_ptr<App> build_app() {
+  auto a = std::make_unique<App>();
+  CLI::App& cli = a->cli;
+  cli.fallthrough();  // global options may also follow the command
+  cli.require_subcommand(1);
+  const char* env_port = std::getenv("KSCFG_PORT");
+  a->opt.port = env_port && *env_port ? env_port : "emu";
+  cli.add_option("-p,--port", a->opt.port,
+                 "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..]")
+      ->option_text("URI");
+  cli.add_option("-t,--terminal", a->terminal_text, "Plug position of the terminal, 1-based (default: first with registers)")
+      ->option_text("POS");
+  cli.add_option("-c,--channel", a->channel_text, "Channel of a multi-channel terminal, 1-based (default 1)")
+      ->option_text("N");
+  cli.add_option("--station", a->opt.station, "Station file (TOML) describing the station behind the link")
+      ->option_text("FILE");
+  cli.add_option("--catalog", a->opt.catalog, "Directory of extra terminal descriptions (also KSCFG_CATALOG)")
+      ->option_text("DIR");
+  cli.add_flag("--json", a->opt.json, "Machine-readable output on stdout");
+  cli.add_option("--timeout", a->timeout_text, "Longest wait for one acknowledge, in ms (default 1000)")
+      ->option_text("MS");
+  cli.add_flag("-v,--verbose", a->opt.verbose, "Trace every control/status exchange on stderr");
+  cli.set_version_flag("--version", std::string("kscfg ") + KSCFG_VERSION);
+  a->commands = make_commands();
+  for (auto& c : a->commands) add_tree(*a, cli, *c);
+  return a;
+}
+
+static void on_signal(int) { g_interrupted = true; }
+
+static Command* parsed_command(App& a) {
+  Command* found = nullptr;
+  const CLI::App* cur = &a.cli;
+  for (;;) {
+    auto subs = cur->get_subcommands();
+    if (subs.empty()) break;
+    cur = subs.front();
+    auto it = a.command_of.find(cur);
+    if (it != a.command_of.end()) found = it->second;
+  }
+  return found;
+}
+
+static void print_error(const std::string& msg, const std::string& hint) {
+  std::string line = msg;
+  if (!hint.empty()) line += " (" + hint + ")";
+  for (auto& ch : line)
+    if (ch == '\n') ch = ' ';
+  std::cerr << "kscfg: error: " << line << '\n';
+}
+
+int run(int argc, char** argv) {
+  std::unique_ptr<App> app;
+  try {
+    app = build_app();
+  } catch (const Error& e) {
+    print_error(e.what(), e.hint());
+    return static_cast<int>(e.code());
+  }
+  g_app = app.get();
+  try {
+    app->cli.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app->cli.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app->cli.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app->cli.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::string msg = e.what();
+    bool no_command = app->cli.get_subcommands().empty();
+    if (no_command && (dynamic_cast<const CLI::ExtrasError*>(&e) || dynamic_cast<const CLI::RequiredError*>(&e))) {
+      msg = "no command given; 'kscfg --help' lists the commands";
+      // The first word that is neither an option nor an option's value is not a command.
+      std::vector<std::string> names;
+      for (auto& c : app->commands) names.push_back(c->name());
+      for (int i = 1; i < argc; ++i) {
+        std::string w = argv[i];
+        if (w.empty()) continue;
+        if (w[0] == '-') {
+          const CLI::Option* o = nullptr;
+          try {
+            o = app->cli.get_option(w.substr(0, w.find('=')));
+          } catch (const CLI::OptionNotFound&) {
+          }
+          if (o && o->get_expected_min() > 0 && w.find('=') == std::string::npos) ++i;
+          continue;
+        }
+        auto hint = did_you_mean(w, names);
+        msg = fmt::format("unknown command '{}'{}", w, hint.empty() ? "" : "; " + hint);
+        break;
+      }
+    }
+    print_error(msg, "");
+    return static_cast<int>(Exit::usage);
+  }
+
+  GlobalOptions& o = app->opt;
+  std::unique_ptr<Context> ctx;
+  int rc = 0;
+  try {
+    if (!app->terminal_text.empty()) {
+      o.terminal = static_cast<unsigned>(parse_uint(app->terminal_text, 255, "terminal position"));
+      if (o.terminal == 0) throw Error(Exit::usage, "invalid terminal position '0': positions start at 1");
+    }
+    if (!app->channel_text.empty()) {
+      o.channel = static_cast<unsigned>(parse_uint(app->channel_text, 16, "channel"));
+      if (o.channel == 0) throw Error(Exit::usage, "invalid channel '0': channels start at 1");
+    }
+    if (!app->timeout_text.empty()) {
+      o.timeout_ms = static_cast<unsigned>(parse_uint(app->timeout_text, 600000, "timeout"));
+      if (o.timeout_ms == 0) throw Error(Exit::usage, "invalid timeout '0'");
+    }
+    if (!o.catalog.empty()) set_user_catalog_dir(o.catalog);
+    (void)Catalog::standard();  // a broken user catalog is reported before anything is touched
+    Command* cmd = parsed_command(*app);
+    if (!cmd) throw Error(Exit::usage, "no command given; 'kscfg --help' lists the commands");
+    std::signal(SIGINT, on_signal);
+    std::signal(SIGTERM, on_signal);
+    ctx = std::make_unique<Context>(o);
+    rc = cmd->run(*ctx);
+    ctx->finish();
+  } catch (const Error& e) {
+    if (ctx) {
+      try {
+        ctx->finish();  // the emulator keeps what really happened, like hardware would
+      } catch (const Error& e2) {
+        print_error(e2.what(), e2.hint());
+      }
+    }
+    print_error(e.what(), e.hint());
+    return static_cast<int>(e.code());
+  } catch (const std::exception& e) {
+    print_error(fmt::format("internal error: {}", e.what()), "please report this");
+    return 70;
+  }
+  return rc;
+}
+
+}  // namespace kscfg::cli

@@ -1,0 +1,19 @@
+#include "commands.hpp"
+
+namespace kscfg::cli {
+
+std::vector<std::unique_ptr<Command>> make_commands() {
+  std::vector<std::unique_ptr<Command>> v;
+  v.push_back(make_info());
+  v.push_back(make_read());
+  v.push_back(make_write());
+  v.push_back(make_dump());
+  v.push_back(make_unlock());
+  v.push_back(make_lock());
+  v.push_back(make_emu());
+  v.push_back(make_completion());
+  v.push_back(make_manpage());
+  return v;
+}
+
+}  // namespace kscfg::cli

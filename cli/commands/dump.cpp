@@ -1,0 +1,67 @@
+// kscfg dump: all 64 registers with storage class, default and a mark where they differ.
+#include <fmt/format.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/describe.hpp"
+#include "kscfg/parse.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+class Dump : public Command {
+ public:
+  std::string name() const override { return "dump"; }
+  std::string brief() const override { return "Show all 64 registers with storage, default and changes"; }
+  std::string man() const override {
+    return "Reads R0..R47 of the selected terminal and prints a table: register, value (hex and decimal), "
+           "storage class (RAM, ROM, SEEROM), the catalog default, a \\fB*\\fR where a SEEROM register "
+           "differs from its default, the register's name and its decoded parameters. R48..R63 are listed "
+           "as not implemented and not read.";
+  }
+  std::vector<std::string> examples() const override { return {"dump", "-t 3 dump", "--json dump"}; }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    auto s = ctx.session();
+    const TerminalType& type = *s->terminal().type;
+    std::array<std::uint16_t, 48> v{};
+    for (unsigned r = 0; r < 48; ++r) v[r] = s->read(r);
+    s->close();
+    unsigned ch = ctx.options().channel - 1;
+    nlohmann::json arr = nlohmann::json::array();
+    if (!ctx.json())
+      std::cout << fmt::format("{:<4} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", "REG", "VALUE", "STORAGE", "DEFAULT", "",
+                               "NAME", "MEANING");
+    for (unsigned r = 0; r < 64; ++r) {
+      const RegisterDef& d = type.regs[r];
+      if (r >= 48) {
+        if (ctx.json()) arr.push_back({{"register", r}, {"implemented", false}});
+        else std::cout << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, "-", "-", "-", "", "-",
+                                      "not implemented");
+        continue;
+      }
+      bool differs = d.storage == proto::Storage::seerom && v[r] != d.def;
+      std::string def = d.storage == proto::Storage::seerom || d.storage == proto::Storage::rom ? hex4(d.def) : "-";
+      if (ctx.json()) {
+        arr.push_back({{"register", r}, {"value", v[r]}, {"storage", proto::storage_name(d.storage)},
+                       {"default", d.def}, {"differs", differs}, {"name", d.name},
+                       {"meaning", register_meaning(type, r, v[r], ch)}});
+      } else {
+        std::cout << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),
+                                 proto::storage_name(d.storage), def, differs ? "*" : "", register_label(type, r),
+                                 register_meaning(type, r, v[r], ch));
+      }
+    }
+    if (ctx.json()) print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"registers", arr}});
+    return 0;
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_dump() { return std::make_unique<Dump>(); }
+
+}  // namespace kscfg::cli

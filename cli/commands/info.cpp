@@ -1,0 +1,121 @@
+// kscfg info: what terminals are these? R8 type, R9 version, R10..R13, hardware version.
+#include <fmt/format.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/describe.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/parse.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+std::string image_text(const TerminalImage& t) {
+  if (t.complex)
+    return fmt::format("{}: in {}..{} out {}..{}", t.format, t.in_offset, t.in_offset + t.in_size - 1, t.out_offset,
+                       t.out_offset + t.out_size - 1);
+  if (t.bits_in || t.bits_out) {
+    std::string s;
+    if (t.bits_in) s += fmt::format("{} bit(s) in at {}.{}", t.bits_in, t.in_bit / 8, t.in_bit % 8);
+    if (t.bits_out) s += fmt::format("{}{} bit(s) out at {}.{}", s.empty() ? "" : ", ", t.bits_out, t.out_bit / 8, t.out_bit % 8);
+    return s;
+  }
+  return "no process image";
+}
+
+class Info : public Command {
+ public:
+  std::string name() const override { return "info"; }
+  std::string brief() const override { return "Show the station's terminals, or one terminal's type registers"; }
+  std::string man() const override {
+    return "Without \\fB\\-t\\fR, lists every terminal of the station in plug order with its type, its "
+           "title, the type number (R8) and software version (R9) read from the terminal, and where its "
+           "process image lies. With \\fB\\-t\\fR \\fIPOS\\fR, shows that terminal's type registers R8..R13 "
+           "decoded and its hardware version (R16). A terminal whose R8 differs from the station's "
+           "description is reported on stderr.";
+  }
+  std::vector<std::string> examples() const override { return {"info", "info -t 2", "--json info"}; }
+  void add_cli(CLI::App&) override {}
+
+  int run(Context& ctx) override {
+    const StationLayout& L = ctx.layout();
+    if (ctx.options().terminal) return one(ctx, ctx.terminal_position());
+    nlohmann::json arr = nlohmann::json::array();
+    std::vector<std::array<std::string, 6>> rows;
+    for (const auto& t : L.terminals) {
+      nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
+                       {"image", image_text(t)}};
+      std::string r8 = "-", ver = "-";
+      if (t.type->has_registers && !t.channels.empty() && t.channels[0].window) {
+        RegisterSession s(ctx.link(), t, 0, ctx.session_options());
+        std::uint16_t v8 = s.read(8), v9 = s.read(9);
+        s.close();
+        r8 = fmt::format("{}", v8);
+        ver = proto::version_text(v9);
+        j["r8"] = v8;
+        j["version"] = ver;
+        if (v8 != t.type->r8)
+          std::cerr << fmt::format("kscfg: warning: terminal {} reports type {} in R8, the station says {}\n",
+                                   t.position, v8, t.type->type);
+      }
+      arr.push_back(j);
+      rows.push_back({fmt::format("{}", t.position), t.type->type, t.type->title, r8, ver, image_text(t)});
+    }
+    if (ctx.json()) {
+      print_json({{"coupler", L.coupler}, {"port", ctx.link().describe()}, {"terminals", arr}});
+      return 0;
+    }
+    std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
+    std::size_t wt = 5;
+    for (auto& r : rows) wt = std::max(wt, r[2].size());
+    std::cout << fmt::format("{:<4} {:<7} {:<{}} {:<5} {:<4} {}\n", "POS", "TYPE", "TITLE", wt, "R8", "VER", "IMAGE");
+    for (auto& r : rows)
+      std::cout << fmt::format("{:<4} {:<7} {:<{}} {:<5} {:<4} {}\n", r[0], r[1], r[2], wt, r[3], r[4], r[5]);
+    return 0;
+  }
+
+  int one(Context& ctx, unsigned pos) {
+    const TerminalImage& t = ctx.layout().terminal(pos);
+    nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_text(t)}};
+    if (!t.type->has_registers) {
+      if (ctx.json()) print_json(j);
+      else
+        std::cout << fmt::format("terminal {}\ntype     {}  {}\nimage    {}\nregisters none\n", pos, t.type->type,
+                                 t.type->title, image_text(t));
+      return 0;
+    }
+    auto s = ctx.session();
+    std::vector<std::pair<unsigned, std::uint16_t>> vals;
+    for (unsigned r : {8u, 9u, 10u, 11u, 12u, 13u, 16u}) vals.emplace_back(r, s->read(r));
+    s->close();
+    if (vals[0].second != t.type->r8)
+      std::cerr << fmt::format("kscfg: warning: terminal {} reports type {} in R8, the station says {}\n", pos,
+                               vals[0].second, t.type->type);
+    if (ctx.json()) {
+      nlohmann::json regs = nlohmann::json::object();
+      for (auto& [r, v] : vals) regs[fmt::format("R{}", r)] = {{"value", v}, {"meaning", register_meaning(*t.type, r, v)}};
+      j["registers"] = regs;
+      j["version"] = proto::version_text(vals[1].second);
+      j["hardware_version"] = vals[6].second;
+      print_json(j);
+      return 0;
+    }
+    std::cout << fmt::format("terminal {}\ntype     {}  {}\n", pos, t.type->type, t.type->title);
+    for (auto& [r, v] : vals) {
+      std::string label = r == 16 ? "hw-version" : register_label(*t.type, r);
+      std::cout << fmt::format("R{:<3} {:<16} {:<12} {}\n", r, label, format_value(v),
+                               r == 16 ? "" : register_meaning(*t.type, r, v));
+    }
+    std::cout << fmt::format("image    {}\n", image_text(t));
+    return 0;
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_info() { return std::make_unique<Info>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,87 @@
+// kscfg read REG...: registers of the selected terminal, decoded.
+#include <fmt/format.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/describe.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/parse.hpp"
+
+namespace kscfg::cli {
+
+std::vector<std::string> register_completions() {
+  std::vector<std::string> v;
+  for (unsigned r = 0; r < 48; ++r) v.push_back(fmt::format("R{}", r));
+  return v;
+}
+
+namespace {
+
+class Read : public Command {
+ public:
+  std::string name() const override { return "read"; }
+  std::string brief() const override { return "Read registers of a terminal (R32, 32, 0x20, R32-R35)"; }
+  std::string man() const override {
+    return "Reads each register named (or each register of a range \\fBR32\\-R35\\fR) from the selected terminal "
+           "and prints one line per register: the register, its value as hex and decimal, its name and the "
+           "parameters it holds, decoded. With \\fB\\-\\-raw\\fR only the values are printed, one per line, as "
+           "four-digit hex, so that \\fB$(kscfg read \\-\\-raw R32)\\fR works in scripts. Registers of the "
+           "extended area (R48..R63) are refused: the terminals do not implement them.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"read R8", "read R32-R35", "read --raw R32", "-t 2 read R32", "--json read 32 0x21"};
+  }
+  std::vector<std::string> completions() const override { return register_completions(); }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("REG", regs_, "Register(s) or range(s) to read")->required()->option_text("REG");
+    sub.add_flag("--raw", raw_, "Print bare values (0x0006), one per line");
+  }
+  int run(Context& ctx) override {
+    std::vector<unsigned> regs;
+    for (const auto& r : regs_)
+      for (unsigned x : parse_register_list(r)) regs.push_back(x);
+    auto s = ctx.session();
+    const TerminalType& type = *s->terminal().type;
+    for (unsigned r : regs)
+      if (!proto::is_implemented(r))
+        throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
+                                               type.type));
+    std::vector<std::uint16_t> vals;
+    for (unsigned r : regs) vals.push_back(s->read(r));
+    s->close();
+    unsigned ch = ctx.options().channel - 1;
+    if (ctx.json()) {
+      nlohmann::json arr = nlohmann::json::array();
+      for (std::size_t i = 0; i < regs.size(); ++i) {
+        nlohmann::json params = nlohmann::json::object();
+        for (auto& [n, v] : decode_register(type, regs[i], vals[i], ch)) params[n] = v;
+        arr.push_back({{"register", regs[i]}, {"value", vals[i]}, {"hex", hex4(vals[i])},
+                       {"name", type.regs[regs[i]].name}, {"params", params},
+                       {"meaning", register_meaning(type, regs[i], vals[i], ch)}});
+      }
+      print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"registers", arr}});
+      return 0;
+    }
+    for (std::size_t i = 0; i < regs.size(); ++i) {
+      if (raw_) {
+        std::cout << hex4(vals[i]) << '\n';
+        continue;
+      }
+      std::cout << fmt::format("R{:<3} {:<12} {:<16} {}\n", regs[i], format_value(vals[i]),
+                               register_label(type, regs[i]), register_meaning(type, regs[i], vals[i], ch));
+    }
+    return 0;
+  }
+
+ private:
+  std::vector<std::string> regs_;
+  bool raw_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_read() { return std::make_unique<Read>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,77 @@
+#include "context.hpp"
+
+#include <fmt/format.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+
+#include "kscfg/error.hpp"
+#include "kscfg/ports.hpp"
+
+namespace kscfg::cli {
+
+Context::~Context() = default;
+
+const Catalog& Context::catalog() const { return Catalog::standard(); }
+
+Link& Context::link() {
+  if (!link_) {
+    LinkOptions lo;
+    lo.timeout_ms = opt_.timeout_ms;
+    link_ = open_link(opt_.port, catalog(), lo);
+    if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
+  }
+  return *link_;
+}
+
+const StationLayout& Context::layout() {
+  if (!layout_) {
+    // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
+    // --station (or discovered by scan).
+    if (auto l = link().layout()) {
+      layout_ = std::move(*l);
+    } else if (!opt_.station.empty()) {
+      layout_ = compute_layout(load_station(opt_.station, catalog()), catalog());
+    } else {
+      throw Error(Exit::usage, fmt::format("the layout of the station behind '{}' is unknown", opt_.port),
+                  "give --station FILE, or run 'kscfg scan'");
+    }
+  }
+  return *layout_;
+}
+
+unsigned Context::terminal_position() {
+  const auto& L = layout();
+  if (opt_.terminal) {
+    (void)L.terminal(opt_.terminal);  // throws for a position that does not exist
+    return opt_.terminal;
+  }
+  for (const auto& t : L.terminals)
+    if (t.type->has_registers) return t.position;
+  throw Error(Exit::usage, "the station has no terminal with registers");
+}
+
+SessionOptions Context::session_options() const {
+  SessionOptions so;
+  so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
+  if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
+  if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
+  return so;
+}
+
+std::unique_ptr<RegisterSession> Context::session() {
+  unsigned pos = terminal_position();
+  const TerminalImage& t = register_terminal(layout(), pos, opt_.channel - 1);
+  return std::make_unique<RegisterSession>(link(), t, opt_.channel - 1, session_options());
+}
+
+void Context::finish() {
+  if (link_) link_->commit();
+}
+
+void Context::trace(const std::string& line) const { std::cerr << "kscfg: " << line << '\n'; }
+
+void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << '\n'; }
+
+}  // namespace kscfg::cli

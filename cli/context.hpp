@@ -1,0 +1,62 @@
+// What every command gets: the global options, the link, the station layout and output helpers.
+#pragma once
+#include <chrono>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+#include "kscfg/catalog.hpp"
+#include "kscfg/layout.hpp"
+#include "kscfg/link.hpp"
+#include "kscfg/session.hpp"
+#include "kscfg/station.hpp"
+
+namespace kscfg::cli {
+
+struct GlobalOptions {
+  std::string port;           // --port/-p, KSCFG_PORT, default "emu"
+  unsigned terminal = 0;      // --terminal/-t (1-based; 0 = not given)
+  unsigned channel = 1;       // --channel/-c (1-based)
+  std::string station;        // --station FILE
+  std::string catalog;        // --catalog DIR
+  bool json = false;          // --json
+  unsigned timeout_ms = 1000; // --timeout
+  bool verbose = false;       // -v
+};
+
+class Context {
+ public:
+  explicit Context(GlobalOptions opt) : opt_(std::move(opt)) {}
+  ~Context();
+
+  const GlobalOptions& options() const { return opt_; }
+  bool json() const { return opt_.json; }
+  const Catalog& catalog() const;
+
+  // The link named by --port (opened on first use).
+  Link& link();
+  bool link_open() const { return link_ != nullptr; }
+  // The station as laid out by the coupler: from the link, or from --station.
+  const StationLayout& layout();
+  // The terminal selected by -t (default: the first terminal with registers).
+  unsigned terminal_position();
+  SessionOptions session_options() const;
+  // A register session with the selected terminal and channel.
+  std::unique_ptr<RegisterSession> session();
+
+  // Saves emulator state etc. Called once after the command, also after a failed command.
+  void finish();
+
+  void trace(const std::string& line) const;
+
+ private:
+  GlobalOptions opt_;
+  std::unique_ptr<Link> link_;
+  std::optional<StationLayout> layout_;
+};
+
+// Prints `j` on stdout (pretty, one document).
+void print_json(const nlohmann::json& j);
+
+}  // namespace kscfg::cli
