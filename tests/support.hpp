@@ -1,0 +1,30 @@
+// Test helpers: run the kscfg binary, temporary directories, in-process stations.
+#pragma once
+#include <map>
+#include <string>
+#include <vector>
+
+namespace kscfg::test {
+
+struct Run {
+  int rc = -1;
+  std::string out, err;
+};
+
+// Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
+// Bounded: the process is killed after `timeout_s` seconds (rc = -9).
+Run kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
+          double timeout_s = 60, const std::string& input = "");
+
+// A fresh temporary directory, removed when the object dies.
+struct TempDir {
+  TempDir();
+  ~TempDir();
+  std::string path;
+  std::string file(const std::string& name) const { return path + "/" + name; }
+};
+
+std::string read_text(const std::string& path);
+void write_text(const std::string& path, const std::string& text);
+
+}  // namespace kscfg::test
