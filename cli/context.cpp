@@ -29,8 +29,8 @@ const StationLayout& Context::layout() {
   if (!layout_) {
     // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
     // --station (or discovered by scan).
-    if (auto l = link().layout()) {
-      layout_ = std::move(*l);
+    if (const StationLayout* l = link().layout()) {
+      layout_ = *l;
     } else if (!opt_.station.empty()) {
       layout_ = compute_layout(load_station(opt_.station, catalog()), catalog());
     } else {

@@ -30,9 +30,11 @@ Node tree(const App& a) {
   return walk(&a.cli, "");
 }
 
+// Options of a command; --help is listed once, with the global options.
 std::vector<const CLI::Option*> options_of(const CLI::App* app) {
-  return app->get_options([](const CLI::Option* o) {
-    return o->nonpositional() && o->get_name() != "--help" && o->get_name() != "-h,--help";
+  bool root = app->get_parent() == nullptr;
+  return app->get_options([root](const CLI::Option* o) {
+    return o->nonpositional() && (root || o->get_name() != "--help");
   });
 }
 

@@ -389,14 +389,28 @@ static void parse_images(const Ctx& c, const toml::table& root, TerminalType& t)
   }
 }
 
+std::string line_of(std::string_view text, std::size_t line) {
+  std::size_t pos = 0;
+  for (std::size_t i = 1; i < line && pos != std::string_view::npos; ++i) {
+    pos = text.find('\n', pos);
+    if (pos != std::string_view::npos) ++pos;
+  }
+  if (pos == std::string_view::npos || pos >= text.size()) return {};
+  auto end = text.find('\n', pos);
+  std::string l(text.substr(pos, end == std::string_view::npos ? std::string_view::npos : end - pos));
+  while (!l.empty() && (l.back() == '\r' || l.back() == ' ')) l.pop_back();
+  return l;
+}
+
 void Catalog::add_text(std::string_view origin, std::string_view text) {
   Ctx c{std::string(origin)};
   toml::table root;
   try {
     root = toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {}", origin, e.source().begin.line, e.source().begin.column,
-                                        e.description()));
+    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
+                                        e.source().begin.column, e.description(),
+                                        line_of(text, e.source().begin.line)));
   }
   auto t = parse_type(c, root);
   parse_registers_table(c, root, *t);

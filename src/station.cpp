@@ -129,8 +129,9 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
   try {
     root = toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {}", origin, e.source().begin.line, e.source().begin.column,
-                                        e.description()));
+    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
+                                        e.source().begin.column, e.description(),
+                                        line_of(text, e.source().begin.line)));
   }
   StationSpec spec;
   spec.origin = std::string(origin);

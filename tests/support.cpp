@@ -18,7 +18,7 @@ extern char** environ;
 
 namespace kscfg::test {
 
-Run kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
+Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
           const std::string& input) {
   int out[2], err[2], in[2];
   if (pipe(out) || pipe(err) || pipe(in)) throw std::runtime_error("pipe");

@@ -13,7 +13,7 @@ struct Run {
 
 // Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
-Run kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
+Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
           double timeout_s = 60, const std::string& input = "");
 
 // A fresh temporary directory, removed when the object dies.

@@ -117,8 +117,8 @@ class EmulatorLink : public Link {
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   void pause(unsigned poll_number) override;
-  std::optional<StationLayout> layout() override { return station_->layout(); }
-  std::optional<StationSpec> station() override { return station_->spec(); }
+  const StationLayout* layout() override { return &station_->layout(); }
+  const StationSpec* station() override { return &station_->spec(); }
   void commit() override;
   EmulatedStation& emulated() { return *station_; }
   EmulatorStore* store() { return store_.get(); }

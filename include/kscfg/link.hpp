@@ -28,8 +28,9 @@ class Link {
 
   // The station behind the link as the coupler laid it out, when the link knows it
   // (the emulator does; a Modbus link learns it from a station file or a scan).
-  virtual std::optional<StationLayout> layout() { return std::nullopt; }
-  virtual std::optional<StationSpec> station() { return std::nullopt; }
+  // The pointer stays valid as long as the link.
+  virtual const StationLayout* layout() { return nullptr; }
+  virtual const StationSpec* station() { return nullptr; }
 
   // Makes the station's state durable (emulator: saves its state file). Called once at the end.
   virtual void commit() {}
