@@ -10,6 +10,18 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_dump());
   v.push_back(make_unlock());
   v.push_back(make_lock());
+  v.push_back(make_show());
+  v.push_back(make_get());
+  v.push_back(make_set());
+  v.push_back(make_reset());
+  v.push_back(make_decode());
+  v.push_back(make_catalog());
+  v.push_back(make_map());
+  v.push_back(make_station());
+  v.push_back(make_serial());
+  v.push_back(make_scan());
+  v.push_back(make_ports());
+  v.push_back(make_serve());
   v.push_back(make_emu());
   v.push_back(make_completion());
   v.push_back(make_manpage());

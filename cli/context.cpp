@@ -19,6 +19,7 @@ Link& Context::link() {
   if (!link_) {
     LinkOptions lo;
     lo.timeout_ms = opt_.timeout_ms;
+    if (opt_.verbose) lo.trace = [this](const std::string& s) { trace(s); };
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
@@ -29,7 +30,9 @@ const StationLayout& Context::layout() {
   if (!layout_) {
     // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
     // --station (or discovered by scan).
-    if (const StationLayout* l = link().layout()) {
+    // A link that would have to scan the device for its layout (Modbus) yields to --station.
+    const StationLayout* l = opt_.station.empty() || !link().discovers_layout() ? link().layout() : nullptr;
+    if (l) {
       layout_ = *l;
     } else if (!opt_.station.empty()) {
       layout_ = compute_layout(load_station(opt_.station, catalog()), catalog());

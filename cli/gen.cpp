@@ -7,6 +7,7 @@
 
 #include "app.hpp"
 #include "kscfg/error.hpp"
+#include "kscfg/params.hpp"
 
 namespace kscfg::cli {
 
@@ -139,6 +140,27 @@ std::string generate_manpage(const App& a) {
       m << ".fi\n.RE\n";
     }
   }
+  // Every parameter of every built-in type, from the catalog (so the page cannot drift from it).
+  m << ".SH TERMINAL PARAMETERS\n"
+       "Named parameters for \\fBshow\\fR, \\fBget\\fR and \\fBset\\fR, by terminal type (built-in "
+       "catalog; \\fBkscfg catalog\\fR \\fITYPE\\fR shows a type's registers and image formats).\n";
+  const Catalog builtin = Catalog::builtin();
+  for (const auto& [name, t] : builtin.types()) {
+    if (t->params.empty()) continue;
+    m << ".SS " << roff(t->type) << " \\(em " << roff(t->title) << "\n";
+    for (const auto& p : t->params) {
+      std::string values;
+      for (const auto& c : param_choices(p)) values += (values.empty() ? "" : ", ") + c;
+      m << ".TP\n\\fB" << roff(p.name) << "\\fR \\fI" << roff(values) << "\\fR\n"
+        << roff(p.desc) << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask,
+                                        decode_param(p, t->regs[p.reg].def))
+        << (p.unit.empty() ? "" : ", " + roff(p.unit)) << ")."
+        << (p.divisor ? " Other rates by divisor: " + roff(fmt::format("{} Hz / ({} x (HB + 1))", p.divisor->clock,
+                                                                       p.divisor->prescale)) + "."
+                      : std::string())
+        << "\n";
+    }
+  }
   m << ".SH EXIT STATUS\n";
   for (Exit e : {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify,
                  Exit::file, Exit::interrupted, Exit::changed, Exit::internal}) {
@@ -166,7 +188,7 @@ std::string generate_manpage(const App& a) {
        "must catch the refused write.\n";
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
        "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR.\n";
-  m << ".SH SEE ALSO\n.BR kscfg-station (5),\n.BR kscfg-catalog (5)\n";
+  m << ".SH SEE ALSO\n.BR kscfg\\-station (5),\n.BR kscfg\\-catalog (5)\n";
   return m.str();
 }
 

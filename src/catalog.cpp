@@ -230,7 +230,7 @@ std::vector<Element> parse_elements(const Ctx& c, const toml::table& t, std::str
 std::shared_ptr<TerminalType> parse_type(const Ctx& c, const toml::table& root) {
   c.only_keys(root,
               {"type", "title", "family", "registers", "r8", "version", "channels", "factory_reset",
-               "source", "fifo_tx", "fifo_rx", "param", "image"},
+               "source", "fifo_tx", "fifo_rx", "param", "image", "decode"},
               "the top level");
   auto t = std::make_shared<TerminalType>();
   t->origin = c.origin;
@@ -291,6 +291,7 @@ static void parse_registers_table(const Ctx& c, const toml::table& root, Termina
     if (acc != "r" && acc != "rw") c.fail(*e, "access", "must be \"r\" or \"rw\"");
     r.writable = acc == "rw";
     r.implemented = r.storage != proto::Storage::none || addr < 48;
+    r.described = true;
   }
 }
 
@@ -402,6 +403,37 @@ std::string line_of(std::string_view text, std::size_t line) {
   return l;
 }
 
+static void parse_decode(const Ctx& c, const toml::table& root, TerminalType& t) {
+  const toml::node* n = root.get("decode");
+  if (!n) return;
+  const auto* arr = n->as_array();
+  if (!arr) c.fail(n, "decode", "must be an array of tables ([[decode]])");
+  for (const auto& el : *arr) {
+    const auto* d = el.as_table();
+    if (!d) c.fail(&el, "decode", "must be a table");
+    c.only_keys(*d, {"kind", "image", "width", "fields"}, "[[decode]]");
+    DecodeTable dt;
+    dt.kind = c.str(*d, "kind", true);
+    if (dt.kind != "control" && dt.kind != "status") c.fail(*d, "kind", "must be \"control\" or \"status\"");
+    dt.image = c.str(*d, "image", false);
+    dt.width = static_cast<unsigned>(c.num(*d, "width", false, 8, 8, 16));
+    if (dt.width != 8 && dt.width != 16) c.fail(*d, "width", "must be 8 or 16");
+    const auto* fields = d->get_as<toml::array>("fields");
+    if (!fields) c.fail(*d, "fields", "needs fields = [ { name, mask, desc }, ... ]");
+    for (const auto& fe : *fields) {
+      const auto* ft = fe.as_table();
+      if (!ft) c.fail(&fe, "fields", "entries must be { name = \"..\", mask = 0x.. }");
+      c.only_keys(*ft, {"name", "mask", "desc"}, "fields");
+      BitField b;
+      b.name = c.str(*ft, "name", true);
+      b.mask = static_cast<std::uint16_t>(c.num(*ft, "mask", true, 0, 1, dt.width == 8 ? 0xFF : 0xFFFF));
+      b.desc = c.str(*ft, "desc", false);
+      dt.fields.push_back(b);
+    }
+    t.decode.push_back(std::move(dt));
+  }
+}
+
 void Catalog::add_text(std::string_view origin, std::string_view text) {
   Ctx c{std::string(origin)};
   toml::table root;
@@ -416,6 +448,7 @@ void Catalog::add_text(std::string_view origin, std::string_view text) {
   parse_registers_table(c, root, *t);
   parse_params(c, root, *t);
   parse_images(c, root, *t);
+  parse_decode(c, root, *t);
   for (const auto& p : t->params)
     if (!t->has_registers) c.fail(root, "param", fmt::format("'{}': parameters need registers = true", p.name));
   types_[t->type] = std::move(t);

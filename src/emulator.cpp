@@ -28,6 +28,7 @@ ChannelModel::ChannelModel(const TerminalType& type, std::array<std::uint16_t, p
     : type_(&type), regs_(regs) {
   // ROM is what the factory burnt in, whatever a state file says.
   for (unsigned r = 8; r < 15; ++r) regs_[r] = type.regs[r].def;
+  if (type.is_serial() && type.has_registers) serial_ = std::make_unique<SerialModel>(type);
 }
 
 std::uint16_t ChannelModel::read_register(unsigned r) const {
@@ -62,15 +63,30 @@ void ChannelModel::write_register(unsigned r, std::uint16_t v) {
 }
 
 void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in,
-                         int vi, unsigned delay) {
+                         int vi, unsigned delay, double cycle_us) {
   std::uint8_t ctrl = out.empty() ? 0 : out[0];
   auto vidx = static_cast<std::size_t>(vi);
+  if (serial_) {
+    // The serial line runs whatever the K-bus mode; R0, R1 and R6 follow the FIFOs.
+    serial_->mute = faults.mute;
+    serial_->run_line(cycle_us, regs_);
+  }
+  auto serial_registers = [&] {
+    if (!serial_) return;
+    regs_[0] = serial_->tx_count();
+    regs_[1] = serial_->rx_count();
+    regs_[6] = serial_->diagnostics();
+  };
   if (!(ctrl & proto::kReg) || !type_->has_registers) {
-    // Process-data mode: the plain terminal model has no process data of its own.
+    // Process-data mode: the plain terminal model has no process data of its own; a serial
+    // terminal runs its handshake (serial_model.hpp).
     if (reg_mode_) std::fill(in.begin(), in.end(), 0);
     reg_mode_ = false;
+    if (serial_) serial_->handshake(out, in, regs_);
+    serial_registers();
     return;
   }
+  serial_registers();
   std::uint16_t value = 0;
   if (out.size() > vidx + 1) value = static_cast<std::uint16_t>(out[vidx] | (out[vidx + 1] << 8));
   bool write = (ctrl & proto::kWrite) != 0;
@@ -119,6 +135,8 @@ void EmulatedStation::power_on() {
   for (auto& s : slots_) {
     const auto& t = layout_.terminal(s.position);
     s.in_struct.assign(t.complex && s.channel < t.channels.size() ? t.channels[s.channel].in_struct : 0, 0);
+    if (auto* ser = s.model.serial(); ser && t.complex && s.channel < t.channels.size())
+      ser->attach(t.channels[s.channel], t.format);
   }
 }
 
@@ -144,7 +162,7 @@ void EmulatedStation::cycle() {
     out_struct.assign(ci.out_struct, 0);
     for (const auto& b : ci.out)
       if (b.index >= 0 && static_cast<std::size_t>(b.index) < out_struct.size()) out_struct[b.index] = out_[b.offset];
-    s.model.cycle(cycle_, out_struct, s.in_struct, ci.value_index, response_delay);
+    s.model.cycle(cycle_, out_struct, s.in_struct, ci.value_index, response_delay, kbus_cycle_us);
     for (const auto& b : ci.in)
       if (b.index >= 0 && static_cast<std::size_t>(b.index) < s.in_struct.size()) in_[b.offset] = s.in_struct[b.index];
   }
@@ -156,6 +174,7 @@ nlohmann::json EmulatedStation::to_json() const {
   j["version"] = 1;
   j["station"] = station_to_toml(spec_);
   j["response_delay"] = response_delay;
+  if (kbus_cycle_us != 1000) j["kbus_cycle_us"] = kbus_cycle_us;
   nlohmann::json chans = nlohmann::json::array();
   for (const auto& s : slots_) {
     nlohmann::json c;
@@ -165,6 +184,7 @@ nlohmann::json EmulatedStation::to_json() const {
     c["registers"] = s.model.registers();
     if (!s.model.faults.ignore_writes.empty()) c["ignore_writes"] = s.model.faults.ignore_writes;
     if (s.model.faults.mute) c["mute"] = true;
+    if (const auto* ser = s.model.serial()) c["serial"] = ser->to_json();
     chans.push_back(c);
   }
   j["channels"] = chans;
@@ -183,6 +203,8 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
     auto st = std::make_unique<EmulatedStation>(spec, catalog);
     st->response_delay = j.value("response_delay", 1u);
     if (st->response_delay > 1000) throw bad("response_delay out of range");
+    st->kbus_cycle_us = j.value("kbus_cycle_us", 1000u);
+    if (st->kbus_cycle_us == 0 || st->kbus_cycle_us > 1000000) throw bad("kbus_cycle_us out of range");
     const auto& chans = j.at("channels");
     if (!chans.is_array() || chans.size() != st->slots_.size()) throw bad("channel list does not match the station");
     for (std::size_t i = 0; i < chans.size(); ++i) {
@@ -201,6 +223,7 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
       slot.model = ChannelModel(catalog.get(spec.terminals.at(slot.position - 1).type), r);
       if (c.contains("ignore_writes")) slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
       slot.model.faults.mute = c.value("mute", false);
+      if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
     }
     st->power_on();  // the coupler lays out the image from the terminals' registers
     auto hex = j.at("outputs").get<std::string>();

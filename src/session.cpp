@@ -82,8 +82,33 @@ RegisterSession::Status RegisterSession::poll_once() {
   return s;
 }
 
+RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
+  std::uint8_t ctrl = proto::control_byte(false, next);
+  shadow_[w_.ctrl - out_lo_] = ctrl;
+  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
+  link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
+  Status s;
+  s.status = in[w_.status - in_lo_];
+  s.value = static_cast<std::uint16_t>(in[w_.in_lo - in_lo_] | (in[w_.in_hi - in_lo_] << 8));
+  return s;
+}
+
 std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
   if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+  if (pending_) {
+    // A read request written ahead may still be answered. Its ack cannot be told from the ack of
+    // a write to the same register, so let it finish first; any other register's ack differs.
+    unsigned p = *pending_;
+    pending_.reset();
+    if (write && p == reg) {
+      try {
+        wait_ack(false, p, 0, false);
+      } catch (const Error& e) {
+        if (e.code() != Exit::timeout) throw;
+        last_status_.reset();
+      }
+    }
+  }
   std::uint8_t ctrl = proto::control_byte(write, reg);
   // DESIGN.md decision 2: if the status already shows this ack (left by an earlier request to the
   // same address), a new answer could not be told from the old one. Address another register
@@ -93,21 +118,50 @@ std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t 
   if (proto::is_ack(before, reg)) {
     if (opt_.trace) opt_.trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(),
                                            before, reg, reg == 8 ? 9 : 8));
-    transact(false, reg == 8 ? 9 : 8, 0);
+    // Status shows ack(reg), so the ack of the other register is a visible change.
+    unsigned other = reg == 8 ? 9 : 8;
+    put(proto::control_byte(false, other), std::nullopt);
+    wait_ack(false, other, 0, false);
   }
   last_status_.reset();
   put(ctrl, write ? std::optional<std::uint16_t>(value) : std::nullopt);
+  return wait_ack(write, reg, value, true);
+}
+
+std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t value, bool speculate) {
+  std::uint8_t ctrl = proto::control_byte(write, reg);
+  // Read ahead only where it cannot hurt: a read followed by a read of the next implemented
+  // register, on a link whose combined write+read shows the image from before the write.
+  std::optional<unsigned> next;
+  if (speculate && !write && link_.pipelines() && ahead_misses_ < 3 && reg + 1 < proto::kRegisterCount &&
+      proto::is_implemented(reg + 1))
+    next = reg + 1;
+  std::optional<unsigned> ahead;  // written ahead, not yet answered
   auto start = std::chrono::steady_clock::now();
   Status s{};
   for (unsigned poll = 1;; ++poll) {
-    s = poll_once();
+    bool wrote_ahead = poll == 1 && next;
+    s = wrote_ahead ? poll_ahead(*next) : poll_once();
     if (proto::is_ack(s.status, reg)) {
       last_status_ = s.status;
+      if (wrote_ahead) pending_ = next;
+      else if (ahead) pending_ = ahead;
       if (opt_.trace)
-        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{})", who(),
+        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{})", who(),
                                write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
-                               s.status, s.value, poll, poll == 1 ? "" : "s"));
+                               s.status, s.value, poll, poll == 1 ? "" : "s",
+                               pending_ ? fmt::format(", R{} requested ahead", *pending_) : ""));
       return s.value;
+    }
+    if (wrote_ahead) {
+      ++ahead_misses_;
+      ahead = next;
+    }
+    if (ahead && proto::is_ack(s.status, *ahead)) {
+      // The terminal took the request written ahead before answering ours: ask again.
+      if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
+      last_status_ = s.status;
+      return transact(write, reg, value);
     }
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
     if (std::chrono::steady_clock::now() - start > opt_.timeout)
@@ -121,6 +175,12 @@ std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t 
 
 std::uint16_t RegisterSession::read(unsigned reg) {
   if (reg >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", reg));
+  if (pending_ && *pending_ == reg) {
+    // Requested ahead by the previous read: only its answer is missing.
+    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+    pending_.reset();
+    return wait_ack(false, reg, 0, true);
+  }
   return transact(false, reg, 0);
 }
 
@@ -244,16 +304,30 @@ void RegisterSession::close() noexcept {
   closed_ = true;
   bool was_interrupted = g_interrupted.exchange(false);
   // Never leave a terminal unlocked: relock if this session may have unlocked it.
+  // A link failure (a lossy line) is tried again; a terminal that does not answer is not.
   if (maybe_unlocked_ || unlocked_) {
-    try {
-      transact(true, proto::kCodeWordRegister, 0);
-    } catch (...) {
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      try {
+        transact(true, proto::kCodeWordRegister, 0);
+        break;
+      } catch (const Error& e) {
+        if (e.code() != Exit::link) break;
+        last_status_.reset();
+      } catch (...) {
+        break;
+      }
     }
   }
   // Never leave it in register mode: restore the process-data control and data bytes.
-  try {
-    link_.write_outputs(saved_at_, saved_out_);
-  } catch (...) {
+  for (int attempt = 0; attempt < 3; ++attempt) {
+    try {
+      link_.write_outputs(saved_at_, saved_out_);
+      break;
+    } catch (const Error& e) {
+      if (e.code() != Exit::link) break;
+    } catch (...) {
+      break;
+    }
   }
   if (was_interrupted) g_interrupted = true;
 }

@@ -14,10 +14,27 @@
 namespace kscfg {
 
 MappingSettings StationSpec::settings() const {
-  MappingSettings s = coupler_profile(coupler).defaults;
-  if (complete_evaluation) s.complete_evaluation = *complete_evaluation;
-  if (motorola) s.motorola = *motorola;
-  if (word_alignment) s.word_alignment = *word_alignment;
+  return resolve_settings(coupler_profile(coupler), complete_evaluation, motorola, word_alignment);
+}
+
+bool CouplerProfile::is_fixed(std::string_view setting) const {
+  return std::find(fixed.begin(), fixed.end(), setting) != fixed.end();
+}
+
+MappingSettings resolve_settings(const CouplerProfile& p, std::optional<bool> complete_evaluation,
+                                 std::optional<bool> motorola, std::optional<bool> word_alignment) {
+  MappingSettings s = p.defaults;
+  auto apply = [&](bool& field, std::optional<bool> v, const char* key, const char* label) {
+    if (!v) return;
+    if (p.is_fixed(key) && *v != field)
+      throw Error(Exit::usage,
+                  fmt::format("the {} always has {} {}; it cannot be switched {}", p.name, label,
+                              field ? "on" : "off", *v ? "on" : "off"));
+    field = *v;
+  };
+  apply(s.complete_evaluation, complete_evaluation, "complete_evaluation", "complete evaluation");
+  apply(s.motorola, motorola, "motorola", "Motorola format");
+  apply(s.word_alignment, word_alignment, "word_alignment", "word alignment");
   return s;
 }
 
@@ -41,6 +58,9 @@ const std::vector<CouplerProfile>& coupler_profiles() {
         p.max_in_bytes = n("max_in_bytes");
         p.max_out_bytes = n("max_out_bytes");
         p.modbus = p.family == "modbus-tcp" || p.family == "modbus-rtu";
+        if (const auto* fx = t->get_as<toml::array>("fixed"))
+          for (const auto& e : *fx)
+            if (auto s = e.value<std::string>()) p.fixed.push_back(*s);
         out.push_back(std::move(p));
       }
     }
@@ -161,6 +181,11 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
       else
         fail_at(origin, &v, Exit::file,
                 fmt::format("unknown mapping setting '{}' (complete-evaluation, motorola, word-alignment)", k.str()));
+      try {
+        (void)spec.settings();  // a setting the coupler fixes (BK2000) is an error here, with its line
+      } catch (const Error& e) {
+        fail_at(origin, &v, Exit::usage, e.what());
+      }
     }
   }
   if (const auto* tn = root.get("terminal")) {
@@ -172,7 +197,9 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
       TerminalSpec ts;
       ts.line = t->source().begin ? static_cast<int>(t->source().begin.line) : 0;
       const auto* ty = t->get("type");
-      if (!ty || !ty->value_exact<std::string>()) fail_at(origin, &el, Exit::file, "[[terminal]] needs type = \"KLxxxx\"");
+      if (ty && !ty->value_exact<std::string>())
+        fail_at(origin, ty, Exit::file, "'type' must be a string such as \"KL6001\"");
+      if (!ty) fail_at(origin, &el, Exit::file, "[[terminal]] needs type = \"KLxxxx\"");
       const TerminalType* type = nullptr;
       try {
         type = &catalog.get(*ty->value_exact<std::string>());

@@ -6,6 +6,7 @@
 // N is image byte 2N and the "High Byte" cell is byte 2N+1. An empty cell inside the channel's range
 // (or "-" on a word-alignment gap) is a reserved byte.
 #include <catch2/catch.hpp>
+#include <fmt/format.h>
 
 #include <string>
 #include <utility>
@@ -94,7 +95,7 @@ TEST_CASE("KL6001 standard format: CT/ST then R35 data bytes for every coupler s
           MappingSettings s{ce != 0, mo != 0, wa != 0};
           ChannelImage ch = lay("KL6001", kl6001_regs(false, n), s);
           std::vector<std::string> want = {"CT/ST"};
-          for (unsigned i = 0; i < n; ++i) want.push_back("D" + std::to_string(i));
+          for (unsigned i = 0; i < n; ++i) want.push_back(fmt::format("D{}", i));
           Bytes exp = seq(want);
           if (!wa) {
             check_both(ch, exp);  // 1 + R35 bytes

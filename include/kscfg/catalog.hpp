@@ -29,6 +29,21 @@ struct RegisterDef {
   proto::Storage storage = proto::Storage::none;
   bool writable = false;
   bool implemented = true;
+  bool described = false;  // listed in the type's [registers] table (its default is known)
+};
+
+// Bits of a process-data control or status byte/word, for `kscfg decode`.
+struct BitField {
+  std::string name;
+  std::uint16_t mask = 0;
+  std::string desc;
+};
+
+struct DecodeTable {
+  std::string kind;   // "control" or "status"
+  std::string image;  // image format it applies to ("" = every format)
+  unsigned width = 8; // 8 or 16 bits
+  std::vector<BitField> fields;
 };
 
 struct EnumValue {
@@ -111,6 +126,7 @@ struct TerminalType {
   std::array<RegisterDef, proto::kRegisterCount> regs{};
   std::vector<ParamDef> params;
   std::vector<ImageFormat> images;
+  std::vector<DecodeTable> decode;
 
   const ParamDef* param(std::string_view name) const;
   std::vector<std::string> param_names() const;

@@ -13,6 +13,7 @@
 #include "kscfg/catalog.hpp"
 #include "kscfg/layout.hpp"
 #include "kscfg/link.hpp"
+#include "kscfg/serial_model.hpp"
 #include "kscfg/station.hpp"
 
 namespace kscfg {
@@ -35,9 +36,14 @@ class ChannelModel {
   void factory_reset();
 
   // One K-bus cycle. `out` is the channel's K-bus structure as the coupler passes it (unmapped
-  // bytes are 0), `in` the structure the terminal returns.
+  // bytes are 0), `in` the structure the terminal returns. `cycle_us`: emulated time of one cycle
+  // (a serial terminal's line moves bytes in it).
   void cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in, int value_index,
-             unsigned delay);
+             unsigned delay, double cycle_us = 1000.0);
+
+  // Serial terminals: the process-data side (FIFOs, handshake, line); null for other types.
+  SerialModel* serial() { return serial_.get(); }
+  const SerialModel* serial() const { return serial_.get(); }
 
   ChannelFaults faults;
 
@@ -49,6 +55,7 @@ class ChannelModel {
   std::uint16_t req_value_ = 0;
   std::uint64_t req_seen_ = 0;
   bool executed_ = false;
+  std::unique_ptr<SerialModel> serial_;
 };
 
 class EmulatedStation {
@@ -65,6 +72,7 @@ class EmulatedStation {
   ChannelModel& channel(unsigned position, unsigned ch);  // throws Error(usage)
   bool has_channel(unsigned position, unsigned ch) const;
   unsigned response_delay = 1;  // cycles between seeing a request and answering it
+  unsigned kbus_cycle_us = 1000;  // emulated time of one K-bus cycle (serial lines run in it)
 
   nlohmann::json to_json() const;
   // Throws Error(Exit::file) when the document is not a valid state.

@@ -26,6 +26,20 @@ class Link {
   // Waits a little between two polls of the input image (bounded by the caller's timeout).
   virtual void pause(unsigned poll_number) { (void)poll_number; }
 
+  // Writes output bytes, then reads input bytes, in one exchange when the link can (Modbus FC23).
+  // On a link that pipelines, the read sees the image as it was before the K-bus carried the
+  // write: it shows the answer to the previous request, so register reads can overlap.
+  virtual bool pipelines() const { return false; }
+  virtual void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
+                                         std::size_t in_offset, std::span<std::uint8_t> dst) {
+    write_outputs(out_offset, src);
+    read_inputs(in_offset, dst);
+  }
+
+  // True when layout() would have to discover the station by asking the device (Modbus scan);
+  // a station file given by the user is then preferred.
+  virtual bool discovers_layout() const { return false; }
+
   // The station behind the link as the coupler laid it out, when the link knows it
   // (the emulator does; a Modbus link learns it from a station file or a scan).
   // The pointer stays valid as long as the link.

@@ -1,5 +1,6 @@
 // Port URIs: emu | emu:PATH | emu:mem | tcp://HOST[:PORT][?unit=N] | rtu:DEVICE[?baud=..&parity=..]
 #pragma once
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -21,6 +22,7 @@ PortUri parse_port_uri(const std::string& uri);
 
 struct LinkOptions {
   unsigned timeout_ms = 1000;
+  std::function<void(const std::string&)> trace;  // -v: link-level events (retries of a Modbus link)
 };
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);

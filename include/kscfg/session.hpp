@@ -74,6 +74,10 @@ class RegisterSession {
     std::uint16_t value;
   };
   Status poll_once();
+  // Writes the request for `next` and reads the image in one exchange (pipelining links).
+  Status poll_ahead(unsigned next);
+  // Polls until the terminal acknowledges the request for `reg` already in the control byte.
+  std::uint16_t wait_ack(bool write, unsigned reg, std::uint16_t value, bool speculate);
 
   Link& link_;
   const TerminalImage* term_;
@@ -89,6 +93,10 @@ class RegisterSession {
   bool maybe_unlocked_ = false;
   bool closed_ = false;
   std::optional<std::uint8_t> last_status_;  // status after our last acknowledged request
+  // On a link that pipelines, a read writes the request for the next register in the exchange
+  // that fetches its own answer (FC23); reading that register next costs one exchange.
+  std::optional<unsigned> pending_;
+  unsigned ahead_misses_ = 0;  // the terminal was slower than the link: stop reading ahead
 };
 
 // Resolves position/channel to a terminal image with a register window; throws a clear

@@ -24,7 +24,17 @@ struct CouplerProfile {
   std::size_t max_in_bytes = 0;    // process-image limits (0 = no limit known)
   std::size_t max_out_bytes = 0;
   bool modbus = false;             // exposes the image as Modbus registers (BK7xx0, BK9xx0)
+  // Settings the coupler does not let anyone change ("complete_evaluation", "word_alignment"):
+  // the BK2000 always maps the control/status byte and puts the register value on a word.
+  std::vector<std::string> fixed;
+
+  bool is_fixed(std::string_view setting) const;
 };
+
+// The profile's defaults with the given overrides; throws Error(usage) when an override changes a
+// setting the coupler fixes (e.g. complete evaluation off on a BK2000).
+MappingSettings resolve_settings(const CouplerProfile& p, std::optional<bool> complete_evaluation,
+                                 std::optional<bool> motorola, std::optional<bool> word_alignment);
 
 const std::vector<CouplerProfile>& coupler_profiles();
 // Exact name or family member (BK3120 -> Profibus profile). Throws Error(usage) with suggestions.

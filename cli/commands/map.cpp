@@ -1,0 +1,187 @@
+// kscfg map [TYPE...]: where each terminal's bytes sit in the coupler's process image.
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/mapview.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+std::optional<bool> parse_switch(const std::string& text, const char* option) {
+  if (text.empty()) return std::nullopt;
+  if (text == "on" || text == "true" || text == "1" || text == "yes") return true;
+  if (text == "off" || text == "false" || text == "0" || text == "no") return false;
+  throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: expected on or off", text, option));
+}
+
+class Map : public Command {
+ public:
+  std::string name() const override { return "map"; }
+  std::string brief() const override { return "Show where each terminal's bytes sit in the coupler's process image"; }
+  std::string man() const override {
+    return "Shows the process image the coupler builds at power-on: first every complex (byte-oriented) terminal in "
+           "plug order, then the digital terminals packed bit by bit; inputs and outputs separately; end and power "
+           "terminals take no space. The table gives for each channel its byte offset, size, terminal position and "
+           "type, channel and what each byte is (CT/ST, Ser-CT/ST, D0..D4, reserved), for digital terminals the "
+           "bit range (byte.bit); on Modbus couplers (BK7xx0, BK9xx0) also the Modbus register of each word (input "
+           "image at 0x0000 + offset/2, output image at 0x0800 + offset/2) and the discrete-input or coil numbers.\n"
+           ".PP\n"
+           "\\fBOffline\\fR: from \\fB\\-\\-station\\fR \\fIFILE\\fR (see \\fBkscfg-station\\fR(5)) or from terminal "
+           "types given on the command line, laid out for \\fB\\-\\-coupler\\fR (default BK9000) with the terminals' "
+           "factory settings or the file's. \\fBOnline\\fR (no types, no \\fB\\-\\-station\\fR, or \\fB\\-\\-online\\fR): "
+           "reads the registers that decide each terminal's image (e.g. KL6001 R34 and R35) through the link and "
+           "shows the layout the coupler will use with them; a terminal whose control/status byte is not mapped "
+           "cannot be read and keeps the described values (a note says so on stderr). \\fB\\-\\-coupler\\fR, "
+           "\\fB\\-\\-complete\\-evaluation\\fR, \\fB\\-\\-motorola\\fR and \\fB\\-\\-word\\-alignment\\fR override the "
+           "coupler's settings (a BK2000 always maps the control/status byte with word alignment).\n"
+           ".PP\n"
+           "With \\fB\\-t\\fR \\fIPOS\\fR one terminal is shown like the annex tables of the terminal manuals: I/O "
+           "offset (16-bit words from the terminal's first byte), high byte, low byte. On a terminal screen a byte "
+           "grid follows the table, one colour per terminal (\\fB\\-\\-grid\\fR forces it; \\fB\\-\\-color\\fR "
+           "\\fBnever\\fR or NO_COLOR gives plain text). An image larger than the coupler takes is an error.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"map", "map --coupler BK3000 KL6001 KL5101 KL1104 KL9010", "map --station line3.toml -t 2",
+            "map --station line3.toml --coupler BK4000 --motorola off", "--json map", "map --list-couplers"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("TYPE", types_, "Terminal types in plug order (offline map)")->option_text("TYPE...");
+    sub.add_option("--coupler", coupler_, "Coupler type, e.g. BK3000 (default: the station's, or BK9000)")
+        ->option_text("NAME");
+    sub.add_option("--complete-evaluation", ce_, "Map the control/status bytes: on or off")->option_text("on|off");
+    sub.add_option("--motorola", motorola_, "High byte of a data word first: on or off")->option_text("on|off");
+    sub.add_option("--word-alignment", wa_, "Words on even offsets: on or off")->option_text("on|off");
+    sub.add_flag("--online", online_, "Read the terminals' mapping registers through the link (also with --station)");
+    sub.add_flag("--grid", grid_, "Show the byte grid also when stdout is not a terminal");
+    sub.add_option("--color", color_, "Colours in the byte grid: auto (default), always, never")
+        ->option_text("WHEN");
+    sub.add_flag("--list-couplers", list_, "List the known couplers and their default settings");
+  }
+
+  int run(Context& ctx) override {
+    if (color_ != "auto" && color_ != "always" && color_ != "never")
+      throw Error(Exit::usage, fmt::format("invalid value '{}' for --color: expected auto, always or never", color_));
+    if (list_) return list_couplers(ctx);
+    auto ce = parse_switch(ce_, "--complete-evaluation");
+    auto mo = parse_switch(motorola_, "--motorola");
+    auto wa = parse_switch(wa_, "--word-alignment");
+    const Catalog& cat = ctx.catalog();
+    const std::string& station_file = ctx.options().station;
+    if (!types_.empty() && !station_file.empty())
+      throw Error(Exit::usage, "give either terminal types or --station FILE, not both");
+    if (!types_.empty() && online_) throw Error(Exit::usage, "--online reads the connected station; drop the types");
+
+    StationLayout L;
+    std::string source;
+    nlohmann::json readings = nlohmann::json::array();
+    std::vector<std::string> notes;
+    if (!types_.empty() || (!station_file.empty() && !online_)) {
+      StationSpec spec;
+      if (!types_.empty()) {
+        spec.origin = "command line";
+        for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}});
+        source = "command line";
+      } else {
+        spec = load_station(station_file, cat);
+        source = station_file;
+      }
+      if (!coupler_.empty()) spec.coupler = coupler_profile(coupler_).name;
+      if (ce) spec.complete_evaluation = ce;
+      if (mo) spec.motorola = mo;
+      if (wa) spec.word_alignment = wa;
+      L = compute_layout(spec, cat);
+    } else {
+      const StationLayout& current = ctx.layout();
+      StationSpec spec;
+      if (!station_file.empty()) spec = load_station(station_file, cat);
+      else if (const StationSpec* s = ctx.link().station()) spec = *s;
+      else
+        throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),
+                    "give --station FILE --online, or terminal types for an offline map");
+      spec.coupler = coupler_.empty() ? current.coupler : coupler_profile(coupler_).name;
+      CouplerProfile base = coupler_profile(spec.coupler);
+      if (coupler_.empty()) base.defaults = current.settings;  // what the coupler uses now
+      MappingSettings s = resolve_settings(base, ce, mo, wa);
+      OnlineMap m = map_online(ctx.link(), current, spec, cat, s, ctx.session_options());
+      L = std::move(m.layout);
+      notes = std::move(m.notes);
+      for (const auto& r : m.readings)
+        readings.push_back({{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg},
+                            {"value", r.value}});
+      source = ctx.link().describe();
+    }
+    const CouplerProfile& p = coupler_profile(L.coupler);
+    check_image_limits(L, p);
+    for (const auto& n : notes) std::cerr << "kscfg: note: " << n << '\n';
+
+    unsigned pos = ctx.options().terminal;
+    if (ctx.json()) {
+      nlohmann::json j = map_json(L, p);
+      j["source"] = source;
+      j["online"] = types_.empty() && (station_file.empty() || online_);
+      j["registers_read"] = readings;
+      if (pos) {
+        (void)L.terminal(pos);
+        j["terminals"] = nlohmann::json::array({j["terminals"].at(pos - 1)});
+      }
+      print_json(j);
+      return 0;
+    }
+    bool tty = isatty(STDOUT_FILENO) != 0;
+    const char* no_color = std::getenv("NO_COLOR");
+    bool color = color_ == "always" || (color_ == "auto" && tty && !(no_color && *no_color));
+    if (pos) {
+      std::cout << render_terminal(L, p, pos);
+      return 0;
+    }
+    std::cout << render_table(L, p);
+    if (grid_ || tty) std::cout << '\n' << render_grid(L, color);
+    return 0;
+  }
+
+ private:
+  int list_couplers(Context& ctx) {
+    const auto& all = coupler_profiles();
+    if (ctx.json()) {
+      nlohmann::json a = nlohmann::json::array();
+      for (const auto& p : all) {
+        auto lim = [&](bool in) { return image_limit(p, in) ? nlohmann::json(image_limit(p, in)) : nlohmann::json(); };
+        a.push_back({{"name", p.name}, {"family", p.family}, {"title", p.title}, {"modbus", p.modbus},
+                     {"complete_evaluation", p.defaults.complete_evaluation}, {"motorola", p.defaults.motorola},
+                     {"word_alignment", p.defaults.word_alignment}, {"max_in_bytes", lim(true)},
+                     {"max_out_bytes", lim(false)}, {"fixed", p.fixed}});
+      }
+      print_json(a);
+      return 0;
+    }
+    std::cout << fmt::format("{:<8} {:<11} {:<4} {:<4} {:<4} {:>9}  {}\n", "coupler", "family", "CE", "MOT", "WA",
+                             "in/out", "title");
+    for (const auto& p : all) {
+      auto oo = [](bool b) { return b ? "on" : "off"; };
+      std::size_t i = image_limit(p, true), o = image_limit(p, false);
+      std::string lim = i || o ? fmt::format("{}/{}", i, o) : "?";
+      std::cout << fmt::format("{:<8} {:<11} {:<4} {:<4} {:<4} {:>9}  {}\n", p.name, p.family,
+                               oo(p.defaults.complete_evaluation), oo(p.defaults.motorola),
+                               oo(p.defaults.word_alignment), lim, p.title);
+    }
+    return 0;
+  }
+
+  std::vector<std::string> types_;
+  std::string coupler_, ce_, motorola_, wa_;
+  bool online_ = false, grid_ = false, list_ = false;
+  std::string color_ = "auto";
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_map() { return std::make_unique<Map>(); }
+
+}  // namespace kscfg::cli

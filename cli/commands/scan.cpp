@@ -1,0 +1,151 @@
+// kscfg scan: what a Modbus coupler reports (identification, image lengths, watchdog) and the
+// terminals found by walking its complex area; optionally written as a station file.
+#include <fmt/format.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/fileutil.hpp"
+#include "kscfg/modbus.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+std::optional<bool> on_off(const std::string& v, const char* what) {
+  if (v.empty()) return std::nullopt;
+  if (v == "on" || v == "true" || v == "1") return true;
+  if (v == "off" || v == "false" || v == "0") return false;
+  throw Error(Exit::usage, fmt::format("invalid {} '{}': give on or off", what, v));
+}
+
+class Scan : public Command {
+ public:
+  std::string name() const override { return "scan"; }
+  std::string brief() const override { return "Discover the station behind a Modbus coupler"; }
+  std::string man() const override {
+    return "Reads a Modbus coupler's identification (0x1000..0x1006), its image lengths in bits "
+           "(0x1010..0x1013) and its watchdog settings (0x1120..0x1122, read only: scan never changes them). "
+           "With complete evaluation on (BK9000 default), it then walks the complex area: it reads R8 of the "
+           "terminal whose control byte comes next, looks the type number up in the catalog, reads the "
+           "registers that decide the terminal's image (KL6001: R34, R35) and moves on by that terminal's "
+           "size, until the area the coupler reports is covered. Digital terminals cannot be told apart over "
+           "Modbus; scan reports their bit counts only, and plug positions count the complex terminals. "
+           "The mapping settings are the coupler family's defaults unless \\fB\\-\\-complete\\-evaluation\\fR, "
+           "\\fB\\-\\-word\\-alignment\\fR or \\fB\\-\\-motorola\\fR say otherwise. \\fB\\-\\-write\\fR "
+           "\\fIFILE\\fR saves what was found as a station file (see kscfg-station(5)); an existing file is "
+           "replaced only with \\fB\\-\\-force\\fR. Without \\fB\\-\\-station\\fR, other commands on a Modbus "
+           "port scan the same way to find the terminals.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"--port tcp://192.168.1.10 scan", "--port tcp://127.0.0.1:5020 scan --write station.toml",
+            "--port rtu:/dev/ttyUSB0?baud=19200 scan --complete-evaluation on", "--json --port tcp://10.0.0.5 scan"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("--write", write_, "Save the station found as a station file")->option_text("FILE");
+    sub.add_flag("--force", force_, "Replace an existing file with --write");
+    sub.add_option("--complete-evaluation", ce_, "The coupler maps control/status bytes (on|off)")
+        ->option_text("on|off");
+    sub.add_option("--word-alignment", wa_, "The coupler aligns data words (on|off)")->option_text("on|off");
+    sub.add_option("--motorola", mo_, "The coupler uses Motorola byte order (on|off)")->option_text("on|off");
+  }
+
+  int run(Context& ctx) override {
+    auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"), mo = on_off(mo_, "--motorola");
+    if (!write_.empty() && !force_ && std::filesystem::exists(write_))
+      throw Error(Exit::usage, fmt::format("'{}' exists", write_), "add --force to replace it");
+    auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
+    if (!link)
+      throw Error(Exit::usage, fmt::format("'kscfg scan' reads a Modbus coupler; the port is '{}'", ctx.options().port),
+                  "use --port tcp://HOST or rtu:DEVICE; 'kscfg info' shows the emulator's station");
+    std::optional<MappingSettings> settings;
+    if (ce || wa || mo) {
+      // Defaults of the coupler family, overridden: ask the coupler who it is first.
+      auto id = link->client().read(mbmap::kIdent, mbmap::kIdentRegisters);
+      std::string ident = mbmap::decode_ident(id);
+      MappingSettings s = coupler_profile("BK9000").defaults;
+      for (const auto& p : coupler_profiles())
+        if (p.name == ident.substr(0, ident.find(' '))) s = p.defaults;
+      if (ce) s.complete_evaluation = *ce;
+      if (wa) s.word_alignment = *wa;
+      if (mo) s.motorola = *mo;
+      settings = s;
+    }
+    ScanResult r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings);
+    if (!write_.empty()) {
+      if (!r.walked)
+        throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
+                    r.notes.empty() ? "" : r.notes.back());
+      std::string text = fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n",
+                                     link->describe(), r.ident);
+      if (r.digital_in_bits || r.digital_out_bits)
+        text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
+                            r.digital_out_bits);
+      text += station_to_toml(r.spec);
+      write_file_atomic(write_, text);
+    }
+    for (const auto& n : r.notes) std::cerr << "kscfg: note: " << n << '\n';
+    if (ctx.json()) {
+      nlohmann::json terms = nlohmann::json::array();
+      for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
+        const auto& t = r.layout.terminals[i];
+        terms.push_back({{"position", t.position}, {"type", t.type->type}, {"r8", i < r.r8.size() ? r.r8[i] : 0},
+                         {"format", t.format}, {"out_offset", t.out_offset}, {"out_size", t.out_size},
+                         {"in_offset", t.in_offset}, {"in_size", t.in_size}});
+      }
+      print_json({{"port", link->describe()},
+                  {"identification", r.ident},
+                  {"coupler", r.coupler},
+                  {"image_bits",
+                   {{"complex_out", r.complex_out_bits},
+                    {"complex_in", r.complex_in_bits},
+                    {"digital_out", r.digital_out_bits},
+                    {"digital_in", r.digital_in_bits}}},
+                  {"watchdog", {{"preset_ms", r.watchdog_preset}, {"type", r.watchdog_type}}},
+                  {"settings",
+                   {{"complete_evaluation", r.settings.complete_evaluation},
+                    {"motorola", r.settings.motorola},
+                    {"word_alignment", r.settings.word_alignment}}},
+                  {"identified", r.walked},
+                  {"matches", r.matches},
+                  {"terminals", terms},
+                  {"written", write_.empty() ? nlohmann::json(nullptr) : nlohmann::json(write_)}});
+      return 0;
+    }
+    auto yn = [](bool b) { return b ? "on" : "off"; };
+    std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
+    std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
+                             r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
+    std::cout << fmt::format("watchdog  {} ms, {}\n", r.watchdog_preset,
+                             r.watchdog_preset == 0 ? "off"
+                             : r.watchdog_type == 1 ? "retriggered by every telegram"
+                                                    : "retriggered by write telegrams");
+    std::cout << fmt::format("mapping   complete evaluation {}, word alignment {}, {}\n",
+                             yn(r.settings.complete_evaluation), yn(r.settings.word_alignment),
+                             r.settings.motorola ? "Motorola" : "Intel");
+    if (r.walked) {
+      std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", "POS", "TYPE", "R8", "FORMAT", "IMAGE");
+      for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
+        const auto& t = r.layout.terminals[i];
+        std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} out {}..{} in {}..{}\n", t.position, t.type->type,
+                                 i < r.r8.size() ? r.r8[i] : 0, t.format, t.out_offset, t.out_offset + t.out_size - 1,
+                                 t.in_offset, t.in_offset + t.in_size - 1);
+      }
+    }
+    if (!write_.empty()) std::cout << fmt::format("station written to {}\n", write_);
+    return 0;
+  }
+
+ private:
+  std::string write_, ce_, wa_, mo_;
+  bool force_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_scan() { return std::make_unique<Scan>(); }
+
+}  // namespace kscfg::cli

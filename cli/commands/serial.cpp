@@ -1,0 +1,476 @@
+// kscfg serial init|send|recv|term|status|line: serial data through a serial terminal's
+// process-data handshake (library: kscfg/serial.hpp; emulated terminal: kscfg/serial_model.hpp).
+#include <fmt/format.h>
+#include <poll.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <iostream>
+#include <iterator>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/emulator.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/parse.hpp"
+#include "kscfg/serial.hpp"
+#include "kscfg/session.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+// The serial terminal selected by -t (default: the first serial terminal of the station).
+unsigned serial_position(Context& ctx) {
+  const auto& L = ctx.layout();
+  if (ctx.options().terminal) return ctx.options().terminal;
+  for (const auto& t : L.terminals)
+    if (t.type->is_serial()) return t.position;
+  throw Error(Exit::usage, "the station has no serial terminal", "'kscfg info' lists the station");
+}
+
+std::unique_ptr<SerialPort> open_port(Context& ctx) {
+  SerialOptions so;
+  so.timeout = std::chrono::milliseconds(ctx.options().timeout_ms);
+  if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace(s); };
+  unsigned pos = serial_position(ctx);
+  return std::make_unique<SerialPort>(ctx.link(), ctx.layout(), pos, ctx.options().channel - 1, so);
+}
+
+struct Diagnostics {
+  bool known = false;
+  std::uint16_t r0 = 0, r1 = 0, r6 = 0;
+};
+
+// R0, R1 and R6 through a short register session (restores the process-data bytes); unknown
+// when the image maps no register window (e.g. alternative format without complete evaluation).
+Diagnostics read_diagnostics(Context& ctx, const SerialPort& port) {
+  Diagnostics d;
+  const TerminalImage& t = port.terminal();
+  unsigned ch = ctx.options().channel - 1;
+  if (ch >= t.channels.size() || !t.channels[ch].window) return d;
+  RegisterSession s(ctx.link(), t, ch, ctx.session_options());
+  d.r0 = s.read(0);
+  d.r1 = s.read(1);
+  d.r6 = s.read(6);
+  s.close();
+  d.known = true;
+  return d;
+}
+
+std::string diag_text(std::uint16_t r6) {
+  std::vector<std::string> v;
+  if (r6 & serial::kDiagOverflow) v.push_back("receive FIFO overflowed, data lost");
+  if (r6 & serial::kDiagParity) v.push_back("parity error");
+  if (r6 & serial::kDiagFraming) v.push_back("framing error");
+  if (r6 & serial::kDiagOverrun) v.push_back("overrun error");
+  if (r6 & serial::kDiagFull) v.push_back("receive FIFO full");
+  std::string s;
+  for (auto& x : v) s += (s.empty() ? "" : ", ") + x;
+  return s.empty() ? "no errors" : s;
+}
+
+// After a transfer: tell about BUF_F and R6 errors on stderr; never silent about lost data.
+nlohmann::json report_diagnostics(Context& ctx, const SerialPort& port) {
+  nlohmann::json j;
+  j["buf_f"] = port.buffer_full();
+  Diagnostics d = read_diagnostics(ctx, port);
+  if (d.known) {
+    j["r0_tx_fifo"] = d.r0;
+    j["r1_rx_fifo"] = d.r1;
+    j["r6"] = d.r6;
+    j["overflow"] = (d.r6 & serial::kDiagOverflow) != 0;
+    if (d.r6 & (serial::kDiagOverflow | serial::kDiagParity | serial::kDiagFraming | serial::kDiagOverrun))
+      std::cerr << fmt::format("kscfg: warning: {} R6 = {}: {} (since the last 'kscfg serial init')\n", port.who(),
+                               hex4(d.r6), diag_text(d.r6));
+  }
+  if (port.buffer_full())
+    std::cerr << fmt::format("kscfg: warning: {} reports BUF_F: its receive FIFO has reached the R18 level\n",
+                             port.who());
+  return j;
+}
+
+void write_bytes(const std::vector<std::uint8_t>& v, bool hex) {
+  if (hex) {
+    if (!v.empty()) std::cout << to_hex_text(v) << '\n';
+  } else {
+    std::cout.write(reinterpret_cast<const char*>(v.data()), static_cast<std::streamsize>(v.size()));
+  }
+  std::cout.flush();
+}
+
+class SerialInit : public Command {
+ public:
+  std::string name() const override { return "init"; }
+  std::string brief() const override { return "Initialise the serial terminal (IR/IA handshake)"; }
+  std::string man() const override {
+    return "Sets IR in the control byte, waits for IA, clears IR and waits for IA to clear (seed KL6001 "
+           "\"IR/IA\"). The terminal empties its send and receive FIFOs, resets its handshake and R6, and applies "
+           "R32\\-R35 and R18. Fails with exit status 4 (\"init not acknowledged\") when IA does not follow within "
+           "\\fB\\-\\-timeout\\fR; IR is cleared again, so the terminal is left in process-data mode.";
+  }
+  std::vector<std::string> examples() const override { return {"serial init", "-t 3 serial init"}; }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    auto port = open_port(ctx);
+    port->init();
+    if (ctx.json()) print_json({{"terminal", port->terminal().position}, {"initialised", true},
+                                {"format", port->image().format}});
+    else std::cout << fmt::format("{} initialised ({})\n", port->who(), port->image().describe());
+    return 0;
+  }
+};
+
+class SerialSend : public Command {
+ public:
+  std::string name() const override { return "send"; }
+  std::string brief() const override { return "Send bytes through the serial terminal (DATA, or - for stdin)"; }
+  std::string man() const override {
+    return "Hands \\fIDATA\\fR to the terminal through the process-data handshake: up to as many bytes as the "
+           "image has data bytes (OL) per request, TR toggled, TA awaited. \\fIDATA\\fR is text with the escapes "
+           "\\\\r \\\\n \\\\t \\\\0 \\\\\\\\ \\\\xHH; with \\fB\\-\\-hex\\fR pairs of hex digits; \\fB\\-\\fR reads raw "
+           "bytes from stdin. The command returns when the terminal has accepted the last byte into its send FIFO; "
+           "when TA does not follow TR within \\fB\\-\\-timeout\\fR (send FIFO full and the line not moving) it "
+           "fails with exit status 4 and says how many bytes were accepted.\n"
+           ".IP\n"
+           "Without \\fB\\-\\-recv\\fR, bytes arriving meanwhile stay in the terminal's receive FIFO for "
+           "\\fBserial recv\\fR; the FIFO is small (KL6001: 128 bytes), so more than that overflows it, which the "
+           "terminal reports in R6 and BUF_F, and \\fBserial recv\\fR warns about. With \\fB\\-\\-recv\\fR the "
+           "command receives while it sends (full duplex, as a PLC program does) and writes the received bytes to "
+           "stdout, until \\fB\\-\\-count\\fR bytes have arrived or the line has been idle for \\fB\\-\\-timeout\\fR "
+           "after the last byte was sent: \\fBserial send \\-\\-recv \\-\\-count 4096 \\- <in >out\\fR is a "
+           "loopback test for any amount of data.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"serial send 'AT\\r'", "serial send --hex '41 54 0d'", "serial send --recv --count 4096 - <data.bin >echo.bin"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("DATA", data_, "Bytes to send (text with escapes; --hex: hex bytes; -: stdin)")
+        ->required()
+        ->option_text("DATA|-");
+    sub.add_flag("--hex", hex_, "DATA is hex bytes (41 54 0d); with --recv, print received bytes as hex");
+    sub.add_flag("--recv", recv_, "Receive while sending and write the received bytes to stdout");
+    sub.add_option("--count", count_, "With --recv: stop once N bytes have arrived")->option_text("N");
+  }
+  int run(Context& ctx) override {
+    std::vector<std::uint8_t> bytes;
+    if (data_ == "-") {
+      std::string in((std::istreambuf_iterator<char>(std::cin)), std::istreambuf_iterator<char>());
+      bytes = hex_ ? parse_serial_data(in, true) : std::vector<std::uint8_t>(in.begin(), in.end());
+    } else {
+      bytes = parse_serial_data(data_, hex_);
+    }
+    std::size_t count = 0;
+    if (!count_.empty()) {
+      if (!recv_) throw Error(Exit::usage, "--count needs --recv");
+      count = static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    }
+    auto port = open_port(ctx);
+    port->send(bytes, recv_);
+    if (recv_) {
+      std::size_t want = count;
+      if (!want || port->received().size() < want) {
+        try {
+          port->receive(want, std::chrono::milliseconds(ctx.options().timeout_ms));
+        } catch (const Error&) {
+          if (!ctx.json()) write_bytes(port->received(), hex_);  // what arrived is never dropped
+          throw;
+        }
+      }
+    }
+    if (recv_ && !ctx.json()) write_bytes(port->received(), hex_);
+    nlohmann::json j = report_diagnostics(ctx, *port);
+    if (ctx.json()) {
+      j["terminal"] = port->terminal().position;
+      j["sent"] = bytes.size();
+      if (recv_) {
+        j["received"] = port->received().size();
+        j["hex"] = to_hex_text(port->received());
+      }
+      print_json(j);
+    } else if (!recv_) {
+      std::cout << fmt::format("sent {} bytes to {}\n", bytes.size(), port->who());
+    }
+    return 0;
+  }
+
+ private:
+  std::string data_, count_;
+  bool hex_ = false, recv_ = false;
+};
+
+class SerialRecv : public Command {
+ public:
+  std::string name() const override { return "recv"; }
+  std::string brief() const override { return "Receive bytes from the serial terminal"; }
+  std::string man() const override {
+    return "Takes received bytes from the terminal through the process-data handshake (RR toggles with IL bytes "
+           "in D0.., RA acknowledges) and writes them to stdout as they are, or as hex with \\fB\\-\\-hex\\fR. "
+           "Without \\fB\\-\\-count\\fR it stops when nothing has arrived for \\fB\\-\\-timeout\\fR ms; with it, once "
+           "at least N bytes are there (the terminal hands bytes over in blocks of IL, and bytes taken are always "
+           "printed). Exit status 4 when nothing arrives (the far end is silent) or fewer than N bytes. After "
+           "receiving, R6 is read (when the image maps the register window) and a receive FIFO overflow or a line "
+           "error is reported on stderr, as is BUF_F.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"serial recv", "serial recv --count 5 --hex", "--timeout 3000 serial recv >answer.bin"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("--count", count_, "Wait for N bytes")->option_text("N");
+    sub.add_flag("--hex", hex_, "Print the bytes as hex");
+  }
+  int run(Context& ctx) override {
+    std::size_t count = count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    auto port = open_port(ctx);
+    try {
+      port->receive(count, std::chrono::milliseconds(ctx.options().timeout_ms));
+    } catch (const Error&) {
+      if (!ctx.json()) write_bytes(port->received(), hex_);
+      (void)report_diagnostics(ctx, *port);
+      throw;
+    }
+    nlohmann::json j = report_diagnostics(ctx, *port);
+    if (ctx.json()) {
+      j["terminal"] = port->terminal().position;
+      j["received"] = port->received().size();
+      j["hex"] = to_hex_text(port->received());
+      print_json(j);
+    } else {
+      write_bytes(port->received(), hex_);
+    }
+    return 0;
+  }
+
+ private:
+  std::string count_;
+  bool hex_ = false;
+};
+
+// Raw keyboard while the terminal runs; restored on every way out.
+class RawTty {
+ public:
+  RawTty() {
+    if (!isatty(0) || tcgetattr(0, &saved_) != 0) return;
+    termios t = saved_;
+    cfmakeraw(&t);
+    t.c_oflag |= OPOST | ONLCR;  // keep our own messages readable
+    if (tcsetattr(0, TCSANOW, &t) == 0) active_ = true;
+  }
+  ~RawTty() {
+    if (active_) tcsetattr(0, TCSANOW, &saved_);
+  }
+  bool active() const { return active_; }
+
+ private:
+  termios saved_{};
+  bool active_ = false;
+};
+
+class SerialTerm : public Command {
+ public:
+  std::string name() const override { return "term"; }
+  std::string brief() const override { return "Interactive terminal through the serial terminal (Ctrl-] quits)"; }
+  std::string man() const override {
+    return "A terminal program like picocom, through the bus terminal: every key goes out as it is typed (raw "
+           "mode, Ctrl\\-C included), received bytes are written to the screen as they come, and a change of the "
+           "terminal's BUF_F or IA bit is shown as a line on stderr. Ctrl\\-] quits. With stdin not a terminal, the "
+           "bytes read from it are sent and the command ends when stdin is at its end and nothing has arrived for "
+           "\\fB\\-\\-timeout\\fR ms. Over the emulator the far end of the line is a loopback bridge by default "
+           "(typed text comes back); see \\fBserial line\\fR.";
+  }
+  std::vector<std::string> examples() const override { return {"serial term", "-t 3 serial term"}; }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    auto port = open_port(ctx);
+    if (auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link())) {
+      unsigned ch = ctx.options().channel - 1;
+      auto& st = emu->emulated();
+      if (st.has_channel(port->terminal().position, ch))
+        if (auto* ser = st.channel(port->terminal().position, ch).serial())
+          std::cerr << fmt::format("kscfg: far end of the emulated line: {}\r\n", ser->far_end_description());
+    }
+    RawTty tty;
+    std::cerr << fmt::format("kscfg: {}, {} format, {} data bytes; Ctrl-] quits\r\n", port->who(),
+                             port->image().format, port->image().out_data.size());
+    std::uint8_t shown = port->status();
+    bool eof = false;
+    auto last = std::chrono::steady_clock::now();
+    for (;;) {
+      if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+      bool progress = port->poll(true);
+      auto& rx = port->received();
+      if (!rx.empty()) {
+        ssize_t n = ::write(1, rx.data(), rx.size());
+        (void)n;
+        rx.clear();
+      }
+      std::uint8_t flags = port->status() & (serial::kBufF | serial::kIA);
+      if (flags != (shown & (serial::kBufF | serial::kIA))) {
+        std::cerr << fmt::format("\r\n[kscfg: BUF_F {}, IA {}]\r\n", flags & serial::kBufF ? "on" : "off",
+                                 flags & serial::kIA ? "on" : "off");
+        shown = port->status();
+      }
+      if (progress || port->queued()) last = std::chrono::steady_clock::now();
+      if (eof && !port->queued() &&
+          std::chrono::steady_clock::now() - last > std::chrono::milliseconds(ctx.options().timeout_ms))
+        break;
+      pollfd p{0, POLLIN, 0};
+      int timeout = progress ? 0 : 1;
+      if (!eof && ::poll(&p, 1, timeout) > 0) {
+        std::uint8_t buf[256];
+        ssize_t n = ::read(0, buf, sizeof buf);
+        if (n <= 0) {
+          eof = true;
+          continue;
+        }
+        for (ssize_t i = 0; i < n; ++i)
+          if (buf[i] == 0x1d) {  // Ctrl-]
+            port->queue(std::span<const std::uint8_t>(buf, static_cast<std::size_t>(i)));
+            finish(*port, ctx);
+            std::cerr << "\r\nkscfg: bye\r\n";
+            return 0;
+          }
+        port->queue(std::span<const std::uint8_t>(buf, static_cast<std::size_t>(n)));
+      } else if (eof && !progress) {
+        usleep(1000);
+      }
+    }
+    return 0;
+  }
+
+ private:
+  // Typed keys already queued still go out (bounded by the send timeout).
+  static void finish(SerialPort& port, Context&) {
+    if (port.queued()) port.send({}, true);
+    auto& rx = port.received();
+    if (!rx.empty()) {
+      ssize_t n = ::write(1, rx.data(), rx.size());
+      (void)n;
+      rx.clear();
+    }
+  }
+};
+
+class SerialStatus : public Command {
+ public:
+  std::string name() const override { return "status"; }
+  std::string brief() const override { return "Show the serial handshake state, BUF_F and R0/R1/R6"; }
+  std::string man() const override {
+    return "Prints the process-data format of the serial terminal (where the control/status byte or word and "
+           "the data bytes are), the handshake bits of the status (TA, RR, IA, BUF_F, IL) and, when the image "
+           "maps the register window, R0 (bytes in the send FIFO), R1 (bytes in the receive FIFO) and R6 "
+           "(diagnostics: overflow, parity, framing, overrun, buffer full). Nothing is sent or taken.";
+  }
+  std::vector<std::string> examples() const override { return {"serial status", "--json serial status"}; }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    auto port = open_port(ctx);
+    std::uint8_t s = port->status();
+    Diagnostics d = read_diagnostics(ctx, *port);
+    const SerialImage& img = port->image();
+    if (ctx.json()) {
+      nlohmann::json j{{"terminal", port->terminal().position}, {"type", port->terminal().type->type},
+                       {"format", img.format}, {"data_bytes", img.out_data.size()}, {"status", s},
+                       {"ta", (s & serial::kTA) != 0}, {"rr", (s & serial::kRR) != 0}, {"ia", (s & serial::kIA) != 0},
+                       {"buf_f", (s & serial::kBufF) != 0}};
+      if (d.known) j.update({{"r0_tx_fifo", d.r0}, {"r1_rx_fifo", d.r1}, {"r6", d.r6}, {"r6_text", diag_text(d.r6)}});
+      print_json(j);
+      return 0;
+    }
+    std::cout << fmt::format("{}: {}\n", port->who(), img.describe());
+    std::cout << fmt::format("status 0x{:02X}: TA {} RR {} IA {} BUF_F {}\n", s, s & serial::kTA ? 1 : 0,
+                             s & serial::kRR ? 1 : 0, s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0);
+    if (d.known)
+      std::cout << fmt::format("R0 {} bytes in the send FIFO, R1 {} bytes in the receive FIFO, R6 {} ({})\n", d.r0,
+                               d.r1, hex4(d.r6), diag_text(d.r6));
+    else
+      std::cout << "R0/R1/R6: not readable (the image maps no control/status byte for register access)\n";
+    return 0;
+  }
+};
+
+class SerialLine : public Command {
+ public:
+  std::string name() const override { return "line"; }
+  std::string brief() const override { return "Emulator: show or set the far end of a serial terminal's line"; }
+  std::string man() const override {
+    return "Emulator only. Shows the line of the selected serial terminal (baud rate and frame from R32/R33, "
+           "far end) or sets its far end: \\fBloopback\\fR (TxD bridged to RxD, the default, as the KL6xx1-mode "
+           "seed wires its example), \\fBnone\\fR (an open line: bytes leave, nothing answers), \\fBpty\\fR or "
+           "\\fBpty:\\fR\\fILINK\\fR (a pseudo-terminal, so that a program such as picocom or a modem simulator "
+           "sits behind the emulated terminal; \\fILINK\\fR becomes a symlink to its device). The pseudo-terminal "
+           "exists while a kscfg process runs the emulator (\\fBkscfg serve\\fR, \\fBserial term\\fR). The line "
+           "moves bytes at the configured rate in emulated time: one K\\-bus cycle, one exchange of the emulator "
+           "link, is 1 ms.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"serial line", "serial line none", "-t 3 serial line pty:/tmp/kl6031"};
+  }
+  std::vector<std::string> completions() const override { return {"loopback", "none", "pty"}; }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FAR_END", far_, "loopback, none, pty or pty:LINK")->option_text("FAR_END");
+  }
+  int run(Context& ctx) override {
+    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
+    if (!emu)
+      throw Error(Exit::usage, fmt::format("'kscfg serial line' works on the emulator; the port is '{}'",
+                                           ctx.options().port),
+                  "use --port emu or emu:PATH");
+    unsigned pos = serial_position(ctx);
+    unsigned ch = ctx.options().channel - 1;
+    const TerminalImage& t = serial_terminal(ctx.layout(), pos, ch);
+    ChannelModel& m = emu->emulated().channel(pos, ch);
+    SerialModel* ser = m.serial();
+    if (!ser) throw Error(Exit::internal, "emulated serial terminal without a serial model");
+    if (!far_.empty()) ser->set_far_end(far_);
+    LineSettings ls = line_settings(*t.type, m.registers());
+    if (ctx.json()) {
+      print_json({{"terminal", pos}, {"type", t.type->type}, {"baud", ls.baud}, {"frame", ls.describe()},
+                  {"far_end", ser->far_end()}, {"bytes_per_second", ls.bytes_per_second()},
+                  {"tx_fifo", ser->tx_count()}, {"rx_fifo", ser->rx_count()}, {"r6", ser->diagnostics()}});
+    } else {
+      std::cout << fmt::format("terminal {} ({}): {}, at most {:.0f} bytes/s; far end {}\n", pos, t.type->type,
+                               ls.describe(), ls.bytes_per_second(), ser->far_end());
+      std::cout << fmt::format("send FIFO {}/{} bytes, receive FIFO {}/{} bytes, R6 {} ({})\n", ser->tx_count(),
+                               t.type->fifo_tx, ser->rx_count(), t.type->fifo_rx, hex4(ser->diagnostics()),
+                               diag_text(ser->diagnostics()));
+    }
+    return 0;
+  }
+
+ private:
+  std::string far_;
+};
+
+class Serial : public Command {
+ public:
+  std::string name() const override { return "serial"; }
+  std::string brief() const override { return "Serial data through a serial terminal (init, send, recv, term)"; }
+  std::string man() const override {
+    return "Speaks the process-data handshake of the serial terminals (REG = 0): KL6001/KL6011/KL6021 with the "
+           "control/status byte in the standard format or the Ser\\-CT/ST byte in the alternative format, and "
+           "KL6031/KL6041 with the control byte (small and medium images, length in bits 6..4) or the 16\\-bit "
+           "control/status word (large image, length in its own byte). Where the bytes are comes from the station "
+           "layout, so a changed R35 or image size is followed. The terminal is chosen with \\fB\\-t\\fR "
+           "(default: the first serial terminal). Every wait is bounded by \\fB\\-\\-timeout\\fR; the terminal is "
+           "always left in process-data mode.";
+  }
+  void add_cli(CLI::App&) override {}
+  int run(Context&) override { return 0; }
+  std::vector<Command*> children() override { return {&init_, &send_, &recv_, &term_, &status_, &line_}; }
+
+ private:
+  SerialInit init_;
+  SerialSend send_;
+  SerialRecv recv_;
+  SerialTerm term_;
+  SerialStatus status_;
+  SerialLine line_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_serial() { return std::make_unique<Serial>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,137 @@
+// kscfg serve: the emulated station behind a Modbus TCP or RTU server (BK9000/BK7300 register map).
+#include <fmt/format.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/emulator.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/modbus.hpp"
+#include "kscfg/parse.hpp"
+#include "kscfg/ports.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+class Serve : public Command {
+ public:
+  std::string name() const override { return "serve"; }
+  std::string brief() const override { return "Serve the emulated station over Modbus TCP or RTU"; }
+  std::string man() const override {
+    return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
+           "\\fBemu:\\fR\\fIPATH\\fR or \\fBemu:mem\\fR) behind a Modbus server with the register map of a "
+           "BK9000/BK7300 coupler: input image at 0x0000, output image at 0x0800 (FC3, FC4, FC6, FC16, FC23), "
+           "identification at 0x1000..0x1006 (the coupler name as 14 ASCII characters, the first in the low "
+           "byte of each register), image lengths in bits at 0x1010..0x1013 (complex outputs, complex inputs, "
+           "digital outputs, digital inputs), the watchdog at 0x1020 and 0x1120..0x1122. "
+           "\\fB\\-\\-tcp\\fR \\fIADDR\\fR:\\fIPORT\\fR serves Modbus TCP (port 0: any free port); "
+           "\\fB\\-\\-rtu\\fR \\fIDEVICE\\fR[?baud=..&parity=..] serves Modbus RTU on a serial port; "
+           "\\fB\\-\\-pty\\fR creates a pseudo-terminal pair and serves RTU on it. The port URI clients "
+           "use is printed on stdout as one line, e.g. \\fBtcp://127.0.0.1:5020\\fR or "
+           "\\fBrtu:/dev/pts/3?parity=N\\fR (pseudo-terminals refuse even and odd parity). "
+           "The K\\-bus cycle runs on its own clock (\\fB\\-\\-cycle\\-us\\fR), so a client that does not "
+           "wait for the acknowledge reads a stale status, as from hardware. The watchdog is armed by the "
+           "first write telegram and sets the outputs to 0 when it expires (\\fB\\-\\-watchdog\\-ms\\fR, 0 = "
+           "off). \\fB\\-\\-fault\\fR injects failures for tests: \\fBdrop\\fR=\\fIRATE\\fR (the request is "
+           "executed, the reply lost), \\fBdelay\\fR=\\fIRATE\\fR (the reply comes \\fBdelay_ms\\fR late, "
+           "default 100), \\fBcorrupt\\fR=\\fIRATE\\fR (bad CRC on RTU, a garbled reply on TCP), "
+           "\\fBbusy\\fR=\\fIRATE\\fR (exception 6, not executed); \\fB\\-\\-seed\\fR makes them reproducible. "
+           "SIGINT or SIGTERM stops the server; the emulator state is saved and the exit status is 0.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"serve --tcp 127.0.0.1:5020", "serve --pty", "--port emu:station.json serve --tcp 0.0.0.0:502",
+            "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
+            "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("--tcp", tcp_, "Serve Modbus TCP on ADDR:PORT (port 0: any free port)")->option_text("ADDR:PORT");
+    sub.add_option("--rtu", rtu_, "Serve Modbus RTU on a serial port: DEVICE[?baud=..&parity=..&data=..&stop=..]")
+        ->option_text("DEVICE");
+    sub.add_flag("--pty", pty_, "Create a pseudo-terminal pair and serve Modbus RTU on it");
+    sub.add_option("--unit", unit_, "Unit id (slave address) to answer (default 1)")->option_text("N");
+    sub.add_option("--cycle-us", cycle_, "K-bus cycle time in microseconds (default 1000)")->option_text("US");
+    sub.add_option("--watchdog-ms", watchdog_, "Watchdog preset at power-on in ms (default 1000, 0 = off)")
+        ->option_text("MS");
+    sub.add_option("--fault", fault_, "Inject faults: drop=R,delay=R,corrupt=R,busy=R,delay_ms=N (R from 0 to 1)")
+        ->option_text("SPEC");
+    sub.add_option("--seed", seed_, "Seed of the fault injection (default 1)")->option_text("N");
+  }
+
+  int run(Context& ctx) override {
+    ServeOptions so;
+    int modes = !tcp_.empty() + !rtu_.empty() + pty_;
+    if (modes != 1) throw Error(Exit::usage, "give exactly one of --tcp ADDR:PORT, --rtu DEVICE or --pty");
+    if (!tcp_.empty()) {
+      so.mode = ServeOptions::Mode::tcp;
+      std::string host = tcp_, port;
+      auto colon = tcp_.rfind(':');
+      if (colon == std::string::npos)
+        throw Error(Exit::usage, fmt::format("invalid --tcp '{}': give ADDR:PORT, e.g. 127.0.0.1:5020", tcp_));
+      host = tcp_.substr(0, colon);
+      port = tcp_.substr(colon + 1);
+      if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+      if (host.empty()) throw Error(Exit::usage, fmt::format("invalid --tcp '{}': no address", tcp_));
+      so.host = host;
+      so.port = static_cast<unsigned>(parse_uint(port, 65535, "TCP port"));
+    } else if (!rtu_.empty()) {
+      PortUri p = parse_port_uri("rtu:" + rtu_);
+      ModbusTarget t = modbus_target(p, "rtu:" + rtu_);
+      so.mode = ServeOptions::Mode::rtu;
+      so.device = t.device;
+      so.baud = t.baud;
+      so.parity = t.parity;
+      so.data_bits = t.data_bits;
+      so.stop_bits = t.stop_bits;
+      if (p.query.count("unit")) so.unit = t.unit;
+    } else {
+      so.mode = ServeOptions::Mode::pty;
+    }
+    if (!unit_.empty()) {
+      so.unit = static_cast<int>(parse_uint(unit_, 247, "unit id"));
+      if (so.unit == 0) throw Error(Exit::usage, "invalid unit id 0 (broadcast); give 1..247");
+    }
+    if (!cycle_.empty()) {
+      so.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
+      if (so.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
+    }
+    if (!watchdog_.empty()) so.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
+    so.faults = parse_faults(fault_);
+    if (!seed_.empty()) so.seed = parse_uint(seed_, UINT64_MAX, "seed");
+    if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
+
+    PortUri p = parse_port_uri(ctx.options().port);
+    if (p.scheme != "emu")
+      throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
+                  "use --port emu, emu:PATH or emu:mem");
+    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
+    EmulatorStore store(path, ctx.catalog());
+    ModbusServer server(store.station(), so);
+    if (ctx.json())
+      std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
+    else
+      std::cout << server.endpoint() << std::endl;
+    server.run(g_interrupted);
+    ServeStats st = server.stats();
+    store.save();
+    if (ctx.options().verbose || so.faults.any())
+      std::cerr << fmt::format(
+          "kscfg: serve: {} request(s); {} dropped, {} delayed, {} corrupted, {} busy, {} exception(s); state saved "
+          "to {}\n",
+          st.requests, st.dropped, st.delayed, st.corrupted, st.busy, st.exceptions, path.empty() ? "memory" : path);
+    g_interrupted = false;  // stopping is how a server ends: exit status 0
+    return 0;
+  }
+
+ private:
+  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_;
+  bool pty_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_serve() { return std::make_unique<Serve>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,80 @@
+// kscfg set NAME VALUE [NAME VALUE ...]: all changes succeed or all are rolled back.
+#include <fmt/format.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/paramset.hpp"
+#include "kscfg/parse.hpp"
+#include "param_util.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+class Set : public Command {
+ public:
+  std::string name() const override { return "set"; }
+  std::string brief() const override { return "Set named parameters; all succeed or all are rolled back"; }
+  std::string man() const override {
+    return "Sets one or more named parameters (\\fINAME VALUE\\fR pairs). Every name and value is checked "
+           "against the catalog before anything is read or written: an unknown name, a value outside the "
+           "enumeration or range, or a parameter of another terminal type is an error and nothing is "
+           "touched. Parameters that share a register (e.g. the R34 feature bits) are combined into one "
+           "write; registers whose value does not change are not rewritten. The code word is set once, the "
+           "registers are written, the code word is cleared and every register is read back. If any write "
+           "or read-back fails, every register already written is restored and the exit status says why. "
+           "Baud rates outside the presets are reached through the divisor form where the terminal has one "
+           "(KL6001: 4 MHz / (16 x (HB + 1))) and refused when the nearest rate is off by more than the "
+           "terminal's bit-distortion limit.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"set baud 19200", "set frame 8E1 baud 4800", "set rts-cts off", "-t 2 set fold 2 counter-mode on"};
+  }
+  std::vector<std::string> completions() const override {
+    auto v = param_name_completions();
+    auto w = param_value_completions();
+    v.insert(v.end(), w.begin(), w.end());
+    return v;
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("PAIRS", words_, "NAME VALUE pairs")->required()->option_text("NAME VALUE");
+  }
+  int run(Context& ctx) override {
+    if (words_.size() % 2)
+      throw Error(Exit::usage, fmt::format("'{}' has no value: give NAME VALUE pairs", words_.back()));
+    std::vector<std::pair<std::string, std::string>> pairs;
+    for (std::size_t i = 0; i < words_.size(); i += 2) pairs.emplace_back(words_[i], words_[i + 1]);
+    unsigned pos = ctx.terminal_position();
+    const TerminalType& type = *ctx.layout().terminal(pos).type;
+    check_params(type, pairs, ctx.catalog(), ctx.options().channel - 1);
+    auto s = ctx.session();
+    SetResult r = set_params(*s, pairs, ctx.catalog());
+    s->close();
+    if (ctx.json()) {
+      nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
+      for (const auto& p : r.params) ps.push_back({{"name", p.param->name}, {"from", p.from}, {"to", p.to}});
+      for (const auto& w : r.registers)
+        rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
+      print_json({{"terminal", pos}, {"type", type.type}, {"changed", r.changed}, {"params", ps}, {"registers", rs}});
+      return 0;
+    }
+    for (const auto& p : r.params)
+      std::cout << (p.from == p.to ? fmt::format("{} {} unchanged\n", p.param->name, p.to)
+                                   : fmt::format("{} {} -> {}\n", p.param->name, p.from, p.to));
+    for (const auto& w : r.registers)
+      if (w.changed) std::cout << fmt::format("  R{} {} -> {} written, verified\n", w.reg, hex4(w.before), hex4(w.after));
+    return 0;
+  }
+
+ private:
+  std::vector<std::string> words_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_set() { return std::make_unique<Set>(); }
+
+}  // namespace kscfg::cli

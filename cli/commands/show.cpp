@@ -1,0 +1,87 @@
+// kscfg show: every named parameter of the terminal, decoded, non-default ones marked.
+#include <fmt/format.h>
+
+#include <iostream>
+#include <set>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/params.hpp"
+#include "kscfg/paramset.hpp"
+#include "kscfg/parse.hpp"
+#include "param_util.hpp"
+
+namespace kscfg::cli {
+
+std::vector<std::string> param_name_completions() {
+  const Catalog builtin = Catalog::builtin();
+  std::set<std::string> s;
+  for (const auto& [n, t] : builtin.types())
+    for (const auto& p : t->params) s.insert(p.name);
+  return {s.begin(), s.end()};
+}
+
+std::vector<std::string> param_value_completions() {
+  const Catalog builtin = Catalog::builtin();
+  std::set<std::string> s;
+  for (const auto& [n, t] : builtin.types())
+    for (const auto& p : t->params) {
+      if (p.kind == ParamDef::Kind::boolean) {
+        s.insert("on");
+        s.insert("off");
+      }
+      for (const auto& v : p.values) s.insert(v.name);
+    }
+  return {s.begin(), s.end()};
+}
+
+namespace {
+
+class Show : public Command {
+ public:
+  std::string name() const override { return "show"; }
+  std::string brief() const override { return "Show every named parameter of a terminal, decoded"; }
+  std::string man() const override {
+    return "Reads the registers that hold the selected terminal's named parameters (each register once) "
+           "and prints every parameter with its value, a \\fB*\\fR where it differs from the factory "
+           "setting, the factory value, and the register it lives in. The parameters of every built-in "
+           "type are listed under TERMINAL PARAMETERS below.";
+  }
+  std::vector<std::string> examples() const override { return {"show", "-t 3 show", "--json show"}; }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    auto s = ctx.session();
+    const TerminalType& type = *s->terminal().type;
+    std::vector<const ParamDef*> params;
+    for (const auto& p : type.params)
+      if (!p.channel || *p.channel == s->channel()) params.push_back(&p);
+    auto vals = read_params(*s, params);
+    s->close();
+    if (ctx.json()) {
+      nlohmann::json arr = nlohmann::json::array();
+      for (const auto& v : vals)
+        arr.push_back({{"name", v.param->name}, {"value", v.value}, {"default", v.fallback}, {"changed", v.differs},
+                       {"register", v.param->reg}, {"raw", v.reg_value}, {"unit", v.param->unit}});
+      print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"params", arr}});
+      return 0;
+    }
+    std::cout << fmt::format("{}  {}\n", s->who(), type.title);
+    if (vals.empty()) {
+      std::cout << "(no named parameters in the catalog; 'kscfg dump' shows the registers)\n";
+      return 0;
+    }
+    std::size_t w = 9;
+    for (const auto& v : vals) w = std::max(w, v.param->name.size());
+    std::cout << fmt::format("{:<{}}  {:<10} {:<10} {}\n", "PARAMETER", w, "VALUE", "DEFAULT", "REGISTER");
+    for (const auto& v : vals)
+      std::cout << fmt::format("{:<{}}  {:<10} {:<10} R{} {}\n", v.param->name, w,
+                               v.value + (v.differs ? " *" : ""), v.fallback, v.param->reg, hex4(v.reg_value));
+    return 0;
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_show() { return std::make_unique<Show>(); }
+
+}  // namespace kscfg::cli

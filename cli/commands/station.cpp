@@ -1,0 +1,161 @@
+// kscfg station init|check: station files (TOML, man page kscfg-station(5)).
+#include <fmt/format.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/error.hpp"
+#include "kscfg/fileutil.hpp"
+#include "kscfg/mapview.hpp"
+
+namespace kscfg::cli {
+
+// The commented example `kscfg station init` writes (also parsed by the tests).
+std::string example_station(const std::string& coupler) {
+  const CouplerProfile& p = coupler_profile(coupler);
+  auto oo = [](bool b) { return b ? "true" : "false"; };
+  return fmt::format(
+      R"(# kscfg station file (man 5 kscfg-station).
+# The coupler and its terminals in plug order, with optional settings per terminal.
+# Used by: kscfg map --station FILE, kscfg emu reset --station FILE.
+
+# Coupler type ({} family); it decides the default mapping settings.
+coupler = "{}"
+
+# Mapping settings: leave them out to use the coupler's defaults shown here.
+[mapping]
+# complete-evaluation = {}   # map the control/status byte of every complex terminal
+# motorola = {}              # high byte of a data word at the lower address
+# word-alignment = {}        # words on even offsets; reserved byte after the control/status byte
+
+# Terminals in plug order: position 1 is the first terminal after the coupler.
+# Settings are named parameters of the terminal type or raw registers (R32 = 0x0006).
+[[terminal]]
+type = "KL6001"              # serial interface RS232C
+baud = "9600"
+frame = "8N1"
+alternative-format = false   # standard format: CT/ST and data-bytes bytes
+data-bytes = 5
+
+[[terminal]]
+type = "KL1104"              # digital inputs: packed as bits after all complex terminals
+
+[[terminal]]
+type = "KL5101"              # incremental encoder: CT/ST is always mapped
+
+[[terminal]]
+type = "KL9100"              # power feed terminal: no process image
+
+[[terminal]]
+type = "KL3022"              # 2-channel analog input
+# Settings of the second channel go into its own table (the first table is channel 1):
+# [[terminal.channel]]
+# [[terminal.channel]]
+# R32 = 0x0000
+
+[[terminal]]
+type = "KL2134"              # digital outputs
+
+[[terminal]]
+type = "KL9010"              # end terminal
+)",
+      p.family, p.name, oo(p.defaults.complete_evaluation), oo(p.defaults.motorola),
+      oo(p.defaults.word_alignment));
+}
+
+namespace {
+
+class StationInit : public Command {
+ public:
+  std::string name() const override { return "init"; }
+  std::string brief() const override { return "Write a commented example station file"; }
+  std::string man() const override {
+    return "Writes a commented example station file to \\fIFILE\\fR (on stdout without \\fIFILE\\fR): a coupler, "
+           "its mapping settings as comments, and terminals with named settings. The file is written atomically; an "
+           "existing file is kept unless \\fB\\-\\-force\\fR is given. \\fB\\-\\-coupler\\fR chooses the coupler "
+           "(default BK9000). The format is described in \\fBkscfg-station\\fR(5).";
+  }
+  std::vector<std::string> examples() const override {
+    return {"station init line3.toml", "station init --coupler BK3120 profibus.toml", "station init > example.toml"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FILE", file_, "File to write (default: stdout)")->option_text("FILE");
+    sub.add_option("--coupler", coupler_, "Coupler of the example (default BK9000)")->option_text("NAME");
+    sub.add_flag("--force", force_, "Overwrite an existing file");
+  }
+  int run(Context& ctx) override {
+    std::string text = example_station(coupler_);
+    (void)parse_station(text, "example", ctx.catalog());  // never hand out a file kscfg itself refuses
+    if (file_.empty()) {
+      std::cout << text;
+      return 0;
+    }
+    std::error_code ec;
+    if (std::filesystem::exists(file_, ec) && !force_)
+      throw Error(Exit::file, fmt::format("'{}' already exists", file_), "give --force to overwrite it");
+    write_file_atomic(file_, text);
+    if (ctx.json()) print_json({{"file", file_}, {"coupler", coupler_profile(coupler_).name}});
+    else std::cerr << fmt::format("kscfg: wrote {}\n", file_);
+    return 0;
+  }
+
+ private:
+  std::string file_, coupler_ = "BK9000";
+  bool force_ = false;
+};
+
+class StationCheck : public Command {
+ public:
+  std::string name() const override { return "check"; }
+  std::string brief() const override { return "Check a station file and summarise its process image"; }
+  std::string man() const override {
+    return "Parses \\fIFILE\\fR, lays the station out for its coupler and checks the image against the coupler's "
+           "limits. Prints one line: coupler, terminals, input and output bytes. Errors name the file, line and "
+           "column.";
+  }
+  std::vector<std::string> examples() const override { return {"station check line3.toml"}; }
+  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file")->required()->option_text("FILE"); }
+  int run(Context& ctx) override {
+    StationSpec spec = load_station(file_, ctx.catalog());
+    StationLayout L = compute_layout(spec, ctx.catalog());
+    const CouplerProfile& p = coupler_profile(L.coupler);
+    check_image_limits(L, p);
+    if (ctx.json()) {
+      print_json({{"file", file_}, {"coupler", L.coupler}, {"terminals", spec.terminals.size()},
+                  {"in_bytes", L.in_bytes}, {"out_bytes", L.out_bytes}});
+      return 0;
+    }
+    std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", file_, L.coupler,
+                             spec.terminals.size(), L.in_bytes, L.out_bytes);
+    return 0;
+  }
+
+ private:
+  std::string file_;
+};
+
+class Station : public Command {
+ public:
+  std::string name() const override { return "station"; }
+  std::string brief() const override { return "Station files: write an example, check one"; }
+  std::string man() const override {
+    return "Station files (TOML) describe a coupler and its terminals in plug order with their settings; "
+           "\\fBkscfg map\\fR, \\fB\\-\\-station\\fR and \\fBkscfg emu reset \\-\\-station\\fR read them. The "
+           "format is described in \\fBkscfg-station\\fR(5).";
+  }
+  void add_cli(CLI::App&) override {}
+  int run(Context&) override { return 0; }
+  std::vector<Command*> children() override { return {&init_, &check_}; }
+
+ private:
+  StationInit init_;
+  StationCheck check_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_station() { return std::make_unique<Station>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,263 @@
+// kscfg serial ... end to end against the emulator, as a user runs it (and serial term in tmux).
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <thread>
+
+#include "support.hpp"
+
+using kscfg::test::Run;
+using kscfg::test::run_kscfg;
+using kscfg::test::TempDir;
+using kscfg::test::write_text;
+
+namespace {
+
+struct Emu {
+  TempDir dir;
+  std::string state = dir.file("emulator.json");
+  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}};
+  Run operator()(const std::vector<std::string>& args, const std::string& input = "") const {
+    return run_kscfg(args, env, 30, input);
+  }
+  void station(const std::string& toml) const {
+    write_text(dir.file("station.toml"), toml);
+    Run r = (*this)({"emu", "reset", "--station", dir.file("station.toml")});
+    REQUIRE(r.rc == 0);
+  }
+};
+
+bool one_line_error(const Run& r) {
+  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
+}
+
+std::string random_text(std::size_t n, unsigned seed) {
+  std::mt19937 g(seed);
+  std::string s(n, '\0');
+  for (auto& c : s) c = static_cast<char>(g());
+  return s;
+}
+
+std::string sh(const std::string& cmd) {
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  std::size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+  pclose(p);
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("serial send --recv: 4 KiB of random bytes come back through the loopback in every format",
+          "[serial][cli]") {
+  Emu emu;
+  const std::vector<std::pair<std::string, std::string>> formats = {
+      {"KL6001", "alternative-format = false\ndata-bytes = 1"},
+      {"KL6001", "alternative-format = false\ndata-bytes = 2"},
+      {"KL6001", "alternative-format = false\ndata-bytes = 3"},
+      {"KL6001", "alternative-format = false\ndata-bytes = 4"},
+      {"KL6001", "alternative-format = false\ndata-bytes = 5"},
+      {"KL6001", "alternative-format = true"},
+      {"KL6031", "image-size = \"3\"\nextended-image = false"},
+      {"KL6031", "image-size = \"5\"\nextended-image = false"},
+      {"KL6031", "image-size = \"22\"\nextended-image = true"},
+  };
+  std::string data = random_text(4096, 42);
+  for (const auto& [type, settings] : formats) {
+    INFO(type << " " << settings);
+    emu.station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"" + type + "\"\n" + settings +
+                "\n[[terminal]]\ntype = \"KL9010\"\n");
+    Run r = emu({"serial", "send", "--recv", "--count", "4096", "-"}, data);
+    REQUIRE(r.rc == 0);
+    CHECK(r.out.size() == data.size());
+    CHECK(r.out == data);
+    CHECK(r.err.empty());  // no overflow, no BUF_F
+  }
+}
+
+TEST_CASE("serial send then serial recv as separate processes (the FIFOs persist)", "[serial][cli]") {
+  Emu emu;
+  Run s = emu({"serial", "send", "AT\\r\\n"});
+  REQUIRE(s.rc == 0);
+  CHECK(s.out == "sent 4 bytes to terminal 1 (KL6001)\n");
+  Run r = emu({"serial", "recv", "--hex"});
+  REQUIRE(r.rc == 0);
+  CHECK(r.out == "41 54 0d 0a\n");
+  Run h = emu({"-t", "3", "serial", "send", "--hex", "01 02 ff"});
+  REQUIRE(h.rc == 0);
+  Run j = emu({"--json", "-t", "3", "serial", "recv", "--count", "3"});
+  REQUIRE(j.rc == 0);
+  auto doc = nlohmann::json::parse(j.out);
+  CHECK(doc["hex"] == "01 02 ff");
+  CHECK(doc["overflow"] == false);
+}
+
+TEST_CASE("flow control: BUF_F at the R18 level, overflow reported through R6", "[serial][cli]") {
+  Emu emu;
+  emu.station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbuffer-full = 64\n");
+  // 100 bytes with nobody reading: more than 64 in the receive FIFO, fewer than 128.
+  std::string first = random_text(100, 1);
+  Run s = emu({"serial", "send", "-"}, first);
+  REQUIRE(s.rc == 0);
+  CHECK_THAT(s.err, Catch::Contains("reports BUF_F"));
+  CHECK_THAT(s.err, !Catch::Contains("overflowed"));
+  Run st = emu({"--json", "serial", "status"});
+  REQUIRE(st.rc == 0);
+  auto doc = nlohmann::json::parse(st.out);
+  CHECK(doc["buf_f"] == true);
+  CHECK(doc["r6"] == 0);
+  CHECK(doc["r1_rx_fifo"].get<int>() >= 64);
+  CHECK(doc["r1_rx_fifo"].get<int>() < 128);
+  // 400 more bytes: the 128-byte FIFO overflows. The terminal says so in R6; the tool passes it on.
+  std::string more = random_text(400, 2);
+  Run o = emu({"serial", "send", "-"}, more);
+  REQUIRE(o.rc == 0);
+  CHECK_THAT(o.err, Catch::Contains("R6 = 0x0011: receive FIFO overflowed, data lost"));
+  Run r = emu({"--json", "serial", "recv"});
+  REQUIRE(r.rc == 0);
+  auto rd = nlohmann::json::parse(r.out);
+  CHECK(rd["overflow"] == true);
+  CHECK(rd["received"].get<int>() >= 128);
+  CHECK(rd["received"].get<int>() < 500);
+  CHECK_THAT(r.err, Catch::Contains("overflowed"));
+  // Whatever was kept is in order: the oldest bytes come first (the newest were lost).
+  std::string got;
+  for (std::size_t i = 0; i + 1 < rd["hex"].get<std::string>().size(); i += 3)
+    got.push_back(static_cast<char>(std::stoi(rd["hex"].get<std::string>().substr(i, 2), nullptr, 16)));
+  REQUIRE(got.size() >= 64);
+  CHECK(got.substr(0, 64) == first.substr(0, 64));
+  REQUIRE(emu({"serial", "init"}).rc == 0);
+  Run after = emu({"--json", "serial", "status"});
+  CHECK(nlohmann::json::parse(after.out)["r6"] == 0);
+}
+
+TEST_CASE("serial: clear errors, and the terminal stays usable in process-data mode", "[serial][cli]") {
+  Emu emu;
+  Run n = emu({"-t", "2", "serial", "send", "x"});
+  CHECK(n.rc == 2);
+  CHECK(one_line_error(n));
+  CHECK_THAT(n.err, Catch::Contains("terminal 2 (KL5101"));
+  CHECK_THAT(n.err, Catch::Contains("not a serial terminal"));
+  Run esc = emu({"serial", "send", "a\\q"});
+  CHECK(esc.rc == 2);
+  CHECK(one_line_error(esc));
+  Run cnt = emu({"serial", "send", "--count", "3", "abc"});
+  CHECK(cnt.rc == 2);
+  Run bad = emu({"serial", "line", "tcp"});
+  CHECK(bad.rc == 2);
+  CHECK(one_line_error(bad));
+  REQUIRE(emu({"serial", "line", "none"}).rc == 0);
+  Run silent = emu({"--timeout", "200", "serial", "recv"});
+  CHECK(silent.rc == 4);
+  CHECK(one_line_error(silent));
+  CHECK_THAT(silent.err, Catch::Contains("far end is silent"));
+  Run line = emu({"serial", "line", "loopback"});
+  REQUIRE(line.rc == 0);
+  CHECK_THAT(line.out, Catch::Contains("9600 8N1, at most 960 bytes/s; far end loopback"));
+  REQUIRE(emu({"emu", "fault", "-t", "1", "--mute"}).rc == 0);
+  Run init = emu({"--timeout", "200", "serial", "init"});
+  CHECK(init.rc == 4);
+  CHECK(one_line_error(init));
+  CHECK_THAT(init.err, Catch::Contains("init not acknowledged: terminal 1 (KL6001) did not set IA"));
+  REQUIRE(emu({"emu", "fault", "--clear"}).rc == 0);
+  Run ok = emu({"serial", "send", "--recv", "--count", "3", "abc"});
+  REQUIRE(ok.rc == 0);
+  CHECK(ok.out == "abc");
+  Run reg = emu({"read", "--raw", "R8"});  // register access still works after process data
+  CHECK(reg.out == "0x1771\n");
+}
+
+TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[serial][cli][tmux]") {
+  if (sh("command -v tmux").empty()) {
+    WARN("tmux not installed; skipped");
+    return;
+  }
+  Emu emu;
+  std::string sock = "kscfg-test-" + std::to_string(getpid());
+  std::string tmux = "tmux -L " + sock + " ";
+  auto pane = [&] { return sh(tmux + "capture-pane -p -t t 2>/dev/null"); };
+  auto wait_for = [&](const std::string& text, double seconds) {
+    auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      if (pane().find(text) != std::string::npos) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  auto start = [&] {
+    std::string cmd = "KSCFG_PORT=emu:" + emu.state + " timeout --foreground 20 " + std::string(KSCFG_BIN) +
+                      " serial term; echo EXIT=$?; sleep 20";
+    sh(tmux + "new-session -d -s t -x 200 -y 20 \"" + cmd + "\"");
+    return wait_for("Ctrl-] quits", 10);
+  };
+  struct Kill {
+    std::string t;
+    ~Kill() { sh(t + "kill-server 2>/dev/null"); }
+  } kill{tmux};
+
+  // An open line: typed text goes out and nothing comes back (raw mode: no local echo).
+  REQUIRE(emu({"serial", "line", "none"}).rc == 0);
+  REQUIRE(start());
+  sh(tmux + "send-keys -t t -l 'quiet please'");
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  CHECK(pane().find("quiet please") == std::string::npos);
+  sh(tmux + "send-keys -t t C-]");
+  CHECK(wait_for("EXIT=0", 10));
+  sh(tmux + "kill-server 2>/dev/null");
+
+  // Loopback: the same keys come back on the screen.
+  REQUIRE(emu({"serial", "line", "loopback"}).rc == 0);
+  REQUIRE(start());
+  CHECK_THAT(pane(), Catch::Contains("far end of the emulated line: loopback"));
+  sh(tmux + "send-keys -t t -l 'hello through the KL6001'");
+  CHECK(wait_for("hello through the KL6001", 10));
+  sh(tmux + "send-keys -t t C-]");
+  CHECK(wait_for("EXIT=0", 10));
+}
+
+TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchanged", "[serial][cli][serve]") {
+  Emu emu;
+  std::string out = emu.dir.file("serve.out");
+  pid_t pid = fork();
+  if (pid == 0) {
+    setenv("KSCFG_PORT", ("emu:" + emu.state).c_str(), 1);
+    int fd = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(fd, 1);
+    execl(KSCFG_BIN, "kscfg", "serve", "--tcp", "127.0.0.1:0", static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  struct Stop {
+    pid_t pid;
+    ~Stop() {
+      kill(pid, SIGTERM);
+      for (int i = 0; i < 50 && waitpid(pid, nullptr, WNOHANG) == 0; ++i)
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      kill(pid, SIGKILL);
+      waitpid(pid, nullptr, WNOHANG);
+    }
+  } stop{pid};
+  std::string uri;
+  for (int i = 0; i < 250 && uri.empty(); ++i) {
+    std::string text = kscfg::test::read_text(out);
+    if (auto p = text.find("tcp://"); p != std::string::npos && text.find('\n', p) != std::string::npos)
+      uri = text.substr(p, text.find('\n', p) - p);
+    else std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  REQUIRE_FALSE(uri.empty());
+  std::string data = random_text(4096, 7);
+  Run r = run_kscfg({"--port", uri, "serial", "send", "--recv", "--count", "4096", "-"}, {}, 30, data);
+  REQUIRE(r.rc == 0);
+  CHECK(r.out == data);
+  Run k = run_kscfg({"--port", uri, "-t", "2", "serial", "send", "x"}, {}, 30);
+  CHECK(k.rc == 2);
+}
