@@ -16,6 +16,10 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_reset());
   v.push_back(make_decode());
   v.push_back(make_catalog());
+  v.push_back(make_backup());
+  v.push_back(make_diff());
+  v.push_back(make_apply());
+  v.push_back(make_restore());
   v.push_back(make_map());
   v.push_back(make_station());
   v.push_back(make_serial());

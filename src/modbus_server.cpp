@@ -97,6 +97,11 @@ struct ModbusServer::Impl {
   int sink[2] = {-1, -1};  // replies that are dropped go here
   std::mt19937_64 rng;
   ServeStats st;
+  mutable std::mutex stats_mu;
+  void count(std::size_t ServeStats::*field) {
+    std::lock_guard<std::mutex> g(stats_mu);
+    ++(st.*field);
+  }
   std::thread kbus;
   std::atomic<bool> stop_kbus{false};
   // Watchdog (0x1020, 0x1120..0x1122)
@@ -169,13 +174,13 @@ struct ModbusServer::Impl {
       {
         std::lock_guard<std::mutex> g(mu);
         station.cycle();
-        ++st.cycles;
+        count(&ServeStats::cycles);
         if (wd_active && wd_preset > 0 &&
             std::chrono::steady_clock::now() - wd_last > std::chrono::milliseconds(wd_preset)) {
           // As the coupler does: outputs to zero until the next write telegram.
           std::fill(station.outputs().begin(), station.outputs().end(), 0);
           wd_active = false;
-          ++st.watchdog_expired;
+          count(&ServeStats::watchdog_expired);
           trace("watchdog expired: outputs set to 0");
         }
       }
@@ -225,9 +230,9 @@ struct ModbusServer::Impl {
     int unit = q[h - 1];
     std::uint8_t fc = q[h];
     bool tcp = opt.mode == ServeOptions::Mode::tcp;
-    ++st.requests;
+    count(&ServeStats::requests);
     if (tcp && unit != opt.unit && unit != 0 && unit != 255) {
-      ++st.exceptions;
+      count(&ServeStats::exceptions);
       trace(fmt::format("request for unit {} (serving unit {}): exception 11", unit, opt.unit));
       modbus_reply_exception(ctx, q, MODBUS_EXCEPTION_GATEWAY_TARGET);
       return;
@@ -273,7 +278,7 @@ struct ModbusServer::Impl {
       if (a == mbmap::kWatchdogType && v > 1) exc = MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
     }
     if (exc) {
-      ++st.exceptions;
+      count(&ServeStats::exceptions);
       trace(fmt::format("FC{} from unit {}: exception {} ({})", fc, unit, exc, mbmap::exception_name(exc)));
       modbus_reply_exception(ctx, q, static_cast<unsigned>(exc));
       return;
@@ -288,13 +293,13 @@ struct ModbusServer::Impl {
     else if (u < F.drop + F.busy + F.corrupt) fault = corrupt;
     else if (u < F.drop + F.busy + F.corrupt + F.delay) fault = delay;
     if (fault == busy) {
-      ++st.busy;
+      count(&ServeStats::busy);
       trace(fmt::format("FC{}: fault: busy", fc));
       modbus_reply_exception(ctx, q, MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY);
       return;
     }
     if (fault == delay) {
-      ++st.delayed;
+      count(&ServeStats::delayed);
       trace(fmt::format("FC{}: fault: reply delayed {} ms", fc, F.delay_ms));
       std::this_thread::sleep_for(std::chrono::milliseconds(F.delay_ms));
     }
@@ -312,10 +317,10 @@ struct ModbusServer::Impl {
       modbus_set_socket(ctx, fd);
       drain_sink();
       if (fault == drop) {
-        ++st.dropped;
+        count(&ServeStats::dropped);
         trace(fmt::format("FC{}: fault: reply dropped", fc));
       } else {
-        ++st.corrupted;
+        count(&ServeStats::corrupted);
         trace(fmt::format("FC{}: fault: reply corrupted", fc));
         send_corrupt(fd, q, h);
       }
@@ -421,7 +426,7 @@ std::string ModbusServer::endpoint() const {
 }
 
 ServeStats ModbusServer::stats() const {
-  std::lock_guard<std::mutex> g(impl_->mu);
+  std::lock_guard<std::mutex> g(impl_->stats_mu);
   return impl_->st;
 }
 

@@ -262,8 +262,10 @@ std::string station_to_toml(const StationSpec& spec) {
     if (spec.motorola) out += fmt::format("motorola = {}\n", *spec.motorola);
     if (spec.word_alignment) out += fmt::format("word-alignment = {}\n", *spec.word_alignment);
   }
-  for (const auto& t : spec.terminals) {
-    out += fmt::format("\n[[terminal]]\ntype = \"{}\"\n", t.type);
+  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
+    const auto& t = spec.terminals[i];
+    std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? "# " + spec.comments[i] + "\n" : "";
+    out += fmt::format("\n[[terminal]]\n{}type = \"{}\"\n", comment, t.type);
     if (!t.channels.empty()) channel_toml(out, t.channels[0]);
     for (std::size_t i = 1; i < t.channels.size(); ++i) {
       out += "[[terminal.channel]]\n";

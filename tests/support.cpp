@@ -105,3 +105,70 @@ void write_text(const std::string& path, const std::string& text) {
 }
 
 }  // namespace kscfg::test
+
+namespace kscfg::test {
+
+Server::Server(const std::string& state, const std::vector<std::string>& args, const std::string& err_file)
+    : err_path(err_file) {
+  int out[2];
+  if (pipe(out) != 0) throw std::runtime_error("pipe");
+  pid = fork();
+  if (pid == 0) {
+    dup2(out[1], 1);
+    int e = open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    dup2(e, 2);
+    close(out[0]);
+    std::vector<std::string> a = {KSCFG_BIN, "--port", "emu:" + state, "serve"};
+    a.insert(a.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (auto& s : a) argv.push_back(s.data());
+    argv.push_back(nullptr);
+    execv(KSCFG_BIN, argv.data());
+    _exit(127);
+  }
+  close(out[1]);
+  out_fd = out[0];
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  char c;
+  while (std::chrono::steady_clock::now() < deadline) {
+    pollfd p{out_fd, POLLIN, 0};
+    if (poll(&p, 1, 100) <= 0) continue;
+    if (read(out_fd, &c, 1) != 1) break;
+    if (c == '\n') break;
+    uri += c;
+  }
+  if (uri.empty()) {
+    kill_now();
+    throw std::runtime_error("kscfg serve printed no address: " + read_text(err_file));
+  }
+}
+
+int Server::stop(int sig) {
+  if (pid <= 0) return -1;
+  kill(pid, sig);
+  int status = 0;
+  for (int i = 0; i < 1000; ++i) {
+    if (waitpid(pid, &status, WNOHANG) == pid) {
+      pid = -1;
+      return WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+    }
+    usleep(10000);
+  }
+  kill_now();
+  return -9;
+}
+
+void Server::kill_now() {
+  if (pid > 0) {
+    kill(pid, SIGKILL);
+    waitpid(pid, nullptr, 0);
+    pid = -1;
+  }
+}
+
+Server::~Server() {
+  kill_now();
+  if (out_fd >= 0) close(out_fd);
+}
+
+}  // namespace kscfg::test

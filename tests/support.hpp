@@ -28,3 +28,26 @@ std::string read_text(const std::string& path);
 void write_text(const std::string& path, const std::string& text);
 
 }  // namespace kscfg::test
+
+namespace kscfg::test {
+
+// `kscfg --port emu:STATE serve ARGS` as a child process; `uri` is the first line it prints.
+// Killed (SIGKILL) when the object dies, so no test leaves a server behind.
+struct Server {
+  Server(const std::string& state, const std::vector<std::string>& args, const std::string& err_file);
+  ~Server();
+  Server(const Server&) = delete;
+  Server& operator=(const Server&) = delete;
+  // Stops with `sig`; returns the exit status (bounded: SIGKILL after 10 s).
+  int stop(int sig = 15);
+  void kill_now();
+  std::string errors() const { return read_text(err_path); }
+  std::string host_port() const { return uri.substr(6); }  // tcp://HOST:PORT
+
+  int pid = -1;
+  std::string uri;
+  std::string err_path;
+  int out_fd = -1;
+};
+
+}  // namespace kscfg::test

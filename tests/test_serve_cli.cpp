@@ -430,7 +430,7 @@ TEST_CASE("bad links: refused, silent, wrong unit, not a tty, malformed URI", "[
   }
 }
 
-TEST_CASE("scan needs a Modbus port; ports lists serial ports", "[serve]") {
+TEST_CASE("scan needs a Modbus port, ports lists serial ports", "[serve]") {
   TempDir d;
   Run s = run_kscfg({"--port", "emu:" + d.file("s.json"), "scan"});
   CHECK(s.rc == 2);

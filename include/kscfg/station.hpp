@@ -62,6 +62,7 @@ struct StationSpec {
   std::string coupler = "BK9000";
   std::optional<bool> complete_evaluation, motorola, word_alignment;
   std::vector<TerminalSpec> terminals;
+  std::vector<std::string> comments;  // optional, per terminal: a "# ..." line in station_to_toml
   std::string origin;  // file name for messages
 
   MappingSettings settings() const;

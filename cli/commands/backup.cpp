@@ -1,0 +1,59 @@
+// kscfg backup [FILE]: every terminal's settings into a station file.
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <iostream>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/fileutil.hpp"
+#include "kscfg/provision.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+class Backup : public Command {
+ public:
+  std::string name() const override { return "backup"; }
+  std::string brief() const override { return "Save every terminal's settings as a station file"; }
+  std::string man() const override {
+    return "Reads every terminal of the station (type R8, version R9, every SEEROM register R17..R47 and "
+           "the named parameters) and writes a station file (TOML) that \\fBkscfg restore\\fR and "
+           "\\fBkscfg diff\\fR take. The hardware version (R16) is identity, not configuration, and is not "
+           "saved. With \\fIFILE\\fR the file is written atomically; without it the file goes to stdout. "
+           "On a terminal screen a progress line is shown on stderr.";
+  }
+  std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
+  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Output file (default: stdout)")->option_text("FILE"); }
+  int run(Context& ctx) override {
+    bool tty = isatty(STDERR_FILENO);
+    Progress progress;
+    if (tty)
+      progress = [](unsigned done, unsigned total, const std::string& what) {
+        int width = 30;
+        int fill = total ? static_cast<int>(done * width / total) : width;
+        std::cerr << fmt::format("\rbackup [{}{}] {}/{} {:<30}", std::string(fill, '#'), std::string(width - fill, ' '),
+                                 done, total, what)
+                  << (done == total ? "\n" : "") << std::flush;
+      };
+    StationSpec spec = backup_station(ctx.link(), ctx.layout(), ctx.session_options(), progress);
+    std::string text = "# kscfg backup of " + ctx.link().describe() + "\n" + station_to_toml(spec);
+    if (file_.empty()) std::cout << text;
+    else {
+      write_file_atomic(file_, text);
+      if (!ctx.json()) std::cout << fmt::format("backup of {} terminals written to {}\n", spec.terminals.size(), file_);
+    }
+    if (ctx.json() && !file_.empty()) print_json({{"file", file_}, {"terminals", spec.terminals.size()}});
+    return 0;
+  }
+
+ private:
+  std::string file_;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_backup() { return std::make_unique<Backup>(); }
+
+}  // namespace kscfg::cli
