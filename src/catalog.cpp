@@ -10,6 +10,7 @@
 #include <toml++/toml.h>
 
 #include "kscfg/error.hpp"
+#include "kscfg/fileutil.hpp"
 #include "kscfg/parse.hpp"
 
 namespace kscfg {
@@ -436,14 +437,7 @@ static void parse_decode(const Ctx& c, const toml::table& root, TerminalType& t)
 
 void Catalog::add_text(std::string_view origin, std::string_view text) {
   Ctx c{std::string(origin)};
-  toml::table root;
-  try {
-    root = toml::parse(text, std::string(origin));
-  } catch (const toml::parse_error& e) {
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
-                                        e.source().begin.column, e.description(),
-                                        line_of(text, e.source().begin.line)));
-  }
+  toml::table root = parse_toml(text, origin);
   auto t = parse_type(c, root);
   parse_registers_table(c, root, *t);
   parse_params(c, root, *t);

@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <thread>
 
+#include "kscfg/catalog.hpp"
 #include "kscfg/error.hpp"
 
 namespace kscfg {
@@ -76,6 +77,16 @@ int lock_file(const std::string& path, double timeout_s) {
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   return fd;
+}
+
+toml::table parse_toml(std::string_view text, std::string_view origin) {
+  try {
+    return toml::parse(text, std::string(origin));
+  } catch (const toml::parse_error& e) {
+    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
+                                        e.source().begin.column, e.description(),
+                                        line_of(text, e.source().begin.line)));
+  }
 }
 
 }  // namespace kscfg

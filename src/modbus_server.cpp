@@ -83,6 +83,7 @@ std::uint16_t be16(const std::uint8_t* p) { return static_cast<std::uint16_t>((p
 }  // namespace
 
 struct ModbusServer::Impl {
+  ~Impl();
   EmulatedStation& station;
   ServeOptions opt;
   std::mutex mu;
@@ -397,19 +398,22 @@ ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt)
   I.kbus = std::thread([&I] { I.kbus_loop(); });
 }
 
-ModbusServer::~ModbusServer() {
-  Impl& I = *impl_;
-  I.stop_kbus = true;
-  if (I.kbus.joinable()) I.kbus.join();
-  for (int fd : I.clients) ::close(fd);
-  if (I.listen_fd >= 0) ::close(I.listen_fd);
-  if (I.line_fd >= 0) ::close(I.line_fd);
-  if (I.pty_slave >= 0) ::close(I.pty_slave);
-  for (int fd : I.sink)
+// The resources live in Impl, so they are released also when the constructor throws half-way
+// (a port in use, a pty that cannot be opened): impl_ is a constructed member then.
+ModbusServer::Impl::~Impl() {
+  stop_kbus = true;
+  if (kbus.joinable()) kbus.join();
+  for (int fd : clients) ::close(fd);
+  if (listen_fd >= 0) ::close(listen_fd);
+  if (line_fd >= 0) ::close(line_fd);
+  if (pty_slave >= 0) ::close(pty_slave);
+  for (int fd : sink)
     if (fd >= 0) ::close(fd);
-  if (I.ctx) modbus_free(I.ctx);
-  if (I.map) modbus_mapping_free(I.map);
+  if (ctx) modbus_free(ctx);
+  if (map) modbus_mapping_free(map);
 }
+
+ModbusServer::~ModbusServer() = default;
 
 std::string ModbusServer::endpoint() const {
   const Impl& I = *impl_;

@@ -8,6 +8,7 @@
 #include <toml++/toml.h>
 
 #include "kscfg/error.hpp"
+#include "kscfg/fileutil.hpp"
 #include "kscfg/params.hpp"
 #include "kscfg/parse.hpp"
 
@@ -145,14 +146,7 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
 }  // namespace
 
 StationSpec parse_station(std::string_view text, std::string_view origin, const Catalog& catalog) {
-  toml::table root;
-  try {
-    root = toml::parse(text, std::string(origin));
-  } catch (const toml::parse_error& e) {
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
-                                        e.source().begin.column, e.description(),
-                                        line_of(text, e.source().begin.line)));
-  }
+  toml::table root = parse_toml(text, origin);
   StationSpec spec;
   spec.origin = std::string(origin);
   for (auto&& [k, v] : root) {

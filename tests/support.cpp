@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
@@ -79,6 +80,10 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
   waitpid(pid, &status, 0);
   r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
   return r;
+}
+
+bool one_line_error(const Run& r) {
+  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
 }
 
 TempDir::TempDir() {

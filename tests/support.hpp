@@ -27,6 +27,17 @@ struct TempDir {
 std::string read_text(const std::string& path);
 void write_text(const std::string& path, const std::string& text);
 
+// The error contract: exactly one line on stderr, starting "kscfg: error: ".
+bool one_line_error(const Run& r);
+
+// An emulator with its own state file; runs kscfg with KSCFG_PORT pointing at it.
+struct Emu {
+  TempDir dir;
+  std::string state = dir.file("emulator.json");
+  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}};
+  Run operator()(const std::vector<std::string>& args) const { return run_kscfg(args, env); }
+};
+
 }  // namespace kscfg::test
 
 namespace kscfg::test {

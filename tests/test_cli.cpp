@@ -9,21 +9,14 @@
 #include "support.hpp"
 
 using kscfg::test::run_kscfg;
+using kscfg::test::one_line_error;
+using kscfg::test::Emu;
 using kscfg::test::Run;
 using kscfg::test::TempDir;
 
 namespace {
 
-struct Emu {
-  TempDir dir;
-  std::string state = dir.file("emulator.json");
-  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}};
-  Run operator()(const std::vector<std::string>& args) const { return run_kscfg(args, env); }
-};
 
-bool one_line_error(const Run& r) {
-  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
-}
 
 }  // namespace
 

@@ -8,22 +8,15 @@
 
 using kscfg::test::read_text;
 using kscfg::test::run_kscfg;
+using kscfg::test::one_line_error;
+using kscfg::test::Emu;
 using kscfg::test::Run;
 using kscfg::test::TempDir;
 using kscfg::test::write_text;
 
 namespace {
 
-struct Emu {
-  TempDir dir;
-  std::string state = dir.file("emu.json");
-  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}};
-  Run operator()(const std::vector<std::string>& args) const { return run_kscfg(args, env); }
-};
 
-bool one_line_error(const Run& r) {
-  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
-}
 
 nlohmann::json terminal(const nlohmann::json& doc, unsigned pos) { return doc["terminals"].at(pos - 1); }
 

@@ -6,6 +6,7 @@
 #include "support.hpp"
 
 using kscfg::test::read_text;
+using kscfg::test::one_line_error;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
@@ -24,9 +25,6 @@ struct Station {
   std::string file(const std::string& n) const { return dir.file(n); }
 };
 
-bool one_line_error(const Run& r) {
-  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
-}
 
 std::size_t count(const std::string& s, const std::string& what) {
   std::size_t n = 0;

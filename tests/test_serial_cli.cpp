@@ -13,6 +13,7 @@
 
 #include "support.hpp"
 
+using kscfg::test::one_line_error;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
@@ -34,9 +35,6 @@ struct Emu {
   }
 };
 
-bool one_line_error(const Run& r) {
-  return r.err.rfind("kscfg: error: ", 0) == 0 && std::count(r.err.begin(), r.err.end(), '\n') == 1;
-}
 
 std::string random_text(std::size_t n, unsigned seed) {
   std::mt19937 g(seed);
@@ -227,33 +225,8 @@ TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[s
 
 TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchanged", "[serial][cli][serve]") {
   Emu emu;
-  std::string out = emu.dir.file("serve.out");
-  pid_t pid = fork();
-  if (pid == 0) {
-    setenv("KSCFG_PORT", ("emu:" + emu.state).c_str(), 1);
-    int fd = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    dup2(fd, 1);
-    execl(KSCFG_BIN, "kscfg", "serve", "--tcp", "127.0.0.1:0", static_cast<char*>(nullptr));
-    _exit(127);
-  }
-  struct Stop {
-    pid_t pid;
-    ~Stop() {
-      kill(pid, SIGTERM);
-      for (int i = 0; i < 50 && waitpid(pid, nullptr, WNOHANG) == 0; ++i)
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      kill(pid, SIGKILL);
-      waitpid(pid, nullptr, WNOHANG);
-    }
-  } stop{pid};
-  std::string uri;
-  for (int i = 0; i < 250 && uri.empty(); ++i) {
-    std::string text = kscfg::test::read_text(out);
-    if (auto p = text.find("tcp://"); p != std::string::npos && text.find('\n', p) != std::string::npos)
-      uri = text.substr(p, text.find('\n', p) - p);
-    else std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  REQUIRE_FALSE(uri.empty());
+  kscfg::test::Server srv(emu.state, {"--tcp", "127.0.0.1:0"}, emu.dir.file("serve.err"));
+  const std::string& uri = srv.uri;
   std::string data = random_text(4096, 7);
   Run r = run_kscfg({"--port", uri, "serial", "send", "--recv", "--count", "4096", "-"}, {}, 30, data);
   REQUIRE(r.rc == 0);

@@ -39,7 +39,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
 
 namespace {
 
-class Apply : public Command {
+class Apply : public ApplyCommand {
  public:
   std::string name() const override { return "apply"; }
   std::string brief() const override { return "Make the station match a station file (exit 10 if changed)"; }
@@ -56,16 +56,6 @@ class Apply : public Command {
   std::vector<std::string> examples() const override {
     return {"apply line3.toml", "apply --dry-run line3.toml", "--port tcp://10.0.0.5 --json apply line3.toml"};
   }
-  void add_cli(CLI::App& sub) override {
-    sub.add_option("FILE", file_, "Station file (desired state)")->required()->option_text("FILE");
-    sub.add_flag("--dry-run", dry_, "Print the plan only; write nothing");
-    sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
-  }
-  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_); }
-
- private:
-  std::string file_, backup_;
-  bool dry_ = false;
 };
 
 }  // namespace

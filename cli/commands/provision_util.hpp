@@ -3,11 +3,27 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "../command.hpp"
 #include "kscfg/provision.hpp"
 
 namespace kscfg::cli {
 nlohmann::json plan_json(const Plan& plan);
 std::string plan_text(const Plan& plan);
 // apply and restore: plan, back up, write, roll back on failure. Returns the exit code.
-int run_apply(class Context& ctx, const std::string& file, bool dry_run, const std::string& backup);
+int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup);
+
+// apply and restore share their arguments and their run(); they differ in name and text.
+class ApplyCommand : public Command {
+ public:
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FILE", file_, "Station file (desired state, or a backup)")->required()->option_text("FILE");
+    sub.add_flag("--dry-run", dry_, "Print the plan only; write nothing");
+    sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
+  }
+  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_); }
+
+ private:
+  std::string file_, backup_;
+  bool dry_ = false;
+};
 }  // namespace kscfg::cli

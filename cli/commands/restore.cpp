@@ -7,7 +7,7 @@ namespace kscfg::cli {
 
 namespace {
 
-class Restore : public Command {
+class Restore : public ApplyCommand {
  public:
   std::string name() const override { return "restore"; }
   std::string brief() const override { return "Put a backup back (apply of a backup file)"; }
@@ -16,16 +16,6 @@ class Restore : public Command {
            "changes, with the same checks, verification, rollback and exit status as \\fBapply\\fR.";
   }
   std::vector<std::string> examples() const override { return {"restore station-7.toml"}; }
-  void add_cli(CLI::App& sub) override {
-    sub.add_option("FILE", file_, "Backup file")->required()->option_text("FILE");
-    sub.add_flag("--dry-run", dry_, "Print the plan only; write nothing");
-    sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
-  }
-  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_); }
-
- private:
-  std::string file_, backup_;
-  bool dry_ = false;
 };
 
 }  // namespace

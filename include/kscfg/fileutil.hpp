@@ -1,6 +1,8 @@
 // Files the tool owns: atomic replacement and bounded locking.
 #pragma once
 #include <string>
+#include <string_view>
+#include <toml++/toml.h>
 
 namespace kscfg {
 
@@ -11,5 +13,8 @@ void write_file_atomic(const std::string& path, const std::string& content);
 // Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds.
 // Returns the descriptor; closing it releases the lock. Throws Error(Exit::file).
 int lock_file(const std::string& path, double timeout_s);
+
+// Parses TOML text; a syntax error is Error(Exit::file) "ORIGIN:LINE:COL: what (in: the line)".
+toml::table parse_toml(std::string_view text, std::string_view origin);
 
 }  // namespace kscfg
