@@ -91,7 +91,7 @@ complete -c kscfg -n '__fish_seen_subcommand_from emu' -a fault -d 'Make an emul
 complete -c kscfg -n '__fish_seen_subcommand_from emu' -a path -d 'Print the emulator'\''s state file'
 complete -c kscfg -n '__fish_seen_subcommand_from reset' -l station -r -d 'Emulate the station of this station file'
 complete -c kscfg -n '__fish_seen_subcommand_from fault' -l ignore-write -r -d 'Acknowledge but drop writes to this register'
-complete -c kscfg -n '__fish_seen_subcommand_from fault' -l mute -r -d 'Never answer register requests'
+complete -c kscfg -n '__fish_seen_subcommand_from fault' -l mute -r -d 'Never answer register requests or the serial handshake'
 complete -c kscfg -n '__fish_seen_subcommand_from fault' -l delay -r -d 'Answer N K-bus cycles after a request'
 complete -c kscfg -n '__fish_seen_subcommand_from fault' -l clear -r -d 'Remove the faults of the selected terminal (all terminals without -t)'
 complete -c kscfg -n '__fish_seen_subcommand_from completion' -a 'bash zsh fish'

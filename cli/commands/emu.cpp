@@ -58,7 +58,7 @@ class EmuFault : public Command {
     return "Injects a fault into the selected emulated terminal channel, kept in the state until "
            "\\fB\\-\\-clear\\fR or \\fBemu reset\\fR: \\fB\\-\\-ignore\\-write\\fR \\fIREG\\fR acknowledges writes "
            "to \\fIREG\\fR but does not store them (the read-back catches it); \\fB\\-\\-mute\\fR stops "
-           "answering register requests (requests time out); \\fB\\-\\-delay\\fR \\fIN\\fR makes every "
+           "answering register requests and the serial handshake (requests time out); \\fB\\-\\-delay\\fR \\fIN\\fR makes every "
            "terminal answer N K-bus cycles after a request (default 1).";
   }
   std::vector<std::string> examples() const override {
@@ -66,7 +66,7 @@ class EmuFault : public Command {
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--ignore-write", ignore_, "Acknowledge but drop writes to this register")->option_text("REG");
-    sub.add_flag("--mute", mute_, "Never answer register requests");
+    sub.add_flag("--mute", mute_, "Never answer register requests or the serial handshake");
     sub.add_option("--delay", delay_, "Answer N K-bus cycles after a request")->option_text("N");
     sub.add_flag("--clear", clear_, "Remove the faults of the selected terminal (all terminals without -t)");
   }
