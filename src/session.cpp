@@ -221,21 +221,26 @@ void RegisterSession::verify_locked() {
 }
 
 WriteResult RegisterSession::write(unsigned reg, std::uint16_t value, std::uint16_t mask) {
-  auto r = write_all({{reg, static_cast<std::uint16_t>(value & mask)}});
-  (void)r;
-  return r.front();
+  return write_masked({{reg, value, mask}}).front();
 }
 
 std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes) {
-  for (const auto& [reg, v] : changes) check_writable(reg);
-  // Compare first (DESIGN.md decision 6): only registers whose value differs are written.
+  std::vector<MaskedChange> all;
+  for (const auto& [reg, v] : changes) all.push_back({reg, v, 0xFFFF});
+  return write_masked(all);
+}
+
+std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
+  for (const auto& c : changes) check_writable(c.reg);
+  // Compare first (DESIGN.md decision 6): only registers whose value differs are written. The
+  // read is also the "read" of read-modify-write: bits outside the mask keep their value.
   std::vector<WriteResult> results;
-  for (const auto& [reg, v] : changes) {
+  for (const auto& c : changes) {
     WriteResult w;
-    w.reg = reg;
-    w.before = read(reg);
-    w.after = v;
-    w.changed = w.before != v;
+    w.reg = c.reg;
+    w.before = read(c.reg);
+    w.after = static_cast<std::uint16_t>((w.before & ~c.mask) | (c.value & c.mask));
+    w.changed = w.before != w.after;
     results.push_back(w);
   }
   bool any_protected = false, any = false;

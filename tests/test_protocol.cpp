@@ -304,6 +304,14 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
     CHECK(st.channel(1, 0).registers()[32] == 0x0007);
     CHECK_FALSE(st.channel(1, 0).unlocked());
   }
+  SECTION("a mask changes only its bits (read-modify-write in the session)") {
+    RegisterSession s(link, t, 0);
+    auto r = s.write(34, 0x0000, 0x0001);  // R34 = 0x0003: clear rts-cts, keep alternative-format
+    CHECK(r.before == 0x0003);
+    CHECK(r.after == 0x0002);
+    CHECK(st.channel(1, 0).registers()[34] == 0x0002);
+    CHECK_FALSE(s.write(34, 0xFFFE, 0x0002).changed);  // bit 1 is already set: nothing written
+  }
   SECTION("unchanged values are not rewritten") {
     RegisterSession s(link, t, 0);
     std::size_t before = link.exchanges();

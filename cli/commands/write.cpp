@@ -42,15 +42,7 @@ class Write : public Command {
     std::uint16_t mask = mask_.empty() ? 0xFFFF : parse_value(mask_);
     auto s = ctx.session();
     const TerminalType& type = *s->terminal().type;
-    std::uint16_t before = 0;
-    WriteResult r;
-    if (mask == 0xFFFF) {
-      r = s->write(reg, value);
-    } else {
-      // Read-modify-write: the session compares again and writes only when something changes.
-      before = s->read(reg);
-      r = s->write(reg, static_cast<std::uint16_t>((before & ~mask) | (value & mask)));
-    }
+    WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
     s->close();
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {

@@ -42,12 +42,19 @@ class RegisterSession {
   std::uint16_t read(unsigned reg);
 
   // Unlock (protected registers) -> compare -> write -> relock -> read back. Unchanged values are
-  // not rewritten. Throws Error(refused) for ROM/unimplemented registers, Error(verify) on mismatch.
+  // not rewritten. With a mask only the bits set in it change: new = (old & ~mask) | (value & mask).
+  // Throws Error(refused) for ROM/unimplemented registers, Error(verify) on mismatch.
   WriteResult write(unsigned reg, std::uint16_t value, std::uint16_t mask = 0xFFFF);
 
   // Several registers as one change: all succeed, or every register already written is restored
   // and the error is rethrown with what was rolled back.
   std::vector<WriteResult> write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes);
+  struct MaskedChange {
+    unsigned reg;
+    std::uint16_t value;
+    std::uint16_t mask;
+  };
+  std::vector<WriteResult> write_masked(const std::vector<MaskedChange>& changes);
 
   // R7 command (e.g. 0x7000 factory reset): unlock, write, relock; no read-back of R7.
   void command(std::uint16_t value);
