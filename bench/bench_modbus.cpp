@@ -10,10 +10,10 @@
 #include <cstdlib>
 #include <thread>
 
-#include "kscfg/emulator.hpp"
-#include "kscfg/modbus.hpp"
-#include "kscfg/ports.hpp"
-#include "kscfg/session.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/link/modbus.hpp"
+#include "kscfg/link/port_uri.hpp"
+#include "kscfg/session/session.hpp"
 
 using namespace kscfg;
 using clk = std::chrono::steady_clock;

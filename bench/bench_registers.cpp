@@ -10,8 +10,8 @@
 #include <filesystem>
 #include <string>
 
-#include "kscfg/emulator.hpp"
-#include "kscfg/session.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/session/session.hpp"
 
 using namespace kscfg;
 using clk = std::chrono::steady_clock;

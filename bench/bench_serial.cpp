@@ -7,8 +7,8 @@
 #include <chrono>
 #include <random>
 
-#include "kscfg/emulator.hpp"
-#include "kscfg/serial.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/session/serial_port.hpp"
 
 using namespace kscfg;
 

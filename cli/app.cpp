@@ -6,9 +6,9 @@
 #include <cstdlib>
 #include <iostream>
 
-#include "kscfg/error.hpp"
-#include "kscfg/parse.hpp"
-#include "kscfg/session.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/session/session.hpp"
 
 namespace kscfg::cli {
 

@@ -6,8 +6,8 @@
 #include <cstdlib>
 #include <iostream>
 
-#include "kscfg/error.hpp"
-#include "kscfg/ports.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/port_uri.hpp"
 
 namespace kscfg::cli {
 

@@ -6,11 +6,11 @@
 #include <optional>
 #include <string>
 
-#include "kscfg/catalog.hpp"
-#include "kscfg/layout.hpp"
-#include "kscfg/link.hpp"
-#include "kscfg/session.hpp"
-#include "kscfg/station.hpp"
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/layout.hpp"
+#include "kscfg/link/link.hpp"
+#include "kscfg/session/session.hpp"
+#include "kscfg/station/station.hpp"
 
 namespace kscfg::cli {
 

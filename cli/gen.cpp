@@ -6,8 +6,8 @@
 #include <sstream>
 
 #include "app.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/params.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/catalog/params.hpp"
 
 namespace kscfg::cli {
 

@@ -5,7 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
+#include "kscfg/base/error.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {

@@ -6,8 +6,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/fileutil.hpp"
-#include "kscfg/provision.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/provision/provision.hpp"
 
 namespace kscfg::cli {
 

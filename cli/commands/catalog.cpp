@@ -5,8 +5,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/params.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/catalog/params.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg::cli {
 

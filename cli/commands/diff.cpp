@@ -5,8 +5,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {

@@ -5,8 +5,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/describe.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/catalog/describe.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg::cli {
 

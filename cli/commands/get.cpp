@@ -5,7 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/paramset.hpp"
+#include "kscfg/session/parameters.hpp"
 #include "param_util.hpp"
 
 namespace kscfg::cli {

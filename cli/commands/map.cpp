@@ -7,8 +7,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/mapview.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
 

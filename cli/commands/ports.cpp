@@ -5,7 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/modbus.hpp"
+#include "kscfg/link/modbus.hpp"
 
 namespace kscfg::cli {
 

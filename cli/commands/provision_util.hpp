@@ -4,7 +4,7 @@
 #include <string>
 
 #include "../command.hpp"
-#include "kscfg/provision.hpp"
+#include "kscfg/provision/provision.hpp"
 
 namespace kscfg::cli {
 nlohmann::json plan_json(const Plan& plan);

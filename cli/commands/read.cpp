@@ -5,9 +5,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/describe.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/catalog/describe.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg::cli {
 

@@ -7,9 +7,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/fileutil.hpp"
-#include "kscfg/modbus.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/link/modbus.hpp"
 
 namespace kscfg::cli {
 

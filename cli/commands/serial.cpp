@@ -11,11 +11,11 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/emulator.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/parse.hpp"
-#include "kscfg/serial.hpp"
-#include "kscfg/session.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/session/serial_port.hpp"
+#include "kscfg/session/session.hpp"
 
 namespace kscfg::cli {
 

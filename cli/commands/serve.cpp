@@ -5,11 +5,11 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/emulator.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/modbus.hpp"
-#include "kscfg/parse.hpp"
-#include "kscfg/ports.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/modbus.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/link/port_uri.hpp"
 
 namespace kscfg::cli {
 

@@ -5,9 +5,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/paramset.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/session/parameters.hpp"
+#include "kscfg/base/parse.hpp"
 #include "param_util.hpp"
 
 namespace kscfg::cli {

@@ -6,9 +6,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/params.hpp"
-#include "kscfg/paramset.hpp"
-#include "kscfg/parse.hpp"
+#include "kscfg/catalog/params.hpp"
+#include "kscfg/session/parameters.hpp"
+#include "kscfg/base/parse.hpp"
 #include "param_util.hpp"
 
 namespace kscfg::cli {

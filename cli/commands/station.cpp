@@ -6,9 +6,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/error.hpp"
-#include "kscfg/fileutil.hpp"
-#include "kscfg/mapview.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
 

@@ -1,0 +1,169 @@
+// The terminal catalog: terminal types as data (catalog/*.toml, FORMAT.md).
+#pragma once
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "kscfg/protocol/codec.hpp"
+
+namespace kscfg {
+
+struct EmbeddedFile {
+  const char* name;
+  const char* text;
+};
+const std::vector<EmbeddedFile>& builtin_catalog_files();
+const std::vector<EmbeddedFile>& builtin_coupler_files();
+
+struct RegisterDef {
+  unsigned addr = 0;
+  std::string name;
+  std::string desc;
+  std::uint16_t def = 0;
+  proto::Storage storage = proto::Storage::none;
+  bool writable = false;
+  bool implemented = true;
+  bool described = false;  // listed in the type's [registers] table (its default is known)
+};
+
+// Bits of a process-data control or status byte/word, for `kscfg decode`.
+struct BitField {
+  std::string name;
+  std::uint16_t mask = 0;
+  std::string desc;
+};
+
+struct DecodeTable {
+  std::string kind;   // "control" or "status"
+  std::string image;  // image format it applies to ("" = every format)
+  unsigned width = 8; // 8 or 16 bits
+  std::vector<BitField> fields;
+};
+
+struct EnumValue {
+  std::string name;
+  std::uint16_t code = 0;
+  std::string desc;
+};
+
+struct Divisor {
+  std::uint32_t clock = 0;
+  std::uint32_t prescale = 16;
+  std::uint8_t low = 0xFF;
+  double tolerance_pct = 3.0;
+};
+
+struct ParamDef {
+  enum class Kind { enumeration, boolean, integer };
+  std::string name;
+  std::string desc;
+  std::string unit;
+  unsigned reg = 0;
+  std::uint16_t mask = 0xFFFF;
+  Kind kind = Kind::integer;
+  std::int64_t min = 0;
+  std::int64_t max = 0xFFFF;
+  std::vector<EnumValue> values;
+  std::optional<Divisor> divisor;
+  std::optional<unsigned> channel;  // only this channel (0-based); all channels when empty
+
+  unsigned shift() const;
+  std::uint16_t field(std::uint16_t reg_value) const { return (reg_value & mask) >> shift(); }
+  std::uint16_t with_field(std::uint16_t reg_value, std::uint16_t field_value) const {
+    return static_cast<std::uint16_t>((reg_value & ~mask) | ((field_value << shift()) & mask));
+  }
+};
+
+struct Element {
+  enum class Kind { ctst, ctst_word, word, byte, pad, bytes };
+  bool is_ctst() const { return kind == Kind::ctst || kind == Kind::ctst_word; }
+  Kind kind = Kind::byte;
+  std::string lo;  // name (word: low byte; bytes: prefix)
+  std::string hi;  // word: high byte; ctst_word: name of the length byte
+  unsigned count = 0;            // bytes: fixed count
+  std::optional<unsigned> count_register;  // bytes: count from this register's low byte
+  unsigned min = 0, max = 0;     // bytes with count_register: clamp
+};
+
+struct When {
+  unsigned reg = 0;
+  std::uint16_t mask = 0;
+  std::uint16_t value = 0;
+};
+
+enum class CtStMode { always, optional, none };
+
+struct ImageFormat {
+  std::string name;
+  std::optional<When> when;
+  CtStMode ctst = CtStMode::none;
+  std::vector<Element> out;  // K-bus structure of one channel, outputs
+  std::vector<Element> in;   // inputs
+  unsigned bits_in = 0, bits_out = 0;  // digital terminals
+  bool complex() const { return !out.empty() || !in.empty(); }
+};
+
+enum class FactoryReset { defaults, r7 };
+
+struct TerminalType {
+  std::string type;
+  std::string title;
+  std::string family;
+  std::string source;
+  std::string origin;  // file it came from (built-in:NAME or a path)
+  bool has_registers = false;
+  std::uint16_t r8 = 0;
+  std::string version = "00";
+  unsigned channels = 1;
+  FactoryReset reset = FactoryReset::defaults;
+  unsigned fifo_tx = 0, fifo_rx = 0;
+  std::array<RegisterDef, proto::kRegisterCount> regs{};
+  std::vector<ParamDef> params;
+  std::vector<ImageFormat> images;
+  std::vector<DecodeTable> decode;
+
+  const ParamDef* param(std::string_view name) const;
+  std::vector<std::string> param_names() const;
+  // The image format selected by the given channel register values.
+  const ImageFormat* image_for(const std::array<std::uint16_t, proto::kRegisterCount>& regs) const;
+  std::array<std::uint16_t, proto::kRegisterCount> defaults() const;
+  bool is_serial() const { return family == "serial"; }
+};
+
+class Catalog {
+ public:
+  // The built-in catalog plus KSCFG_CATALOG (if set).
+  static const Catalog& standard();
+  // The built-in catalog only.
+  static Catalog builtin();
+
+  // Parses one description; throws Error(Exit::file) naming file, line and field.
+  void add_text(std::string_view origin, std::string_view text);
+  // Adds (or overrides) every *.toml in dir.
+  void add_dir(const std::filesystem::path& dir);
+
+  const TerminalType* find(std::string_view type) const;
+  // Like find, but throws Error(Exit::usage) with the closest names.
+  const TerminalType& get(std::string_view type) const;
+  // Finds the type whose R8 equals `number` (first match).
+  const TerminalType* find_by_number(std::uint16_t number) const;
+  std::vector<std::string> names() const;
+  const std::map<std::string, std::shared_ptr<const TerminalType>>& types() const { return types_; }
+
+ private:
+  std::map<std::string, std::shared_ptr<const TerminalType>> types_;
+};
+
+// Line `line` (1-based) of `text`, for error messages that show the offending line.
+std::string line_of(std::string_view text, std::size_t line);
+
+// Loads KSCFG_CATALOG/--catalog dirs into the standard catalog; call before first use.
+void set_user_catalog_dir(const std::filesystem::path& dir);
+
+}  // namespace kscfg

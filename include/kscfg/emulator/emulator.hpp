@@ -1,0 +1,145 @@
+// The emulator: a fake of the hardware. Terminals look at their control byte each K-bus cycle and
+// answer in their status byte; the coupler maps their K-bus structures into the process image.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <nlohmann/json_fwd.hpp>
+#include <set>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/layout.hpp"
+#include "kscfg/link/link.hpp"
+#include "kscfg/emulator/serial_model.hpp"
+#include "kscfg/station/station.hpp"
+
+namespace kscfg {
+
+// Deliberate misbehaviour for tests (kscfg emu fault).
+struct ChannelFaults {
+  std::set<unsigned> ignore_writes;  // acknowledged but not stored
+  bool mute = false;                 // never answers register requests
+};
+
+// One channel of an intelligent terminal: its 64 registers and its register-mode state machine.
+class ChannelModel {
+ public:
+  ChannelModel(const TerminalType& type, std::array<std::uint16_t, proto::kRegisterCount> regs);
+
+  std::uint16_t read_register(unsigned r) const;
+  void write_register(unsigned r, std::uint16_t v);
+  bool unlocked() const { return regs_[proto::kCodeWordRegister] == proto::kCodeWord; }
+  const std::array<std::uint16_t, proto::kRegisterCount>& registers() const { return regs_; }
+  void factory_reset();
+
+  // One K-bus cycle. `out` is the channel's K-bus structure as the coupler passes it (unmapped
+  // bytes are 0), `in` the structure the terminal returns. `cycle_us`: emulated time of one cycle
+  // (a serial terminal's line moves bytes in it).
+  void cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in, int value_index,
+             unsigned delay, double cycle_us = 1000.0);
+
+  // Serial terminals: the process-data side (FIFOs, handshake, line); null for other types.
+  SerialModel* serial() { return serial_.get(); }
+  const SerialModel* serial() const { return serial_.get(); }
+
+  ChannelFaults faults;
+
+ private:
+  const TerminalType* type_;
+  std::array<std::uint16_t, proto::kRegisterCount> regs_;
+  bool reg_mode_ = false;
+  std::uint8_t req_ctrl_ = 0;
+  std::uint16_t req_value_ = 0;
+  std::uint64_t req_seen_ = 0;
+  bool executed_ = false;
+  std::unique_ptr<SerialModel> serial_;
+};
+
+class EmulatedStation {
+ public:
+  // A station at power-on with factory registers (or the spec's settings).
+  EmulatedStation(const StationSpec& spec, const Catalog& catalog);
+
+  void cycle();  // one K-bus cycle
+  std::uint64_t cycles() const { return cycle_; }
+  std::vector<std::uint8_t>& outputs() { return out_; }
+  const std::vector<std::uint8_t>& inputs() const { return in_; }
+  const StationLayout& layout() const { return layout_; }
+  const StationSpec& spec() const { return spec_; }
+  ChannelModel& channel(unsigned position, unsigned ch);  // throws Error(usage)
+  bool has_channel(unsigned position, unsigned ch) const;
+  unsigned response_delay = 1;  // cycles between seeing a request and answering it
+  unsigned kbus_cycle_us = 1000;  // emulated time of one K-bus cycle (serial lines run in it)
+
+  nlohmann::json to_json() const;
+  // Throws Error(Exit::file) when the document is not a valid state.
+  static std::unique_ptr<EmulatedStation> from_json(const nlohmann::json& j, const Catalog& catalog);
+
+ private:
+  void power_on();
+  struct Slot {
+    unsigned position;
+    unsigned channel;
+    ChannelModel model;
+    std::vector<std::uint8_t> in_struct;
+  };
+  StationSpec spec_;
+  const Catalog* catalog_;
+  StationLayout layout_;
+  std::vector<Slot> slots_;
+  std::vector<std::uint8_t> out_, in_;
+  std::uint64_t cycle_ = 0;
+};
+
+// State file handling: $XDG_STATE_HOME/kscfg/emulator.json by default, or emu:PATH.
+// Opening takes an exclusive lock (bounded wait) held until the store is destroyed.
+class EmulatorStore {
+ public:
+  static std::string default_path();
+  // path "" or "mem": no file. A missing file starts from the factory state of `spec_for_new`.
+  EmulatorStore(std::string path, const Catalog& catalog, double lock_timeout_s = 10.0);
+  ~EmulatorStore();
+  EmulatorStore(const EmulatorStore&) = delete;
+  EmulatorStore& operator=(const EmulatorStore&) = delete;
+
+  EmulatedStation& station() { return *station_; }
+  const std::string& path() const { return path_; }
+  void replace(std::unique_ptr<EmulatedStation> s) { station_ = std::move(s); }
+  void save();  // atomic: temp file + fsync + rename
+
+ private:
+  std::string path_;
+  int lock_fd_ = -1;
+  std::unique_ptr<EmulatedStation> station_;
+};
+
+class EmulatorLink : public Link {
+ public:
+  explicit EmulatorLink(std::string path, const Catalog& catalog);
+  explicit EmulatorLink(EmulatedStation& station);  // in-process station owned elsewhere
+  std::string describe() const override;
+  void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
+  void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
+  void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
+  void pause(unsigned poll_number) override;
+  const StationLayout* layout() override { return &station_->layout(); }
+  const StationSpec* station() override { return &station_->spec(); }
+  void commit() override;
+  EmulatedStation& emulated() { return *station_; }
+  EmulatorStore* store() { return store_.get(); }
+
+ private:
+  std::unique_ptr<EmulatorStore> store_;
+  EmulatedStation* station_;
+};
+
+}  // namespace kscfg
+
+namespace kscfg {
+// Replaces the state at `path` with the factory state of `spec` (under the lock). Works on a
+// corrupt state file too: that is how a user recovers from one.
+void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog);
+}  // namespace kscfg

@@ -1,0 +1,168 @@
+// Serial terminals in process-data mode (REG = 0): the handshake bits of the seeds, where they sit
+// in a channel's image, and the emulated terminal's side of it (send/receive FIFO, BUF_F, R6, a
+// line that moves bytes at the configured baud rate and frame, a far end behind the line).
+#pragma once
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <nlohmann/json_fwd.hpp>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+namespace serial {
+// Control byte / control word low byte (seed KL6001 "Control byte in process data transfer",
+// KL6031 CW.0..CW.6): REG=0 OL2 OL1 OL0 (SC) IR RA TR.
+constexpr std::uint8_t kTR = 0x01;
+constexpr std::uint8_t kRA = 0x02;
+constexpr std::uint8_t kIR = 0x04;
+constexpr std::uint8_t kSC = 0x08;  // KL6031/KL6041: send continuous (rising edge)
+// Status byte / status word low byte: REG=0 IL2 IL1 IL0 BUF_F IA RR TA.
+constexpr std::uint8_t kTA = 0x01;
+constexpr std::uint8_t kRR = 0x02;
+constexpr std::uint8_t kIA = 0x04;
+constexpr std::uint8_t kBufF = 0x08;
+// Length in bits 6..4 of the byte (KL6001, KL6031 small/medium images: OL2*..OL0*).
+constexpr unsigned kLenShift = 4;
+constexpr std::uint8_t kLenMask = 0x70;
+// R6 diagnostics (seed KL6001, R6 low byte).
+constexpr std::uint16_t kDiagOverflow = 0x01;
+constexpr std::uint16_t kDiagParity = 0x02;
+constexpr std::uint16_t kDiagFraming = 0x04;
+constexpr std::uint16_t kDiagOverrun = 0x08;
+constexpr std::uint16_t kDiagFull = 0x10;
+constexpr std::uint8_t kXON = 0x11, kXOFF = 0x13;
+// R34 feature bits used by the model.
+constexpr std::uint16_t kFeatDelayedStatus = 0x0004;
+constexpr std::uint16_t kFeatXonXoffSend = 0x0008;
+constexpr std::uint16_t kFeatXonXoffReceive = 0x0010;
+constexpr std::uint16_t kFeatContinuousSend = 0x0040;
+}  // namespace serial
+
+// Where the handshake of one serial channel sits in its image, found by byte name in the layout
+// (so a changed R35 or image size is followed automatically):
+//  * 8-bit control/status byte "CT/ST" with the length in bits 6..4 (KL6001/KL6011 standard
+//    format, KL6031/KL6041 small and medium images);
+//  * "Ser-CT/ST" in the alternative format (the CT/ST byte, if mapped, is for register access only
+//    and must stay REG = 0 for process data);
+//  * 16-bit control/status word: CT/ST low byte plus a length byte "OL/IL" (KL6031 large image).
+struct SerialImage {
+  std::string format;  // image format name ("standard", "alternative", "small", "medium", "large")
+  bool word = false;   // length in its own byte (OL/IL) instead of bits 6..4
+  ImageByte ctrl, status;                          // handshake control (outputs) / status (inputs)
+  std::optional<ImageByte> out_len, in_len;        // OL / IL (word form)
+  std::optional<ImageByte> reg_ctrl, reg_status;   // CT/ST when it is not the handshake byte
+  std::vector<ImageByte> out_data, in_data;        // D0, D1, ... in order
+  // Most bytes one handshake can carry (the 3-bit length field caps the byte form at 7).
+  unsigned max_out() const;
+  unsigned max_in() const;
+  std::string describe() const;  // "alternative format, 3 data bytes, control/status byte Ser-CT/ST"
+};
+
+// Empty when the channel's image has no handshake bytes.
+std::optional<SerialImage> find_serial_image(const ChannelImage& ci, const std::string& format);
+
+// Line settings decoded from the registers (R32 baud, R33 frame).
+struct LineSettings {
+  unsigned baud = 9600;
+  unsigned data_bits = 8;
+  char parity = 'N';
+  unsigned stop_bits = 1;
+  unsigned char_bits() const { return 1 + data_bits + (parity == 'N' ? 0 : 1) + stop_bits; }
+  double bytes_per_second() const { return static_cast<double>(baud) / char_bits(); }
+  std::string describe() const;  // "9600 8N1"
+};
+LineSettings line_settings(const TerminalType& type, const std::array<std::uint16_t, proto::kRegisterCount>& regs);
+
+// The far end of an emulated line.
+class FarEnd {
+ public:
+  virtual ~FarEnd() = default;
+  // A byte leaves the terminal's TxD; false = the far end cannot take it now (it stays queued).
+  virtual bool put(std::uint8_t b) = 0;
+  // A byte the far end sends towards the terminal's RxD, if any.
+  virtual std::optional<std::uint8_t> get() = 0;
+  virtual std::string describe() const = 0;
+};
+
+// "loopback" (TxD bridged to RxD, the default), "none" (an open line: bytes leave, nothing comes
+// back) or "pty[:LINK]" (a pseudo-terminal; LINK is a symlink to its slave, made while it exists).
+// Throws Error(usage) for anything else.
+std::unique_ptr<FarEnd> make_far_end(const std::string& spec);
+std::string check_far_end(const std::string& spec);  // normalised spec, or Error(usage)
+
+// The emulated serial terminal channel in process-data mode.
+class SerialModel {
+ public:
+  explicit SerialModel(const TerminalType& type);
+  ~SerialModel();
+  SerialModel(const SerialModel&) = delete;
+  SerialModel& operator=(const SerialModel&) = delete;
+
+  // Structure indices of the handshake bytes (from the channel's image; set at power-on).
+  void attach(const ChannelImage& ci, const std::string& format);
+  bool attached() const { return attached_; }
+
+  // The line runs for `us` microseconds of emulated time (every K-bus cycle, whatever the mode).
+  void run_line(double us, const std::array<std::uint16_t, proto::kRegisterCount>& regs);
+  // One K-bus cycle in process-data mode: `out` is the channel's K-bus structure from the coupler,
+  // `in` the structure the terminal answers with.
+  void handshake(std::span<const std::uint8_t> out, std::span<std::uint8_t> in,
+                 const std::array<std::uint16_t, proto::kRegisterCount>& regs);
+  // Leaving process-data mode: nothing to do but remember it (the handshake state is kept).
+
+  std::uint16_t tx_count() const { return static_cast<std::uint16_t>(tx_.size()); }  // R0
+  std::uint16_t rx_count() const { return static_cast<std::uint16_t>(rx_.size()); }  // R1
+  std::uint16_t diagnostics() const;                                                 // R6
+
+  const std::string& far_end() const { return far_spec_; }
+  void set_far_end(const std::string& spec);  // Error(usage) for a bad spec
+  std::string far_end_description() const;    // e.g. the pty's slave path once it exists
+
+  // Emulated state (FIFOs, toggles, flags) for the state file.
+  nlohmann::json to_json() const;
+  void from_json(const nlohmann::json& j);  // tolerant: missing keys keep their defaults
+
+  // Bytes arriving at RxD now, past the line timing (tests; XON/XOFF and overflow rules apply).
+  void inject(std::span<const std::uint8_t> bytes, const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
+    for (auto b : bytes) deliver(b, regs);
+  }
+  // For tests.
+  const std::deque<std::uint8_t>& tx_fifo() const { return tx_; }
+  const std::deque<std::uint8_t>& rx_fifo() const { return rx_; }
+  bool mute = false;  // no handshake answers (kscfg emu fault --mute)
+
+ private:
+  void init();
+  void deliver(std::uint8_t b, const std::array<std::uint16_t, proto::kRegisterCount>& regs);
+  unsigned buf_f_level(const std::array<std::uint16_t, proto::kRegisterCount>& regs) const;
+  FarEnd& far();
+
+  const TerminalType* type_;
+  bool attached_ = false;
+  bool word_ = false;
+  int ctrl_ = -1, status_ = -1, out_len_ = -1, in_len_ = -1;
+  std::vector<int> out_data_, in_data_;
+
+  std::deque<std::uint8_t> tx_, rx_;
+  std::vector<std::uint8_t> shown_;  // bytes presented in D0.. with the last RR toggle
+  bool ta_ = false, rr_ = false, ia_ = false;
+  bool sc_prev_ = false, release_ = false;       // KL6031 continuous send: FIFO held until SC rises
+  std::uint16_t diag_ = 0;                    // sticky bits (overflow, parity, framing, overrun)
+  double tx_credit_ = 0, rx_credit_ = 0;      // line time not yet used, in microseconds
+  bool tx_paused_ = false;                    // XOFF received (XON/XOFF when sending)
+  bool xoff_sent_ = false;                    // XOFF sent (XON/XOFF when receiving)
+  std::deque<std::uint8_t> ctl_out_;          // XON/XOFF waiting to go out before the FIFO
+  std::optional<std::uint8_t> prev_status_;   // R34 bit 2: status one cycle behind the data
+  std::string far_spec_ = "loopback";
+  std::unique_ptr<FarEnd> far_;
+};
+
+}  // namespace kscfg

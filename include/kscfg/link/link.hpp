@@ -1,0 +1,59 @@
+// The one seam: a Link moves bytes of a coupler's process image. It knows nothing of registers.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
+
+#include "kscfg/station/layout.hpp"
+#include "kscfg/station/station.hpp"
+
+namespace kscfg {
+
+class Link {
+ public:
+  virtual ~Link() = default;
+  virtual std::string describe() const = 0;
+
+  // Input image bytes [offset, offset + dst.size()).
+  virtual void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) = 0;
+  // Output image bytes as the coupler holds them now.
+  virtual void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) = 0;
+  // Writes output bytes; bytes outside the span are left as they are.
+  virtual void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) = 0;
+
+  // Waits a little between two polls of the input image (bounded by the caller's timeout).
+  virtual void pause(unsigned poll_number) { (void)poll_number; }
+
+  // Writes output bytes, then reads input bytes, in one exchange when the link can (Modbus FC23).
+  // On a link that pipelines, the read sees the image as it was before the K-bus carried the
+  // write: it shows the answer to the previous request, so register reads can overlap.
+  virtual bool pipelines() const { return false; }
+  virtual void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
+                                         std::size_t in_offset, std::span<std::uint8_t> dst) {
+    write_outputs(out_offset, src);
+    read_inputs(in_offset, dst);
+  }
+
+  // True when layout() would have to discover the station by asking the device (Modbus scan);
+  // a station file given by the user is then preferred.
+  virtual bool discovers_layout() const { return false; }
+
+  // The station behind the link as the coupler laid it out, when the link knows it
+  // (the emulator does; a Modbus link learns it from a station file or a scan).
+  // The pointer stays valid as long as the link.
+  virtual const StationLayout* layout() { return nullptr; }
+  virtual const StationSpec* station() { return nullptr; }
+
+  // Makes the station's state durable (emulator: saves its state file). Called once at the end.
+  virtual void commit() {}
+
+  // Link exchanges so far (one request/response on a real link; one image access on the emulator).
+  std::size_t exchanges() const { return exchanges_; }
+
+ protected:
+  std::size_t exchanges_ = 0;
+};
+
+}  // namespace kscfg

@@ -1,0 +1,75 @@
+// Named parameters over a register session: validate, plan, set with rollback, factory reset.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/session/session.hpp"
+
+namespace kscfg {
+
+// The parameter `name` of `type` (for `channel`), or Error(usage) naming the closest names, or
+// saying which other types have a parameter of that name.
+const ParamDef& find_param(const TerminalType& type, const std::string& name, const Catalog& catalog,
+                           unsigned channel = 0);
+
+struct ParamValue {
+  const ParamDef* param = nullptr;
+  std::string value;     // decoded text
+  std::string fallback;  // the factory value, decoded
+  std::uint16_t reg_value = 0;
+  bool differs = false;
+};
+
+// Reads the registers the parameters live in (each register once) and decodes them.
+std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params);
+
+struct ParamChange {
+  const ParamDef* param = nullptr;
+  std::string from, to;
+};
+
+struct SetResult {
+  std::vector<ParamChange> params;
+  std::vector<WriteResult> registers;
+  bool changed = false;
+};
+
+// Sets NAME VALUE pairs as one change: every value is validated before anything is written,
+// parameters sharing a register are combined, unchanged registers are not rewritten, and a
+// failure rolls back every register already written (RegisterSession::write_all).
+SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
+                     const Catalog& catalog);
+
+// Validation only (no I/O): throws Error(usage) for an unknown parameter or a bad value.
+void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,
+                  const Catalog& catalog, unsigned channel = 0);
+
+struct ResetPlan {
+  bool r7 = false;                                         // R7 = 0x7000 (documented by the manual)
+  std::vector<std::pair<unsigned, std::uint16_t>> values;  // the factory values (written, or checked after R7)
+};
+ResetPlan reset_plan(const TerminalType& type);
+// Carries out the plan; afterwards every register of the plan holds its factory value (verified).
+std::vector<WriteResult> factory_reset(RegisterSession& s, const ResetPlan& plan);
+
+// Decoded bits of a process-data control/status value; empty when the type has no table.
+struct DecodedBit {
+  std::string name;
+  unsigned value = 0;
+  std::uint16_t mask = 0;
+  std::string desc;
+};
+struct Decoded {
+  std::string kind;
+  unsigned width = 8;
+  bool register_mode = false;  // bit 7 of the low byte set
+  unsigned reg = 0;
+  bool write = false;
+  std::vector<DecodedBit> bits;
+};
+Decoded decode_ctst(const TerminalType& type, const std::string& kind, const std::string& image, std::uint16_t value);
+
+}  // namespace kscfg

@@ -1,0 +1,113 @@
+// Register communication with one terminal channel over any Link (DESIGN.md section 2).
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/layout.hpp"
+#include "kscfg/link/link.hpp"
+
+namespace kscfg {
+
+// Set by the CLI's SIGINT/SIGTERM handler; every wait checks it.
+extern std::atomic<bool> g_interrupted;
+
+struct SessionOptions {
+  std::chrono::milliseconds timeout{1000};        // per acknowledge
+  std::function<void(const std::string&)> trace;  // -v: every exchange
+  bool skip_unlock = false;                       // test hook (KSCFG_TEST_NO_UNLOCK): write without code word
+};
+
+struct WriteResult {
+  unsigned reg = 0;
+  std::uint16_t before = 0;
+  std::uint16_t after = 0;
+  bool changed = false;
+};
+
+class RegisterSession {
+ public:
+  // Saves the channel's process-data output bytes; they are restored by close() / the destructor.
+  RegisterSession(Link& link, const TerminalImage& terminal, unsigned channel, SessionOptions opt = {});
+  ~RegisterSession();
+  RegisterSession(const RegisterSession&) = delete;
+  RegisterSession& operator=(const RegisterSession&) = delete;
+
+  std::uint16_t read(unsigned reg);
+
+  // Unlock (protected registers) -> compare -> write -> relock -> read back. Unchanged values are
+  // not rewritten. With a mask only the bits set in it change: new = (old & ~mask) | (value & mask).
+  // Throws Error(refused) for ROM/unimplemented registers, Error(verify) on mismatch.
+  WriteResult write(unsigned reg, std::uint16_t value, std::uint16_t mask = 0xFFFF);
+
+  // Several registers as one change: all succeed, or every register already written is restored
+  // and the error is rethrown with what was rolled back.
+  std::vector<WriteResult> write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes);
+  struct MaskedChange {
+    unsigned reg;
+    std::uint16_t value;
+    std::uint16_t mask;
+  };
+  std::vector<WriteResult> write_masked(const std::vector<MaskedChange>& changes);
+
+  // R7 command (e.g. 0x7000 factory reset): unlock, write, relock; no read-back of R7.
+  void command(std::uint16_t value);
+
+  void unlock();  // R31 = 0x1235, verified
+  void lock();    // R31 = 0, verified
+  // Sends one raw register request and waits for the ack; returns the value bytes of the answer.
+  std::uint16_t transact(bool write, unsigned reg, std::uint16_t value);
+
+  // Restores the process-data bytes and relocks if this session unlocked. Never throws.
+  void close() noexcept;
+
+  const TerminalImage& terminal() const { return *term_; }
+  unsigned channel() const { return channel_; }
+  std::string who() const;  // "terminal 1 (KL6001)"
+
+ private:
+  void check_writable(unsigned reg) const;
+  void relock_write();
+  void verify_locked();
+  void put(std::uint8_t ctrl, std::optional<std::uint16_t> value);
+  struct Status {
+    std::uint8_t status;
+    std::uint16_t value;
+  };
+  Status poll_once();
+  // Writes the request for `next` and reads the image in one exchange (pipelining links).
+  Status poll_ahead(unsigned next);
+  // Polls until the terminal acknowledges the request for `reg` already in the control byte.
+  std::uint16_t wait_ack(bool write, unsigned reg, std::uint16_t value, bool speculate);
+
+  Link& link_;
+  const TerminalImage* term_;
+  unsigned channel_;
+  RegisterWindow w_;
+  SessionOptions opt_;
+  std::size_t out_lo_ = 0, out_hi_ = 0;  // covering range of the window's output bytes
+  std::size_t in_lo_ = 0, in_hi_ = 0;
+  std::vector<std::uint8_t> saved_out_;  // the channel's output bytes at open
+  std::size_t saved_at_ = 0;
+  std::vector<std::uint8_t> shadow_;     // window output bytes as we last wrote them
+  bool unlocked_ = false;
+  bool maybe_unlocked_ = false;
+  bool closed_ = false;
+  std::optional<std::uint8_t> last_status_;  // status after our last acknowledged request
+  // On a link that pipelines, a read writes the request for the next register in the exchange
+  // that fetches its own answer (FC23); reading that register next costs one exchange.
+  std::optional<unsigned> pending_;
+  unsigned ahead_misses_ = 0;  // the terminal was slower than the link: stop reading ahead
+};
+
+// Resolves position/channel to a terminal image with a register window; throws a clear
+// Error(usage/refused) for a bad position, a terminal without registers or an unmapped CT/ST byte.
+const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel);
+
+}  // namespace kscfg

@@ -1,0 +1,73 @@
+// Process-image layout: where each terminal's bytes sit in a coupler's image (DESIGN.md section 3).
+#pragma once
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/station.hpp"
+
+namespace kscfg {
+
+// One byte of the image that belongs to a terminal channel.
+struct ImageByte {
+  std::size_t offset = 0;  // byte offset in the input or output image
+  std::string name;        // CT/ST, D0, Ser-CT/ST, reserved, ...
+  int index = -1;          // index in the channel's K-bus structure; -1 for a reserved byte
+};
+
+// Bytes that carry register communication for one channel.
+struct RegisterWindow {
+  std::size_t ctrl = 0;    // control byte in the output image
+  std::size_t status = 0;  // status byte in the input image
+  std::size_t out_lo = 0, out_hi = 0;  // register value bytes in the output image
+  std::size_t in_lo = 0, in_hi = 0;    // register value bytes in the input image
+};
+
+struct ChannelImage {
+  std::vector<ImageByte> out, in;
+  std::size_t out_struct = 0, in_struct = 0;  // size of the K-bus structure
+  int value_index = 1;                        // structure index of the register value's low byte
+  std::optional<RegisterWindow> window;       // empty: control/status byte not mapped
+};
+
+struct TerminalImage {
+  unsigned position = 0;  // 1-based plug position
+  const TerminalType* type = nullptr;
+  std::string format;     // image format name
+  bool complex = false;
+  std::vector<ChannelImage> channels;
+  std::size_t in_offset = 0, in_size = 0, out_offset = 0, out_size = 0;  // complex: byte range
+  std::size_t in_bit = 0, out_bit = 0;  // digital: absolute bit offset in the image
+  unsigned bits_in = 0, bits_out = 0;
+};
+
+struct StationLayout {
+  std::string coupler;
+  MappingSettings settings;
+  std::vector<TerminalImage> terminals;
+  std::size_t in_bytes = 0, out_bytes = 0;
+  std::size_t complex_in = 0, complex_out = 0;
+  std::size_t digital_in_bits = 0, digital_out_bits = 0;
+
+  const TerminalImage& terminal(unsigned position) const;  // throws Error(usage)
+};
+
+using RegisterSource = std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position,
+                                                                                       unsigned channel)>;
+
+// Lays out one channel of a complex terminal at `start` (output and input images separately).
+ChannelImage layout_channel(const ImageFormat& fmt, const TerminalType& type, const MappingSettings& s,
+                            const std::array<std::uint16_t, proto::kRegisterCount>& regs, std::size_t out_start,
+                            std::size_t in_start);
+
+// Whole station. Register values come from `regs` (defaults + station file, or read online).
+StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, const MappingSettings& settings,
+                             const RegisterSource& regs);
+// Offline: register values from the spec (channel_registers).
+StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog);
+
+}  // namespace kscfg

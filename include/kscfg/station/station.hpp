@@ -1,0 +1,84 @@
+// Station description: coupler, mapping settings and terminals in plug order (TOML station files).
+#pragma once
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+
+namespace kscfg {
+
+struct MappingSettings {
+  bool complete_evaluation = false;
+  bool motorola = false;
+  bool word_alignment = false;
+};
+
+struct CouplerProfile {
+  std::string name;
+  std::string family;   // lightbus, profibus, interbus, canopen, devicenet, modbus-rtu, rs485, modbus-tcp
+  std::string title;
+  MappingSettings defaults;
+  std::size_t max_in_bytes = 0;    // process-image limits (0 = no limit known)
+  std::size_t max_out_bytes = 0;
+  bool modbus = false;             // exposes the image as Modbus registers (BK7xx0, BK9xx0)
+  // Settings the coupler does not let anyone change ("complete_evaluation", "word_alignment"):
+  // the BK2000 always maps the control/status byte and puts the register value on a word.
+  std::vector<std::string> fixed;
+
+  bool is_fixed(std::string_view setting) const;
+};
+
+// The profile's defaults with the given overrides; throws Error(usage) when an override changes a
+// setting the coupler fixes (e.g. complete evaluation off on a BK2000).
+MappingSettings resolve_settings(const CouplerProfile& p, std::optional<bool> complete_evaluation,
+                                 std::optional<bool> motorola, std::optional<bool> word_alignment);
+
+const std::vector<CouplerProfile>& coupler_profiles();
+// Exact name or family member (BK3120 -> Profibus profile). Throws Error(usage) with suggestions.
+const CouplerProfile& coupler_profile(std::string_view name);
+
+struct Setting {
+  std::string name;   // parameter name, or "R32" for a raw register
+  std::string value;  // as written in the file
+  int line = 0;
+};
+
+struct ChannelSpec {
+  std::vector<Setting> params;
+  std::map<unsigned, std::uint16_t> registers;
+  std::map<unsigned, int> register_lines;
+};
+
+struct TerminalSpec {
+  std::string type;
+  int line = 0;
+  std::vector<ChannelSpec> channels;  // may be empty or shorter than the type's channel count
+};
+
+struct StationSpec {
+  std::string coupler = "BK9000";
+  std::optional<bool> complete_evaluation, motorola, word_alignment;
+  std::vector<TerminalSpec> terminals;
+  std::vector<std::string> comments;  // optional, per terminal: a "# ..." line in station_to_toml
+  std::string origin;  // file name for messages
+
+  MappingSettings settings() const;
+};
+
+// Parses a station file; errors name file, line and column (Exit::file for syntax, Exit::usage for
+// unknown types or parameters).
+StationSpec parse_station(std::string_view text, std::string_view origin, const Catalog& catalog);
+StationSpec load_station(const std::string& path, const Catalog& catalog);
+std::string station_to_toml(const StationSpec& spec);
+
+// The default station of the emulator: BK9000 with KL6001, KL5101, KL6031, digital terminals, KL9010.
+StationSpec default_station();
+
+// Register values of one channel: the type's defaults, then the spec's params and registers.
+std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type,
+                                                                   const TerminalSpec* spec, unsigned channel);
+
+}  // namespace kscfg

@@ -1,0 +1,139 @@
+#include "kscfg/base/parse.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cctype>
+
+#include "kscfg/base/error.hpp"
+
+namespace kscfg {
+
+const char* exit_name(Exit e) {
+  switch (e) {
+    case Exit::ok: return "ok";
+    case Exit::differences: return "differences";
+    case Exit::usage: return "usage";
+    case Exit::link: return "link";
+    case Exit::timeout: return "timeout";
+    case Exit::refused: return "refused";
+    case Exit::verify: return "verify";
+    case Exit::file: return "file";
+    case Exit::interrupted: return "interrupted";
+    case Exit::changed: return "changed";
+    case Exit::internal: return "internal";
+  }
+  return "?";
+}
+
+std::uint64_t parse_uint(std::string_view text, std::uint64_t max, std::string_view what) {
+  auto fail = [&](std::string_view why) -> std::uint64_t {
+    throw Error(Exit::usage, fmt::format("invalid {} '{}': {}", what, text, why));
+  };
+  if (text.empty()) return fail("empty");
+  unsigned base = 10;
+  std::string_view digits = text;
+  if (text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X')) {
+    base = 16;
+    digits = text.substr(2);
+  } else if (text.size() > 2 && text[0] == '0' && (text[1] == 'b' || text[1] == 'B')) {
+    base = 2;
+    digits = text.substr(2);
+  }
+  if (digits.empty()) return fail("no digits");
+  std::uint64_t v = 0;
+  for (char c : digits) {
+    unsigned d;
+    if (c >= '0' && c <= '9') d = static_cast<unsigned>(c - '0');
+    else if (c >= 'a' && c <= 'f') d = static_cast<unsigned>(c - 'a' + 10);
+    else if (c >= 'A' && c <= 'F') d = static_cast<unsigned>(c - 'A' + 10);
+    else return fail(fmt::format("unexpected character '{}'", c));
+    if (d >= base) return fail(fmt::format("'{}' is not a base-{} digit", c, base));
+    if (v > (UINT64_MAX - d) / base) return fail("too large");
+    v = v * base + d;
+  }
+  if (v > max) return fail(fmt::format("out of range (0..{})", max));
+  return v;
+}
+
+unsigned parse_register(std::string_view text) {
+  std::string_view t = text;
+  if (!t.empty() && (t[0] == 'R' || t[0] == 'r')) t.remove_prefix(1);
+  if (t.empty()) throw Error(Exit::usage, fmt::format("invalid register '{}'", text));
+  std::uint64_t v = 0;
+  try {
+    v = parse_uint(t, UINT64_MAX, "register");
+  } catch (const Error&) {
+    throw Error(Exit::usage, fmt::format("invalid register '{}': use R0..R63, 0..63 or 0x00..0x3F", text));
+  }
+  if (v > 63)
+    throw Error(Exit::usage, fmt::format("invalid register '{}': registers are R0..R63", text));
+  return static_cast<unsigned>(v);
+}
+
+std::vector<unsigned> parse_register_list(std::string_view text) {
+  auto dash = text.find('-');
+  if (dash == std::string_view::npos) return {parse_register(text)};
+  unsigned a = parse_register(text.substr(0, dash));
+  unsigned b = parse_register(text.substr(dash + 1));
+  if (b < a) throw Error(Exit::usage, fmt::format("invalid register range '{}': end before start", text));
+  std::vector<unsigned> out;
+  for (unsigned r = a; r <= b; ++r) out.push_back(r);
+  return out;
+}
+
+std::uint16_t parse_value(std::string_view text) {
+  return static_cast<std::uint16_t>(parse_uint(text, 0xFFFF, "value"));
+}
+
+std::string hex4(std::uint16_t v) { return fmt::format("0x{:04X}", v); }
+std::string format_value(std::uint16_t v) { return fmt::format("0x{:04X} {}", v, v); }
+
+static std::size_t distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    cur[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      auto ca = std::tolower(static_cast<unsigned char>(a[i - 1]));
+      auto cb = std::tolower(static_cast<unsigned char>(b[j - 1]));
+      cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (ca == cb ? 0 : 1)});
+    }
+    std::swap(prev, cur);
+  }
+  return prev[b.size()];
+}
+
+std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates,
+                                 std::size_t n) {
+  std::vector<std::pair<std::size_t, std::string>> scored;
+  for (const auto& c : candidates) {
+    auto d = distance(name, c);
+    // Prefix matches count as close ("KL60" -> KL6001).
+    if (c.size() >= name.size() && !name.empty() &&
+        std::equal(name.begin(), name.end(), c.begin(),
+                   [](char x, char y) { return std::tolower((unsigned char)x) == std::tolower((unsigned char)y); }))
+      d = std::min<std::size_t>(d, 1);
+    if (d <= std::max<std::size_t>(2, name.size() / 3)) scored.emplace_back(d, c);
+  }
+  std::stable_sort(scored.begin(), scored.end(), [](auto& x, auto& y) { return x.first < y.first; });
+  std::vector<std::string> out;
+  for (auto& [d, c] : scored) {
+    if (out.size() >= n) break;
+    out.push_back(c);
+  }
+  return out;
+}
+
+std::string did_you_mean(std::string_view name, const std::vector<std::string>& candidates) {
+  auto c = closest(name, candidates);
+  if (c.empty()) return {};
+  std::string s = "did you mean ";
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    if (i) s += (i + 1 == c.size()) ? " or " : ", ";
+    s += c[i];
+  }
+  return s + "?";
+}
+
+}  // namespace kscfg

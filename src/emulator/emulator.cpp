@@ -1,0 +1,368 @@
+#include "kscfg/emulator/emulator.hpp"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+
+namespace kscfg {
+
+// ---------------------------------------------------------------------------------------------
+// ChannelModel
+
+ChannelModel::ChannelModel(const TerminalType& type, std::array<std::uint16_t, proto::kRegisterCount> regs)
+    : type_(&type), regs_(regs) {
+  // ROM is what the factory burnt in, whatever a state file says.
+  for (unsigned r = 8; r < 15; ++r) regs_[r] = type.regs[r].def;
+  if (type.is_serial() && type.has_registers) serial_ = std::make_unique<SerialModel>(type);
+}
+
+std::uint16_t ChannelModel::read_register(unsigned r) const {
+  if (r >= proto::kRegisterCount || !proto::is_implemented(r)) return 0;
+  if (r == proto::kCodeWordRegister) return unlocked() ? proto::kCodeWord : 0;
+  return regs_[r];
+}
+
+void ChannelModel::factory_reset() {
+  auto d = type_->defaults();
+  for (unsigned r = 16; r < 48; ++r)
+    if (r != proto::kCodeWordRegister && type_->regs[r].storage == proto::Storage::seerom) regs_[r] = d[r];
+}
+
+void ChannelModel::write_register(unsigned r, std::uint16_t v) {
+  if (r >= proto::kRegisterCount || !proto::is_implemented(r)) return;  // not implemented: ignored
+  if (faults.ignore_writes.count(r)) return;
+  if (r == proto::kCodeWordRegister) {
+    regs_[r] = v;  // any other value sets write protection
+    return;
+  }
+  const RegisterDef& def = type_->regs[r];
+  if (!def.writable || def.storage == proto::Storage::rom) return;  // ROM and read-only: ignored
+  if (proto::is_protected(r) && !unlocked()) return;                 // needs the code word
+  if (r == proto::kCommandRegister) {
+    // R7: command register. 0x7000 restores factory settings where the manual documents it.
+    if (type_->reset == FactoryReset::r7 && v == proto::kFactoryResetCommand && unlocked()) factory_reset();
+    regs_[r] = v;
+    return;
+  }
+  regs_[r] = v;
+}
+
+void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in,
+                         int vi, unsigned delay, double cycle_us) {
+  std::uint8_t ctrl = out.empty() ? 0 : out[0];
+  auto vidx = static_cast<std::size_t>(vi);
+  if (serial_) {
+    // The serial line runs whatever the K-bus mode; R0, R1 and R6 follow the FIFOs.
+    serial_->mute = faults.mute;
+    serial_->run_line(cycle_us, regs_);
+  }
+  auto serial_registers = [&] {
+    if (!serial_) return;
+    regs_[0] = serial_->tx_count();
+    regs_[1] = serial_->rx_count();
+    regs_[6] = serial_->diagnostics();
+  };
+  if (!(ctrl & proto::kReg) || !type_->has_registers) {
+    // Process-data mode: the plain terminal model has no process data of its own; a serial
+    // terminal runs its handshake (serial_model.hpp).
+    if (reg_mode_) std::fill(in.begin(), in.end(), 0);
+    reg_mode_ = false;
+    if (serial_) serial_->handshake(out, in, regs_);
+    serial_registers();
+    return;
+  }
+  serial_registers();
+  std::uint16_t value = 0;
+  if (out.size() > vidx + 1) value = static_cast<std::uint16_t>(out[vidx] | (out[vidx + 1] << 8));
+  bool write = (ctrl & proto::kWrite) != 0;
+  if (!reg_mode_ || ctrl != req_ctrl_ || (write && value != req_value_)) {
+    reg_mode_ = true;
+    req_ctrl_ = ctrl;
+    req_value_ = value;
+    req_seen_ = n;
+    executed_ = false;
+  }
+  if (faults.mute || n < req_seen_ + delay) return;  // not answered yet: the status stays stale
+  unsigned addr = ctrl & proto::kAddrMask;
+  if (write && !executed_) write_register(addr, value);
+  executed_ = true;
+  std::uint16_t answer = write ? 0 : read_register(addr);
+  if (!in.empty()) in[0] = static_cast<std::uint8_t>(proto::kReg | addr);  // as the seed's example: 0xDF -> 0x9F
+  if (in.size() > vidx + 1) {
+    in[vidx] = static_cast<std::uint8_t>(answer & 0xFF);
+    in[vidx + 1] = static_cast<std::uint8_t>(answer >> 8);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// EmulatedStation
+
+EmulatedStation::EmulatedStation(const StationSpec& spec, const Catalog& catalog) : spec_(spec), catalog_(&catalog) {
+  for (std::size_t i = 0; i < spec_.terminals.size(); ++i) {
+    const auto& ts = spec_.terminals[i];
+    const TerminalType& type = catalog.get(ts.type);
+    if (!type.has_registers) continue;
+    for (unsigned ch = 0; ch < type.channels; ++ch)
+      slots_.push_back({static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}});
+  }
+  // Settings of the file now live in the terminals' registers; the spec keeps the composition.
+  for (auto& t : spec_.terminals) t.channels.clear();
+  power_on();
+}
+
+void EmulatedStation::power_on() {
+  layout_ = compute_layout(spec_, *catalog_, spec_.settings(), [&](unsigned pos, unsigned ch) {
+    if (has_channel(pos, ch)) return channel(pos, ch).registers();
+    return catalog_->get(spec_.terminals.at(pos - 1).type).defaults();
+  });
+  out_.assign(layout_.out_bytes, 0);
+  in_.assign(layout_.in_bytes, 0);
+  for (auto& s : slots_) {
+    const auto& t = layout_.terminal(s.position);
+    s.in_struct.assign(t.complex && s.channel < t.channels.size() ? t.channels[s.channel].in_struct : 0, 0);
+    if (auto* ser = s.model.serial(); ser && t.complex && s.channel < t.channels.size())
+      ser->attach(t.channels[s.channel], t.format);
+  }
+}
+
+bool EmulatedStation::has_channel(unsigned position, unsigned ch) const {
+  for (const auto& s : slots_)
+    if (s.position == position && s.channel == ch) return true;
+  return false;
+}
+
+ChannelModel& EmulatedStation::channel(unsigned position, unsigned ch) {
+  for (auto& s : slots_)
+    if (s.position == position && s.channel == ch) return s.model;
+  throw Error(Exit::usage, fmt::format("no register channel {} at position {}", ch + 1, position));
+}
+
+void EmulatedStation::cycle() {
+  ++cycle_;
+  std::vector<std::uint8_t> out_struct;
+  for (auto& s : slots_) {
+    const TerminalImage& t = layout_.terminals.at(s.position - 1);
+    if (!t.complex || s.channel >= t.channels.size()) continue;
+    const ChannelImage& ci = t.channels[s.channel];
+    out_struct.assign(ci.out_struct, 0);
+    for (const auto& b : ci.out)
+      if (b.index >= 0 && static_cast<std::size_t>(b.index) < out_struct.size()) out_struct[b.index] = out_[b.offset];
+    s.model.cycle(cycle_, out_struct, s.in_struct, ci.value_index, response_delay, kbus_cycle_us);
+    for (const auto& b : ci.in)
+      if (b.index >= 0 && static_cast<std::size_t>(b.index) < s.in_struct.size()) in_[b.offset] = s.in_struct[b.index];
+  }
+}
+
+nlohmann::json EmulatedStation::to_json() const {
+  nlohmann::json j;
+  j["format"] = "kscfg-emulator";
+  j["version"] = 1;
+  j["station"] = station_to_toml(spec_);
+  j["response_delay"] = response_delay;
+  if (kbus_cycle_us != 1000) j["kbus_cycle_us"] = kbus_cycle_us;
+  nlohmann::json chans = nlohmann::json::array();
+  for (const auto& s : slots_) {
+    nlohmann::json c;
+    c["position"] = s.position;
+    c["channel"] = s.channel;
+    c["type"] = spec_.terminals.at(s.position - 1).type;
+    c["registers"] = s.model.registers();
+    if (!s.model.faults.ignore_writes.empty()) c["ignore_writes"] = s.model.faults.ignore_writes;
+    if (s.model.faults.mute) c["mute"] = true;
+    if (const auto* ser = s.model.serial()) c["serial"] = ser->to_json();
+    chans.push_back(c);
+  }
+  j["channels"] = chans;
+  std::string hex;
+  for (auto b : out_) hex += fmt::format("{:02x}", b);
+  j["outputs"] = hex;
+  return j;
+}
+
+std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json& j, const Catalog& catalog) {
+  auto bad = [](const std::string& why) -> Error { return Error(Exit::file, why); };
+  try {
+    if (!j.is_object() || j.value("format", "") != "kscfg-emulator") throw bad("not a kscfg emulator state");
+    if (j.at("version").get<int>() != 1) throw bad("unsupported state version");
+    StationSpec spec = parse_station(j.at("station").get<std::string>(), "state:station", catalog);
+    auto st = std::make_unique<EmulatedStation>(spec, catalog);
+    st->response_delay = j.value("response_delay", 1u);
+    if (st->response_delay > 1000) throw bad("response_delay out of range");
+    st->kbus_cycle_us = j.value("kbus_cycle_us", 1000u);
+    if (st->kbus_cycle_us == 0 || st->kbus_cycle_us > 1000000) throw bad("kbus_cycle_us out of range");
+    const auto& chans = j.at("channels");
+    if (!chans.is_array() || chans.size() != st->slots_.size()) throw bad("channel list does not match the station");
+    for (std::size_t i = 0; i < chans.size(); ++i) {
+      auto& slot = st->slots_[i];
+      const auto& c = chans[i];
+      if (c.at("position").get<unsigned>() != slot.position || c.at("channel").get<unsigned>() != slot.channel ||
+          c.at("type").get<std::string>() != spec.terminals.at(slot.position - 1).type)
+        throw bad(fmt::format("channel {} does not match the station", i));
+      auto regs = c.at("registers").get<std::vector<unsigned>>();
+      if (regs.size() != proto::kRegisterCount) throw bad("a register set must have 64 values");
+      std::array<std::uint16_t, proto::kRegisterCount> r{};
+      for (unsigned k = 0; k < proto::kRegisterCount; ++k) {
+        if (regs[k] > 0xFFFF) throw bad("register value out of range");
+        r[k] = static_cast<std::uint16_t>(regs[k]);
+      }
+      slot.model = ChannelModel(catalog.get(spec.terminals.at(slot.position - 1).type), r);
+      if (c.contains("ignore_writes")) slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
+      slot.model.faults.mute = c.value("mute", false);
+      if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
+    }
+    st->power_on();  // the coupler lays out the image from the terminals' registers
+    auto hex = j.at("outputs").get<std::string>();
+    if (hex.size() == st->out_.size() * 2) {
+      for (std::size_t i = 0; i < st->out_.size(); ++i)
+        st->out_[i] = static_cast<std::uint8_t>(std::stoul(hex.substr(2 * i, 2), nullptr, 16));
+    }
+    // A changed layout (e.g. after a new R35) starts with cleared outputs, as a coupler would.
+    return st;
+  } catch (const Error&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw bad(e.what());
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// EmulatorStore
+
+std::string EmulatorStore::default_path() {
+  std::filesystem::path base;
+  if (const char* x = std::getenv("XDG_STATE_HOME"); x && *x) base = x;
+  else if (const char* h = std::getenv("HOME"); h && *h) base = std::filesystem::path(h) / ".local/state";
+  else base = "/tmp";
+  return (base / "kscfg" / "emulator.json").string();
+}
+
+EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lock_timeout_s) : path_(std::move(path)) {
+  if (path_.empty() || path_ == "mem") {
+    path_.clear();
+    station_ = std::make_unique<EmulatedStation>(default_station(), catalog);
+    return;
+  }
+  auto dir = std::filesystem::path(path_).parent_path();
+  std::error_code ec;
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
+  if (ec)
+    throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+  lock_fd_ = lock_file(path_ + ".lock", lock_timeout_s);
+  std::ifstream in(path_);
+  if (!in) {
+    if (std::filesystem::exists(path_, ec))
+      throw Error(Exit::file, fmt::format("cannot read the emulator state file '{}'", path_));
+    station_ = std::make_unique<EmulatedStation>(default_station(), catalog);
+    return;
+  }
+  std::stringstream ss;
+  ss << in.rdbuf();
+  try {
+    auto j = nlohmann::json::parse(ss.str());
+    station_ = EmulatedStation::from_json(j, catalog);
+  } catch (const std::exception& e) {
+    ::close(lock_fd_);
+    lock_fd_ = -1;
+    std::string why = e.what();
+    if (auto p = why.find('\n'); p != std::string::npos) why.resize(p);
+    throw Error(Exit::file, fmt::format("emulator state file '{}' is corrupt ({})", path_, why),
+                "run 'kscfg emu reset' to restore the factory state (the file is left as it is)");
+  }
+}
+
+EmulatorStore::~EmulatorStore() {
+  if (lock_fd_ >= 0) ::close(lock_fd_);
+}
+
+void EmulatorStore::save() {
+  if (path_.empty()) return;
+  write_file_atomic(path_, station_->to_json().dump(1) + "\n");
+}
+
+// ---------------------------------------------------------------------------------------------
+// EmulatorLink
+
+EmulatorLink::EmulatorLink(std::string path, const Catalog& catalog)
+    : store_(std::make_unique<EmulatorStore>(std::move(path), catalog)), station_(&store_->station()) {}
+
+EmulatorLink::EmulatorLink(EmulatedStation& station) : station_(&station) {}
+
+std::string EmulatorLink::describe() const {
+  if (store_ && !store_->path().empty()) return "emu:" + store_->path();
+  return "emu:mem";
+}
+
+static void check_range(std::size_t offset, std::size_t n, std::size_t size, const char* what) {
+  if (offset + n > size)
+    throw Error(Exit::link, fmt::format("{} image access {}..{} beyond its {} bytes", what, offset, offset + n, size));
+}
+
+void EmulatorLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
+  ++exchanges_;
+  station_->cycle();  // the K-bus runs between two reads of the image
+  const auto& in = station_->inputs();
+  check_range(offset, dst.size(), in.size(), "input");
+  std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(offset), dst.size(), dst.begin());
+}
+
+void EmulatorLink::read_outputs(std::size_t offset, std::span<std::uint8_t> dst) {
+  ++exchanges_;
+  const auto& out = station_->outputs();
+  check_range(offset, dst.size(), out.size(), "output");
+  std::copy_n(out.begin() + static_cast<std::ptrdiff_t>(offset), dst.size(), dst.begin());
+}
+
+void EmulatorLink::write_outputs(std::size_t offset, std::span<const std::uint8_t> src) {
+  ++exchanges_;
+  auto& out = station_->outputs();
+  check_range(offset, src.size(), out.size(), "output");
+  std::copy(src.begin(), src.end(), out.begin() + static_cast<std::ptrdiff_t>(offset));
+}
+
+void EmulatorLink::pause(unsigned poll_number) {
+  // The emulated K-bus runs on every read; only a terminal that does not answer makes the
+  // caller poll long, and then there is no need to spin.
+  if (poll_number > 64) std::this_thread::sleep_for(std::chrono::microseconds(200));
+}
+
+void EmulatorLink::commit() {
+  if (store_) store_->save();
+}
+
+}  // namespace kscfg
+
+namespace kscfg {
+
+void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog) {
+  EmulatedStation fresh(spec, catalog);
+  if (path.empty() || path == "mem") return;
+  auto dir = std::filesystem::path(path).parent_path();
+  std::error_code ec;
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
+  if (ec) throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+  int fd = lock_file(path + ".lock", 10.0);
+  try {
+    write_file_atomic(path, fresh.to_json().dump(1) + "\n");
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
+  ::close(fd);
+}
+
+}  // namespace kscfg

@@ -1,0 +1,110 @@
+#include "kscfg/link/port_uri.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/modbus.hpp"
+#include "kscfg/base/parse.hpp"
+
+namespace kscfg {
+
+namespace {
+
+std::map<std::string, std::string> parse_query(const std::string& uri, const std::string& q) {
+  std::map<std::string, std::string> out;
+  std::size_t pos = 0;
+  while (pos <= q.size()) {
+    auto amp = q.find('&', pos);
+    std::string kv = q.substr(pos, amp == std::string::npos ? std::string::npos : amp - pos);
+    auto eq = kv.find('=');
+    if (kv.empty() || eq == std::string::npos || eq == 0 || eq + 1 == kv.size())
+      throw Error(Exit::usage, fmt::format("invalid port '{}': query items are key=value", uri));
+    out[kv.substr(0, eq)] = kv.substr(eq + 1);
+    if (amp == std::string::npos) break;
+    pos = amp + 1;
+  }
+  return out;
+}
+
+}  // namespace
+
+PortUri parse_port_uri(const std::string& uri) {
+  PortUri p;
+  std::string rest;
+  if (uri == "emu" || uri.rfind("emu:", 0) == 0) {
+    p.scheme = "emu";
+    p.target = uri.size() > 4 ? uri.substr(4) : "";
+    if (uri == "emu:") throw Error(Exit::usage, "invalid port 'emu:': give a state file path, or 'emu'");
+    return p;
+  }
+  if (uri.rfind("tcp://", 0) == 0) {
+    p.scheme = "tcp";
+    rest = uri.substr(6);
+  } else if (uri.rfind("rtu:", 0) == 0) {
+    p.scheme = "rtu";
+    rest = uri.substr(4);
+  } else {
+    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT] or rtu:DEVICE", uri));
+  }
+  auto qm = rest.find('?');
+  if (qm != std::string::npos) {
+    p.query = parse_query(uri, rest.substr(qm + 1));
+    rest.resize(qm);
+  }
+  if (p.scheme == "tcp") {
+    std::string port_text;
+    bool has_port = false;
+    if (!rest.empty() && rest.front() == '[') {  // [IPv6]:port
+      auto close = rest.find(']');
+      if (close == std::string::npos) throw Error(Exit::usage, fmt::format("invalid port '{}': missing ']'", uri));
+      if (close + 1 < rest.size()) {
+        if (rest[close + 1] != ':') throw Error(Exit::usage, fmt::format("invalid port '{}'", uri));
+        port_text = rest.substr(close + 2);
+        has_port = true;
+      }
+      rest = rest.substr(1, close - 1);
+    } else if (auto colon = rest.rfind(':'); colon != std::string::npos) {
+      port_text = rest.substr(colon + 1);
+      rest.resize(colon);
+      has_port = true;
+    }
+    if (has_port) {
+      p.port = static_cast<unsigned>(parse_uint(port_text, 65535, "TCP port"));
+      if (p.port == 0) throw Error(Exit::usage, fmt::format("invalid port '{}': TCP port 0", uri));
+    }
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no host", uri));
+    p.target = rest;
+    for (const auto& [k, v] : p.query)
+      if (k != "unit") throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (unit)", uri, k));
+  } else {
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));
+    p.target = rest;
+    for (const auto& [k, v] : p.query)
+      if (k != "unit" && k != "baud" && k != "parity" && k != "data" && k != "stop")
+        throw Error(Exit::usage,
+                    fmt::format("invalid port '{}': unknown option '{}' (baud, parity, data, stop, unit)", uri, k));
+  }
+  return p;
+}
+
+std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
+  PortUri p = parse_port_uri(uri);
+  if (p.scheme == "emu") {
+    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    return std::make_unique<EmulatorLink>(path, catalog);
+  }
+  // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
+  // timeout is tried twice more, so a silent coupler is reported within about --timeout.
+  ModbusOptions mo;
+  mo.response_timeout_ms = std::clamp(opt.timeout_ms / 3, 50u, 5000u);
+  mo.timeout_retries = 2;
+  mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+  mo.ack_timeout_ms = opt.timeout_ms;
+  mo.trace = opt.trace;
+  return std::make_unique<ModbusLink>(modbus_target(p, uri), catalog, mo);
+}
+
+}  // namespace kscfg

@@ -1,0 +1,240 @@
+#include "kscfg/provision/provision.hpp"
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <ctime>
+#include <filesystem>
+#include <map>
+
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/catalog/params.hpp"
+#include "kscfg/base/parse.hpp"
+
+namespace kscfg {
+
+bool Plan::changes() const {
+  return std::any_of(channels.begin(), channels.end(), [](const ChannelPlan& c) { return !c.registers.empty(); });
+}
+
+namespace {
+
+bool backed_up(const TerminalType& t, unsigned r) {
+  const RegisterDef& d = t.regs[r];
+  return r >= 17 && r < 48 && r != proto::kCodeWordRegister && d.storage == proto::Storage::seerom && d.writable;
+}
+
+}  // namespace
+
+StationSpec backup_station(Link& link, const StationLayout& layout, const SessionOptions& so,
+                           const Progress& progress) {
+  StationSpec spec;
+  spec.coupler = layout.coupler;
+  unsigned total = static_cast<unsigned>(layout.terminals.size()), done = 0;
+  for (const auto& t : layout.terminals) {
+    TerminalSpec ts;
+    std::string comment;
+    ts.type = t.type->type;
+    if (progress) progress(done, total, fmt::format("terminal {} ({})", t.position, ts.type));
+    if (t.type->has_registers) {
+      for (unsigned ch = 0; ch < t.type->channels; ++ch) {
+        const TerminalImage& ti = register_terminal(layout, t.position, ch);
+        RegisterSession s(link, ti, ch, so);
+        ChannelSpec cs;
+        if (ch == 0) {
+          std::uint16_t r8 = s.read(8), r9 = s.read(9);
+          if (r8 != t.type->r8)
+            throw Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station says {}",
+                                                   t.position, r8, t.type->type));
+          comment = fmt::format("position {}: R8 {}, version {}", t.position, r8, proto::version_text(r9));
+        }
+        std::map<unsigned, std::uint16_t> regs;
+        for (unsigned r = 17; r < 48; ++r)
+          if (backed_up(*t.type, r)) regs[r] = s.read(r);
+        s.close();
+        for (const auto& p : t.type->params) {
+          if (p.channel && *p.channel != ch) continue;
+          if (!regs.count(p.reg)) continue;
+          // Only values that read back as themselves (an unknown code stays a raw register).
+          std::string text = decode_param(p, regs[p.reg]);
+          try {
+            if (encode_param(p, text, regs[p.reg]) != regs[p.reg]) continue;
+          } catch (const Error&) {
+            continue;
+          }
+          cs.params.push_back({p.name, text, 0});
+        }
+        cs.registers = regs;
+        ts.channels.push_back(std::move(cs));
+      }
+    } else {
+      comment = fmt::format("position {}", t.position);
+    }
+    spec.terminals.push_back(std::move(ts));
+    spec.comments.push_back(comment);
+    ++done;
+  }
+  if (progress) progress(done, total, "done");
+  return spec;
+}
+
+Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
+               const SessionOptions& so) {
+  auto where = [&](int line) { return line ? fmt::format("{}:{}: ", desired.origin, line) : desired.origin + ": "; };
+  // 1. Composition: same types at the same positions, before anything else.
+  if (desired.terminals.size() != layout.terminals.size()) {
+    throw Error(Exit::refused,
+                fmt::format("{}describes {} terminals, the station has {}", where(0), desired.terminals.size(),
+                            layout.terminals.size()),
+                "kscfg info lists the station; nothing was written");
+  }
+  for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
+    const auto& want = desired.terminals[i];
+    const auto& have = layout.terminals[i];
+    if (catalog.get(want.type).type != have.type->type)
+      throw Error(Exit::refused,
+                  fmt::format("{}position {} is {} in the file but {} in the station", where(want.line), i + 1,
+                              want.type, have.type->type),
+                  "nothing was written");
+  }
+  // 2. Every register the file names must be writable.
+  for (const auto& want : desired.terminals) {
+    const TerminalType& type = catalog.get(want.type);
+    for (const auto& ch : want.channels)
+      for (const auto& [r, v] : ch.registers) {
+        const RegisterDef& d = type.regs[r];
+        int line = ch.register_lines.count(r) ? ch.register_lines.at(r) : want.line;
+        if (!d.implemented || !d.writable || r == proto::kCodeWordRegister || d.storage == proto::Storage::rom)
+          throw Error(Exit::usage, fmt::format("{}R{} of {} cannot be provisioned ({})", where(line), r, type.type,
+                                               r == proto::kCodeWordRegister ? "the code word is not a setting"
+                                               : !d.implemented             ? "not implemented"
+                                                                            : "read-only"));
+      }
+  }
+  // 3. Read what the file configures and compare.
+  Plan plan;
+  for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
+    const auto& want = desired.terminals[i];
+    const TerminalImage& have = layout.terminals[i];
+    const TerminalType& type = *have.type;
+    for (unsigned ch = 0; ch < want.channels.size(); ++ch) {
+      const ChannelSpec& cs = want.channels[ch];
+      if (cs.params.empty() && cs.registers.empty()) continue;
+      ChannelPlan cp;
+      cp.position = have.position;
+      cp.channel = ch;
+      cp.type = type.type;
+      const TerminalImage& ti = register_terminal(layout, have.position, ch);
+      RegisterSession s(link, ti, ch, so);
+      std::map<unsigned, std::uint16_t> cur;
+      std::vector<unsigned> order;
+      auto need = [&](unsigned r) {
+        if (!cur.count(r)) {
+          cur[r] = s.read(r);
+          order.push_back(r);
+        }
+      };
+      for (const auto& [r, v] : cs.registers) need(r);
+      for (const auto& p : cs.params) need(type.param(p.name)->reg);
+      s.close();
+      std::map<unsigned, std::uint16_t> next = cur;
+      for (const auto& [r, v] : cs.registers) next[r] = v;
+      for (const auto& p : cs.params) {
+        const ParamDef* pd = type.param(p.name);
+        next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
+      }
+      for (const auto& p : cs.params) {
+        const ParamDef* pd = type.param(p.name);
+        std::string from = decode_param(*pd, cur[pd->reg]), to = decode_param(*pd, next[pd->reg]);
+        if (from != to) cp.params.push_back({p.name, from, to});
+      }
+      for (unsigned r : order)
+        if (cur[r] != next[r]) cp.registers.push_back({r, cur[r], next[r]});
+      plan.channels.push_back(std::move(cp));
+    }
+  }
+  return plan;
+}
+
+std::string default_apply_backup_path() {
+  auto state = std::filesystem::path(EmulatorStore::default_path()).parent_path();
+  std::time_t now = std::time(nullptr);
+  char stamp[32];
+  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&now));
+  return (state / "backups" / fmt::format("apply-{}-{}.toml", stamp, ::getpid())).string();
+}
+
+ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
+                       const std::string& coupler, const std::string& backup_path) {
+  ApplyResult res;
+  res.plan = plan;
+  if (!plan.changes()) return res;
+
+  // Safety first: the touched registers as they are now, as a station file `restore` can apply.
+  StationSpec undo;
+  undo.coupler = coupler;
+  for (const auto& t : layout.terminals) {
+    TerminalSpec ts;
+    ts.type = t.type->type;
+    undo.terminals.push_back(std::move(ts));
+  }
+  for (const auto& cp : plan.channels) {
+    auto& ts = undo.terminals.at(cp.position - 1);
+    if (ts.channels.size() <= cp.channel) ts.channels.resize(cp.channel + 1);
+    for (const auto& rc : cp.registers) ts.channels[cp.channel].registers[rc.reg] = rc.from;
+  }
+  std::error_code ec;
+  auto dir = std::filesystem::path(backup_path).parent_path();
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
+  write_file_atomic(backup_path, "# kscfg apply: the registers it touched, before the change. Undo with:\n"
+                                 "#   kscfg restore " + backup_path + "\n" + station_to_toml(undo));
+  res.backup_path = backup_path;
+
+  struct Done {
+    const ChannelPlan* cp;
+  };
+  std::vector<Done> done;
+  try {
+    for (const auto& cp : plan.channels) {
+      if (cp.registers.empty()) continue;
+      const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
+      RegisterSession s(link, ti, cp.channel, so);
+      std::vector<std::pair<unsigned, std::uint16_t>> changes;
+      for (const auto& rc : cp.registers) changes.emplace_back(rc.reg, rc.to);
+      s.write_all(changes);  // verified; rolls back its own registers on failure
+      s.close();
+      done.push_back({&cp});
+    }
+  } catch (const Error& e) {
+    std::string undone;
+    std::string failed;
+    for (auto it = done.rbegin(); it != done.rend(); ++it) {
+      const ChannelPlan& cp = *it->cp;
+      try {
+        const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
+        RegisterSession s(link, ti, cp.channel, so);
+        std::vector<std::pair<unsigned, std::uint16_t>> back;
+        for (const auto& rc : cp.registers) back.emplace_back(rc.reg, rc.from);
+        s.write_all(back);
+        s.close();
+        undone += fmt::format(" {}", cp.position);
+      } catch (const Error& e2) {
+        failed += fmt::format(" {} ({})", cp.position, e2.what());
+      }
+    }
+    std::string msg = fmt::format("apply failed: {}", e.what());
+    if (!undone.empty()) msg += "; rolled back terminal(s)" + undone;
+    if (!failed.empty())
+      throw Error(e.code(), msg + "; ROLLBACK FAILED for terminal(s)" + failed,
+                  "restore by hand with: kscfg restore " + backup_path);
+    throw Error(e.code(), msg, "the station is as it was; the backup is " + backup_path);
+  }
+  res.changed = true;
+  return res;
+}
+
+}  // namespace kscfg

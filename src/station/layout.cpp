@@ -1,0 +1,185 @@
+#include "kscfg/station/layout.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+#include "kscfg/base/error.hpp"
+
+namespace kscfg {
+
+const TerminalImage& StationLayout::terminal(unsigned position) const {
+  for (const auto& t : terminals)
+    if (t.position == position) return t;
+  throw Error(Exit::usage,
+              fmt::format("no terminal at position {} (the station has {} terminals)", position, terminals.size()));
+}
+
+namespace {
+
+bool ctst_mapped(const ImageFormat& f, const MappingSettings& s) {
+  return f.ctst == CtStMode::always || (f.ctst == CtStMode::optional && s.complete_evaluation);
+}
+
+std::vector<ImageByte> lay_out(const std::vector<Element>& elements, bool ct, const MappingSettings& s,
+                               const std::array<std::uint16_t, proto::kRegisterCount>& regs, std::size_t start,
+                               std::size_t& struct_size, int& value_index) {
+  std::vector<ImageByte> bytes;
+  std::size_t pos = start;
+  int idx = 0;
+  auto push = [&](std::string name, int index) { bytes.push_back({pos++, std::move(name), index}); };
+  for (const auto& e : elements) {
+    switch (e.kind) {
+      case Element::Kind::ctst:
+        if (ct) push("CT/ST", idx);
+        ++idx;
+        value_index = idx;
+        break;
+      case Element::Kind::ctst_word:
+        if (ct) {
+          if (s.motorola) {
+            push(e.hi, idx + 1);
+            push("CT/ST", idx);
+          } else {
+            push("CT/ST", idx);
+            push(e.hi, idx + 1);
+          }
+        }
+        idx += 2;
+        value_index = idx;
+        break;
+      case Element::Kind::word:
+        if (s.word_alignment && pos % 2) push("reserved", -1);
+        if (s.motorola) {
+          push(e.hi, idx + 1);
+          push(e.lo, idx);
+        } else {
+          push(e.lo, idx);
+          push(e.hi, idx + 1);
+        }
+        idx += 2;
+        break;
+      case Element::Kind::byte:
+        push(e.lo, idx++);
+        break;
+      case Element::Kind::pad:
+        if (ct) push(e.lo, idx);
+        ++idx;
+        break;
+      case Element::Kind::bytes: {
+        unsigned n = e.count;
+        if (e.count_register) n = std::clamp<unsigned>(regs[*e.count_register] & 0xFFu, e.min, e.max);
+        for (unsigned i = 0; i < n; ++i) push(fmt::format("{}{}", e.lo, i), idx++);
+        break;
+      }
+    }
+  }
+  if (s.word_alignment && pos % 2 && !bytes.empty()) push("reserved", -1);
+  struct_size = static_cast<std::size_t>(idx);
+  return bytes;
+}
+
+const ImageByte* by_index(const std::vector<ImageByte>& v, int index) {
+  for (const auto& b : v)
+    if (b.index == index) return &b;
+  return nullptr;
+}
+
+std::size_t end_of(const std::vector<ImageByte>& v, std::size_t start) {
+  return v.empty() ? start : v.back().offset + 1;
+}
+
+}  // namespace
+
+ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, const MappingSettings& s,
+                            const std::array<std::uint16_t, proto::kRegisterCount>& regs, std::size_t out_start,
+                            std::size_t in_start) {
+  ChannelImage ch;
+  bool ct = ctst_mapped(f, s);
+  // Without the control/status byte an analog input terminal has no outputs and an analog output
+  // terminal no inputs (the data words exist in one direction only).
+  bool skip_out = !ct && type.family == "analog-in";
+  bool skip_in = !ct && type.family == "analog-out";
+  std::size_t n = 0;
+  int vo = 1, vi = 1;
+  if (!skip_out) ch.out = lay_out(f.out, ct, s, regs, out_start, n, vo);
+  ch.out_struct = n;
+  n = 0;
+  if (!skip_in) ch.in = lay_out(f.in, ct, s, regs, in_start, n, vi);
+  ch.in_struct = n;
+  ch.value_index = vo;
+  const ImageByte *c = by_index(ch.out, 0), *st = by_index(ch.in, 0);
+  const ImageByte *ol = by_index(ch.out, vo), *oh = by_index(ch.out, vo + 1);
+  const ImageByte *il = by_index(ch.in, vi), *ih = by_index(ch.in, vi + 1);
+  bool first_is_ct = !f.out.empty() && f.out.front().is_ctst() && !f.in.empty() && f.in.front().is_ctst();
+  if (ct && first_is_ct && c && st && ol && oh && il && ih)
+    ch.window = RegisterWindow{c->offset, st->offset, ol->offset, oh->offset, il->offset, ih->offset};
+  return ch;
+}
+
+StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, const MappingSettings& s,
+                             const RegisterSource& regs) {
+  StationLayout L;
+  L.coupler = spec.coupler;
+  L.settings = s;
+  std::size_t out = 0, in = 0;
+  // Pass 1: complex (byte-oriented) terminals in plug order.
+  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
+    const TerminalType& type = catalog.get(spec.terminals[i].type);
+    TerminalImage t;
+    t.position = static_cast<unsigned>(i + 1);
+    t.type = &type;
+    auto r0 = regs(t.position, 0);
+    const ImageFormat* f = type.image_for(r0);
+    t.complex = f && f->complex();
+    t.format = f ? f->name : "none";
+    if (t.complex) {
+      if (s.word_alignment) {
+        out += out % 2;
+        in += in % 2;
+      }
+      t.out_offset = out;
+      t.in_offset = in;
+      for (unsigned ch = 0; ch < type.channels; ++ch) {
+        auto rc = ch == 0 ? r0 : regs(t.position, ch);
+        const ImageFormat* fc = type.image_for(rc);
+        if (!fc || !fc->complex()) fc = f;
+        ChannelImage ci = layout_channel(*fc, type, s, rc, out, in);
+        out = end_of(ci.out, out);
+        in = end_of(ci.in, in);
+        t.channels.push_back(std::move(ci));
+      }
+      t.out_size = out - t.out_offset;
+      t.in_size = in - t.in_offset;
+    } else if (f) {
+      t.bits_in = f->bits_in;
+      t.bits_out = f->bits_out;
+    }
+    L.terminals.push_back(std::move(t));
+  }
+  L.complex_in = in;
+  L.complex_out = out;
+  // Pass 2: digital terminals packed bit by bit after the complex area.
+  std::size_t in_bit = in * 8, out_bit = out * 8;
+  for (auto& t : L.terminals) {
+    if (t.complex) continue;
+    t.in_bit = in_bit;
+    t.out_bit = out_bit;
+    in_bit += t.bits_in;
+    out_bit += t.bits_out;
+  }
+  L.digital_in_bits = in_bit - in * 8;
+  L.digital_out_bits = out_bit - out * 8;
+  L.in_bytes = (in_bit + 7) / 8;
+  L.out_bytes = (out_bit + 7) / 8;
+  return L;
+}
+
+StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog) {
+  return compute_layout(spec, catalog, spec.settings(), [&](unsigned pos, unsigned ch) {
+    const auto& t = spec.terminals.at(pos - 1);
+    return channel_registers(catalog.get(t.type), &t, ch);
+  });
+}
+
+}  // namespace kscfg

@@ -1,0 +1,294 @@
+#include "kscfg/station/station.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <fstream>
+#include <sstream>
+#include <toml++/toml.h>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/catalog/params.hpp"
+#include "kscfg/base/parse.hpp"
+
+namespace kscfg {
+
+MappingSettings StationSpec::settings() const {
+  return resolve_settings(coupler_profile(coupler), complete_evaluation, motorola, word_alignment);
+}
+
+bool CouplerProfile::is_fixed(std::string_view setting) const {
+  return std::find(fixed.begin(), fixed.end(), setting) != fixed.end();
+}
+
+MappingSettings resolve_settings(const CouplerProfile& p, std::optional<bool> complete_evaluation,
+                                 std::optional<bool> motorola, std::optional<bool> word_alignment) {
+  MappingSettings s = p.defaults;
+  auto apply = [&](bool& field, std::optional<bool> v, const char* key, const char* label) {
+    if (!v) return;
+    if (p.is_fixed(key) && *v != field)
+      throw Error(Exit::usage,
+                  fmt::format("the {} always has {} {}; it cannot be switched {}", p.name, label,
+                              field ? "on" : "off", *v ? "on" : "off"));
+    field = *v;
+  };
+  apply(s.complete_evaluation, complete_evaluation, "complete_evaluation", "complete evaluation");
+  apply(s.motorola, motorola, "motorola", "Motorola format");
+  apply(s.word_alignment, word_alignment, "word_alignment", "word alignment");
+  return s;
+}
+
+const std::vector<CouplerProfile>& coupler_profiles() {
+  static const std::vector<CouplerProfile> profiles = [] {
+    std::vector<CouplerProfile> out;
+    for (const auto& f : builtin_coupler_files()) {
+      toml::table root = toml::parse(std::string_view(f.text), std::string_view(f.name));
+      for (auto&& [name, node] : root) {
+        const auto* t = node.as_table();
+        if (!t) continue;
+        CouplerProfile p;
+        p.name = std::string(name.str());
+        p.family = t->get("family") ? t->get("family")->value_or<std::string>("") : "";
+        p.title = t->get("title") ? t->get("title")->value_or<std::string>("") : "";
+        auto b = [&](const char* k) { return t->get(k) ? t->get(k)->value_or(false) : false; };
+        p.defaults = {b("complete_evaluation"), b("motorola"), b("word_alignment")};
+        auto n = [&](const char* k) -> std::size_t {
+          return t->get(k) ? static_cast<std::size_t>(t->get(k)->value_or<std::int64_t>(0)) : 0;
+        };
+        p.max_in_bytes = n("max_in_bytes");
+        p.max_out_bytes = n("max_out_bytes");
+        p.modbus = p.family == "modbus-tcp" || p.family == "modbus-rtu";
+        if (const auto* fx = t->get_as<toml::array>("fixed"))
+          for (const auto& e : *fx)
+            if (auto s = e.value<std::string>()) p.fixed.push_back(*s);
+        out.push_back(std::move(p));
+      }
+    }
+    return out;
+  }();
+  return profiles;
+}
+
+const CouplerProfile& coupler_profile(std::string_view name) {
+  std::string up(name);
+  for (auto& c : up) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  const auto& all = coupler_profiles();
+  for (const auto& p : all)
+    if (p.name == up) return p;
+  // Family members that share a profile: BK3010 -> BK3000 style (same leading digits).
+  if (up.size() == 6 && up.rfind("BK", 0) == 0) {
+    for (const auto& p : all)
+      if (p.name.size() == 6 && p.name.substr(0, 4) == up.substr(0, 4)) return p;
+  }
+  std::vector<std::string> names;
+  for (const auto& p : all) names.push_back(p.name);
+  auto hint = did_you_mean(name, names);
+  throw Error(Exit::usage, fmt::format("unknown coupler '{}'{}", name, hint.empty() ? "" : "; " + hint),
+              "kscfg map --list-couplers shows the known couplers");
+}
+
+namespace {
+
+[[noreturn]] void fail_at(std::string_view origin, const toml::node* n, Exit code, const std::string& msg) {
+  if (n && n->source().begin)
+    throw Error(code, fmt::format("{}:{}:{}: {}", origin, n->source().begin.line, n->source().begin.column, msg));
+  throw Error(code, fmt::format("{}: {}", origin, msg));
+}
+
+std::string value_text(std::string_view origin, const std::string& key, const toml::node& v) {
+  if (auto s = v.value_exact<std::string>()) return *s;
+  if (auto i = v.value_exact<std::int64_t>()) {
+    if (*i < 0) fail_at(origin, &v, Exit::usage, fmt::format("'{}': negative values are not allowed", key));
+    return fmt::format("{}", *i);
+  }
+  if (auto b = v.value_exact<bool>()) return *b ? "on" : "off";
+  fail_at(origin, &v, Exit::file, fmt::format("'{}': expected a string, an integer or true/false", key));
+}
+
+void parse_channel(std::string_view origin, const toml::table& t, const TerminalType& type, ChannelSpec& ch,
+                   bool allow_structure) {
+  for (auto&& [k, v] : t) {
+    std::string key(k.str());
+    if (allow_structure && (key == "type" || key == "channel")) continue;
+    int line = v.source().begin ? static_cast<int>(v.source().begin.line) : 0;
+    if (!key.empty() && (key[0] == 'R' || key[0] == 'r') && key.size() > 1 &&
+        std::isdigit(static_cast<unsigned char>(key[1]))) {
+      unsigned reg = 0;
+      std::uint16_t val = 0;
+      try {
+        reg = parse_register(key);
+        val = parse_value(value_text(origin, key, v));
+      } catch (const Error& e) {
+        fail_at(origin, &v, Exit::usage, e.what());
+      }
+      if (!type.has_registers) fail_at(origin, &v, Exit::usage, fmt::format("{} has no registers", type.type));
+      ch.registers[reg] = val;
+      ch.register_lines[reg] = line;
+      continue;
+    }
+    const ParamDef* p = type.param(key);
+    if (!p) {
+      auto hint = did_you_mean(key, type.param_names());
+      fail_at(origin, &v, Exit::usage,
+              fmt::format("{} has no parameter '{}'{}", type.type, key, hint.empty() ? "" : "; " + hint));
+    }
+    Setting s{key, value_text(origin, key, v), line};
+    try {
+      (void)encode_param(*p, s.value, 0);
+    } catch (const Error& e) {
+      fail_at(origin, &v, Exit::usage, e.what());
+    }
+    ch.params.push_back(std::move(s));
+  }
+}
+
+}  // namespace
+
+StationSpec parse_station(std::string_view text, std::string_view origin, const Catalog& catalog) {
+  toml::table root = parse_toml(text, origin);
+  StationSpec spec;
+  spec.origin = std::string(origin);
+  for (auto&& [k, v] : root) {
+    if (k.str() != "coupler" && k.str() != "mapping" && k.str() != "terminal")
+      fail_at(origin, &v, Exit::file,
+              fmt::format("unknown key '{}' (expected coupler, [mapping] or [[terminal]])", k.str()));
+  }
+  if (const auto* c = root.get("coupler")) {
+    auto s = c->value_exact<std::string>();
+    if (!s) fail_at(origin, c, Exit::file, "'coupler' must be a string such as \"BK9000\"");
+    try {
+      spec.coupler = coupler_profile(*s).name;
+    } catch (const Error& e) {
+      fail_at(origin, c, Exit::usage, e.what());
+    }
+  }
+  if (const auto* m = root.get("mapping")) {
+    const auto* t = m->as_table();
+    if (!t) fail_at(origin, m, Exit::file, "[mapping] must be a table");
+    for (auto&& [k, v] : *t) {
+      auto b = v.value_exact<bool>();
+      if (!b) fail_at(origin, &v, Exit::file, fmt::format("'{}' must be true or false", k.str()));
+      if (k.str() == "complete-evaluation") spec.complete_evaluation = *b;
+      else if (k.str() == "motorola") spec.motorola = *b;
+      else if (k.str() == "word-alignment") spec.word_alignment = *b;
+      else
+        fail_at(origin, &v, Exit::file,
+                fmt::format("unknown mapping setting '{}' (complete-evaluation, motorola, word-alignment)", k.str()));
+      try {
+        (void)spec.settings();  // a setting the coupler fixes (BK2000) is an error here, with its line
+      } catch (const Error& e) {
+        fail_at(origin, &v, Exit::usage, e.what());
+      }
+    }
+  }
+  if (const auto* tn = root.get("terminal")) {
+    const auto* arr = tn->as_array();
+    if (!arr) fail_at(origin, tn, Exit::file, "terminals are written as [[terminal]] tables");
+    for (const auto& el : *arr) {
+      const auto* t = el.as_table();
+      if (!t) fail_at(origin, &el, Exit::file, "each [[terminal]] must be a table");
+      TerminalSpec ts;
+      ts.line = t->source().begin ? static_cast<int>(t->source().begin.line) : 0;
+      const auto* ty = t->get("type");
+      if (ty && !ty->value_exact<std::string>())
+        fail_at(origin, ty, Exit::file, "'type' must be a string such as \"KL6001\"");
+      if (!ty) fail_at(origin, &el, Exit::file, "[[terminal]] needs type = \"KLxxxx\"");
+      const TerminalType* type = nullptr;
+      try {
+        type = &catalog.get(*ty->value_exact<std::string>());
+      } catch (const Error& e) {
+        fail_at(origin, ty, Exit::usage, e.what());
+      }
+      ts.type = type->type;
+      ChannelSpec first;
+      parse_channel(origin, *t, *type, first, true);
+      ts.channels.push_back(std::move(first));
+      if (const auto* chn = t->get("channel")) {
+        const auto* carr = chn->as_array();
+        if (!carr) fail_at(origin, chn, Exit::file, "channels are written as [[terminal.channel]] tables");
+        if (carr->size() > type->channels)
+          fail_at(origin, chn, Exit::usage, fmt::format("{} has {} channel(s)", type->type, type->channels));
+        ts.channels.resize(std::max<std::size_t>(ts.channels.size(), carr->size()));
+        for (std::size_t i = 0; i < carr->size(); ++i) {
+          const auto* ct = (*carr)[i].as_table();
+          if (!ct) fail_at(origin, &(*carr)[i], Exit::file, "each [[terminal.channel]] must be a table");
+          parse_channel(origin, *ct, *type, ts.channels[i], false);
+        }
+      }
+      spec.terminals.push_back(std::move(ts));
+    }
+  }
+  return spec;
+}
+
+StationSpec load_station(const std::string& path, const Catalog& catalog) {
+  std::ifstream in(path);
+  if (!in) throw Error(Exit::file, fmt::format("cannot read station file '{}'", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_station(ss.str(), path, catalog);
+}
+
+static std::string toml_value(const std::string& v) {
+  bool numeric = !v.empty() && std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit((unsigned char)c); });
+  if (numeric && v.size() < 10) return v;
+  if (v == "on") return "true";
+  if (v == "off") return "false";
+  std::string out = "\"";
+  for (char c : v) {
+    if (c == '"' || c == '\\') out += '\\';
+    out += c;
+  }
+  return out + "\"";
+}
+
+static void channel_toml(std::string& out, const ChannelSpec& ch) {
+  for (const auto& s : ch.params) out += fmt::format("{} = {}\n", s.name, toml_value(s.value));
+  for (const auto& [r, v] : ch.registers) out += fmt::format("R{} = 0x{:04X}\n", r, v);
+}
+
+std::string station_to_toml(const StationSpec& spec) {
+  std::string out = fmt::format("coupler = \"{}\"\n", spec.coupler);
+  if (spec.complete_evaluation || spec.motorola || spec.word_alignment) {
+    out += "\n[mapping]\n";
+    if (spec.complete_evaluation) out += fmt::format("complete-evaluation = {}\n", *spec.complete_evaluation);
+    if (spec.motorola) out += fmt::format("motorola = {}\n", *spec.motorola);
+    if (spec.word_alignment) out += fmt::format("word-alignment = {}\n", *spec.word_alignment);
+  }
+  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
+    const auto& t = spec.terminals[i];
+    std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? "# " + spec.comments[i] + "\n" : "";
+    out += fmt::format("\n[[terminal]]\n{}type = \"{}\"\n", comment, t.type);
+    if (!t.channels.empty()) channel_toml(out, t.channels[0]);
+    for (std::size_t i = 1; i < t.channels.size(); ++i) {
+      out += "[[terminal.channel]]\n";
+      channel_toml(out, t.channels[i]);
+    }
+  }
+  return out;
+}
+
+StationSpec default_station() {
+  StationSpec s;
+  s.coupler = "BK9000";
+  for (const char* t : {"KL6001", "KL5101", "KL6031", "KL3022", "KL1104", "KL2134", "KL9010"}) {
+    TerminalSpec ts;
+    ts.type = t;
+    s.terminals.push_back(ts);
+  }
+  return s;
+}
+
+std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type,
+                                                                   const TerminalSpec* spec, unsigned channel) {
+  auto regs = type.defaults();
+  if (!spec || channel >= spec->channels.size()) return regs;
+  const ChannelSpec& ch = spec->channels[channel];
+  for (const auto& [r, v] : ch.registers) regs[r] = v;
+  for (const auto& s : ch.params)
+    if (const ParamDef* p = type.param(s.name)) regs[p->reg] = encode_param(*p, s.value, regs[p->reg]);
+  return regs;
+}
+
+}  // namespace kscfg

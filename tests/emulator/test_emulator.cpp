@@ -1,0 +1,149 @@
+// The emulator as a fake of the hardware: register rules of the manuals, delays, state file.
+#include <catch2/catch.hpp>
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/session/session.hpp"
+#include "support.hpp"
+
+using namespace kscfg;
+
+TEST_CASE("register rules of the manuals", "[emulator]") {
+  const TerminalType& kl6001 = Catalog::standard().get("KL6001");
+  ChannelModel m(kl6001, kl6001.defaults());
+  SECTION("ROM registers ignore writes") {
+    m.write_register(8, 1234);
+    CHECK(m.read_register(8) == 6001);
+    m.write_register(31, 0x1235);
+    m.write_register(9, 0);
+    CHECK(m.read_register(9) == proto::version_value("2C"));
+  }
+  SECTION("R16..R47 ignore writes unless R31 holds the code word") {
+    m.write_register(32, 7);
+    m.write_register(18, 0x40);
+    CHECK(m.read_register(32) == 6);
+    CHECK(m.read_register(18) == 0x80);
+    m.write_register(31, 0x1235);
+    m.write_register(32, 7);
+    m.write_register(18, 0x40);
+    CHECK(m.read_register(32) == 7);
+    CHECK(m.read_register(18) == 0x40);
+  }
+  SECTION("R31 reads 0x1235 unlocked and 0 locked") {
+    CHECK(m.read_register(31) == 0);
+    m.write_register(31, 0x1235);
+    CHECK(m.read_register(31) == 0x1235);
+    m.write_register(31, 0x1111);  // any other value sets protection
+    CHECK(m.read_register(31) == 0);
+  }
+  SECTION("the extended area is not implemented") {
+    m.write_register(31, 0x1235);
+    m.write_register(50, 5);
+    CHECK(m.read_register(50) == 0);
+  }
+  SECTION("KL6001 R7 is not a factory reset (seed: command register not used)") {
+    m.write_register(31, 0x1235);
+    m.write_register(32, 7);
+    m.write_register(7, 0x7000);
+    CHECK(m.read_register(32) == 7);
+  }
+}
+
+TEST_CASE("KL6031 restores factory settings with R7 = 0x7000 after the code word", "[emulator]") {
+  const TerminalType& t = Catalog::standard().get("KL6031");
+  ChannelModel m(t, t.defaults());
+  m.write_register(31, 0x1235);
+  m.write_register(32, 10);
+  CHECK(m.read_register(32) == 10);
+  m.write_register(7, 0x7000);
+  CHECK(m.read_register(32) == t.regs[32].def);
+}
+
+TEST_CASE("a request is answered after the configured number of K-bus cycles", "[emulator]") {
+  for (unsigned delay : {1u, 3u, 7u}) {
+    EmulatedStation st(default_station(), Catalog::standard());
+    st.response_delay = delay;
+    EmulatorLink link(st);
+    RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0);
+    std::size_t before = link.exchanges();
+    CHECK(s.read(8) == 6001);
+    // One look at the status, the control byte write, then polls: the terminal sees the request
+    // in the first poll's cycle and answers `delay` cycles later.
+    CHECK(link.exchanges() - before == 3 + delay);
+  }
+}
+
+TEST_CASE("default station has the terminals the README promises", "[emulator]") {
+  EmulatedStation st(default_station(), Catalog::standard());
+  const auto& L = st.layout();
+  REQUIRE(L.terminals.size() >= 4);
+  CHECK(L.terminals[0].type->type == "KL6001");
+  CHECK(L.terminals[1].type->type == "KL5101");
+  CHECK(L.terminals[2].type->type == "KL6031");
+  bool digital = false;
+  for (const auto& t : L.terminals) digital = digital || t.bits_in || t.bits_out;
+  CHECK(digital);
+}
+
+TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
+  test::TempDir dir;
+  std::string path = dir.file("state/emu.json");
+  {
+    EmulatorLink link(path, Catalog::standard());
+    RegisterSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    s.write(32, 7);
+    s.close();
+    link.commit();
+  }
+  CHECK(std::filesystem::exists(path));
+  for (const auto& e : std::filesystem::directory_iterator(dir.file("state")))
+    CHECK(e.path().string().find(".tmp.") == std::string::npos);
+  {
+    EmulatorLink link(path, Catalog::standard());
+    CHECK(link.emulated().channel(1, 0).registers()[32] == 7);
+  }
+  SECTION("a corrupt file is reported, not replaced") {
+    test::write_text(path, "{ not json");
+    try {
+      EmulatorLink link(path, Catalog::standard());
+      FAIL("no error");
+    } catch (const Error& e) {
+      CHECK(e.code() == Exit::file);
+      CHECK_THAT(std::string(e.what()), Catch::Contains("corrupt"));
+      CHECK_THAT(e.hint(), Catch::Contains("emu reset"));
+    }
+    CHECK(test::read_text(path) == "{ not json");
+    reset_emulator_state(path, default_station(), Catalog::standard());
+    EmulatorLink link(path, Catalog::standard());
+    CHECK(link.emulated().channel(1, 0).registers()[32] == 6);
+  }
+  SECTION("a valid JSON that is not a station state is corrupt too") {
+    auto j = nlohmann::json::parse(test::read_text(path));
+    j["channels"][0]["registers"][32] = 70000;
+    test::write_text(path, j.dump());
+    CHECK_THROWS_AS(EmulatorLink(path, Catalog::standard()), Error);
+  }
+}
+
+TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]") {
+  test::TempDir dir;
+  std::string path = dir.file("emu.json");
+  std::size_t kl5101_at = 0;
+  {
+    EmulatorLink link(path, Catalog::standard());
+    kl5101_at = link.layout()->terminal(2).in_offset;
+    RegisterSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    s.write_all({{34, 0x0001}, {35, 5}});  // standard format, 5 data bytes
+    s.close();
+    link.commit();
+  }
+  EmulatorLink link(path, Catalog::standard());
+  const auto& L = *link.layout();
+  CHECK(L.terminal(1).format == "standard");
+  CHECK(L.terminal(1).in_size == 6);  // CT/ST + D0..D4
+  CHECK(L.terminal(2).in_offset == 6);
+  CHECK(L.terminal(2).in_offset != kl5101_at);
+}
