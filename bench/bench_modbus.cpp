@@ -11,7 +11,9 @@
 #include <thread>
 
 #include "kscfg/emulator/emulator.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/discovery/scan.hpp"
+#include "kscfg/emulator/modbus_server.hpp"
+#include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -35,7 +37,8 @@ void measure(const char* name, ServeOptions::Mode mode, unsigned rounds, unsigne
     std::string uri = server.endpoint();
     ModbusOptions mo;
     mo.settle_us = settle_us;
-    auto link = std::make_unique<ModbusLink>(modbus_target(parse_port_uri(uri), uri), Catalog::standard(), mo);
+    auto link = std::make_unique<ModbusLink>(modbus_target(parse_port_uri(uri), uri), mo);
+    discover_by_scan(*link, Catalog::standard(), {});
     const StationLayout& L = *link->layout();
     RegisterSession s(*link, register_terminal(L, 1, 0), 0);
     (void)s.read(8);

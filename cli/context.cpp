@@ -7,7 +7,7 @@
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/port_uri.hpp"
+#include "kscfg/discovery/open.hpp"
 
 namespace kscfg::cli {
 

@@ -9,6 +9,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/station/map.hpp"
+#include "kscfg/discovery/online_map.hpp"
 
 namespace kscfg::cli {
 

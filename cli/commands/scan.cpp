@@ -9,7 +9,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/discovery/scan.hpp"
 
 namespace kscfg::cli {
 

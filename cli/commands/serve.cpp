@@ -7,9 +7,10 @@
 #include "../commands.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/link/port_uri.hpp"
+#include "kscfg/discovery/open.hpp"
 
 namespace kscfg::cli {
 

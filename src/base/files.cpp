@@ -11,7 +11,6 @@
 #include <filesystem>
 #include <thread>
 
-#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/base/error.hpp"
 
 namespace kscfg {
@@ -77,6 +76,27 @@ int lock_file(const std::string& path, double timeout_s) {
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   return fd;
+}
+
+std::string line_of(std::string_view text, std::size_t line) {
+  std::size_t pos = 0;
+  for (std::size_t i = 1; i < line && pos != std::string_view::npos; ++i) {
+    pos = text.find('\n', pos);
+    if (pos != std::string_view::npos) ++pos;
+  }
+  if (pos == std::string_view::npos || pos >= text.size()) return {};
+  auto end = text.find('\n', pos);
+  std::string l(text.substr(pos, end == std::string_view::npos ? std::string_view::npos : end - pos));
+  while (!l.empty() && (l.back() == '\r' || l.back() == ' ')) l.pop_back();
+  return l;
+}
+
+std::string state_dir() {
+  std::filesystem::path base;
+  if (const char* x = std::getenv("XDG_STATE_HOME"); x && *x) base = x;
+  else if (const char* h = std::getenv("HOME"); h && *h) base = std::filesystem::path(h) / ".local/state";
+  else base = "/tmp";
+  return (base / "kscfg").string();
 }
 
 toml::table parse_toml(std::string_view text, std::string_view origin) {

@@ -391,19 +391,6 @@ static void parse_images(const Ctx& c, const toml::table& root, TerminalType& t)
   }
 }
 
-std::string line_of(std::string_view text, std::size_t line) {
-  std::size_t pos = 0;
-  for (std::size_t i = 1; i < line && pos != std::string_view::npos; ++i) {
-    pos = text.find('\n', pos);
-    if (pos != std::string_view::npos) ++pos;
-  }
-  if (pos == std::string_view::npos || pos >= text.size()) return {};
-  auto end = text.find('\n', pos);
-  std::string l(text.substr(pos, end == std::string_view::npos ? std::string_view::npos : end - pos));
-  while (!l.empty() && (l.back() == '\r' || l.back() == ' ')) l.pop_back();
-  return l;
-}
-
 static void parse_decode(const Ctx& c, const toml::table& root, TerminalType& t) {
   const toml::node* n = root.get("decode");
   if (!n) return;

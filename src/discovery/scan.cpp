@@ -6,7 +6,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/station/map.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/discovery/scan.hpp"
 
 namespace kscfg {
 
@@ -177,6 +177,11 @@ ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog
                                   "and {}: the mapping settings may differ from the coupler's",
                                   r.layout.complex_out, r.layout.complex_in, co, ci));
   return r;
+}
+
+void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so) {
+  ModbusLink* l = &link;
+  link.set_discovery([l, &catalog, so] { return scan_station(l->client(), *l, catalog, so); });
 }
 
 }  // namespace kscfg

@@ -243,13 +243,7 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
 // ---------------------------------------------------------------------------------------------
 // EmulatorStore
 
-std::string EmulatorStore::default_path() {
-  std::filesystem::path base;
-  if (const char* x = std::getenv("XDG_STATE_HOME"); x && *x) base = x;
-  else if (const char* h = std::getenv("HOME"); h && *h) base = std::filesystem::path(h) / ".local/state";
-  else base = "/tmp";
-  return (base / "kscfg" / "emulator.json").string();
-}
+std::string EmulatorStore::default_path() { return (std::filesystem::path(state_dir()) / "emulator.json").string(); }
 
 EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lock_timeout_s) : path_(std::move(path)) {
   if (path_.empty() || path_ == "mem") {

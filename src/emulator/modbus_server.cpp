@@ -21,7 +21,7 @@
 #include <thread>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/base/parse.hpp"
 
 namespace kscfg {

@@ -4,9 +4,7 @@
 
 #include <algorithm>
 
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus.hpp"
 #include "kscfg/base/parse.hpp"
 
 namespace kscfg {
@@ -88,23 +86,6 @@ PortUri parse_port_uri(const std::string& uri) {
                     fmt::format("invalid port '{}': unknown option '{}' (baud, parity, data, stop, unit)", uri, k));
   }
   return p;
-}
-
-std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
-  PortUri p = parse_port_uri(uri);
-  if (p.scheme == "emu") {
-    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    return std::make_unique<EmulatorLink>(path, catalog);
-  }
-  // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
-  // timeout is tried twice more, so a silent coupler is reported within about --timeout.
-  ModbusOptions mo;
-  mo.response_timeout_ms = std::clamp(opt.timeout_ms / 3, 50u, 5000u);
-  mo.timeout_retries = 2;
-  mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
-  mo.ack_timeout_ms = opt.timeout_ms;
-  mo.trace = opt.trace;
-  return std::make_unique<ModbusLink>(modbus_target(p, uri), catalog, mo);
 }
 
 }  // namespace kscfg

@@ -3,7 +3,7 @@
 
 #include <algorithm>
 
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/link/serial_ports.hpp"
 
 namespace kscfg {
 

@@ -9,7 +9,6 @@
 #include <filesystem>
 #include <map>
 
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/catalog/params.hpp"
@@ -161,7 +160,7 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
 }
 
 std::string default_apply_backup_path() {
-  auto state = std::filesystem::path(EmulatorStore::default_path()).parent_path();
+  auto state = std::filesystem::path(state_dir());
   std::time_t now = std::time(nullptr);
   char stamp[32];
   std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&now));

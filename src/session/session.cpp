@@ -10,8 +10,6 @@
 
 namespace kscfg {
 
-std::atomic<bool> g_interrupted{false};
-
 const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel) {
   const TerminalImage& t = layout.terminal(position);
   if (!t.type->has_registers)

@@ -7,7 +7,9 @@
 
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus.hpp"
+#include "kscfg/discovery/open.hpp"
+#include "kscfg/emulator/modbus_server.hpp"
+#include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/session.hpp"
 

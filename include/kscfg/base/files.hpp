@@ -14,6 +14,12 @@ void write_file_atomic(const std::string& path, const std::string& content);
 // Returns the descriptor; closing it releases the lock. Throws Error(Exit::file).
 int lock_file(const std::string& path, double timeout_s);
 
+// Line `line` (1-based) of `text`, for error messages that show the offending line.
+std::string line_of(std::string_view text, std::size_t line);
+
+// $XDG_STATE_HOME/kscfg (or ~/.local/state/kscfg, /tmp/kscfg): where kscfg keeps its state.
+std::string state_dir();
+
 // Parses TOML text; a syntax error is Error(Exit::file) "ORIGIN:LINE:COL: what (in: the line)".
 toml::table parse_toml(std::string_view text, std::string_view origin);
 

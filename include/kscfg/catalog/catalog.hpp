@@ -160,9 +160,6 @@ class Catalog {
   std::map<std::string, std::shared_ptr<const TerminalType>> types_;
 };
 
-// Line `line` (1-based) of `text`, for error messages that show the offending line.
-std::string line_of(std::string_view text, std::size_t line);
-
 // Loads KSCFG_CATALOG/--catalog dirs into the standard catalog; call before first use.
 void set_user_catalog_dir(const std::filesystem::path& dir);
 

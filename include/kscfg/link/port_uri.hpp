@@ -1,12 +1,8 @@
 // Port URIs: emu | emu:PATH | emu:mem | tcp://HOST[:PORT][?unit=N] | rtu:DEVICE[?baud=..&parity=..]
 #pragma once
-#include <functional>
 #include <map>
-#include <memory>
 #include <string>
 
-#include "kscfg/catalog/catalog.hpp"
-#include "kscfg/link/link.hpp"
 
 namespace kscfg {
 
@@ -19,12 +15,5 @@ struct PortUri {
 
 // Strict: an unknown scheme, an empty host or a malformed query is Error(Exit::usage).
 PortUri parse_port_uri(const std::string& uri);
-
-struct LinkOptions {
-  unsigned timeout_ms = 1000;
-  std::function<void(const std::string&)> trace;  // -v: link-level events (retries of a Modbus link)
-};
-
-std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
 
 }  // namespace kscfg

@@ -15,7 +15,7 @@
 
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
-#include "kscfg/emulator/serial_model.hpp"
+#include "kscfg/station/serial_image.hpp"
 
 namespace kscfg {
 

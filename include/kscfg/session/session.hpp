@@ -9,14 +9,12 @@
 #include <utility>
 #include <vector>
 
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 
 namespace kscfg {
-
-// Set by the CLI's SIGINT/SIGTERM handler; every wait checks it.
-extern std::atomic<bool> g_interrupted;
 
 struct SessionOptions {
   std::chrono::milliseconds timeout{1000};        // per acknowledge

@@ -1,5 +1,5 @@
 // Process-image map: what `kscfg map` shows (station table, per-terminal annex view, byte grid,
-// JSON), the couplers' image limits, and the online map read through a link.
+// JSON) and the couplers' image limits.
 #pragma once
 #include <cstdint>
 #include <nlohmann/json.hpp>
@@ -8,8 +8,6 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
-#include "kscfg/link/link.hpp"
-#include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg {
@@ -67,20 +65,5 @@ struct AnnexRow {
   std::string high, low;
 };
 std::vector<AnnexRow> annex_rows(const std::vector<ImageByte>& bytes, std::size_t base);
-
-// Online: reads the mapping-relevant registers of every channel whose control/status byte is
-// mapped in `current` (the layout the coupler uses now) and lays the station out from them.
-// Channels that cannot be read keep the register values of `spec` (noted in `notes`).
-struct RegisterReading {
-  unsigned position = 0, channel = 0, reg = 0;  // channel 0-based
-  std::uint16_t value = 0;
-};
-struct OnlineMap {
-  StationLayout layout;
-  std::vector<RegisterReading> readings;
-  std::vector<std::string> notes;
-};
-OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
-                     const MappingSettings& settings, const SessionOptions& opt);
 
 }  // namespace kscfg

@@ -1,0 +1,110 @@
+// Modbus couplers (DESIGN.md section 4): the BK9000/BK7300 register map, Modbus TCP (BK9000
+// family) and Modbus RTU over a serial port (BK7300 family) endpoints, and one connection with
+// bounded retries.
+#pragma once
+#include <array>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "kscfg/link/port_uri.hpp"
+
+typedef struct _modbus modbus_t;
+
+namespace kscfg {
+
+// The BK9000/BK7300 register map.
+namespace mbmap {
+constexpr std::uint16_t kInputImage = 0x0000;   // input image, 256 registers (FC3/FC4/FC23 read)
+constexpr std::uint16_t kOutputImage = 0x0800;  // output image, 256 registers (FC3 read; FC6/FC16/FC23 write)
+constexpr unsigned kImageRegisters = 0x100;
+constexpr std::uint16_t kIdent = 0x1000;  // 7 registers, 14 ASCII characters
+constexpr unsigned kIdentRegisters = 7;
+constexpr std::uint16_t kCouplerStatus = 0x100A;  // 0x100A..0x100C: PLC interface, terminal diagnosis, coupler status
+constexpr std::uint16_t kImageLengths = 0x1010;   // bits: complex out, complex in, digital out, digital in
+constexpr std::uint16_t kWatchdogTime = 0x1020;   // ms since the watchdog was last retriggered
+constexpr std::uint16_t kWatchdogPreset = 0x1120; // ms, default 1000, 0 = off
+constexpr std::uint16_t kWatchdogReset = 0x1121;  // write 0xBECF then 0xAFFE
+constexpr std::uint16_t kWatchdogType = 0x1122;   // BK9000: 1 = telegram watchdog (default); BK7300: 0 = write telegram (default)
+constexpr unsigned kMaxRead = 125, kMaxWrite = 123, kMaxWriteRead = 121;
+
+// Identification: 14 ASCII characters, the first character in the LOW byte of 0x1000 (as public
+// BK9000 drivers decode it). The emulator puts the coupler name there, padded with spaces.
+std::array<std::uint16_t, kIdentRegisters> encode_ident(const std::string& text);
+std::string decode_ident(std::span<const std::uint16_t> regs);  // trailing spaces/NULs trimmed
+
+// "slave device busy" for 6; "unknown exception" otherwise.
+std::string exception_name(int code);
+}  // namespace mbmap
+
+// A Modbus endpoint from a port URI (tcp://HOST[:PORT][?unit=N], rtu:DEVICE[?baud=&parity=&data=&stop=&unit=]).
+struct ModbusTarget {
+  std::string uri;
+  bool tcp = true;
+  std::string host;
+  unsigned port = 502;
+  std::string device;
+  unsigned baud = 19200;
+  char parity = 'E';  // Modbus RTU default 8E1; pseudo-terminals need N
+  unsigned data_bits = 8;
+  unsigned stop_bits = 1;
+  int unit = 1;
+  std::string where() const;  // "127.0.0.1:502 unit 1" / "/dev/ttyUSB0 unit 1"
+};
+// Checks every value strictly; Error(Exit::usage) for bad ones.
+ModbusTarget modbus_target(const PortUri& p, const std::string& uri);
+
+// Serial line settings applied one by one so that a refused setting is named in the error.
+// Returns an open, exclusively locked file descriptor in raw mode. Error(Exit::link) with a hint
+// for: no such device, permission denied (dialout), busy, not a tty, a setting the device refuses.
+int open_serial(const std::string& device, unsigned baud, char parity, unsigned data_bits, unsigned stop_bits);
+
+struct ModbusOptions {
+  unsigned response_timeout_ms = 500;  // one request/response
+  unsigned connect_timeout_ms = 1000;
+  unsigned retries = 3;                // extra attempts after busy, CRC or garbled replies
+  unsigned timeout_retries = 1;        // extra attempts after a timeout
+  // After writing outputs, reads of the input image wait this long: the K-bus needs a cycle to
+  // carry the request to the terminal and one to bring the answer back.
+  unsigned settle_us = 2500;
+  unsigned poll_us = 500;  // between two polls of the input image
+  unsigned ack_timeout_ms = 1000;  // the user's --timeout: register sessions of a scan
+  std::function<void(const std::string&)> trace;
+};
+
+// One Modbus connection with bounded retries; every failure is an Error(Exit::link) in one line.
+class ModbusClient {
+ public:
+  ModbusClient(ModbusTarget target, ModbusOptions opt);
+  ~ModbusClient();
+  ModbusClient(const ModbusClient&) = delete;
+  ModbusClient& operator=(const ModbusClient&) = delete;
+
+  std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count);
+  void write(std::uint16_t addr, std::span<const std::uint16_t> values);
+  // FC23: writes first, then reads, in one exchange.
+  std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
+                                        std::uint16_t raddr, unsigned count);
+
+  const ModbusTarget& target() const { return target_; }
+  const ModbusOptions& options() const { return opt_; }
+  std::size_t exchanges() const { return exchanges_; }  // requests sent, retries included
+  std::size_t retried() const { return retried_; }
+
+ private:
+  void connect();
+  void disconnect();
+  template <class F>
+  void run(const std::string& what, F&& f);
+
+  ModbusTarget target_;
+  ModbusOptions opt_;
+  modbus_t* ctx_ = nullptr;
+  int serial_fd_ = -1;
+  std::size_t exchanges_ = 0, retried_ = 0;
+};
+
+}  // namespace kscfg

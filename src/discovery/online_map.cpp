@@ -1,0 +1,53 @@
+#include "kscfg/discovery/online_map.hpp"
+
+#include <fmt/format.h>
+
+#include <map>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/station/map.hpp"
+
+namespace kscfg {
+
+OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
+                     const MappingSettings& settings, const SessionOptions& opt) {
+  if (current.terminals.size() != spec.terminals.size())
+    throw Error(Exit::usage, fmt::format("the station description has {} terminals, the coupler's layout {}",
+                                         spec.terminals.size(), current.terminals.size()));
+  OnlineMap m;
+  std::map<std::pair<unsigned, unsigned>, std::map<unsigned, std::uint16_t>> read;
+  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
+    unsigned pos = static_cast<unsigned>(i + 1);
+    const TerminalType& type = catalog.get(spec.terminals[i].type);
+    if (!type.has_registers) continue;
+    auto regs = mapping_registers(type);
+    if (regs.empty()) continue;
+    const TerminalImage& t = current.terminal(pos);
+    for (unsigned ch = 0; ch < type.channels; ++ch) {
+      if (ch >= t.channels.size() || !t.channels[ch].window) {
+        m.notes.push_back(fmt::format("terminal {} ({}){}: control/status byte not mapped, so R{} cannot be read; "
+                                      "its format follows the described settings",
+                                      pos, type.type, type.channels > 1 ? fmt::format(" channel {}", ch + 1) : "",
+                                      regs.front()));
+        continue;
+      }
+      RegisterSession s(link, t, ch, opt);
+      for (unsigned r : regs) {
+        std::uint16_t v = s.read(r);
+        read[{pos, ch}][r] = v;
+        m.readings.push_back({pos, ch, r, v});
+      }
+      s.close();
+    }
+  }
+  m.layout = compute_layout(spec, catalog, settings, [&](unsigned pos, unsigned ch) {
+    const auto& ts = spec.terminals.at(pos - 1);
+    auto regs = channel_registers(catalog.get(ts.type), &ts, ch);
+    if (auto it = read.find({pos, ch}); it != read.end())
+      for (auto [r, v] : it->second) regs[r] = v;
+    return regs;
+  });
+  return m;
+}
+
+}  // namespace kscfg

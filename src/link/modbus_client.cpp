@@ -1,0 +1,391 @@
+// The BK9000/BK7300 register map, Modbus endpoints, serial lines and the Modbus client.
+#include <errno.h>
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <modbus/modbus.h>
+#include <netdb.h>
+#include <sys/file.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstring>
+#include <thread>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/modbus_client.hpp"
+#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/parse.hpp"
+
+namespace kscfg {
+
+// ---------------------------------------------------------------------------------------------
+// Register map helpers
+
+namespace mbmap {
+
+std::array<std::uint16_t, kIdentRegisters> encode_ident(const std::string& text) {
+  std::array<std::uint16_t, kIdentRegisters> r{};
+  std::string t = text.substr(0, 2 * kIdentRegisters);
+  t.resize(2 * kIdentRegisters, ' ');
+  for (unsigned i = 0; i < kIdentRegisters; ++i)
+    r[i] = static_cast<std::uint16_t>(static_cast<std::uint8_t>(t[2 * i]) |
+                                      (static_cast<std::uint8_t>(t[2 * i + 1]) << 8));
+  return r;
+}
+
+std::string decode_ident(std::span<const std::uint16_t> regs) {
+  std::string s;
+  for (auto v : regs) {
+    s += static_cast<char>(v & 0xFF);
+    s += static_cast<char>(v >> 8);
+  }
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
+  for (auto& c : s)
+    if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7E) c = '?';
+  return s;
+}
+
+std::string exception_name(int code) {
+  switch (code) {
+    case 1: return "illegal function";
+    case 2: return "illegal data address";
+    case 3: return "illegal data value";
+    case 4: return "slave device failure";
+    case 5: return "acknowledge";
+    case 6: return "slave device busy";
+    case 7: return "negative acknowledge";
+    case 8: return "memory parity error";
+    case 10: return "gateway path unavailable";
+    case 11: return "gateway target device failed to respond";
+    default: return "unknown exception";
+  }
+}
+
+}  // namespace mbmap
+
+// ---------------------------------------------------------------------------------------------
+// Target
+
+std::string ModbusTarget::where() const {
+  if (tcp) return fmt::format("{}:{} unit {}", host, port, unit);
+  return fmt::format("{} unit {}", device, unit);
+}
+
+ModbusTarget modbus_target(const PortUri& p, const std::string& uri) {
+  ModbusTarget t;
+  t.uri = uri;
+  t.tcp = p.scheme == "tcp";
+  auto get = [&](const char* k) -> const std::string* {
+    auto it = p.query.find(k);
+    return it == p.query.end() ? nullptr : &it->second;
+  };
+  if (t.tcp) {
+    t.host = p.target;
+    t.port = p.port;
+  } else {
+    t.device = p.target;
+    if (auto* v = get("baud")) {
+      t.baud = static_cast<unsigned>(parse_uint(*v, 4000000, "baud rate"));
+      if (t.baud == 0) throw Error(Exit::usage, fmt::format("invalid port '{}': baud rate 0", uri));
+    }
+    if (auto* v = get("parity")) {
+      if (*v == "N" || *v == "n" || *v == "none") t.parity = 'N';
+      else if (*v == "E" || *v == "e" || *v == "even") t.parity = 'E';
+      else if (*v == "O" || *v == "o" || *v == "odd") t.parity = 'O';
+      else throw Error(Exit::usage, fmt::format("invalid port '{}': parity '{}' (N, E or O)", uri, *v));
+    }
+    if (auto* v = get("data")) {
+      t.data_bits = static_cast<unsigned>(parse_uint(*v, 8, "data bits"));
+      if (t.data_bits < 5) throw Error(Exit::usage, fmt::format("invalid port '{}': data bits {} (5..8)", uri, *v));
+    }
+    if (auto* v = get("stop")) {
+      t.stop_bits = static_cast<unsigned>(parse_uint(*v, 2, "stop bits"));
+      if (t.stop_bits < 1) throw Error(Exit::usage, fmt::format("invalid port '{}': stop bits {} (1 or 2)", uri, *v));
+    }
+  }
+  if (auto* v = get("unit")) {
+    t.unit = static_cast<int>(parse_uint(*v, 255, "unit id"));
+    if (!t.tcp && (t.unit < 1 || t.unit > 247))
+      throw Error(Exit::usage, fmt::format("invalid port '{}': RTU unit id {} (1..247)", uri, t.unit));
+  }
+  return t;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Serial ports
+
+namespace {
+
+speed_t speed_of(unsigned baud) {
+  switch (baud) {
+    case 150: return B150;
+    case 300: return B300;
+    case 600: return B600;
+    case 1200: return B1200;
+    case 2400: return B2400;
+    case 4800: return B4800;
+    case 9600: return B9600;
+    case 19200: return B19200;
+    case 38400: return B38400;
+    case 57600: return B57600;
+    case 115200: return B115200;
+    case 230400: return B230400;
+    case 460800: return B460800;
+    case 921600: return B921600;
+    default:
+      throw Error(Exit::usage, fmt::format("unsupported baud rate {}", baud),
+                  "use 150, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600 or 115200");
+  }
+}
+
+bool is_pty(const std::string& device) { return device.rfind("/dev/pts/", 0) == 0; }
+
+}  // namespace
+
+int open_serial(const std::string& device, unsigned baud, char parity, unsigned data_bits, unsigned stop_bits) {
+  speed_t speed = speed_of(baud);
+  int fd = ::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    int e = errno;
+    if (e == ENOENT || e == ENODEV || e == ENXIO)
+      throw Error(Exit::link, fmt::format("serial port {} does not exist", device),
+                  "'kscfg ports' lists the serial ports of this machine");
+    if (e == EACCES || e == EPERM)
+      throw Error(Exit::link, fmt::format("permission denied opening {}", device),
+                  "add yourself to the dialout group: sudo usermod -aG dialout $USER, then log in again");
+    if (e == EBUSY)
+      throw Error(Exit::link, fmt::format("serial port {} is busy", device), "another program holds it open");
+    throw Error(Exit::link, fmt::format("cannot open {}: {}", device, std::strerror(e)));
+  }
+  auto fail = [&](Error err) -> Error {
+    ::close(fd);
+    return err;
+  };
+  if (!isatty(fd))
+    throw fail(Error(Exit::link, fmt::format("{} is not a serial port (not a tty)", device),
+                     "give a serial device such as /dev/ttyUSB0; 'kscfg ports' lists them"));
+  if (flock(fd, LOCK_EX | LOCK_NB) != 0)
+    throw fail(Error(Exit::link, fmt::format("serial port {} is in use by another program", device),
+                     "close the other program (kscfg serve, a terminal program, ModemManager)"));
+  termios t{};
+  if (tcgetattr(fd, &t) != 0)
+    throw fail(Error(Exit::link, fmt::format("{}: cannot read the line settings: {}", device, std::strerror(errno))));
+  // Raw 8N1 at the speed first, then each setting on its own, so a refusal names the setting.
+  cfmakeraw(&t);
+  t.c_cflag |= CLOCAL | CREAD;
+  t.c_cflag &= ~(CSTOPB | PARENB | PARODD | CRTSCTS);
+  t.c_iflag &= ~(IXON | IXOFF | IXANY | INPCK);
+  t.c_cc[VMIN] = 0;
+  t.c_cc[VTIME] = 0;
+  auto apply = [&](const std::string& setting, const std::string& hint) {
+    errno = 0;
+    termios back{};
+    if (tcsetattr(fd, TCSANOW, &t) != 0 || tcgetattr(fd, &back) != 0 ||
+        (back.c_cflag & (CSIZE | CSTOPB | PARENB | PARODD)) != (t.c_cflag & (CSIZE | CSTOPB | PARENB | PARODD)) ||
+        cfgetospeed(&back) != cfgetospeed(&t)) {
+      int e = errno;
+      throw fail(Error(Exit::link,
+                       fmt::format("{} refuses {}{}", device, setting,
+                                   e ? fmt::format(" (tcsetattr: {})", std::strerror(e)) : std::string()),
+                       hint));
+    }
+  };
+  cfsetispeed(&t, speed);
+  cfsetospeed(&t, speed);
+  apply(fmt::format("{} baud", baud), "choose a baud rate the adapter supports");
+  t.c_cflag &= ~CSIZE;
+  t.c_cflag |= data_bits == 5 ? CS5 : data_bits == 6 ? CS6 : data_bits == 7 ? CS7 : CS8;
+  apply(fmt::format("{} data bits", data_bits),
+        is_pty(device) ? "pseudo-terminals take 8 data bits only: add ?data=8" : "use ?data=8");
+  if (stop_bits == 2) t.c_cflag |= CSTOPB;
+  apply(fmt::format("{} stop bits", stop_bits), "use ?stop=1");
+  if (parity != 'N') {
+    t.c_cflag |= PARENB;
+    if (parity == 'O') t.c_cflag |= PARODD;
+    apply(fmt::format("parity {}", parity),
+          is_pty(device) ? "pseudo-terminals refuse even/odd parity: add ?parity=N" : "try ?parity=N");
+  }
+  tcflush(fd, TCIOFLUSH);
+  return fd;
+}
+
+// ---------------------------------------------------------------------------------------------
+// ModbusClient
+
+namespace {
+
+bool is_exception(int e) { return e > MODBUS_ENOBASE && e < MODBUS_ENOBASE + MODBUS_EXCEPTION_MAX; }
+bool is_garbled(int e) { return e == EMBBADCRC || e == EMBBADDATA || e == EMBBADEXC || e == EMBUNKEXC || e == EMBMDATA || e == EMBBADSLAVE; }
+bool is_broken(int e) { return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN || e == ECONNABORTED; }
+
+std::string errtext(int e) {
+  if (is_exception(e)) {
+    int code = e - MODBUS_ENOBASE;
+    return fmt::format("Modbus exception {} ({})", code, mbmap::exception_name(code));
+  }
+  if (e == ETIMEDOUT) return "no answer";
+  if (e == EMBBADCRC) return "CRC error";
+  if (e == EMBBADDATA || e == EMBMDATA) return "garbled reply";
+  if (e == EMBBADEXC || e == EMBUNKEXC) return "garbled exception reply";
+  if (e == EMBBADSLAVE) return "reply from another unit";
+  return modbus_strerror(e);
+}
+
+}  // namespace
+
+ModbusClient::ModbusClient(ModbusTarget target, ModbusOptions opt) : target_(std::move(target)), opt_(std::move(opt)) {
+  connect();
+}
+
+ModbusClient::~ModbusClient() { disconnect(); }
+
+void ModbusClient::disconnect() {
+  if (ctx_) {
+    if (target_.tcp) modbus_close(ctx_);
+    modbus_free(ctx_);
+    ctx_ = nullptr;
+  }
+  if (serial_fd_ >= 0) {
+    ::close(serial_fd_);
+    serial_fd_ = -1;
+  }
+}
+
+void ModbusClient::connect() {
+  auto ms = [](unsigned v, auto fn, modbus_t* c) { fn(c, v / 1000, (v % 1000) * 1000); };
+  if (target_.tcp) {
+    // Resolve first: libmodbus reports a name that does not resolve as "connection refused".
+    addrinfo hints{}, *res = nullptr;
+    hints.ai_family = AF_UNSPEC;
+    hints.ai_socktype = SOCK_STREAM;
+    std::string service = std::to_string(target_.port);
+    int rc = getaddrinfo(target_.host.c_str(), service.c_str(), &hints, &res);
+    if (rc != 0)
+      throw Error(Exit::link, fmt::format("cannot resolve host '{}': {}", target_.host, gai_strerror(rc)),
+                  "check the host name or give an IP address");
+    freeaddrinfo(res);
+    ctx_ = modbus_new_tcp_pi(target_.host.c_str(), service.c_str());
+    if (!ctx_) throw Error(Exit::link, fmt::format("port '{}': {}", target_.uri, modbus_strerror(errno)));
+    ms(opt_.connect_timeout_ms, modbus_set_response_timeout, ctx_);
+    if (modbus_connect(ctx_) != 0) {
+      int e = errno;
+      modbus_free(ctx_);
+      ctx_ = nullptr;
+      if (e == ECONNREFUSED)
+        throw Error(Exit::link, fmt::format("connection refused by {}:{}", target_.host, target_.port),
+                    "is the coupler (or 'kscfg serve') listening on that port?");
+      if (e == ETIMEDOUT || e == EINPROGRESS)
+        throw Error(Exit::link,
+                    fmt::format("no connection to {}:{} within {} ms", target_.host, target_.port,
+                                opt_.connect_timeout_ms),
+                    "check the address, the cable and that the coupler is powered");
+      if (e == EHOSTUNREACH || e == ENETUNREACH)
+        throw Error(Exit::link, fmt::format("host {} is unreachable: {}", target_.host, std::strerror(e)),
+                    "check the address and the network");
+      throw Error(Exit::link, fmt::format("cannot connect to {}:{}: {}", target_.host, target_.port, modbus_strerror(e)));
+    }
+  } else {
+    serial_fd_ = open_serial(target_.device, target_.baud, target_.parity, target_.data_bits, target_.stop_bits);
+    ctx_ = modbus_new_rtu(target_.device.c_str(), static_cast<int>(target_.baud), target_.parity,
+                          static_cast<int>(target_.data_bits), static_cast<int>(target_.stop_bits));
+    if (!ctx_) {
+      ::close(serial_fd_);
+      serial_fd_ = -1;
+      throw Error(Exit::link, fmt::format("port '{}': {}", target_.uri, modbus_strerror(errno)));
+    }
+    modbus_set_socket(ctx_, serial_fd_);
+  }
+  modbus_set_error_recovery(ctx_, MODBUS_ERROR_RECOVERY_NONE);
+  modbus_set_slave(ctx_, target_.unit);
+  ms(opt_.response_timeout_ms, modbus_set_response_timeout, ctx_);
+  ms(std::max(50u, opt_.response_timeout_ms / 2), modbus_set_byte_timeout, ctx_);
+}
+
+template <class F>
+void ModbusClient::run(const std::string& what, F&& f) {
+  unsigned timeouts = 0, others = 0;
+  for (;;) {
+    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+    if (!ctx_) connect();
+    ++exchanges_;
+    errno = 0;
+    if (f(ctx_) >= 0) return;
+    int e = errno;
+    bool timeout = e == ETIMEDOUT;
+    bool transient = is_garbled(e) || e == EMBXSBUSY || is_broken(e);
+    if (opt_.trace) opt_.trace(fmt::format("modbus {}: {} ({})", what, errtext(e), target_.where()));
+    if (is_exception(e) && e != EMBXSBUSY) {
+      int code = e - MODBUS_ENOBASE;
+      std::string hint;
+      if (code == 11 || code == 10) hint = fmt::format("check the unit id (?unit=N; this link uses {})", target_.unit);
+      else if (code == 2) hint = "the coupler's image is smaller than the station description says";
+      else if (code == 4) hint = "the coupler reports a watchdog or K-bus error";
+      throw Error(Exit::link, fmt::format("{} from {} ({})", errtext(e), target_.where(), what), hint);
+    }
+    if (!timeout && !transient)
+      throw Error(Exit::link, fmt::format("{} failed on {}: {}", what, target_.where(), errtext(e)));
+    if ((timeout && timeouts >= opt_.timeout_retries) || (!timeout && others >= opt_.retries)) {
+      std::string attempts = fmt::format("{} attempt{}", timeouts + others + 1, timeouts + others ? "s" : "");
+      if (timeout)
+        throw Error(Exit::link,
+                    fmt::format("no answer from {} within {} ms ({}, {})", target_.where(), opt_.response_timeout_ms,
+                                what, attempts),
+                    target_.tcp ? "check that the coupler is running and the unit id (?unit=N)"
+                                : "check the unit id (?unit=N), baud rate, parity and wiring");
+      throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
+                  e == EMBXSBUSY ? "another master is writing the outputs" : "check the line and its termination");
+    }
+    (timeout ? timeouts : others)++;
+    ++retried_;
+    // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and
+    // the chain goes on); a fresh connection leaves it behind. Reconnects on the next attempt.
+    if (is_broken(e) || (target_.tcp && (timeout || is_garbled(e)))) {
+      disconnect();
+      continue;
+    }
+    // A late or garbled reply may still be on its way: let it arrive, then drop it.
+    std::this_thread::sleep_for(std::chrono::milliseconds(e == EMBXSBUSY ? 5 : 2));
+    modbus_flush(ctx_);
+  }
+}
+
+std::vector<std::uint16_t> ModbusClient::read(std::uint16_t addr, unsigned count) {
+  std::vector<std::uint16_t> v(count);
+  for (unsigned done = 0; done < count;) {
+    unsigned n = std::min(count - done, mbmap::kMaxRead);
+    auto a = static_cast<std::uint16_t>(addr + done);
+    run(fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a),
+        [&](modbus_t* c) { return modbus_read_registers(c, a, static_cast<int>(n), v.data() + done); });
+    done += n;
+  }
+  return v;
+}
+
+void ModbusClient::write(std::uint16_t addr, std::span<const std::uint16_t> values) {
+  for (std::size_t done = 0; done < values.size();) {
+    std::size_t n = std::min<std::size_t>(values.size() - done, mbmap::kMaxWrite);
+    auto a = static_cast<std::uint16_t>(addr + done);
+    run(fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), [&](modbus_t* c) {
+      return modbus_write_registers(c, a, static_cast<int>(n), values.data() + done);
+    });
+    done += n;
+  }
+}
+
+std::vector<std::uint16_t> ModbusClient::write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
+                                                    std::uint16_t raddr, unsigned count) {
+  if (values.size() > mbmap::kMaxWriteRead || count > mbmap::kMaxRead) {
+    write(waddr, values);
+    return read(raddr, count);
+  }
+  std::vector<std::uint16_t> v(count);
+  run(fmt::format("writing 0x{:04X} and reading 0x{:04X} (FC23)", waddr, raddr), [&](modbus_t* c) {
+    return modbus_write_and_read_registers(c, waddr, static_cast<int>(values.size()), values.data(), raddr,
+                                           static_cast<int>(count), v.data());
+  });
+  return v;
+}
+
+}  // namespace kscfg
