@@ -1,0 +1,49 @@
+# Checks that the library's layers only include downwards (src/README.md draws the picture).
+# Usage: cmake -DROOT=<source dir> -P check_layers.cmake
+# Fails (FATAL_ERROR) naming every file that includes a header of a layer it may not use.
+# Run at configure time and as the CTest test "layers", so an upward include breaks the build.
+
+include(${CMAKE_CURRENT_LIST_DIR}/layers.cmake)
+
+if(NOT ROOT)
+  message(FATAL_ERROR "check_layers: pass -DROOT=<source dir>")
+endif()
+
+set(violations "")
+foreach(layer IN LISTS KSCFG_LAYERS)
+  file(GLOB_RECURSE files ${ROOT}/src/${layer}/*.cpp ${ROOT}/src/${layer}/*.hpp
+       ${ROOT}/include/kscfg/${layer}/*.hpp)
+  foreach(f IN LISTS files)
+    file(STRINGS ${f} lines REGEX "^[ \t]*#[ \t]*include[ \t]*[\"<]kscfg/")
+    foreach(line IN LISTS lines)
+      string(REGEX MATCH "kscfg/([a-z_]+)/" _ "${line}")
+      set(target "${CMAKE_MATCH_1}")
+      if(target STREQUAL "")
+        # A header outside every layer folder (the flat include/kscfg/ of old): not allowed.
+        file(RELATIVE_PATH rel ${ROOT} ${f})
+        list(APPEND violations "${rel}: ${line} (not in a layer folder)")
+      elseif(NOT target STREQUAL layer)
+        list(FIND KSCFG_USES_${layer} ${target} ok)
+        if(ok EQUAL -1)
+          file(RELATIVE_PATH rel ${ROOT} ${f})
+          list(APPEND violations "${rel}: layer '${layer}' includes '${target}': ${line}")
+        endif()
+      endif()
+    endforeach()
+  endforeach()
+endforeach()
+
+# The library never includes the CLI.
+file(GLOB_RECURSE libfiles ${ROOT}/src/*.cpp ${ROOT}/src/*.hpp ${ROOT}/include/*.hpp)
+foreach(f IN LISTS libfiles)
+  file(STRINGS ${f} lines REGEX "^[ \t]*#[ \t]*include[ \t]*\"(commands|context|command|app)\\.hpp\"")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    list(APPEND violations "${rel}: the library includes the CLI: ${line}")
+  endforeach()
+endforeach()
+
+if(violations)
+  list(JOIN violations "\n  " text)
+  message(FATAL_ERROR "upward include(s), see src/README.md for the layers:\n  ${text}")
+endif()

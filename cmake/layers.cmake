@@ -1,0 +1,11 @@
+# The library's layers, bottom to top, and what each may include and link (src/README.md).
+set(KSCFG_LAYERS base protocol catalog station link session emulator discovery provision)
+set(KSCFG_USES_base "")
+set(KSCFG_USES_protocol base)
+set(KSCFG_USES_catalog base protocol)
+set(KSCFG_USES_station base protocol catalog)
+set(KSCFG_USES_link base protocol catalog station)
+set(KSCFG_USES_session base protocol catalog station link)
+set(KSCFG_USES_emulator base protocol catalog station link)
+set(KSCFG_USES_discovery base protocol catalog station link session emulator)
+set(KSCFG_USES_provision base protocol catalog station link session)
