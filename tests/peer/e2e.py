@@ -600,6 +600,35 @@ def c_neighbour(ctx):
     check(w >> 8 == 0, "KL5101 control byte left at 0x%02X" % (w >> 8))
 
 
+@case("watchdog-expired-between-commands", "BK9000/BK7300 manuals: the watchdog is armed by the "
+      "first write telegram and, when it elapses, the outputs go to 0; it \"can be reset by writing "
+      "twice to register 0x1121: 0xBECF 0xAFFE\". Whether outputs stay dead until that reset is not "
+      "stated: the peer's --strict-watchdog assumes they do. A later command must then work or fail "
+      "naming the watchdog, not report a terminal that does not acknowledge",
+      passes=("tcp",), peer_extra=["--strict-watchdog", "--watchdog-ms", "200"])
+def c_watchdog_expired(ctx):
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8", station=True)
+    ctx.peer.wait_event("watchdog-expired", timeout=5)
+    rc, out, err = ctx.kscfg("read", "--raw", "R8", station=True)
+    if rc == 0:
+        check(raw_value(out) == 6001, "R8 = %s" % out.strip())
+    else:
+        check("watchdog" in err.lower(), "exit %s without naming the watchdog" % rc)
+
+
+@case("rtu-unit-id", "BK7300: the coupler answers only its own address (unit id); "
+      "kscfg(1) rtu:DEVICE?unit=N selects it", passes=("rtu",), peer_extra=["--unit", "5"])
+def c_unit(ctx):
+    plain = ctx.port
+    ctx.port = plain + "&unit=5"
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8", station=True)
+    check(raw_value(out) == 6001, "R8 = %s" % out.strip())
+    # another address must get no answer at all (link failure, status 3)
+    ctx.port = plain + "&unit=6"
+    ctx.expect_rc(3, "--timeout", "300", "read", "--raw", "R8", station=True,
+                  fact="a BK7300 at address 5 does not answer address 6")
+
+
 # ---------------------------------------------------------------------------
 class Suite:
     def __init__(self, kscfg):
