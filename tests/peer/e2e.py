@@ -186,6 +186,20 @@ def c_info_(ctx):
     c_info(ctx)
 
 
+def no_station_ok(ctx, *args):
+    """Without --station on a BK7300 (complete evaluation off) the coupler
+    offers no way to find the terminals' control bytes (a compact analog
+    terminal has none): refusing and asking for a station file is right.
+    Returns stdout on success, None on such a refusal; raises otherwise."""
+    if ctx.pass_name == "tcp":
+        return ctx.expect_rc(0, *args)[0]
+    rc, out, err = ctx.kscfg(*args)
+    if rc == 0:
+        return out
+    check("--station" in err, "exit %s without asking for --station" % rc)
+    return None
+
+
 def expected_r8(ctx):
     # BK7300: no complete evaluation, so the KL3022 has no control/status
     # byte and its R8 cannot be read through the fieldbus
@@ -193,7 +207,9 @@ def expected_r8(ctx):
 
 
 def c_info(ctx):
-    out, _ = ctx.expect_rc(0, "--json", "info")
+    out = no_station_ok(ctx, "--json", "info")
+    if out is None:
+        return
     doc = json.loads(out)
     got = [t.get("r8") for t in doc["terminals"]][:4]
     check(got == expected_r8(ctx), "R8 list %r" % got)
@@ -237,7 +253,9 @@ def c_scan_write(ctx):
 
 @case("read-R8", "seed KL6001: R8 terminal type 6001 (0x1771)")
 def c_read_r8(ctx):
-    out, _ = ctx.expect_rc(0, "read", "--raw", "R8")
+    out = no_station_ok(ctx, "read", "--raw", "R8")
+    if out is None:
+        return
     check(raw_value(out) == 6001, "R8 = %s" % out.strip())
 
 
@@ -358,10 +376,27 @@ def c_set_divisor(ctx):
     check(ctx.reg(1, 32) == 0x7CFF, "peer R32 = 0x%04X" % ctx.reg(1, 32))
 
 
-def compare_map(ctx, doc, st):
+def compare_map(ctx, doc, st, scanned=False):
+    """Compare kscfg's --json map with the peer's layout.  A scan cannot tell
+    digital terminals apart (DESIGN.md section 4): then the complex terminals
+    are compared in order and the digital area by its bit totals."""
     peer_terms = st["terminals"]
-    kterms = {t["position"]: t for t in doc["terminals"]}
     bad = []
+    if scanned:
+        cx = [t for t in doc["terminals"] if t.get("complex")]
+        pc = [t for t in peer_terms if t["kind"] == "complex"]
+        if len(cx) != len(pc):
+            bad.append("%d complex terminals, coupler has %d" % (len(cx), len(pc)))
+        for k, t in zip(cx, pc):
+            k["position"] = t["pos"]
+        for side, key in (("inputs", "digital_in_bits"), ("outputs", "digital_out_bits")):
+            got = doc.get(side, {}).get("digital_bits")
+            if got != st["image"][key]:
+                bad.append("%s digital bits %r, coupler 0x%04X says %d"
+                           % (side, got, 0x1013 if side == "inputs" else 0x1012, st["image"][key]))
+        peer_terms = pc
+        doc = dict(doc, terminals=cx)
+    kterms = {t["position"]: t for t in doc["terminals"]}
     for t in peer_terms:
         k = kterms.get(t["pos"])
         if k is None:
@@ -418,8 +453,10 @@ def c_map_station(ctx):
 
 @case("map-online", "as map-online-station, with the station found by a scan")
 def c_map_online(ctx):
-    out, _ = ctx.expect_rc(0, "--json", "map", "--online")
-    bad = compare_map(ctx, json.loads(out), ctx.state())
+    out = no_station_ok(ctx, "--json", "map", "--online")
+    if out is None:
+        return
+    bad = compare_map(ctx, json.loads(out), ctx.state(), scanned=True)
     check(not bad, "; ".join(bad[:4]))
 
 
@@ -431,7 +468,7 @@ def c_map_follow(ctx):
     out, _ = ctx.expect_rc(0, "--json", "map", "--online")
     st = ctx.state()
     check(st["terminals"][0]["channels"][0]["layout"]["in_size"] == 6, "peer did not apply R35")
-    bad = compare_map(ctx, json.loads(out), st)
+    bad = compare_map(ctx, json.loads(out), st, scanned=True)
     check(not bad, "; ".join(bad[:4]))
 
 
