@@ -16,10 +16,10 @@
 #include <string>
 #include <vector>
 
-#include "kscfg/catalog.hpp"
-#include "kscfg/layout.hpp"
-#include "kscfg/mapview.hpp"
-#include "kscfg/station.hpp"
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/layout.hpp"
+#include "kscfg/station/map.hpp"
+#include "kscfg/station/station.hpp"
 #include "support.hpp"
 
 using namespace kscfg;
