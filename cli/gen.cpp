@@ -43,7 +43,8 @@ std::vector<const CLI::Option*> positionals_of(const CLI::App* app) {
   return app->get_options([](const CLI::Option* o) { return o->get_positional(); });
 }
 
-bool takes_value(const CLI::Option* o) { return o->get_expected_min() > 0 || o->get_type_size_min() > 0; }
+// Flags report type_size_min = 1 in CLI11 2.1.2; the number of items they expect is 0.
+bool takes_value(const CLI::Option* o) { return o->get_items_expected_min() > 0; }
 
 std::vector<std::string> names_of(const CLI::Option* o) {
   std::vector<std::string> v;

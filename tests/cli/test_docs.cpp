@@ -121,3 +121,32 @@ TEST_CASE("the bash completion script works in bash", "[docs]") {
   CHECK_THAT(complete("kscfg -p emu emu r"), Catch::Contains("reset"));
   CHECK_THAT(complete("kscfg completion f"), Catch::Contains("fish"));
 }
+
+TEST_CASE("flags are documented and completed without a value, options with one", "[docs]") {
+  auto app = build_app();
+  std::string man = generate_manpage(*app);
+  std::string zsh = generate_completion(*app, "zsh"), fish = generate_completion(*app, "fish");
+  std::string bash = generate_completion(*app, "bash");
+  std::string valued = bash.substr(bash.find("local valued=\""));
+  valued = valued.substr(0, valued.find('\n'));
+  std::function<void(const CLI::App*)> walk = [&](const CLI::App* a) {
+    for (const CLI::Option* o : a->get_options([](const CLI::Option* o) { return o->nonpositional(); })) {
+      if (o->get_lnames().empty() || o->get_name() == "--help") continue;
+      std::string l = o->get_lnames().front();
+      bool flag = o->get_items_expected_min() == 0;
+      INFO(a->get_name() << " --" << l);
+      CHECK((man.find("\\fB\\-\\-" + roff_escape(l) + "\\fR \\fI") == std::string::npos) == flag);
+      CHECK((zsh.find("'--" + l + "[") != std::string::npos));
+      // zsh: a valued option's spec ends in ":TEXT:'", a flag's in "]'".
+      std::string spec = zsh.substr(zsh.find("'--" + l + "["));
+      spec = spec.substr(0, spec.find("' ") + 1);
+      CHECK((spec.back() == '\'' && spec[spec.size() - 2] == ']') == flag);
+      std::string fl = fish.substr(fish.find(" -l " + l + " "));
+      fl = fl.substr(0, fl.find('\n'));
+      CHECK((fl.find(" -r ") == std::string::npos) == flag);
+      CHECK((valued.find(" --" + l + " ") == std::string::npos) == flag);
+    }
+    for (const CLI::App* s : a->get_subcommands([](const CLI::App*) { return true; })) walk(s);
+  };
+  walk(&app->cli);
+}
