@@ -1,6 +1,8 @@
 // The emulated serial terminal in process-data mode (REG = 0): send/receive FIFO, BUF_F, R6, a
 // line that moves bytes at the configured baud rate and frame, and a far end behind the line.
-// Where the handshake sits in an image is station/serial_image.hpp.
+// Where the handshake sits in an image is station/serial_image.hpp. The implementation is split
+// into the line and far ends (serial_line.cpp), the FIFOs (serial_fifo.cpp), the handshake
+// (serial_handshake.cpp) and the state (serial_model.cpp).
 #pragma once
 #include <array>
 #include <cstdint>
