@@ -1,0 +1,29 @@
+// Fault injection of `kscfg serve`: which deliberate misbehaviour a request meets (drop, busy,
+// corrupt, delay; one draw per request) and the garbled frame a corrupted reply becomes.
+#pragma once
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "kscfg/emulator/modbus_server.hpp"
+
+namespace kscfg {
+
+enum class Fault { none, drop, busy, corrupt, delay };
+
+class FaultInjector {
+ public:
+  FaultInjector(const ServeFaults& faults, std::uint64_t seed) : faults_(faults), rng_(seed) {}
+  const ServeFaults& faults() const { return faults_; }
+  // One draw per request.
+  Fault draw();
+  // A frame the client must reject: bad CRC on RTU, a mismatching exception on TCP. `q` is the
+  // request, `header` its header length (unit id at header-1, function code at header).
+  static std::vector<std::uint8_t> corrupt_reply(bool tcp, const std::uint8_t* q, int header);
+
+ private:
+  ServeFaults faults_;
+  std::mt19937_64 rng_;
+};
+
+}  // namespace kscfg
