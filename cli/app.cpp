@@ -67,7 +67,16 @@ static Command* parsed_command(App& a) {
   return found;
 }
 
-static void print_error(const std::string& msg, const std::string& hint) {
+// With --json, errors are one JSON object on stderr (docs/json.md); otherwise one line.
+static bool g_json_errors = false;
+
+static void print_error(const std::string& msg, const std::string& hint, int code) {
+  if (g_json_errors) {
+    nlohmann::json j{{"error", msg}, {"exit", code}};
+    if (!hint.empty()) j["hint"] = hint;
+    std::cerr << j.dump() << '\n';
+    return;
+  }
   std::string line = msg;
   if (!hint.empty()) line += " (" + hint + ")";
   for (auto& ch : line)
@@ -75,15 +84,19 @@ static void print_error(const std::string& msg, const std::string& hint) {
   std::cerr << "kscfg: error: " << line << '\n';
 }
 
+static void print_error(const Error& e) { print_error(e.what(), e.hint(), static_cast<int>(e.code())); }
+
 int run(int argc, char** argv) {
   std::unique_ptr<App> app;
   try {
     app = build_app();
   } catch (const Error& e) {
-    print_error(e.what(), e.hint());
+    print_error(e);
     return static_cast<int>(e.code());
   }
   g_app = app.get();
+  for (int i = 1; i < argc && std::string(argv[i]) != "--"; ++i)
+    if (std::string(argv[i]) == "--json") g_json_errors = true;
   try {
     app->cli.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -117,7 +130,7 @@ int run(int argc, char** argv) {
         break;
       }
     }
-    print_error(msg, "");
+    print_error(msg, "", static_cast<int>(Exit::usage));
     return static_cast<int>(Exit::usage);
   }
 
@@ -151,13 +164,13 @@ int run(int argc, char** argv) {
       try {
         ctx->finish();  // the emulator keeps what really happened, like hardware would
       } catch (const Error& e2) {
-        print_error(e2.what(), e2.hint());
+        print_error(e2);
       }
     }
-    print_error(e.what(), e.hint());
+    print_error(e);
     return static_cast<int>(e.code());
   } catch (const std::exception& e) {
-    print_error(fmt::format("internal error: {}", e.what()), "please report this");
+    print_error(fmt::format("internal error: {}", e.what()), "please report this", 70);
     return 70;
   }
   return rc;

@@ -2,12 +2,15 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/open.hpp"
+#include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg::cli {
 
@@ -69,6 +72,13 @@ std::unique_ptr<RegisterSession> Context::session() {
   return std::make_unique<RegisterSession>(link(), t, opt_.channel - 1, session_options());
 }
 
+nlohmann::json Context::link_json() {
+  Link& l = link();
+  nlohmann::json unit = nullptr;
+  if (auto* m = dynamic_cast<ModbusLink*>(&l)) unit = m->client().target().unit;
+  return {{"port", l.describe()}, {"unit", unit}};
+}
+
 void Context::finish() {
   if (link_) link_->commit();
 }
@@ -76,5 +86,19 @@ void Context::finish() {
 void Context::trace(const std::string& line) const { std::cerr << "kscfg: " << line << '\n'; }
 
 void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << '\n'; }
+
+nlohmann::json param_json(const std::string& v) {
+  // The same rule as station files (station_to_toml): digits are a number, on/off a bool.
+  bool numeric = !v.empty() && v.size() < 10 &&
+                 std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
+  if (numeric) return std::stoll(v);
+  if (v == "on") return true;
+  if (v == "off") return false;
+  return v;
+}
+
+nlohmann::json terminal_json(const TerminalImage& t, unsigned channel) {
+  return {{"position", t.position}, {"channel", channel + 1}, {"type", t.type->type}};
+}
 
 }  // namespace kscfg::cli

@@ -50,6 +50,9 @@ class Context {
 
   void trace(const std::string& line) const;
 
+  // {"port": URI, "unit": Modbus unit id or null} of the link (opened if needed).
+  nlohmann::json link_json();
+
  private:
   GlobalOptions opt_;
   std::unique_ptr<Link> link_;
@@ -58,5 +61,12 @@ class Context {
 
 // Prints `j` on stdout (pretty, one document).
 void print_json(const nlohmann::json& j);
+
+// A parameter's value typed as in a station file (docs/json.md): a number where the text is a
+// number, true/false for on/off, a string otherwise.
+nlohmann::json param_json(const std::string& text);
+
+// {"position": .., "channel": .., "type": ..} of a terminal channel (channel 0-based here, 1-based in JSON).
+nlohmann::json terminal_json(const TerminalImage& t, unsigned channel);
 
 }  // namespace kscfg::cli

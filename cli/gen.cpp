@@ -9,6 +9,10 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/catalog/params.hpp"
 
+namespace kscfg {
+const std::vector<EmbeddedFile>& builtin_doc_files();  // docs/*.md (generated)
+}
+
 namespace kscfg::cli {
 
 namespace {
@@ -87,6 +91,116 @@ std::string shell_quote(const std::string& s) {
   return out + "'";
 }
 
+// Inline markdown: `code` in bold, roff escapes.
+std::string md_inline(const std::string& s) {
+  std::string out;
+  bool code = false;
+  for (char c : s) {
+    if (c == '`') {
+      out += code ? "\\fR" : "\\fB";
+      code = !code;
+    } else if (c == '\\') {
+      out += "\\e";
+    } else if (c == '-') {
+      out += "\\-";
+    } else {
+      out += c;
+    }
+  }
+  if (code) out += "\\fR";
+  if (!out.empty() && (out[0] == '.' || out[0] == '\'')) out = "\\&" + out;
+  return out;
+}
+
+std::vector<std::string> md_cells(const std::string& line) {
+  std::vector<std::string> cells;
+  std::string cur;
+  for (std::size_t i = 1; i < line.size(); ++i) {
+    if (line[i] == '|') {
+      auto a = cur.find_first_not_of(' '), b = cur.find_last_not_of(' ');
+      cells.push_back(a == std::string::npos ? "" : cur.substr(a, b - a + 1));
+      cur.clear();
+    } else {
+      cur += line[i];
+    }
+  }
+  return cells;
+}
+
+// The subset of markdown docs/*.md use: "## " headings, paragraphs, "- " lists, 4-space code
+// blocks and "| a | b | c |" tables (the first column becomes the tag, the second its type).
+// The "# " title is left out: the man page section has its own.
+std::string md_to_roff(const std::string& md) {
+  std::istringstream in(md);
+  std::string line, out, para;
+  bool code = false, header_row = false;
+  auto flush = [&] {
+    if (!para.empty()) out += ".PP\n" + md_inline(para) + "\n";
+    para.clear();
+  };
+  while (std::getline(in, line)) {
+    bool is_code = line.rfind("    ", 0) == 0;
+    if (code && !is_code && !line.empty()) {
+      out += ".fi\n.RE\n";
+      code = false;
+    }
+    if (is_code) {
+      flush();
+      if (!code) out += ".RS\n.nf\n";
+      code = true;
+      std::string t = line.substr(4);
+      std::string esc;
+      for (char c : t) esc += c == '\\' ? std::string("\\e") : c == '-' ? std::string("\\-") : std::string(1, c);
+      if (!esc.empty() && (esc[0] == '.' || esc[0] == '\'')) esc = "\\&" + esc;
+      out += esc + "\n";
+    } else if (line.empty()) {
+      if (code) continue;
+      flush();
+      header_row = false;
+    } else if (line.rfind("# ", 0) == 0) {
+      continue;
+    } else if (line.rfind("## ", 0) == 0) {
+      flush();
+      out += ".SS \"" + line.substr(3) + "\"\n";
+    } else if (line.rfind("|", 0) == 0) {
+      flush();
+      auto cells = md_cells(line);
+      if (!header_row) {  // the header row; the separator row follows
+        header_row = true;
+        continue;
+      }
+      if (cells.empty() || cells[0].rfind("---", 0) == 0) continue;
+      out += ".TP\n" + md_inline(cells[0]) + (cells.size() > 2 ? " (" + md_inline(cells[1]) + ")" : "") + "\n" +
+             md_inline(cells.back()) + "\n";
+    } else if (line.rfind("- ", 0) == 0) {
+      flush();
+      out += ".IP \\(bu 2\n";
+      std::string item = line.substr(2);
+      // continuation lines are indented by two spaces
+      std::streampos pos = in.tellg();
+      std::string next;
+      while (std::getline(in, next) && next.rfind("  ", 0) == 0 && next.rfind("    ", 0) != 0) {
+        item += " " + next.substr(2);
+        pos = in.tellg();
+      }
+      in.clear();
+      in.seekg(pos);
+      out += md_inline(item) + "\n";
+    } else {
+      para += (para.empty() ? "" : " ") + line;
+    }
+  }
+  flush();
+  if (code) out += ".fi\n.RE\n";
+  return out;
+}
+
+std::string embedded_doc(const std::string& name) {
+  for (const auto& f : builtin_doc_files())
+    if (f.name == name) return std::string(f.text);
+  throw Error(Exit::internal, fmt::format("documentation file {} is not built in", name));
+}
+
 void collect(const Node& n, std::vector<const Node*>& out) {
   for (const auto& c : n.children) {
     out.push_back(&c);
@@ -162,6 +276,7 @@ std::string generate_manpage(const App& a) {
         << "\n";
     }
   }
+  m << ".SH JSON OUTPUT\n" << md_to_roff(embedded_doc("json.md"));
   m << ".SH EXIT STATUS\n";
   for (Exit e : {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify,
                  Exit::file, Exit::interrupted, Exit::changed, Exit::internal}) {

@@ -16,9 +16,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   Plan plan = make_plan(ctx.link(), layout, want, ctx.catalog(), ctx.session_options());
   if (dry_run || !plan.changes()) {
     if (ctx.json()) {
-      auto j = plan_json(plan);
-      j["dry_run"] = dry_run;
-      print_json(j);
+      print_json(provision_json(ctx, plan, dry_run, ""));
     } else {
       std::cout << (plan.changes() ? plan_text(plan) : "no change needed\n");
     }
@@ -28,9 +26,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   ApplyResult r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path);
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   if (ctx.json()) {
-    auto j = plan_json(plan);
-    j["backup"] = r.backup_path;
-    print_json(j);
+    print_json(provision_json(ctx, plan, false, r.backup_path));
   } else {
     std::cout << plan_text(plan);
   }

@@ -44,7 +44,7 @@ class Backup : public Command {
       write_file_atomic(file_, text);
       if (!ctx.json()) std::cout << fmt::format("backup of {} terminals written to {}\n", spec.terminals.size(), file_);
     }
-    if (ctx.json() && !file_.empty()) print_json({{"file", file_}, {"terminals", spec.terminals.size()}});
+    if (ctx.json() && !file_.empty()) print_json({{"file", file_}, {"terminal_count", spec.terminals.size()}});
     return 0;
   }
 

@@ -51,12 +51,14 @@ class CatalogCmd : public Command {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& [n, t] : cat.types()) {
         if (ctx.json())
-          arr.push_back({{"type", n}, {"family", t->family}, {"r8", t->r8}, {"title", t->title}, {"origin", t->origin}});
+          arr.push_back({{"type", n}, {"family", t->family},
+                         {"r8", t->has_registers ? nlohmann::json(t->r8) : nlohmann::json(nullptr)},
+                         {"title", t->title}, {"origin", t->origin}});
         else
           std::cout << fmt::format("{:<8} {:<12} {:<5} {}\n", n, t->family, t->has_registers ? std::to_string(t->r8) : "-",
                                    t->title);
       }
-      if (ctx.json()) print_json(arr);
+      if (ctx.json()) print_json({{"types", arr}});
       return 0;
     }
     const TerminalType& t = cat.get(type_);
@@ -65,12 +67,17 @@ class CatalogCmd : public Command {
       for (const auto& r : t.regs)
         if (r.described || r.addr == 8 || r.addr == 9)
           regs.push_back({{"register", r.addr}, {"name", r.name}, {"default", r.def},
-                          {"storage", proto::storage_name(r.storage)}, {"writable", r.writable}, {"desc", r.desc}});
-      for (const auto& p : t.params)
-        params.push_back({{"name", p.name}, {"register", p.reg}, {"mask", p.mask}, {"values", param_choices(p)},
-                          {"default", decode_param(p, t.regs[p.reg].def)}, {"desc", p.desc}});
+                          {"storage", proto::storage_name(r.storage)}, {"writable", r.writable}, {"description", r.desc}});
+      for (const auto& p : t.params) {
+        nlohmann::json values = nlohmann::json::array();
+        for (const auto& c : param_choices(p)) values.push_back(param_json(c));
+        params.push_back({{"name", p.name}, {"register", p.reg}, {"mask", p.mask}, {"choices", values},
+                          {"default", param_json(decode_param(p, t.regs[p.reg].def))}, {"measured_in", p.unit},
+                          {"description", p.desc}});
+      }
       for (const auto& im : t.images) images.push_back({{"name", im.name}, {"elements", elements_text(im.out)}});
-      print_json({{"type", t.type}, {"title", t.title}, {"family", t.family}, {"r8", t.r8}, {"registers", regs},
+      print_json({{"type", t.type}, {"title", t.title}, {"family", t.family},
+                  {"r8", t.has_registers ? nlohmann::json(t.r8) : nlohmann::json(nullptr)}, {"channels", t.channels}, {"registers", regs},
                   {"params", params}, {"images", images}, {"source", t.source}, {"origin", t.origin},
                   {"factory_reset", t.reset == FactoryReset::r7 ? "r7" : "defaults"}});
       return 0;

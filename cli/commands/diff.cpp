@@ -15,12 +15,21 @@ nlohmann::json plan_json(const Plan& plan) {
   nlohmann::json terms = nlohmann::json::array();
   for (const auto& cp : plan.channels) {
     nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
-    for (const auto& p : cp.params) ps.push_back({{"name", p.name}, {"from", p.from}, {"to", p.to}});
-    for (const auto& r : cp.registers) rs.push_back({{"register", r.reg}, {"from", r.from}, {"to", r.to}});
+    for (const auto& p : cp.params)
+      ps.push_back({{"name", p.name}, {"before", param_json(p.from)}, {"after", param_json(p.to)}});
+    for (const auto& r : cp.registers) rs.push_back({{"register", r.reg}, {"before", r.from}, {"after", r.to}});
     terms.push_back({{"position", cp.position}, {"channel", cp.channel + 1}, {"type", cp.type},
                      {"changed", !cp.registers.empty()}, {"params", ps}, {"registers", rs}});
   }
   return {{"changed", plan.changes()}, {"terminals", terms}};
+}
+
+nlohmann::json provision_json(Context& ctx, const Plan& plan, bool dry_run, const std::string& backup) {
+  nlohmann::json j = plan_json(plan);
+  j["dry_run"] = dry_run;
+  j.update(ctx.link_json());
+  j["backup"] = backup.empty() ? nlohmann::json(nullptr) : nlohmann::json(backup);
+  return j;
 }
 
 std::string plan_text(const Plan& plan) {
@@ -53,7 +62,7 @@ class Diff : public Command {
   int run(Context& ctx) override {
     StationSpec want = load_station(file_, ctx.catalog());
     Plan plan = make_plan(ctx.link(), ctx.layout(), want, ctx.catalog(), ctx.session_options());
-    if (ctx.json()) print_json(plan_json(plan));
+    if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);
     else std::cout << "no differences\n";
     return plan.changes() ? static_cast<int>(Exit::differences) : 0;

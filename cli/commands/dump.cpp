@@ -44,18 +44,26 @@ class Dump : public Command {
         continue;
       }
       bool differs = d.storage == proto::Storage::seerom && v[r] != d.def;
-      std::string def = d.storage == proto::Storage::seerom || d.storage == proto::Storage::rom ? hex4(d.def) : "-";
+      bool has_default = d.storage == proto::Storage::seerom || d.storage == proto::Storage::rom;
+      std::string def = has_default ? hex4(d.def) : "-";
       if (ctx.json()) {
-        arr.push_back({{"register", r}, {"value", v[r]}, {"storage", proto::storage_name(d.storage)},
-                       {"default", d.def}, {"differs", differs}, {"name", d.name},
-                       {"meaning", register_meaning(type, r, v[r], ch)}});
+        // RAM registers (process variables, the code word) have no factory value: null.
+        arr.push_back({{"register", r}, {"value", v[r]}, {"hex", hex4(v[r])},
+                       {"storage", proto::storage_name(d.storage)},
+                       {"default", has_default ? nlohmann::json(d.def) : nlohmann::json(nullptr)},
+                       {"at_default", has_default ? nlohmann::json(v[r] == d.def) : nlohmann::json(nullptr)},
+                       {"name", d.name}, {"meaning", register_meaning(type, r, v[r], ch)}});
       } else {
         std::cout << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),
                                  proto::storage_name(d.storage), def, differs ? "*" : "", register_label(type, r),
                                  register_meaning(type, r, v[r], ch));
       }
     }
-    if (ctx.json()) print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"registers", arr}});
+    if (ctx.json()) {
+      nlohmann::json j = terminal_json(s->terminal(), ch);
+      j["registers"] = arr;
+      print_json(j);
+    }
     return 0;
   }
 };

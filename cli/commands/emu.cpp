@@ -41,7 +41,7 @@ class EmuReset : public Command {
     std::string path = state_path(ctx);
     StationSpec spec = station_.empty() ? default_station() : load_station(station_, ctx.catalog());
     reset_emulator_state(path, spec, ctx.catalog());
-    if (ctx.json()) print_json({{"state", path}, {"coupler", spec.coupler}, {"terminals", spec.terminals.size()}});
+    if (ctx.json()) print_json({{"state", path}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}});
     else std::cout << fmt::format("emulator reset: {} with {} terminals ({})\n", spec.coupler, spec.terminals.size(), path);
     return 0;
   }
@@ -98,7 +98,7 @@ class EmuFault : public Command {
     if (!ignore_.empty()) channels.front()->faults.ignore_writes.insert(parse_register(ignore_));
     if (mute_) channels.front()->faults.mute = true;
     if (!ctx.json()) std::cout << "emulator faults updated\n";
-    else print_json({{"updated", true}});
+    else print_json({{"changed", true}});
     return 0;
   }
 
@@ -114,7 +114,8 @@ class EmuPath : public Command {
   std::string man() const override { return "Prints the path of the state file the emulator port uses."; }
   void add_cli(CLI::App&) override {}
   int run(Context& ctx) override {
-    std::cout << state_path(ctx) << '\n';
+    if (ctx.json()) print_json({{"state", state_path(ctx)}});
+    else std::cout << state_path(ctx) << '\n';
     return 0;
   }
 };

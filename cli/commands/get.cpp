@@ -35,8 +35,10 @@ class Get : public Command {
     auto vals = read_params(*s, params);
     s->close();
     if (ctx.json()) {
-      nlohmann::json j = nlohmann::json::object();
-      for (const auto& v : vals) j[v.param->name] = v.value;
+      nlohmann::json values = nlohmann::json::object();
+      for (const auto& v : vals) values[v.param->name] = param_json(v.value);
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j["values"] = values;
       print_json(j);
       return 0;
     }

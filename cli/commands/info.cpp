@@ -26,6 +26,20 @@ std::string image_text(const TerminalImage& t) {
   return "no process image";
 }
 
+// Where the terminal's bytes are, with the names of `kscfg --json map`.
+nlohmann::json image_json(const TerminalImage& t) {
+  nlohmann::json j{{"format", t.format.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.format)},
+                   {"complex", t.complex}, {"inputs", nullptr}, {"outputs", nullptr}};
+  if (t.complex) {
+    if (t.in_size) j["inputs"] = {{"offset", t.in_offset}, {"size", t.in_size}};
+    if (t.out_size) j["outputs"] = {{"offset", t.out_offset}, {"size", t.out_size}};
+  } else {
+    if (t.bits_in) j["inputs"] = {{"byte", t.in_bit / 8}, {"bit", t.in_bit % 8}, {"bits", t.bits_in}};
+    if (t.bits_out) j["outputs"] = {{"byte", t.out_bit / 8}, {"bit", t.out_bit % 8}, {"bits", t.bits_out}};
+  }
+  return j;
+}
+
 class Info : public Command {
  public:
   std::string name() const override { return "info"; }
@@ -47,7 +61,7 @@ class Info : public Command {
     std::vector<std::array<std::string, 6>> rows;
     for (const auto& t : L.terminals) {
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
-                       {"image", image_text(t)}};
+                       {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
       std::string r8 = "-", ver = "-";
       if (t.type->has_registers && !t.channels.empty() && t.channels[0].window) {
         RegisterSession s(ctx.link(), t, 0, ctx.session_options());
@@ -65,7 +79,10 @@ class Info : public Command {
       rows.push_back({fmt::format("{}", t.position), t.type->type, t.type->title, r8, ver, image_text(t)});
     }
     if (ctx.json()) {
-      print_json({{"coupler", L.coupler}, {"port", ctx.link().describe()}, {"terminals", arr}});
+      nlohmann::json j{{"coupler", L.coupler}};
+      j.update(ctx.link_json());
+      j["terminals"] = arr;
+      print_json(j);
       return 0;
     }
     std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
@@ -79,7 +96,7 @@ class Info : public Command {
 
   int one(Context& ctx, unsigned pos) {
     const TerminalImage& t = ctx.layout().terminal(pos);
-    nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_text(t)}};
+    nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
     if (!t.type->has_registers) {
       if (ctx.json()) print_json(j);
       else
@@ -95,8 +112,11 @@ class Info : public Command {
       std::cerr << fmt::format("kscfg: warning: terminal {} reports type {} in R8, the station says {}\n", pos,
                                vals[0].second, t.type->type);
     if (ctx.json()) {
-      nlohmann::json regs = nlohmann::json::object();
-      for (auto& [r, v] : vals) regs[fmt::format("R{}", r)] = {{"value", v}, {"meaning", register_meaning(*t.type, r, v)}};
+      nlohmann::json regs = nlohmann::json::array();
+      for (auto& [r, v] : vals)
+        regs.push_back({{"register", r}, {"value", v}, {"hex", hex4(v)},
+                        {"name", r == 16 ? std::string("hw-version") : t.type->regs[r].name},
+                        {"meaning", r == 16 ? std::string() : register_meaning(*t.type, r, v)}});
       j["registers"] = regs;
       j["version"] = proto::version_text(vals[1].second);
       j["hardware_version"] = vals[6].second;

@@ -24,8 +24,13 @@ class Lock : public Command {
     auto s = ctx.session();
     s->lock();
     s->close();
-    if (ctx.json()) print_json({{"terminal", s->terminal().position}, {"unlocked", false}});
-    else std::cout << fmt::format("{} locked (R31 = 0x0000)\n", s->who());
+    if (ctx.json()) {
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j["unlocked"] = false;
+      print_json(j);
+    }
+    else
+      std::cout << fmt::format("{} locked (R31 = 0x0000)\n", s->who());
     return 0;
   }
 };

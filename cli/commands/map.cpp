@@ -159,7 +159,7 @@ class Map : public Command {
                      {"word_alignment", p.defaults.word_alignment}, {"max_in_bytes", lim(true)},
                      {"max_out_bytes", lim(false)}, {"fixed", p.fixed}});
       }
-      print_json(a);
+      print_json({{"couplers", a}});
       return 0;
     }
     std::cout << fmt::format("{:<8} {:<11} {:<4} {:<4} {:<4} {:>9}  {}\n", "coupler", "family", "CE", "MOT", "WA",

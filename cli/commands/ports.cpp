@@ -31,8 +31,8 @@ class Ports : public Command {
       for (const auto& p : ports) {
         nlohmann::json j{{"name", p.name}, {"description", p.description}, {"transport", p.transport}};
         if (p.transport == "usb") {
-          j["usb_vid"] = p.usb_vid >= 0 ? nlohmann::json(fmt::format("{:04x}", p.usb_vid)) : nlohmann::json(nullptr);
-          j["usb_pid"] = p.usb_pid >= 0 ? nlohmann::json(fmt::format("{:04x}", p.usb_pid)) : nlohmann::json(nullptr);
+          j["usb_vid"] = p.usb_vid >= 0 ? nlohmann::json(p.usb_vid) : nlohmann::json(nullptr);
+          j["usb_pid"] = p.usb_pid >= 0 ? nlohmann::json(p.usb_pid) : nlohmann::json(nullptr);
           j["manufacturer"] = p.manufacturer;
           j["product"] = p.product;
           j["serial"] = p.serial;

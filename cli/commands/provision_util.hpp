@@ -8,6 +8,8 @@
 
 namespace kscfg::cli {
 nlohmann::json plan_json(const Plan& plan);
+// The JSON of diff, apply and restore (docs/json.md): the plan with dry_run, port, unit, backup.
+nlohmann::json provision_json(Context& ctx, const Plan& plan, bool dry_run, const std::string& backup);
 std::string plan_text(const Plan& plan);
 // apply and restore: plan, back up, write, roll back on failure. Returns the exit code.
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup);

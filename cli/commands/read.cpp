@@ -55,13 +55,15 @@ class Read : public Command {
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
       for (std::size_t i = 0; i < regs.size(); ++i) {
-        nlohmann::json params = nlohmann::json::object();
-        for (auto& [n, v] : decode_register(type, regs[i], vals[i], ch)) params[n] = v;
+        nlohmann::json values = nlohmann::json::object();
+        for (auto& [n, v] : decode_register(type, regs[i], vals[i], ch)) values[n] = param_json(v);
         arr.push_back({{"register", regs[i]}, {"value", vals[i]}, {"hex", hex4(vals[i])},
-                       {"name", type.regs[regs[i]].name}, {"params", params},
+                       {"name", type.regs[regs[i]].name}, {"values", values},
                        {"meaning", register_meaning(type, regs[i], vals[i], ch)}});
       }
-      print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"registers", arr}});
+      nlohmann::json j = terminal_json(s->terminal(), ch);
+      j["registers"] = arr;
+      print_json(j);
       return 0;
     }
     for (std::size_t i = 0; i < regs.size(); ++i) {

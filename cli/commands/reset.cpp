@@ -55,14 +55,27 @@ class Reset : public Command {
       }
     }
     auto s = ctx.session();
+    // R7 = 0x7000 reports the registers it checked afterwards; what they held before is read
+    // first, so that "changed" says whether the reset changed anything.
+    std::vector<std::pair<unsigned, std::uint16_t>> before;
+    if (plan.r7)
+      for (const auto& [r, v] : plan.values) before.emplace_back(r, s->read(r));
     auto results = factory_reset(*s, plan);
     s->close();
-    bool changed = plan.r7 || std::any_of(results.begin(), results.end(), [](auto& w) { return w.changed; });
+    for (auto& w : results)
+      for (const auto& [r, v] : before)
+        if (r == w.reg && v != w.after) {
+          w.before = v;
+          w.changed = true;
+        }
+    bool changed = std::any_of(results.begin(), results.end(), [](auto& w) { return w.changed; });
     if (ctx.json()) {
       nlohmann::json rs = nlohmann::json::array();
-      for (const auto& w : results) rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}});
-      print_json({{"terminal", pos}, {"type", type.type}, {"method", plan.r7 ? "r7" : "defaults"},
-                  {"changed", changed}, {"registers", rs}});
+      for (const auto& w : results)
+        rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j.update({{"method", plan.r7 ? "r7" : "defaults"}, {"changed", changed}, {"registers", rs}});
+      print_json(j);
       return 0;
     }
     std::cout << fmt::format("{} reset to factory settings ({})\n", s->who(), plan.r7 ? "R7 = 0x7000" : "catalog defaults");

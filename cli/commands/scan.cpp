@@ -104,7 +104,9 @@ class Scan : public Command {
                     {"complex_in", r.complex_in_bits},
                     {"digital_out", r.digital_out_bits},
                     {"digital_in", r.digital_in_bits}}},
-                  {"watchdog", {{"preset_ms", r.watchdog_preset}, {"type", r.watchdog_type}}},
+                  {"watchdog",
+                   {{"preset_ms", r.watchdog_preset},
+                    {"retrigger", r.watchdog_type == 1 ? "telegrams" : "write_telegrams"}}},
                   {"settings",
                    {{"complete_evaluation", r.settings.complete_evaluation},
                     {"motorola", r.settings.motorola},
@@ -112,7 +114,7 @@ class Scan : public Command {
                   {"identified", r.walked},
                   {"matches", r.matches},
                   {"terminals", terms},
-                  {"written", write_.empty() ? nlohmann::json(nullptr) : nlohmann::json(write_)}});
+                  {"file", write_.empty() ? nlohmann::json(nullptr) : nlohmann::json(write_)}});
       return 0;
     }
     auto yn = [](bool b) { return b ? "on" : "off"; };

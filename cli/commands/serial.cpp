@@ -115,7 +115,7 @@ class SerialInit : public Command {
   int run(Context& ctx) override {
     auto port = open_port(ctx);
     port->init();
-    if (ctx.json()) print_json({{"terminal", port->terminal().position}, {"initialised", true},
+    if (ctx.json()) print_json({{"position", port->terminal().position}, {"initialised", true},
                                 {"format", port->image().format}});
     else std::cout << fmt::format("{} initialised ({})\n", port->who(), port->image().describe());
     return 0;
@@ -182,11 +182,11 @@ class SerialSend : public Command {
     if (recv_ && !ctx.json()) write_bytes(port->received(), hex_);
     nlohmann::json j = report_diagnostics(ctx, *port);
     if (ctx.json()) {
-      j["terminal"] = port->terminal().position;
+      j["position"] = port->terminal().position;
       j["sent"] = bytes.size();
       if (recv_) {
         j["received"] = port->received().size();
-        j["hex"] = to_hex_text(port->received());
+        j["data_hex"] = to_hex_text(port->received());
       }
       print_json(j);
     } else if (!recv_) {
@@ -232,9 +232,9 @@ class SerialRecv : public Command {
     }
     nlohmann::json j = report_diagnostics(ctx, *port);
     if (ctx.json()) {
-      j["terminal"] = port->terminal().position;
+      j["position"] = port->terminal().position;
       j["received"] = port->received().size();
-      j["hex"] = to_hex_text(port->received());
+      j["data_hex"] = to_hex_text(port->received());
       print_json(j);
     } else {
       write_bytes(port->received(), hex_);
@@ -370,7 +370,7 @@ class SerialStatus : public Command {
     Diagnostics d = read_diagnostics(ctx, *port);
     const SerialImage& img = port->image();
     if (ctx.json()) {
-      nlohmann::json j{{"terminal", port->terminal().position}, {"type", port->terminal().type->type},
+      nlohmann::json j{{"position", port->terminal().position}, {"type", port->terminal().type->type},
                        {"format", img.format}, {"data_bytes", img.out_data.size()}, {"status", s},
                        {"ta", (s & serial::kTA) != 0}, {"rr", (s & serial::kRR) != 0}, {"ia", (s & serial::kIA) != 0},
                        {"buf_f", (s & serial::kBufF) != 0}};
@@ -426,7 +426,8 @@ class SerialLine : public Command {
     if (!far_.empty()) ser->set_far_end(far_);
     LineSettings ls = line_settings(*t.type, m.registers());
     if (ctx.json()) {
-      print_json({{"terminal", pos}, {"type", t.type->type}, {"baud", ls.baud}, {"frame", ls.describe()},
+      print_json({{"position", pos}, {"type", t.type->type}, {"baud", ls.baud},
+                  {"frame", fmt::format("{}{}{}", ls.data_bits, ls.parity, ls.stop_bits)},
                   {"far_end", ser->far_end()}, {"bytes_per_second", ls.bytes_per_second()},
                   {"tx_fifo", ser->tx_count()}, {"rx_fifo", ser->rx_count()}, {"r6", ser->diagnostics()}});
     } else {

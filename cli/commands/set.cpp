@@ -55,10 +55,13 @@ class Set : public Command {
     s->close();
     if (ctx.json()) {
       nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
-      for (const auto& p : r.params) ps.push_back({{"name", p.param->name}, {"from", p.from}, {"to", p.to}});
+      for (const auto& p : r.params)
+        ps.push_back({{"name", p.param->name}, {"before", param_json(p.from)}, {"after", param_json(p.to)}});
       for (const auto& w : r.registers)
         rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
-      print_json({{"terminal", pos}, {"type", type.type}, {"changed", r.changed}, {"params", ps}, {"registers", rs}});
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j.update({{"changed", r.changed}, {"params", ps}, {"registers", rs}});
+      print_json(j);
       return 0;
     }
     for (const auto& p : r.params)

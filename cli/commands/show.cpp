@@ -60,9 +60,12 @@ class Show : public Command {
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& v : vals)
-        arr.push_back({{"name", v.param->name}, {"value", v.value}, {"default", v.fallback}, {"changed", v.differs},
-                       {"register", v.param->reg}, {"raw", v.reg_value}, {"unit", v.param->unit}});
-      print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"params", arr}});
+        arr.push_back({{"name", v.param->name}, {"value", param_json(v.value)}, {"default", param_json(v.fallback)},
+                       {"at_default", !v.differs}, {"register", v.param->reg}, {"register_value", v.reg_value},
+                       {"measured_in", v.param->unit}});
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j["params"] = arr;
+      print_json(j);
       return 0;
     }
     std::cout << fmt::format("{}  {}\n", s->who(), type.title);

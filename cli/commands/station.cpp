@@ -123,7 +123,7 @@ class StationCheck : public Command {
     const CouplerProfile& p = coupler_profile(L.coupler);
     check_image_limits(L, p);
     if (ctx.json()) {
-      print_json({{"file", file_}, {"coupler", L.coupler}, {"terminals", spec.terminals.size()},
+      print_json({{"file", file_}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
                   {"in_bytes", L.in_bytes}, {"out_bytes", L.out_bytes}});
       return 0;
     }

@@ -30,8 +30,13 @@ class Unlock : public Command {
     s->close();
     if (v != proto::kCodeWord)
       throw Error(Exit::verify, fmt::format("{}: R31 reads 0x{:04X} after writing the code word", s->who(), v));
-    if (ctx.json()) print_json({{"terminal", s->terminal().position}, {"unlocked", true}});
-    else std::cout << fmt::format("{} unlocked (R31 = 0x1235)\n", s->who());
+    if (ctx.json()) {
+      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      j["unlocked"] = true;
+      print_json(j);
+    }
+    else
+      std::cout << fmt::format("{} unlocked (R31 = 0x1235)\n", s->who());
     return 0;
   }
 };

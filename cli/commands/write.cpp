@@ -46,9 +46,10 @@ class Write : public Command {
     s->close();
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
-      print_json({{"terminal", s->terminal().position}, {"type", type.type}, {"register", reg},
-                  {"before", r.before}, {"after", r.after}, {"changed", r.changed}, {"verified", true},
-                  {"meaning", register_meaning(type, reg, r.after, ch)}});
+      nlohmann::json j = terminal_json(s->terminal(), ch);
+      j.update({{"register", reg}, {"before", r.before}, {"after", r.after}, {"changed", r.changed},
+                {"verified", true}, {"meaning", register_meaning(type, reg, r.after, ch)}});
+      print_json(j);
       return 0;
     }
     if (r.changed)

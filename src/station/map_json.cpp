@@ -29,7 +29,7 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
   auto byte_json = [&](const ImageByte& b, bool input) {
     json x = {{"offset", b.offset}, {"name", b.name}, {"reserved", b.index < 0}};
     if (p.modbus) {
-      x["register"] = base_register(input) + b.offset / 2;
+      x["modbus_register"] = base_register(input) + b.offset / 2;
       x["half"] = b.offset % 2 ? "high" : "low";
     }
     return x;
@@ -65,8 +65,8 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
           json d = {{"byte", e.offset}, {"bit", e.bit}, {"bits", bits}, {"range", bit_range(e)},
                     {"digital_bit", e.bit_offset}};
           if (p.modbus) {
-            d["register"] = base_register(input) + e.offset / 2;
-            d["register_bit"] = (e.offset % 2) * 8 + e.bit;
+            d["modbus_register"] = base_register(input) + e.offset / 2;
+            d["modbus_bit"] = (e.offset % 2) * 8 + e.bit;
           }
           x[input ? "inputs" : "outputs"] = d;
         }

@@ -281,14 +281,14 @@ TEST_CASE("mapping example 3b: BK9000 sample 2 with the KL1501 counter", "[entri
   CHECK(bits_at(L, 5, false) == "22.0-22.1");
   CHECK(bits_at(L, 6, false) == "22.2-22.3");
   auto j = map_json(L, coupler_profile("BK9000"));
-  CHECK(j["terminals"][6]["channels"][0]["inputs"][0]["register"] == 0x0000);
-  CHECK(j["terminals"][6]["channels"][0]["inputs"][5]["register"] == 0x0002);
-  CHECK(j["terminals"][7]["channels"][0]["inputs"][0]["register"] == 0x0003);
-  CHECK(j["terminals"][7]["channels"][1]["outputs"][3]["register"] == 0x0806);
-  CHECK(j["terminals"][8]["channels"][0]["outputs"][0]["register"] == 0x0807);
-  CHECK(j["terminals"][8]["channels"][1]["outputs"][3]["register"] == 0x080A);
-  CHECK(j["terminals"][0]["inputs"]["register"] == 0x000B);
-  CHECK(j["terminals"][4]["outputs"]["register"] == 0x080B);
+  CHECK(j["terminals"][6]["channels"][0]["inputs"][0]["modbus_register"] == 0x0000);
+  CHECK(j["terminals"][6]["channels"][0]["inputs"][5]["modbus_register"] == 0x0002);
+  CHECK(j["terminals"][7]["channels"][0]["inputs"][0]["modbus_register"] == 0x0003);
+  CHECK(j["terminals"][7]["channels"][1]["outputs"][3]["modbus_register"] == 0x0806);
+  CHECK(j["terminals"][8]["channels"][0]["outputs"][0]["modbus_register"] == 0x0807);
+  CHECK(j["terminals"][8]["channels"][1]["outputs"][3]["modbus_register"] == 0x080A);
+  CHECK(j["terminals"][0]["inputs"]["modbus_register"] == 0x000B);
+  CHECK(j["terminals"][4]["outputs"]["modbus_register"] == 0x080B);
   CHECK(j["terminals"][4]["outputs"]["digital_bit"] == 0);  // coil 0
   CHECK(j["terminals"][5]["outputs"]["digital_bit"] == 2);  // coils 2-3
 }

@@ -49,7 +49,7 @@ TEST_CASE("read R8 prints 6001 for the KL6001", "[cli]") {
   Run j = emu({"--json", "read", "R32"});
   auto doc = nlohmann::json::parse(j.out);
   CHECK(doc["registers"][0]["value"] == 6);
-  CHECK(doc["registers"][0]["params"]["baud"] == "9600");
+  CHECK(doc["registers"][0]["values"]["baud"] == 9600);  // typed as in a station file
 }
 
 TEST_CASE("write then a fresh read --raw shows the value; emu reset restores defaults", "[cli]") {
@@ -206,7 +206,9 @@ TEST_CASE("dump shows 64 registers with defaults and marks changes", "[cli]") {
   CHECK_THAT(r.out, Catch::Contains("not implemented"));
   auto j = nlohmann::json::parse(emu({"--json", "dump"}).out);
   CHECK(j["registers"].size() == 64);
-  CHECK(j["registers"][33]["differs"] == true);
+  CHECK(j["registers"][33]["at_default"] == false);
+  CHECK(j["registers"][32]["at_default"] == true);
+  CHECK(j["registers"][0]["at_default"].is_null());  // RAM: no factory value
 }
 
 TEST_CASE("unlock leaves R31 unlocked until lock", "[cli]") {

@@ -96,7 +96,7 @@ TEST_CASE("serial send then serial recv as separate processes (the FIFOs persist
   Run j = emu({"--json", "-t", "3", "serial", "recv", "--count", "3"});
   REQUIRE(j.rc == 0);
   auto doc = nlohmann::json::parse(j.out);
-  CHECK(doc["hex"] == "01 02 ff");
+  CHECK(doc["data_hex"] == "01 02 ff");
   CHECK(doc["overflow"] == false);
 }
 
@@ -130,8 +130,8 @@ TEST_CASE("flow control: BUF_F at the R18 level, overflow reported through R6", 
   CHECK_THAT(r.err, Catch::Contains("overflowed"));
   // Whatever was kept is in order: the oldest bytes come first (the newest were lost).
   std::string got;
-  for (std::size_t i = 0; i + 1 < rd["hex"].get<std::string>().size(); i += 3)
-    got.push_back(static_cast<char>(std::stoi(rd["hex"].get<std::string>().substr(i, 2), nullptr, 16)));
+  for (std::size_t i = 0; i + 1 < rd["data_hex"].get<std::string>().size(); i += 3)
+    got.push_back(static_cast<char>(std::stoi(rd["data_hex"].get<std::string>().substr(i, 2), nullptr, 16)));
   REQUIRE(got.size() >= 64);
   CHECK(got.substr(0, 64) == first.substr(0, 64));
   REQUIRE(emu({"serial", "init"}).rc == 0);

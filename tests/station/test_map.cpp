@@ -203,10 +203,10 @@ TEST_CASE("map: BK9000 sample 1 (4 x KL1xx4, 2 x KL2xx2): registers and coils", 
   CHECK(L.out_bytes == 1);  // register 0x0800, bits 0-3
   auto j = map_json(L, coupler_profile("BK9000"));
   CHECK(j["modbus"] == true);
-  CHECK(j["terminals"][0]["inputs"]["register"] == 0x0000);
-  CHECK(j["terminals"][3]["inputs"]["register"] == 0x0000);
-  CHECK(j["terminals"][3]["inputs"]["register_bit"] == 12);
-  CHECK(j["terminals"][4]["outputs"]["register"] == 0x0800);
+  CHECK(j["terminals"][0]["inputs"]["modbus_register"] == 0x0000);
+  CHECK(j["terminals"][3]["inputs"]["modbus_register"] == 0x0000);
+  CHECK(j["terminals"][3]["inputs"]["modbus_bit"] == 12);
+  CHECK(j["terminals"][4]["outputs"]["modbus_register"] == 0x0800);
   CHECK(j["terminals"][5]["outputs"]["digital_bit"] == 2);  // coils 2-3
   std::string table = render_table(L, coupler_profile("BK9000"));
   CHECK(table.find("0x0800") != std::string::npos);
@@ -229,10 +229,10 @@ TEST_CASE("map: BK9000 sample 2 with analog terminals and a mixed station", "[ma
   CHECK(bits_at(L, 1, true) == "16.0-16.3");  // register 0x0008
   CHECK(bits_at(L, 5, false) == "16.0-16.1");  // register 0x0808, coils 0-1
   auto j = map_json(L, coupler_profile("BK9000"));
-  CHECK(j["terminals"][7]["channels"][1]["inputs"][0]["register"] == 0x0006);
-  CHECK(j["terminals"][7]["channels"][1]["outputs"][0]["register"] == 0x0806);
-  CHECK(j["terminals"][0]["inputs"]["register"] == 0x0008);
-  CHECK(j["terminals"][5]["outputs"]["register"] == 0x0808);
+  CHECK(j["terminals"][7]["channels"][1]["inputs"][0]["modbus_register"] == 0x0006);
+  CHECK(j["terminals"][7]["channels"][1]["outputs"][0]["modbus_register"] == 0x0806);
+  CHECK(j["terminals"][0]["inputs"]["modbus_register"] == 0x0008);
+  CHECK(j["terminals"][5]["outputs"]["modbus_register"] == 0x0808);
 
   // Mixed station by the rules: KL6001 (alternative, 8 bytes), KL9100 feed, KL5101 (8 bytes),
   // KL3002 (2 x 4 bytes), KL6031 (large image: CT/ST word + 22 = 24 bytes), digital after byte 48.
@@ -247,7 +247,7 @@ TEST_CASE("map: BK9000 sample 2 with analog terminals and a mixed station", "[ma
   CHECK(bits_at(M, 2, true) == "48.0-48.3");
   CHECK(bits_at(M, 6, false) == "48.0-48.3");
   auto mj = map_json(M, coupler_profile("BK9000"));
-  CHECK(mj["terminals"][6]["channels"][0]["inputs"][0]["register"] == 0x000C);
+  CHECK(mj["terminals"][6]["channels"][0]["inputs"][0]["modbus_register"] == 0x000C);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -381,7 +381,7 @@ TEST_CASE("map: station table, grid and JSON", "[map]") {
   CHECK(j["inputs"]["limit"].is_null());
   CHECK(j["terminals"][1]["inputs"]["offset"] == 4);
   CHECK(j["terminals"][1]["channels"][0]["inputs"][0]["name"] == "CT/ST");
-  CHECK_FALSE(j["terminals"][1]["channels"][0]["inputs"][0].contains("register"));
+  CHECK_FALSE(j["terminals"][1]["channels"][0]["inputs"][0].contains("modbus_register"));
   CHECK(j["terminals"][2]["inputs"]["range"] == "10.0-10.3");
 }
 
