@@ -1,0 +1,315 @@
+#!/usr/bin/python3
+"""The kscfg.bus collection's helpers (plugins/module_utils/kscfg.py) alone, without Ansible.
+
+Station files it writes are checked by kscfg itself (`kscfg station check`, `apply --dry-run`);
+the JSON and error texts it reads come from a kscfg run where one can produce them, and from
+both vocabularies (docs/json.md and the older one) where not.
+
+    /usr/bin/python3 tests/ansible/test_module_utils.py --kscfg build/kscfg
+"""
+
+import sys
+sys.dont_write_bytecode = True  # nothing under contrib/ from a test run
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import unittest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+UTILS = os.path.join(ROOT, 'contrib', 'ansible', 'ansible_collections', 'kscfg', 'bus', 'plugins',
+                     'module_utils', 'kscfg.py')
+KSCFG = os.path.join(ROOT, 'build', 'kscfg')
+
+spec = importlib.util.spec_from_file_location('kscfg_utils', UTILS)
+ku = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(ku)
+
+EMU_STATION = [{'type': 'KL6001'}, {'type': 'KL5101'}, {'type': 'KL6031'}, {'type': 'KL3022'},
+               {'type': 'KL1104'}, {'type': 'KL2134'}, {'type': 'KL9010'}]
+
+
+def kscfg(*args, ok=(0,)):
+    r = subprocess.run([KSCFG] + list(args), capture_output=True, text=True, timeout=120)
+    if r.returncode not in ok:
+        raise AssertionError('kscfg %s: exit %d: %s' % (' '.join(args), r.returncode, r.stderr))
+    return r
+
+
+class Tmp(unittest.TestCase):
+    def setUp(self):
+        self.dir = tempfile.TemporaryDirectory(prefix='kscfg-ansible-ut-')
+        self.addCleanup(self.dir.cleanup)
+
+    def path(self, name):
+        return os.path.join(self.dir.name, name)
+
+    def write(self, name, text):
+        with open(self.path(name), 'w') as f:
+            f.write(text)
+        return self.path(name)
+
+
+class PortTest(unittest.TestCase):
+    def test_unit_is_added_to_the_uri(self):
+        self.assertEqual(ku.port_with_unit('tcp://10.0.3.11', 3), 'tcp://10.0.3.11?unit=3')
+        self.assertEqual(ku.port_with_unit('rtu:/dev/ttyUSB0?baud=19200', 3), 'rtu:/dev/ttyUSB0?baud=19200&unit=3')
+        self.assertEqual(ku.port_with_unit('tcp://h:502?unit=3', 3), 'tcp://h:502?unit=3')
+        self.assertEqual(ku.port_with_unit('tcp://h', None), 'tcp://h')
+
+    def test_a_different_unit_in_the_uri_is_an_error(self):
+        with self.assertRaisesRegex(ValueError, 'names unit 2 but unit is 3'):
+            ku.port_with_unit('tcp://h?unit=2', 3)
+
+    def test_command_line(self):
+        self.assertEqual(ku.base_args('k', 'tcp://h', 1, 5000, None),
+                         ['k', '--port', 'tcp://h?unit=1', '--timeout', '5000', '--json'])
+        self.assertEqual(ku.base_args('k'), ['k', '--json'])
+        with self.assertRaises(ValueError):
+            ku.base_args('k', None, 3)
+
+
+class StationTomlTest(Tmp):
+    def test_kscfg_reads_what_it_writes(self):
+        terms = [dict(t) for t in EMU_STATION]
+        terms[0].update({'baud': 19200, 'frame': '8E1', 'rts-cts': False, 'data-bytes': 5})
+        terms[2].update({'baud': '38400', 'R33': '0x0004'})
+        terms[3]['channel'] = [{'R35': 0}, {'R35': 5}]
+        text = ku.station_toml(terms, coupler='BK9000', mapping={'complete-evaluation': True})
+        self.assertIn('R33 = 0x0004\n', text)
+        self.assertIn('rts-cts = false\n', text)
+        path = self.write('s.toml', text)
+        kscfg('station', 'check', path)
+        # The emulator agrees with what it means: these are the changes, channel 2 of the KL3022 too.
+        r = kscfg('--port', 'emu:mem', '--json', 'apply', '--dry-run', path, ok=(1,))
+        plan = ku.normalize_plan(json.loads(r.stdout))
+        got = {(t['position'], t['channel']): {x['register']: (x['before'], x['after']) for x in t['registers']}
+               for t in ku.changed_terminals(plan)}
+        self.assertEqual(got[(1, 1)][32], (6, 7))
+        self.assertEqual(got[(3, 1)], {32: (6, 8), 33: (3, 4)})
+        self.assertEqual(got[(4, 2)], {35: (0, 5)})
+        self.assertNotIn((4, 1), got)
+
+    def test_keys_that_are_not_bare_are_quoted(self):
+        text = ku.station_toml([{'type': 'KL6001', 'odd key': 1}])
+        self.assertIn('"odd key" = 1\n', text)
+
+    def test_bad_input_is_an_error_naming_the_terminal(self):
+        for terms, what in (([], 'non-empty'), ([{'baud': 1}], 'terminal 1'),
+                            ([{'type': 'KL6001'}, {'type': 'KL6001', 'baud': {'x': 1}}], 'terminal 2'),
+                            ([{'type': 'KL3022', 'channel': {'R35': 1}}], 'channel must be a list')):
+            with self.assertRaisesRegex(ValueError, what):
+                ku.station_toml(terms)
+
+    def test_a_bad_parameter_is_kscfgs_error_with_a_line(self):
+        path = self.write('s.toml', ku.station_toml([{'type': 'KL6001', 'baudrate': 9600}]))
+        r = kscfg('station', 'check', path, ok=(2,))
+        self.assertIn("s.toml:5:12: KL6001 has no parameter 'baudrate'", r.stderr)
+
+
+NEW = {
+    'changed': True, 'dry_run': False, 'port': 'tcp://10.0.3.11:502', 'unit': 1,
+    'backup': '/b/apply-1.toml',
+    'terminals': [
+        {'position': 1, 'channel': 1, 'type': 'KL6001', 'changed': True,
+         'registers': [{'register': 32, 'before': 6, 'after': 7}, {'register': 34, 'before': 3, 'after': 1}],
+         'params': [{'name': 'baud', 'before': 9600, 'after': 19200},
+                    {'name': 'rts-cts', 'before': True, 'after': False},
+                    {'name': 'frame', 'before': '8N1', 'after': '8N1'}]},
+        {'position': 3, 'channel': 1, 'type': 'KL6031', 'changed': False, 'registers': [], 'params': []},
+    ],
+}
+OLD = {  # OLD VOCABULARY: what kscfg 0.1.0 (before the JSON unification) prints
+    'changed': True, 'backup': '/b/apply-1.toml',
+    'terminals': [
+        {'position': 1, 'channel': 1, 'type': 'KL6001', 'changed': True,
+         'registers': [{'register': 32, 'from': 6, 'to': 7}, {'register': 34, 'from': 3, 'to': 1}],
+         'params': [{'name': 'baud', 'from': '9600', 'to': '19200'},
+                    {'name': 'rts-cts', 'from': 'on', 'to': 'off'},
+                    {'name': 'frame', 'from': '8N1', 'to': '8N1'}]},
+        {'position': 3, 'channel': 1, 'type': 'KL6031', 'changed': False, 'registers': [], 'params': []},
+    ],
+}
+
+
+class PlanTest(Tmp):
+    def test_both_vocabularies_read_alike(self):
+        new = ku.normalize_plan(NEW)
+        old = ku.normalize_plan(OLD, port='tcp://10.0.3.11:502', unit=1)
+        self.assertEqual(new, old)
+        self.assertEqual(new['terminals'][0]['params'][0], {'name': 'baud', 'before': 9600, 'after': 19200})
+        self.assertEqual(new['backup'], '/b/apply-1.toml')
+
+    def test_no_backup_is_none(self):
+        self.assertIsNone(ku.normalize_plan({'changed': False, 'terminals': []})['backup'])
+        self.assertIsNone(ku.normalize_plan({'changed': False, 'backup': None, 'terminals': []})['backup'])
+
+    def test_diff_is_station_file_text_of_what_changes(self):
+        d = ku.plan_diff(ku.normalize_plan(NEW), 'tcp://10.0.3.11:502')
+        self.assertEqual(d['before'], '[[terminal]]  # position 1\ntype = "KL6001"\nbaud = 9600\nrts-cts = true\n'
+                                      'frame = "8N1"\nR32 = 0x0006\nR34 = 0x0003\n')
+        self.assertEqual(d['after'], '[[terminal]]  # position 1\ntype = "KL6001"\nbaud = 19200\nrts-cts = false\n'
+                                     'frame = "8N1"\nR32 = 0x0007\nR34 = 0x0001\n')
+        self.assertEqual(d['before_header'], 'tcp://10.0.3.11:502')
+
+    def test_a_real_apply_reads(self):
+        state = 'emu:' + self.path('emu.json')
+        kscfg('--port', state, 'emu', 'reset')
+        terms = [dict(t) for t in EMU_STATION]
+        terms[0]['baud'] = 19200
+        path = self.write('s.toml', ku.station_toml(terms))
+        env = dict(os.environ, XDG_STATE_HOME=self.path('state'))
+        r = subprocess.run([KSCFG, '--port', state, '--json', 'apply', path], capture_output=True, text=True,
+                           env=env, timeout=120)
+        self.assertEqual(r.returncode, ku.EXIT_CHANGED, r.stderr)
+        plan = ku.normalize_plan(json.loads(r.stdout), port=state)
+        self.assertTrue(plan['changed'])
+        self.assertTrue(os.path.isfile(plan['backup']))
+        self.assertEqual(ku.changed_terminals(plan)[0]['params'], [{'name': 'baud', 'before': 9600, 'after': 19200}])
+        self.assertEqual(plan['port'], state)
+
+
+class ErrorTest(Tmp):
+    def test_the_json_error_object(self):
+        err = ('kscfg: note: something first\n'
+               '{"error": "terminal 1 (KL6001) did not acknowledge", "exit": 4, "hint": "check the link"}\n')
+        e = ku.parse_error(err, 4)
+        self.assertEqual(e['error'], 'terminal 1 (KL6001) did not acknowledge')
+        self.assertEqual(e['hint'], 'check the link')
+        self.assertEqual(e['exit'], 4)
+        self.assertEqual(e['msg'], 'terminal 1 (KL6001) did not acknowledge (check the link)')
+
+    def test_a_pretty_printed_json_error_object(self):
+        err = 'kscfg: note: x\n' + json.dumps({'error': 'bad', 'exit': 2}, indent=2) + '\n'
+        e = ku.parse_error(err, 2)
+        self.assertEqual((e['error'], e['hint'], e['msg']), ('bad', None, 'bad'))
+
+    def test_the_plain_error_line(self):  # OLD VOCABULARY
+        e = ku.parse_error('kscfg: backup of the touched registers: /x\nkscfg: error: R33 reads back (hint)\n', 6)
+        self.assertEqual((e['error'], e['exit'], e['msg']), ('R33 reads back (hint)', 6, 'R33 reads back (hint)'))
+
+    def test_no_message(self):
+        self.assertIn('status 139', ku.parse_error('', 139)['msg'])
+
+    def test_kscfgs_own_error(self):
+        r = kscfg('--port', 'emu:mem', '--json', 'apply', self.path('missing.toml'), ok=(7,))
+        e = ku.parse_error(r.stderr, r.returncode)
+        self.assertIn('missing.toml', e['msg'])
+        self.assertEqual(e['exit'], 7)
+
+    def test_what_the_rollback_left(self):
+        b = '/s/kscfg/backups/apply-1.toml'
+        cases = [
+            # src/provision/provision.cpp, apply_plan: all rolled back
+            ('apply failed: terminal 3 (KL6031): R32 reads back 0x0006 after writing 0x0008; rolled back '
+             'terminal(s) 1 (the station is as it was; the backup is %s)' % b, (True, True, b)),
+            # the same as a JSON error: the hint apart, then joined by parse_error
+            (ku.parse_error(json.dumps({'error': 'apply failed: x; rolled back terminal(s) 1', 'exit': 6,
+                                        'hint': 'the station is as it was; the backup is ' + b}), 6)['msg'],
+             (True, True, b)),
+            # a terminal's own rollback (session) inside apply: nothing of other terminals written
+            ('apply failed: terminal 1 (KL6001): R33 reads back 0x0003 after writing 0x0004; rolled back: '
+             'R32=0x0006 R33=0x0003 (the station is as it was; the backup is %s)' % b, (True, True, b)),
+            ('apply failed: x; rolled back terminal(s) 1; ROLLBACK FAILED for terminal(s) 3 (timeout) '
+             '(restore by hand with: kscfg restore %s)' % b, (False, False, b)),
+            ('apply failed: R32 ...; rollback failed too: timeout (the station is as it was; the backup is %s)' % b,
+             (False, False, b)),
+            ('s.toml: describes 3 terminals, the station has 7 (kscfg info lists the station; nothing was written)',
+             (True, False, None)),
+            ('cannot connect to 10.0.3.11:502: Connection refused', (None, False, None)),
+        ]
+        for msg, want in cases:
+            self.assertEqual(ku.rollback_state(msg), want, msg)
+
+    def test_a_real_refusal_says_nothing_was_written(self):
+        path = self.write('s.toml', ku.station_toml([{'type': 'KL6001'}]))
+        r = kscfg('--port', 'emu:mem', '--json', 'apply', path, ok=(5,))
+        self.assertEqual(ku.rollback_state(ku.parse_error(r.stderr, 5)['msg']), (True, False, None))
+
+    def test_a_real_rollback_is_recognised(self):
+        state = 'emu:' + self.path('emu.json')
+        kscfg('--port', state, 'emu', 'reset')
+        kscfg('--port', state, '-t', '3', 'emu', 'fault', '--ignore-write', 'R32')
+        terms = [dict(t) for t in EMU_STATION]
+        terms[0]['baud'] = 19200
+        terms[2]['baud'] = 38400
+        path = self.write('s.toml', ku.station_toml(terms))
+        env = dict(os.environ, XDG_STATE_HOME=self.path('state'))
+        r = subprocess.run([KSCFG, '--port', state, '--json', 'apply', path], capture_output=True, text=True,
+                           env=env, timeout=120)
+        self.assertEqual(r.returncode, 6, r.stderr)
+        unchanged, rolled_back, backup = ku.rollback_state(ku.parse_error(r.stderr, 6)['msg'])
+        self.assertEqual((unchanged, rolled_back), (True, True))
+        self.assertTrue(os.path.isfile(backup), backup)
+        self.assertEqual(kscfg('--port', state, '-t', '1', 'read', '--raw', 'R32').stdout.strip(), '0x0006')
+
+
+class FactsTest(Tmp):
+    def backup_text(self, state):
+        path = self.path('backup.toml')
+        kscfg('--port', state, 'backup', path)
+        with open(path) as f:
+            return f.read()
+
+    def test_the_subset_reader_agrees_with_tomllib(self):
+        state = 'emu:' + self.path('emu.json')
+        kscfg('--port', state, 'emu', 'reset')
+        kscfg('--port', state, '-t', '4', '-c', '2', 'write', 'R35', '5')
+        text = self.backup_text(state)
+        sub = ku._parse_backup_subset(text)
+        try:
+            import tomllib
+        except ImportError:
+            self.skipTest('no tomllib (Python < 3.11)')
+        self.assertEqual(sub, tomllib.loads(text))
+        self.assertEqual(ku.parse_backup_toml(text), sub)
+
+    def test_facts_of_the_emulated_station(self):
+        state = 'emu:' + self.path('emu.json')
+        kscfg('--port', state, 'emu', 'reset')
+        kscfg('--port', state, '-t', '1', 'set', 'baud', '19200')
+        kscfg('--port', state, '-t', '4', '-c', '2', 'write', 'R35', '5')
+        info = json.loads(kscfg('--port', state, '--json', 'info').stdout)
+        facts = ku.station_facts(info, ku.parse_backup_toml(self.backup_text(state)), include_registers=True)
+        terms = facts['terminals']
+        self.assertEqual(facts['coupler'], 'BK9000')
+        self.assertEqual([t['type'] for t in terms], [t['type'] for t in EMU_STATION])
+        self.assertEqual([t['position'] for t in terms], list(range(1, 8)))
+        self.assertEqual((terms[0]['r8'], terms[0]['version']), (6001, '2C'))
+        self.assertEqual(terms[0]['params']['baud'], 19200)
+        self.assertIs(terms[0]['params']['rts-cts'], True)
+        self.assertEqual(terms[0]['params']['frame'], '8N1')
+        self.assertEqual(terms[0]['channels'][0]['registers']['R32'], 7)
+        kl3022 = terms[3]['channels']
+        self.assertEqual([c['channel'] for c in kl3022], [1, 2])
+        self.assertEqual((kl3022[0]['registers']['R35'], kl3022[1]['registers']['R35']), (0, 5))
+        self.assertEqual(terms[4]['params'], {})
+        no_regs = ku.station_facts(info, ku.parse_backup_toml(self.backup_text(state)))
+        self.assertNotIn('registers', no_regs['terminals'][0]['channels'][0])
+
+    def test_channels_written_either_way(self):
+        # kscfg backup 0.1.0: channel 1 at the top, channels 2.. as tables
+        old = {'type': 'KL3022', 'R35': 0, 'channel': [{'R35': 5}]}
+        # every channel as a table (the other reading of man 5 kscfg-station)
+        new = {'type': 'KL3022', 'channel': [{'R35': 0}, {'R35': 5}]}
+        for t in (old, new):
+            self.assertEqual([c['registers'] for c in ku.backup_channels(t)], [{'R35': 0}, {'R35': 5}])
+        self.assertEqual(ku.backup_channels({'type': 'KL1104'}), [{'channel': 1, 'params': {}, 'registers': {}}])
+
+    def test_old_info_vocabulary(self):  # OLD VOCABULARY: terminal instead of position
+        info = {'coupler': 'BK9000', 'terminals': [{'terminal': 1, 'type': 'KL6001', 'r8': 6001, 'version': '2C'}]}
+        facts = ku.station_facts(info, {'terminal': [{'type': 'KL6001', 'baud': 9600}]})
+        self.assertEqual(facts['terminals'][0]['position'], 1)
+        self.assertEqual(facts['terminals'][0]['params'], {'baud': 9600})
+
+
+if __name__ == '__main__':
+    if '--kscfg' in sys.argv:
+        i = sys.argv.index('--kscfg')
+        KSCFG = os.path.abspath(sys.argv[i + 1])
+        del sys.argv[i:i + 2]
+    unittest.main(verbosity=2)
