@@ -268,6 +268,8 @@ def main():
               'register: %s' % (FAULTY, msg))
         check('rolled back' in msg and 'the station is as it was' in msg,
               'apply: %s: the message says it was rolled back' % FAULTY)
+        check('the station is as it was' in (bad.get('hint') or ''),
+              'apply: %s: kscfg\'s hint (JSON error object): %s' % (FAULTY, bad.get('hint')))
         check(bad.get('unchanged') is True and bad.get('rolled_back') is True,
               'apply: %s: unchanged=true, rolled_back=true' % FAULTY)
         check(bad.get('backup') and os.path.isfile(bad['backup']), 'apply: %s: its backup exists' % FAULTY)

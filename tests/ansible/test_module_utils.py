@@ -3,7 +3,7 @@
 
 Station files it writes are checked by kscfg itself (`kscfg station check`, `apply --dry-run`);
 the JSON and error texts it reads come from a kscfg run where one can produce them, and from
-both vocabularies (docs/json.md and the older one) where not.
+docs/json.md where not (a kscfg run checks that its JSON has exactly the keys the module reads).
 
     /usr/bin/python3 tests/ansible/test_module_utils.py --kscfg build/kscfg
 """
@@ -123,26 +123,25 @@ NEW = {
         {'position': 3, 'channel': 1, 'type': 'KL6031', 'changed': False, 'registers': [], 'params': []},
     ],
 }
-OLD = {  # OLD VOCABULARY: what kscfg 0.1.0 (before the JSON unification) prints
-    'changed': True, 'backup': '/b/apply-1.toml',
-    'terminals': [
-        {'position': 1, 'channel': 1, 'type': 'KL6001', 'changed': True,
-         'registers': [{'register': 32, 'from': 6, 'to': 7}, {'register': 34, 'from': 3, 'to': 1}],
-         'params': [{'name': 'baud', 'from': '9600', 'to': '19200'},
-                    {'name': 'rts-cts', 'from': 'on', 'to': 'off'},
-                    {'name': 'frame', 'from': '8N1', 'to': '8N1'}]},
-        {'position': 3, 'channel': 1, 'type': 'KL6031', 'changed': False, 'registers': [], 'params': []},
-    ],
-}
-
-
 class PlanTest(Tmp):
-    def test_both_vocabularies_read_alike(self):
-        new = ku.normalize_plan(NEW)
-        old = ku.normalize_plan(OLD, port='tcp://10.0.3.11:502', unit=1)
-        self.assertEqual(new, old)
-        self.assertEqual(new['terminals'][0]['params'][0], {'name': 'baud', 'before': 9600, 'after': 19200})
-        self.assertEqual(new['backup'], '/b/apply-1.toml')
+    def test_the_documented_shape_reads_as_it_is(self):
+        self.assertEqual(ku.normalize_plan(NEW), NEW)
+
+    def test_port_and_unit_from_the_options_where_kscfg_gives_none(self):
+        p = ku.normalize_plan({'changed': False, 'port': None, 'unit': None, 'terminals': []}, 'tcp://h?unit=3', 3)
+        self.assertEqual((p['port'], p['unit']), ('tcp://h?unit=3', 3))
+
+    def test_kscfg_prints_the_documented_keys(self):
+        terms = [dict(t) for t in EMU_STATION]
+        terms[0]['baud'] = 19200
+        path = self.write('s.toml', ku.station_toml(terms))
+        doc = json.loads(kscfg('--port', 'emu:mem', '--json', 'apply', '--dry-run', path, ok=(1,)).stdout)
+        self.assertEqual(sorted(doc), ['backup', 'changed', 'dry_run', 'port', 'terminals', 'unit'])
+        t = doc['terminals'][0]
+        self.assertEqual(sorted(t), ['changed', 'channel', 'params', 'position', 'registers', 'type'])
+        self.assertEqual(t['registers'], [{'register': 32, 'before': 6, 'after': 7}])
+        self.assertEqual(t['params'], [{'name': 'baud', 'before': 9600, 'after': 19200}])
+        self.assertEqual(ku.normalize_plan(doc), doc)
 
     def test_no_backup_is_none(self):
         self.assertIsNone(ku.normalize_plan({'changed': False, 'terminals': []})['backup'])
@@ -188,18 +187,20 @@ class ErrorTest(Tmp):
         e = ku.parse_error(err, 2)
         self.assertEqual((e['error'], e['hint'], e['msg']), ('bad', None, 'bad'))
 
-    def test_the_plain_error_line(self):  # OLD VOCABULARY
-        e = ku.parse_error('kscfg: backup of the touched registers: /x\nkscfg: error: R33 reads back (hint)\n', 6)
-        self.assertEqual((e['error'], e['exit'], e['msg']), ('R33 reads back (hint)', 6, 'R33 reads back (hint)'))
+    def test_no_json_object_the_last_line(self):
+        e = ku.parse_error('something\nSegmentation fault\n', 139)
+        self.assertEqual((e['error'], e['exit'], e['msg']), ('Segmentation fault', 139, 'Segmentation fault'))
 
     def test_no_message(self):
         self.assertIn('status 139', ku.parse_error('', 139)['msg'])
 
     def test_kscfgs_own_error(self):
         r = kscfg('--port', 'emu:mem', '--json', 'apply', self.path('missing.toml'), ok=(7,))
+        self.assertEqual(r.stdout, '')
+        obj = json.loads(r.stderr)  # one JSON object, nothing else
         e = ku.parse_error(r.stderr, r.returncode)
+        self.assertEqual((e['error'], e['exit'], e['hint']), (obj['error'], 7, None))
         self.assertIn('missing.toml', e['msg'])
-        self.assertEqual(e['exit'], 7)
 
     def test_what_the_rollback_left(self):
         b = '/s/kscfg/backups/apply-1.toml'
@@ -242,7 +243,9 @@ class ErrorTest(Tmp):
         r = subprocess.run([KSCFG, '--port', state, '--json', 'apply', path], capture_output=True, text=True,
                            env=env, timeout=120)
         self.assertEqual(r.returncode, 6, r.stderr)
-        unchanged, rolled_back, backup = ku.rollback_state(ku.parse_error(r.stderr, 6)['msg'])
+        e = ku.parse_error(r.stderr, 6)
+        self.assertIn('the station is as it was', e['hint'])
+        unchanged, rolled_back, backup = ku.rollback_state(e['msg'])
         self.assertEqual((unchanged, rolled_back), (True, True))
         self.assertTrue(os.path.isfile(backup), backup)
         self.assertEqual(kscfg('--port', state, '-t', '1', 'read', '--raw', 'R32').stdout.strip(), '0x0006')
@@ -280,6 +283,8 @@ class FactsTest(Tmp):
         self.assertEqual([t['type'] for t in terms], [t['type'] for t in EMU_STATION])
         self.assertEqual([t['position'] for t in terms], list(range(1, 8)))
         self.assertEqual((terms[0]['r8'], terms[0]['version']), (6001, '2C'))
+        self.assertEqual(terms[0]['image']['format'], 'alternative')
+        self.assertEqual((terms[4]['r8'], terms[4]['version']), (None, None))
         self.assertEqual(terms[0]['params']['baud'], 19200)
         self.assertIs(terms[0]['params']['rts-cts'], True)
         self.assertEqual(terms[0]['params']['frame'], '8N1')
@@ -299,12 +304,6 @@ class FactsTest(Tmp):
         for t in (old, new):
             self.assertEqual([c['registers'] for c in ku.backup_channels(t)], [{'R35': 0}, {'R35': 5}])
         self.assertEqual(ku.backup_channels({'type': 'KL1104'}), [{'channel': 1, 'params': {}, 'registers': {}}])
-
-    def test_old_info_vocabulary(self):  # OLD VOCABULARY: terminal instead of position
-        info = {'coupler': 'BK9000', 'terminals': [{'terminal': 1, 'type': 'KL6001', 'r8': 6001, 'version': '2C'}]}
-        facts = ku.station_facts(info, {'terminal': [{'type': 'KL6001', 'baud': 9600}]})
-        self.assertEqual(facts['terminals'][0]['position'], 1)
-        self.assertEqual(facts['terminals'][0]['params'], {'baud': 9600})
 
 
 if __name__ == '__main__':

@@ -2,9 +2,8 @@
 # Shared by the kscfg.bus modules: the kscfg command line, its JSON and its errors, station files.
 # Pure Python (no Ansible imports), so that tests/ansible/test_module_utils.py can test it alone.
 #
-# kscfg's JSON vocabulary is docs/json.md of the kscfg sources. Older kscfg builds spoke another
-# dialect; the few places that still accept it are marked "OLD VOCABULARY" and go once every
-# supported kscfg prints the new one.
+# kscfg's JSON vocabulary is docs/json.md of the kscfg sources (man kscfg, JSON OUTPUT): the
+# module reads apply's and info's JSON and the error object on stderr as documented there.
 
 from __future__ import absolute_import, division, print_function
 
@@ -130,39 +129,19 @@ def station_toml(terminals, coupler=None, mapping=None):
 # ---------------------------------------------------------------------------------------------
 # apply/restore/diff JSON (docs/json.md, "apply, restore, diff").
 
-def _typed(value):
-    """OLD VOCABULARY: parameter values came as strings ("19200", "on"); type them the way a
-    station file (and the new vocabulary) does."""
-    if not isinstance(value, str):
-        return value
-    if value in ('on', 'off'):
-        return value == 'on'
-    if re.match(r'^-?[0-9]+$', value):
-        return int(value)
-    return value
-
-
 def _change(item, key):
-    out = {key: item.get(key)}
-    if 'before' in item or 'after' in item:
-        out['before'] = item.get('before')
-        out['after'] = item.get('after')
-    else:  # OLD VOCABULARY: from/to
-        old = key == 'name'
-        out['before'] = _typed(item.get('from')) if old else item.get('from')
-        out['after'] = _typed(item.get('to')) if old else item.get('to')
-    return out
+    return {key: item.get(key), 'before': item.get('before'), 'after': item.get('after')}
 
 
 def normalize_plan(doc, port=None, unit=None):
-    """apply/diff JSON in the documented vocabulary, whichever kscfg printed it."""
+    """apply/diff JSON (docs/json.md) with every documented key present; port and unit from the
+    module's options where kscfg gives none."""
     terminals = []
     for t in doc.get('terminals') or []:
         regs = [_change(r, 'register') for r in t.get('registers') or []]
         params = [_change(p, 'name') for p in t.get('params') or []]
-        position = t.get('position', t.get('terminal'))  # OLD VOCABULARY: terminal
         terminals.append({
-            'position': position,
+            'position': t.get('position'),
             'channel': t.get('channel', 1),
             'type': t.get('type'),
             'changed': bool(t.get('changed', bool(regs))),
@@ -172,8 +151,8 @@ def normalize_plan(doc, port=None, unit=None):
     out = {
         'changed': bool(doc.get('changed', any(t['changed'] for t in terminals))),
         'dry_run': bool(doc.get('dry_run', False)),
-        'port': doc.get('port', port),
-        'unit': doc.get('unit', unit),
+        'port': doc.get('port') or port,
+        'unit': doc.get('unit') if doc.get('unit') is not None else unit,
         'backup': doc.get('backup') or None,
         'terminals': terminals,
     }
@@ -215,7 +194,7 @@ def plan_diff(plan, where):
 
 def parse_error(stderr, rc):
     """kscfg's error from its stderr: dict with msg (error text, hint appended), error, hint,
-    exit. Accepts the JSON object and (OLD VOCABULARY) the plain 'kscfg: error: ...' line."""
+    exit. Without the JSON object (kscfg killed, not a kscfg), the last line of stderr."""
     text = (stderr or '').strip()
     candidates = [text] + [ln.strip() for ln in reversed(text.splitlines())]
     brace = text.find('\n{')
@@ -237,10 +216,6 @@ def parse_error(stderr, rc):
                 'exit': obj.get('exit', rc),
                 'msg': err + (' (%s)' % hint if hint else ''),
             }
-    for ln in reversed(text.splitlines()):
-        m = re.match(r'^kscfg: error: (.*)$', ln.strip())
-        if m:
-            return {'error': m.group(1), 'hint': None, 'exit': rc, 'msg': m.group(1)}
     last = text.splitlines()[-1] if text else ''
     msg = last or 'kscfg exited with status %s and no message' % rc
     return {'error': msg, 'hint': None, 'exit': rc, 'msg': msg}
@@ -357,15 +332,14 @@ def station_facts(info, backup, include_registers=False):
     bterms = (backup or {}).get('terminal') or []
     terminals = []
     for i, t in enumerate(info.get('terminals') or []):
-        position = t.get('position', t.get('terminal', i + 1))  # OLD VOCABULARY: terminal
+        position = t.get('position', i + 1)
         fact = {
             'position': position,
             'type': t.get('type'),
             'title': t.get('title'),
         }
         for key in ('r8', 'version', 'image'):
-            if key in t:
-                fact[key] = t[key]
+            fact[key] = t.get(key)
         b = bterms[position - 1] if isinstance(position, int) and 0 < position <= len(bterms) else None
         if b is not None and b.get('type') == t.get('type'):
             chans = backup_channels(b)

@@ -107,14 +107,19 @@ ansible_facts:
               description: What the terminal is, from the catalog.
               type: str
             r8:
-              description: Type number read from R8 (terminals with registers).
+              description: Type number read from R8; C(null) for terminals without registers.
               type: int
             version:
-              description: Firmware version from R9, two characters, for example C(2C).
+              description: Firmware version from R9, two characters, for example C(2C); C(null)
+                for terminals without registers.
               type: str
             image:
-              description: Where the terminal sits in the process image.
-              type: str
+              description: Where the terminal sits in the process image, as C(kscfg --json info)
+                gives it - C(complex), C(format), and C(inputs)/C(outputs) with C(offset) and
+                C(size) in bytes (complex terminals) or C(byte), C(bit) and C(bits) (digital ones).
+              type: dict
+              sample: {complex: true, format: alternative, inputs: {offset: 0, size: 8},
+                       outputs: {offset: 0, size: 8}}
             params:
               description: Named parameters of channel 1, typed as in a station file
                 (numbers, C(true)/C(false), strings).

@@ -90,7 +90,7 @@ notes:
     host per coupler.
   - Exit statuses of C(kscfg apply) - C(0) nothing to do, C(10) changed, anything else failed.
 requirements:
-  - kscfg (the same version's JSON vocabulary, C(man kscfg), section JSON)
+  - kscfg with the JSON vocabulary of C(man kscfg), section JSON OUTPUT (docs/json.md)
 author:
   - kscfg authors
 seealso:
