@@ -38,7 +38,7 @@ class Backup : public Command {
                   << (done == total ? "\n" : "") << std::flush;
       };
     StationSpec spec = backup_station(ctx.link(), ctx.layout(), ctx.session_options(), progress);
-    std::string text = "# kscfg backup of " + ctx.link().describe() + "\n" + station_to_toml(spec);
+    std::string text = toml_comment("kscfg backup of " + ctx.link().describe()) + station_to_toml(spec);
     if (file_.empty()) std::cout << text;
     else {
       write_file_atomic(file_, text);

@@ -50,9 +50,10 @@ type = "KL9100"              # power feed terminal: no process image
 
 [[terminal]]
 type = "KL3022"              # 2-channel analog input
-# Settings of the second channel go into its own table (the first table is channel 1):
+# Each channel's settings go into a table that names the channel by number (1 is the first);
+# channels without a table keep their settings:
 # [[terminal.channel]]
-# [[terminal.channel]]
+# channel = 2
 # R32 = 0x0000
 
 [[terminal]]

@@ -111,6 +111,7 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
   for (auto&& [k, v] : t) {
     std::string key(k.str());
     if (allow_structure && (key == "type" || key == "channel")) continue;
+    if (!allow_structure && key == "channel") continue;  // the channel number, read by parse_channels
     int line = v.source().begin ? static_cast<int>(v.source().begin.line) : 0;
     if (!key.empty() && (key[0] == 'R' || key[0] == 'r') && key.size() > 1 &&
         std::isdigit(static_cast<unsigned char>(key[1]))) {
@@ -140,6 +141,72 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
       fail_at(origin, &v, Exit::usage, e.what());
     }
     ch.params.push_back(std::move(s));
+  }
+  // In the order of the file (the TOML table is sorted by key): that is the order they apply in.
+  std::stable_sort(ch.params.begin(), ch.params.end(), [](const Setting& a, const Setting& b) { return a.line < b.line; });
+}
+
+// Channel identity (man 5 kscfg-station): the keys under [[terminal]] configure channel 1; each
+// [[terminal.channel]] says which channel it configures with `channel = N`. Old files without
+// numbers are read in order, after channel 1 when the terminal level configures it.
+void parse_channels(std::string_view origin, const toml::table& t, const TerminalType& type, TerminalSpec& ts) {
+  ChannelSpec first;
+  first.line = ts.line;
+  parse_channel(origin, t, type, first, true);
+  const bool top_level = !first.empty();
+  std::map<unsigned, int> seen;  // channel (0-based) -> line that configures it
+  if (top_level) {
+    seen[0] = ts.line;
+    ts.channels.push_back(std::move(first));
+  }
+  const auto* chn = t.get("channel");
+  if (!chn) return;
+  const auto* carr = chn->as_array();
+  if (!carr) fail_at(origin, chn, Exit::file, "channels are written as [[terminal.channel]] tables with channel = N");
+  std::size_t numbered = 0;
+  for (const auto& el : *carr) {
+    const auto* ct = el.as_table();
+    if (!ct) fail_at(origin, &el, Exit::file, "each [[terminal.channel]] must be a table");
+    if (ct->get("channel")) ++numbered;
+  }
+  if (numbered && numbered != carr->size()) {
+    for (const auto& el : *carr)
+      if (!el.as_table()->get("channel"))
+        fail_at(origin, &el, Exit::file,
+                "this [[terminal.channel]] has no 'channel = N' while others of the terminal have one; "
+                "number every channel");
+  }
+  unsigned next = top_level ? 1 : 0;  // old files: in order
+  for (const auto& el : *carr) {
+    const auto& ct = *el.as_table();
+    int line = ct.source().begin ? static_cast<int>(ct.source().begin.line) : ts.line;
+    unsigned ch = 0;
+    if (const auto* n = ct.get("channel")) {
+      auto v = n->value_exact<std::int64_t>();
+      if (!v) fail_at(origin, n, Exit::file, "'channel' must be an integer, the channel number (1 is the first)");
+      if (*v < 1 || *v > static_cast<std::int64_t>(type.channels))
+        fail_at(origin, n, Exit::usage,
+                fmt::format("channel {} does not exist: {} has {}", *v, type.type,
+                            type.channels == 1 ? std::string("1 channel") : fmt::format("channels 1 to {}", type.channels)));
+      ch = static_cast<unsigned>(*v - 1);
+    } else {
+      ch = next++;
+      if (ch >= type.channels)
+        fail_at(origin, &el, Exit::usage,
+                fmt::format("{} has {} channel(s); this [[terminal.channel]] would be channel {}", type.type,
+                            type.channels, ch + 1));
+    }
+    if (auto it = seen.find(ch); it != seen.end()) {
+      std::string other = it->second == ts.line && ch == 0 && top_level
+                              ? fmt::format("by the keys under [[terminal]] (line {})", it->second)
+                              : fmt::format("at line {}", it->second);
+      fail_at(origin, ct.get("channel") ? ct.get("channel") : &el, Exit::usage,
+              fmt::format("channel {} of {} is configured twice: here and {}", ch + 1, type.type, other));
+    }
+    seen[ch] = line;
+    if (ts.channels.size() <= ch) ts.channels.resize(ch + 1);
+    ts.channels[ch].line = line;
+    parse_channel(origin, ct, type, ts.channels[ch], false);
   }
 }
 
@@ -201,21 +268,7 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
         fail_at(origin, ty, Exit::usage, e.what());
       }
       ts.type = type->type;
-      ChannelSpec first;
-      parse_channel(origin, *t, *type, first, true);
-      ts.channels.push_back(std::move(first));
-      if (const auto* chn = t->get("channel")) {
-        const auto* carr = chn->as_array();
-        if (!carr) fail_at(origin, chn, Exit::file, "channels are written as [[terminal.channel]] tables");
-        if (carr->size() > type->channels)
-          fail_at(origin, chn, Exit::usage, fmt::format("{} has {} channel(s)", type->type, type->channels));
-        ts.channels.resize(std::max<std::size_t>(ts.channels.size(), carr->size()));
-        for (std::size_t i = 0; i < carr->size(); ++i) {
-          const auto* ct = (*carr)[i].as_table();
-          if (!ct) fail_at(origin, &(*carr)[i], Exit::file, "each [[terminal.channel]] must be a table");
-          parse_channel(origin, *ct, *type, ts.channels[i], false);
-        }
-      }
+      parse_channels(origin, *t, *type, ts);
       spec.terminals.push_back(std::move(ts));
     }
   }
@@ -230,26 +283,107 @@ StationSpec load_station(const std::string& path, const Catalog& catalog) {
   return parse_station(ss.str(), path, catalog);
 }
 
-static std::string toml_value(const std::string& v) {
-  bool numeric = !v.empty() && std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit((unsigned char)c); });
-  if (numeric && v.size() < 10) return v;
-  if (v == "on") return "true";
-  if (v == "off") return "false";
+namespace {
+
+// Length of the valid UTF-8 sequence at s[i], or 0 when the bytes there are not one.
+std::size_t utf8_length(std::string_view s, std::size_t i) {
+  auto c = static_cast<unsigned char>(s[i]);
+  std::size_t n = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+  if (n == 0 || i + n > s.size()) return 0;
+  std::uint32_t cp = n == 1 ? c : n == 2 ? (c & 0x1F) : n == 3 ? (c & 0x0F) : (c & 0x07);
+  for (std::size_t k = 1; k < n; ++k) {
+    auto d = static_cast<unsigned char>(s[i + k]);
+    if ((d & 0xC0) != 0x80) return 0;
+    cp = (cp << 6) | (d & 0x3F);
+  }
+  static const std::uint32_t min_of[] = {0, 0, 0x80, 0x800, 0x10000};
+  if (cp < min_of[n] || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return 0;  // overlong, surrogate
+  return n;
+}
+
+}  // namespace
+
+std::string toml_string(std::string_view v) {
   std::string out = "\"";
-  for (char c : v) {
-    if (c == '"' || c == '\\') out += '\\';
-    out += c;
+  for (std::size_t i = 0; i < v.size();) {
+    char c = v[i];
+    auto u = static_cast<unsigned char>(c);
+    if (c == '"' || c == '\\') {
+      out += '\\';
+      out += c;
+    } else if (c == '\n') {
+      out += "\\n";
+    } else if (c == '\t') {
+      out += "\\t";
+    } else if (c == '\r') {
+      out += "\\r";
+    } else if (u < 0x20 || u == 0x7F) {
+      out += fmt::format("\\u{:04X}", u);
+    } else if (u >= 0x80) {
+      std::size_t n = utf8_length(v, i);
+      if (n == 0) {
+        out += "\\uFFFD";  // TOML text is Unicode: a byte that is not UTF-8 cannot be written as itself
+        ++i;
+        continue;
+      }
+      out.append(v.substr(i, n));
+      i += n;
+      continue;
+    } else {
+      out += c;
+    }
+    ++i;
   }
   return out + "\"";
 }
 
+std::string toml_key(std::string_view k) {
+  bool bare = !k.empty() && std::all_of(k.begin(), k.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-';
+  });
+  return bare ? std::string(k) : toml_string(k);
+}
+
+std::string toml_comment(std::string_view text) {
+  std::string out = "# ";
+  for (std::size_t i = 0; i < text.size();) {
+    auto u = static_cast<unsigned char>(text[i]);
+    if (u < 0x20 || u == 0x7F) {
+      out += ' ';  // a line break would end the comment; other control characters are not allowed
+      ++i;
+    } else if (u >= 0x80) {
+      std::size_t n = utf8_length(text, i);
+      if (n == 0) {
+        out += '?';
+        ++i;
+      } else {
+        out.append(text.substr(i, n));
+        i += n;
+      }
+    } else {
+      out += text[i++];
+    }
+  }
+  return out + "\n";
+}
+
+static std::string toml_value(const std::string& v) {
+  // A number as a TOML integer (it reads back as the same text): no sign, no leading zero.
+  bool numeric = !v.empty() && v.size() < 10 && (v == "0" || v[0] != '0') &&
+                 std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
+  if (numeric) return v;
+  if (v == "on") return "true";
+  if (v == "off") return "false";
+  return toml_string(v);
+}
+
 static void channel_toml(std::string& out, const ChannelSpec& ch) {
-  for (const auto& s : ch.params) out += fmt::format("{} = {}\n", s.name, toml_value(s.value));
+  for (const auto& s : ch.params) out += fmt::format("{} = {}\n", toml_key(s.name), toml_value(s.value));
   for (const auto& [r, v] : ch.registers) out += fmt::format("R{} = 0x{:04X}\n", r, v);
 }
 
 std::string station_to_toml(const StationSpec& spec) {
-  std::string out = fmt::format("coupler = \"{}\"\n", spec.coupler);
+  std::string out = fmt::format("coupler = {}\n", toml_string(spec.coupler));
   if (spec.complete_evaluation || spec.motorola || spec.word_alignment) {
     out += "\n[mapping]\n";
     if (spec.complete_evaluation) out += fmt::format("complete-evaluation = {}\n", *spec.complete_evaluation);
@@ -258,12 +392,18 @@ std::string station_to_toml(const StationSpec& spec) {
   }
   for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
     const auto& t = spec.terminals[i];
-    std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? "# " + spec.comments[i] + "\n" : "";
-    out += fmt::format("\n[[terminal]]\n{}type = \"{}\"\n", comment, t.type);
-    if (!t.channels.empty()) channel_toml(out, t.channels[0]);
-    for (std::size_t i = 1; i < t.channels.size(); ++i) {
-      out += "[[terminal.channel]]\n";
-      channel_toml(out, t.channels[i]);
+    std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? toml_comment(spec.comments[i]) : "";
+    out += fmt::format("\n[[terminal]]\n{}type = {}\n", comment, toml_string(t.type));
+    if (t.channels.size() == 1) {
+      channel_toml(out, t.channels[0]);  // one channel: its settings under [[terminal]]
+      continue;
+    }
+    // Several channels: each configured one in its own table, named by number (order carries no
+    // identity, DESIGN.md section 6).
+    for (std::size_t c = 0; c < t.channels.size(); ++c) {
+      if (t.channels[c].empty()) continue;
+      out += fmt::format("[[terminal.channel]]\nchannel = {}\n", c + 1);
+      channel_toml(out, t.channels[c]);
     }
   }
   return out;

@@ -201,3 +201,38 @@ TEST_CASE("bad provisioning files: line numbers, nothing written", "[provision]"
   CHECK(x.rc == 5);
   CHECK(st({"backup"}).out == before);
 }
+
+TEST_CASE("a 2-channel terminal keeps each channel's settings through backup, diff and restore", "[provision][channels]") {
+  // Issue 10: channel 2's R32 used to come back as channel 1's.
+  Station st;
+  REQUIRE(st({"-t", "4", "-c", "2", "write", "R32", "0x0005"}).rc == 0);
+  REQUIRE(st({"backup", st.file("b.toml")}).rc == 0);
+  std::string text = read_text(st.file("b.toml"));
+  CHECK_THAT(text, Catch::Contains("[[terminal.channel]]\nchannel = 1\n"));
+  CHECK_THAT(text, Catch::Contains("[[terminal.channel]]\nchannel = 2\n"));
+  Run d = st({"diff", st.file("b.toml")});
+  CHECK(d.rc == 0);
+  CHECK(d.out == "no differences\n");
+  REQUIRE(st({"-t", "4", "-c", "2", "write", "R32", "0x0000"}).rc == 0);
+  REQUIRE(st({"-t", "4", "-c", "1", "write", "R32", "0x0003"}).rc == 0);
+  Run r = st({"restore", st.file("b.toml")});
+  CHECK(r.rc == 10);
+  CHECK(st({"-t", "4", "-c", "2", "read", "--raw", "R32"}).out == "0x0005\n");
+  CHECK(st({"-t", "4", "-c", "1", "read", "--raw", "R32"}).out == "0x0000\n");
+}
+
+TEST_CASE("station init's example names channels by number and reads back", "[provision][channels]") {
+  Run r = run_kscfg({"--port", "emu:mem", "station", "init"});
+  REQUIRE(r.rc == 0);
+  std::string text = r.out;
+  for (const char* line : {"# [[terminal.channel]]\n", "# channel = 2\n", "# R32 = 0x0000\n"}) {
+    auto p = text.find(line);
+    REQUIRE(p != std::string::npos);
+    text.erase(p, 2);  // uncomment it
+  }
+  TempDir d;
+  write_text(d.file("s.toml"), text);
+  Run c = run_kscfg({"--port", "emu:mem", "station", "check", d.file("s.toml")});
+  CHECK(c.rc == 0);
+  CHECK(c.err.empty());
+}

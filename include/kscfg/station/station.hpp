@@ -50,12 +50,16 @@ struct ChannelSpec {
   std::vector<Setting> params;
   std::map<unsigned, std::uint16_t> registers;
   std::map<unsigned, int> register_lines;
+  int line = 0;  // where the channel's settings start (its [[terminal.channel]] table, or the terminal)
+  bool empty() const { return params.empty() && registers.empty(); }
 };
 
 struct TerminalSpec {
   std::string type;
   int line = 0;
-  std::vector<ChannelSpec> channels;  // may be empty or shorter than the type's channel count
+  // Indexed by channel (channels[0] is channel 1); may be empty or shorter than the type's channel
+  // count, and an entry may be empty (that channel is not configured).
+  std::vector<ChannelSpec> channels;
 };
 
 struct StationSpec {
@@ -69,10 +73,23 @@ struct StationSpec {
 };
 
 // Parses a station file; errors name file, line and column (Exit::file for syntax, Exit::usage for
-// unknown types or parameters).
+// unknown types or parameters). Channels (man 5 kscfg-station): the keys under [[terminal]] are
+// channel 1; each [[terminal.channel]] names its channel with `channel = N` (1..the type's
+// channels, each at most once). Older files without numbers are read in
+// order: channel 2 onwards after settings under [[terminal]], channel 1 onwards otherwise.
 StationSpec parse_station(std::string_view text, std::string_view origin, const Catalog& catalog);
 StationSpec load_station(const std::string& path, const Catalog& catalog);
+// Writes a station file that parse_station reads back to the same spec: single-channel settings
+// under [[terminal]], every configured channel of a multi-channel terminal as a
+// [[terminal.channel]] with `channel = N`; strings and keys escaped, comments kept on one line.
 std::string station_to_toml(const StationSpec& spec);
+
+// TOML text for a string (quoted and escaped) and for a key (bare when it can be, else quoted).
+std::string toml_string(std::string_view s);
+std::string toml_key(std::string_view s);
+// "# text" with every line break and control character of `text` replaced, so a comment can
+// never end early and turn the rest of the text into TOML.
+std::string toml_comment(std::string_view text);
 
 // The default station of the emulator: BK9000 with KL6001, KL5101, KL6031, digital terminals, KL9010.
 StationSpec default_station();
