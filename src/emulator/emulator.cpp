@@ -269,6 +269,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
   try {
     auto j = nlohmann::json::parse(ss.str());
     station_ = EmulatedStation::from_json(j, catalog);
+    saved_ = snapshot();
   } catch (const std::exception& e) {
     ::close(lock_fd_);
     lock_fd_ = -1;
@@ -283,9 +284,15 @@ EmulatorStore::~EmulatorStore() {
   if (lock_fd_ >= 0) ::close(lock_fd_);
 }
 
-void EmulatorStore::save() {
-  if (path_.empty()) return;
-  write_file_atomic(path_, station_->to_json().dump(1) + "\n");
+std::string EmulatorStore::snapshot() const { return station_->to_json().dump(1) + "\n"; }
+
+bool EmulatorStore::save() { return save_text(snapshot()); }
+
+bool EmulatorStore::save_text(const std::string& text) {
+  if (path_.empty() || text == saved_) return false;
+  write_file_atomic(path_, text);
+  saved_ = text;
+  return true;
 }
 
 // ---------------------------------------------------------------------------------------------

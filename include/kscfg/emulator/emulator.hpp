@@ -108,10 +108,17 @@ class EmulatorStore {
   EmulatedStation& station() { return *station_; }
   const std::string& path() const { return path_; }
   void replace(std::unique_ptr<EmulatedStation> s) { station_ = std::move(s); }
-  void save();  // atomic: temp file + fsync + rename
+  // Writes the state if it differs from what the file holds (atomic: temp file + fsync + rename);
+  // a run that only read writes nothing. Returns whether it wrote.
+  bool save();
+  // The state as the file holds it: station().to_json().dump(1) and a newline.
+  std::string snapshot() const;
+  // Writes `text` (a snapshot(), taken e.g. under a server's lock) unless the file holds it already.
+  bool save_text(const std::string& text);
 
  private:
   std::string path_;
+  std::string saved_;  // the snapshot the file holds ("" when unknown or missing)
   int lock_fd_ = -1;
   std::unique_ptr<EmulatedStation> station_;
 };
