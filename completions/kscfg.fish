@@ -86,6 +86,7 @@ complete -c kscfg -n '__fish_seen_subcommand_from serve' -l cycle-us -r -d 'K-bu
 complete -c kscfg -n '__fish_seen_subcommand_from serve' -l watchdog-ms -r -d 'Watchdog preset at power-on in ms (default 1000, 0 = off)'
 complete -c kscfg -n '__fish_seen_subcommand_from serve' -l fault -r -d 'Inject faults: drop=R,delay=R,corrupt=R,busy=R,delay_ms=N (R from 0 to 1)'
 complete -c kscfg -n '__fish_seen_subcommand_from serve' -l seed -r -d 'Seed of the fault injection (default 1)'
+complete -c kscfg -n '__fish_seen_subcommand_from serve' -l max-connections -r -d 'TCP clients served at once (default 256)'
 complete -c kscfg -n '__fish_seen_subcommand_from emu' -a reset -d 'Restore the emulated station to its factory state'
 complete -c kscfg -n '__fish_seen_subcommand_from emu' -a fault -d 'Make an emulated terminal misbehave (for tests)'
 complete -c kscfg -n '__fish_seen_subcommand_from emu' -a path -d 'Print the emulator'\''s state file'

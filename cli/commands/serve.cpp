@@ -41,6 +41,15 @@ class Serve : public Command {
            "executed, the reply lost), \\fBdelay\\fR=\\fIRATE\\fR (the reply comes \\fBdelay_ms\\fR late, "
            "default 100), \\fBcorrupt\\fR=\\fIRATE\\fR (bad CRC on RTU, a garbled reply on TCP), "
            "\\fBbusy\\fR=\\fIRATE\\fR (exception 6, not executed); \\fB\\-\\-seed\\fR makes them reproducible. "
+           "At most \\fB\\-\\-max\\-connections\\fR clients (default 256) are served at once; one more is "
+           "answered with exception 6 (busy) and closed, unless a connection idle for 5 s makes room. A request "
+           "must arrive whole within 2 s of its first byte: a slower client loses its own connection and never "
+           "holds up the others; a frame that is not Modbus (MBAP protocol id other than 0, a length outside "
+           "2..254) closes the connection, a malformed request is answered with the exception the Modbus "
+           "specification names (1 function, 2 address, 3 value or byte count). "
+           "Every change is saved to the state file (atomically) within a fraction of a second, so a write "
+           "that was acknowledged survives even a kill \\-9 of the server. Serving on an address that is "
+           "not a loopback one (0.0.0.0, *, [::]) prints a warning: the emulator has no authentication. "
            "SIGINT or SIGTERM stops the server; the emulator state is saved and the exit status is 0.";
   }
   std::vector<std::string> examples() const override {
@@ -60,6 +69,7 @@ class Serve : public Command {
     sub.add_option("--fault", fault_, "Inject faults: drop=R,delay=R,corrupt=R,busy=R,delay_ms=N (R from 0 to 1)")
         ->option_text("SPEC");
     sub.add_option("--seed", seed_, "Seed of the fault injection (default 1)")->option_text("N");
+    sub.add_option("--max-connections", max_conn_, "TCP clients served at once (default 256)")->option_text("N");
   }
 
   int run(Context& ctx) override {
@@ -102,6 +112,10 @@ class Serve : public Command {
     if (!watchdog_.empty()) so.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
     so.faults = parse_faults(fault_);
     if (!seed_.empty()) so.seed = parse_uint(seed_, UINT64_MAX, "seed");
+    if (!max_conn_.empty()) {
+      so.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
+      if (so.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
+    }
     if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
 
     PortUri p = parse_port_uri(ctx.options().port);
@@ -111,25 +125,37 @@ class Serve : public Command {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
     // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
     EmulatorStore store(path, ctx.catalog());
-    ModbusServer server(store.station(), so);
-    if (ctx.json())
-      std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
-    else
-      std::cout << server.endpoint() << std::endl;
-    server.run(g_interrupted);
-    ServeStats st = server.stats();
-    store.save();
-    if (ctx.options().verbose || so.faults.any())
+    // Durable: the server saves the state soon after every change, not only when it stops.
+    if (!store.path().empty()) so.save_state = [&store](const std::string& text) { store.save_text(text); };
+    so.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
+    ServeStats st;
+    {
+      ModbusServer server(store.station(), so);
+      if (ctx.json())
+        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
+      else
+        std::cout << server.endpoint() << std::endl;
+      server.run(g_interrupted);
+      st = server.stats();
+    }
+    store.save();  // the server saved already; this writes only if something is left
+    if (ctx.options().verbose || so.faults.any() || st.refused || st.timed_out || st.malformed) {
+      std::string extra;
+      if (st.refused) extra += fmt::format("; {} connection(s) refused (limit {})", st.refused, so.max_connections);
+      if (st.timed_out) extra += fmt::format("; {} slow client(s) disconnected", st.timed_out);
+      if (st.malformed) extra += fmt::format("; {} malformed frame(s)", st.malformed);
       std::cerr << fmt::format(
-          "kscfg: serve: {} request(s); {} dropped, {} delayed, {} corrupted, {} busy, {} exception(s); state saved "
+          "kscfg: serve: {} request(s); {} dropped, {} delayed, {} corrupted, {} busy, {} exception(s){}; state saved "
           "to {}\n",
-          st.requests, st.dropped, st.delayed, st.corrupted, st.busy, st.exceptions, path.empty() ? "memory" : path);
+          st.requests, st.dropped, st.delayed, st.corrupted, st.busy, st.exceptions, extra,
+          path.empty() ? "memory" : path);
+    }
     g_interrupted = false;  // stopping is how a server ends: exit status 0
     return 0;
   }
 
  private:
-  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_;
+  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_;
   bool pty_ = false;
 };
 

@@ -18,6 +18,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
+#include "kscfg/station/map.hpp"
 
 namespace kscfg {
 
@@ -351,6 +352,8 @@ namespace kscfg {
 
 void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog) {
   EmulatedStation fresh(spec, catalog);
+  // The coupler's limits, as `map` applies them (a Modbus coupler's register map holds 512 bytes).
+  check_image_limits(fresh.layout(), coupler_profile(spec.coupler));
   if (path.empty() || path == "mem") return;
   auto dir = std::filesystem::path(path).parent_path();
   std::error_code ec;

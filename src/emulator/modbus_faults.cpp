@@ -5,7 +5,6 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "modbus_requests.hpp"
 
 namespace kscfg {
 
@@ -59,14 +58,15 @@ Fault FaultInjector::draw() {
   return Fault::none;
 }
 
-std::vector<std::uint8_t> FaultInjector::corrupt_reply(bool tcp, const std::uint8_t* q, int header) {
-  std::uint8_t fc = q[header];
+std::vector<std::uint8_t> FaultInjector::corrupt_reply(ModbusFraming framing, std::span<const std::uint8_t> adu) {
   std::vector<std::uint8_t> f;
-  if (tcp) {
-    f = {q[0], q[1], 0, 0, 0, 3, q[header - 1], static_cast<std::uint8_t>((fc ^ 0x01) | 0x80), 4};
+  if (framing == ModbusFraming::tcp) {
+    if (adu.size() < 8) return f;
+    f = {adu[0], adu[1], 0, 0, 0, 3, adu[6], static_cast<std::uint8_t>((adu[7] ^ 0x01) | 0x80), 4};
   } else {
-    f = {q[0], static_cast<std::uint8_t>(fc | 0x80), 4};
-    std::uint16_t crc = crc16(f.data(), f.size()) ^ 0x5A5A;
+    if (adu.size() < 2) return f;
+    f = {adu[0], static_cast<std::uint8_t>(adu[1] | 0x80), 4};
+    std::uint16_t crc = modbus_crc16(f) ^ 0x5A5A;
     f.push_back(static_cast<std::uint8_t>(crc & 0xFF));
     f.push_back(static_cast<std::uint8_t>(crc >> 8));
   }

@@ -3,8 +3,10 @@
 #pragma once
 #include <cstdint>
 #include <random>
+#include <span>
 #include <vector>
 
+#include "kscfg/emulator/modbus_requests.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 
 namespace kscfg {
@@ -17,9 +19,9 @@ class FaultInjector {
   const ServeFaults& faults() const { return faults_; }
   // One draw per request.
   Fault draw();
-  // A frame the client must reject: bad CRC on RTU, a mismatching exception on TCP. `q` is the
-  // request, `header` its header length (unit id at header-1, function code at header).
-  static std::vector<std::uint8_t> corrupt_reply(bool tcp, const std::uint8_t* q, int header);
+  // A frame the client must reject, in answer to the request `adu`: a bad CRC on RTU, an
+  // exception for another function code on TCP.
+  static std::vector<std::uint8_t> corrupt_reply(ModbusFraming framing, std::span<const std::uint8_t> adu);
 
  private:
   ServeFaults faults_;

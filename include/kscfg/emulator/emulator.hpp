@@ -147,6 +147,7 @@ class EmulatorLink : public Link {
 
 namespace kscfg {
 // Replaces the state at `path` with the factory state of `spec` (under the lock). Works on a
-// corrupt state file too: that is how a user recovers from one.
+// corrupt state file too: that is how a user recovers from one. Error(usage) when the station
+// exceeds its coupler's image limits (check_image_limits, as `map` applies them).
 void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog);
 }  // namespace kscfg

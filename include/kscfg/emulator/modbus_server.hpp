@@ -33,17 +33,37 @@ struct ServeOptions {
   unsigned watchdog_ms = 1000;  // preset at power-on, 0 = off
   ServeFaults faults;
   std::uint64_t seed = 1;
-  std::function<void(const std::string&)> trace;
+  // TCP: connections served at once. One more is answered "busy" (exception 6) and closed, unless
+  // a connection idle for idle_evict_ms can make room.
+  unsigned max_connections = 256;
+  unsigned idle_evict_ms = 5000;
+  // A request must arrive whole within this time from its first byte; a client that is slower
+  // loses its connection (TCP) or its frame (RTU). Other clients never wait for it.
+  unsigned frame_timeout_ms = 2000;
+  // Durability: called with the state's text soon after it changed (coalesced: the first change
+  // waits save_delay_ms for more), from a thread of the server; at the end of run() once more.
+  // Empty: the state is not saved by the server.
+  std::function<void(const std::string&)> save_state;
+  unsigned save_delay_ms = 20;
+  std::function<void(const std::string&)> trace;  // every request and connection (-v)
+  std::function<void(const std::string&)> warn;   // what the user must know (open to the network, refusals)
 };
 
 struct ServeStats {
   std::size_t requests = 0, dropped = 0, delayed = 0, corrupted = 0, busy = 0, exceptions = 0, cycles = 0,
               watchdog_expired = 0;
+  std::size_t connections = 0;  // accepted and served
+  std::size_t refused = 0;      // over max_connections
+  std::size_t timed_out = 0;    // slow clients: no whole frame within frame_timeout_ms
+  std::size_t malformed = 0;    // not Modbus (MBAP protocol id, length), bad CRCs, oversized frames
+  std::size_t saves = 0;        // state saves by the server
 };
 
 class ModbusServer {
  public:
-  // Binds/opens; Error(Exit::link/usage) when it cannot.
+  // Binds/opens; Error(Exit::link/usage) when it cannot, or when the station's image does not fit
+  // the register map (512 bytes each way). A TCP address that is not a loopback one is served
+  // with a warning: the emulator has no authentication.
   ModbusServer(EmulatedStation& station, ServeOptions opt);
   ~ModbusServer();
   ModbusServer(const ModbusServer&) = delete;
@@ -51,6 +71,7 @@ class ModbusServer {
   // The port URI a client uses: tcp://127.0.0.1:40123, rtu:/dev/pts/5?parity=N
   std::string endpoint() const;
   // Serves until `stop` is set (checked every 50 ms); the K-bus runs on its own thread meanwhile.
+  // Saves the state a last time (ServeOptions::save_state) before it returns.
   void run(const std::atomic<bool>& stop);
   ServeStats stats() const;
 
