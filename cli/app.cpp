@@ -9,6 +9,8 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/session.hpp"
+#include "help.hpp"
+#include "messages.hpp"
 
 namespace kscfg::cli {
 
@@ -46,7 +48,8 @@ std::unique_ptr<App> build_app() {
   cli.add_option("--timeout", a->timeout_text, "Longest wait for one acknowledge, in ms (default 1000)")
       ->option_text("MS");
   cli.add_flag("-v,--verbose", a->opt.verbose, "Trace every control/status exchange on stderr");
-  cli.set_version_flag("--version", std::string("kscfg ") + KSCFG_VERSION);
+  cli.set_help_flag("-h,--help", "Show this help (also: kscfg help COMMAND)");
+  cli.set_version_flag("-V,--version", std::string("kscfg ") + KSCFG_VERSION, "Print kscfg's version");
   a->commands = make_commands();
   for (auto& c : a->commands) add_tree(*a, cli, *c);
   return a;
@@ -97,40 +100,28 @@ int run(int argc, char** argv) {
   g_app = app.get();
   for (int i = 1; i < argc && std::string(argv[i]) != "--"; ++i)
     if (std::string(argv[i]) == "--json") g_json_errors = true;
+  std::vector<std::string> words(argv + 1, argv + argc);
   try {
     app->cli.parse(argc, argv);
-  } catch (const CLI::CallForHelp& e) {
-    return app->cli.exit(e);
-  } catch (const CLI::CallForAllHelp& e) {
-    return app->cli.exit(e);
+  } catch (const CLI::CallForHelp&) {
+    const CLI::App* node = &app->cli;
+    while (!node->get_subcommands().empty()) node = node->get_subcommands().front();
+    std::cout << help_text(*app, node, output_width());
+    return 0;
+  } catch (const CLI::CallForAllHelp&) {
+    std::cout << help_text(*app, &app->cli, output_width());
+    return 0;
   } catch (const CLI::CallForVersion& e) {
-    return app->cli.exit(e);
+    std::cout << e.what() << '\n';
+    return 0;
   } catch (const CLI::ParseError& e) {
-    std::string msg = e.what();
-    bool no_command = app->cli.get_subcommands().empty();
-    if (no_command && (dynamic_cast<const CLI::ExtrasError*>(&e) || dynamic_cast<const CLI::RequiredError*>(&e))) {
-      msg = "no command given; 'kscfg --help' lists the commands";
-      // The first word that is neither an option nor an option's value is not a command.
-      std::vector<std::string> names;
-      for (auto& c : app->commands) names.push_back(c->name());
-      for (int i = 1; i < argc; ++i) {
-        std::string w = argv[i];
-        if (w.empty()) continue;
-        if (w[0] == '-') {
-          const CLI::Option* o = nullptr;
-          try {
-            o = app->cli.get_option(w.substr(0, w.find('=')));
-          } catch (const CLI::OptionNotFound&) {
-          }
-          if (o && o->get_expected_min() > 0 && w.find('=') == std::string::npos) ++i;
-          continue;
-        }
-        auto hint = did_you_mean(w, names);
-        msg = fmt::format("unknown command '{}'{}", w, hint.empty() ? "" : "; " + hint);
-        break;
-      }
-    }
-    print_error(msg, "", static_cast<int>(Exit::usage));
+    auto p = command_line_problem(*app, words, false);
+    Problem q = p ? *p : parse_error_text(e);
+    print_error(q.message, q.hint, static_cast<int>(Exit::usage));
+    return static_cast<int>(Exit::usage);
+  }
+  if (auto p = command_line_problem(*app, words, true)) {
+    print_error(p->message, p->hint, static_cast<int>(Exit::usage));
     return static_cast<int>(Exit::usage);
   }
 

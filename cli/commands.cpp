@@ -29,6 +29,7 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_emu());
   v.push_back(make_completion());
   v.push_back(make_manpage());
+  v.push_back(make_help());
   return v;
 }
 

@@ -30,4 +30,5 @@ std::unique_ptr<Command> make_serve();
 std::unique_ptr<Command> make_emu();
 std::unique_ptr<Command> make_completion();
 std::unique_ptr<Command> make_manpage();
+std::unique_ptr<Command> make_help();
 }  // namespace kscfg::cli

@@ -6,6 +6,8 @@
 #include <sstream>
 
 #include "app.hpp"
+#include "argv.hpp"
+#include "help.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/catalog/params.hpp"
 
@@ -43,12 +45,6 @@ std::vector<const CLI::Option*> options_of(const CLI::App* app) {
   });
 }
 
-std::vector<const CLI::Option*> positionals_of(const CLI::App* app) {
-  return app->get_options([](const CLI::Option* o) { return o->get_positional(); });
-}
-
-// Flags report type_size_min = 1 in CLI11 2.1.2; the number of items they expect is 0.
-bool takes_value(const CLI::Option* o) { return o->get_items_expected_min() > 0; }
 
 std::vector<std::string> names_of(const CLI::Option* o) {
   std::vector<std::string> v;
@@ -76,14 +72,6 @@ std::string option_roff(const CLI::Option* o) {
   return s;
 }
 
-std::string positional_text(const CLI::Option* o) {
-  std::string n = o->get_name();
-  std::string t = o->get_option_text();
-  bool many = o->get_expected_max() > 1;
-  std::string s = t.empty() ? n : t;
-  if (many) s += "...";
-  return o->get_required() ? s : "[" + s + "]";
-}
 
 std::string shell_quote(const std::string& s) {
   std::string out = "'";
@@ -267,7 +255,7 @@ std::string generate_manpage(const App& a) {
       std::string values;
       for (const auto& c : param_choices(p)) values += (values.empty() ? "" : ", ") + c;
       m << ".TP\n\\fB" << roff(p.name) << "\\fR \\fI" << roff(values) << "\\fR\n"
-        << roff(p.desc) << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask,
+        << roff(param_description(p.desc)) << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask,
                                         decode_param(p, t->regs[p.reg].def))
         << (p.unit.empty() ? "" : ", " + roff(p.unit)) << ")."
         << (p.divisor ? " Other rates by divisor: " + roff(fmt::format("{} Hz / ({} x (HB + 1))", p.divisor->clock,

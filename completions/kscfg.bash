@@ -8,7 +8,7 @@ _kscfg() {
     case "$valued" in *" $w "*) skip=1; continue;; esac
     case $w in -*) continue;; esac
     case "$path" in
-      "") case $w in info| read| write| dump| unlock| lock| show| get| set| reset| decode| catalog| backup| diff| apply| restore| map| station| serial| scan| ports| serve| emu| completion| manpage|__none__) path=$w;; esac;;
+      "") case $w in info| read| write| dump| unlock| lock| show| get| set| reset| decode| catalog| backup| diff| apply| restore| map| station| serial| scan| ports| serve| emu| completion| manpage| help|__none__) path=$w;; esac;;
       "station") case $w in init| check|__none__) path="$path $w";; esac;;
       "serial") case $w in init| send| recv| term| status| line|__none__) path="$path $w";; esac;;
       "emu") case $w in reset| fault| path|__none__) path="$path $w";; esac;;
@@ -18,9 +18,9 @@ _kscfg() {
     -p|--port) COMPREPLY=($(compgen -W "emu emu:mem tcp:// rtu:/dev/" -- "$cur")); return;;
     --station|--catalog) COMPREPLY=($(compgen -f -- "$cur")); return;;
   esac
-  local words=" -h --help -p --port -t --terminal -c --channel --station --catalog --json --timeout -v --verbose --version"
+  local words=" -p --port -t --terminal -c --channel --station --catalog --json --timeout -v --verbose -h --help -V --version"
   case "$path" in
-    "") words="$words info read write dump unlock lock show get set reset decode catalog backup diff apply restore map station serial scan ports serve emu completion manpage";;
+    "") words="$words info read write dump unlock lock show get set reset decode catalog backup diff apply restore map station serial scan ports serve emu completion manpage help";;
     "info") words="$words";;
     "read") words="$words --raw R0 R1 R2 R3 R4 R5 R6 R7 R8 R9 R10 R11 R12 R13 R14 R15 R16 R17 R18 R19 R20 R21 R22 R23 R24 R25 R26 R27 R28 R29 R30 R31 R32 R33 R34 R35 R36 R37 R38 R39 R40 R41 R42 R43 R44 R45 R46 R47";;
     "write") words="$words --mask R0 R1 R2 R3 R4 R5 R6 R7 R8 R9 R10 R11 R12 R13 R14 R15 R16 R17 R18 R19 R20 R21 R22 R23 R24 R25 R26 R27 R28 R29 R30 R31 R32 R33 R34 R35 R36 R37 R38 R39 R40 R41 R42 R43 R44 R45 R46 R47";;
@@ -57,6 +57,7 @@ _kscfg() {
     "emu path") words="$words";;
     "completion") words="$words bash zsh fish";;
     "manpage") words="$words";;
+    "help") words="$words";;
   esac
   COMPREPLY=($(compgen -W "$words" -- "$cur"))
 }

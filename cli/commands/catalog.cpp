@@ -5,6 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../help.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -98,7 +99,7 @@ class CatalogCmd : public Command {
         std::string vals;
         for (const auto& c : param_choices(p)) vals += (vals.empty() ? "" : " ") + c;
         std::cout << fmt::format("  {:<20} R{:<2} {} default {}: {}\n", p.name, p.reg, vals,
-                                 decode_param(p, t.regs[p.reg].def), p.desc);
+                                 decode_param(p, t.regs[p.reg].def), param_description(p.desc));
       }
     }
     if (!t.images.empty()) {

@@ -20,7 +20,8 @@ class Completion : public Command {
            "\\fI/usr/share/fish/vendor_completions.d/kscfg.fish\\fR.";
   }
   std::vector<std::string> examples() const override {
-    return {"completion bash > ~/.local/share/bash-completion/completions/kscfg"};
+    return {"completion bash > ~/.local/share/bash-completion/completions/kscfg",
+            "completion fish > ~/.config/fish/completions/kscfg.fish"};
   }
   std::vector<std::string> completions() const override { return {"bash", "zsh", "fish"}; }
   void add_cli(CLI::App& sub) override {

@@ -112,6 +112,7 @@ class EmuPath : public Command {
   std::string name() const override { return "path"; }
   std::string brief() const override { return "Print the emulator's state file"; }
   std::string man() const override { return "Prints the path of the state file the emulator port uses."; }
+  std::vector<std::string> examples() const override { return {"emu path", "--port emu:/tmp/lab.json emu path"}; }
   void add_cli(CLI::App&) override {}
   int run(Context& ctx) override {
     if (ctx.json()) print_json({{"state", state_path(ctx)}});

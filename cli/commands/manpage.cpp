@@ -16,7 +16,7 @@ class Manpage : public Command {
     return "Prints this manual page, generated from the command definitions (the installed "
            "\\fIkscfg.1\\fR is made the same way).";
   }
-  std::vector<std::string> examples() const override { return {"manpage | man -l -"}; }
+  std::vector<std::string> examples() const override { return {"manpage | man -l -", "manpage > kscfg.1"}; }
   void add_cli(CLI::App&) override {}
   int run(Context&) override {
     std::cout << generate_manpage(current_app());

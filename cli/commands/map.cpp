@@ -53,7 +53,7 @@ class Map : public Command {
             "map --station line3.toml --coupler BK4000 --motorola off", "--json map", "map --list-couplers"};
   }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("TYPE", types_, "Terminal types in plug order (offline map)")->option_text("TYPE...");
+    sub.add_option("TYPE", types_, "Terminal types in plug order (offline map)")->option_text("TYPE");
     sub.add_option("--coupler", coupler_, "Coupler type, e.g. BK3000 (default: the station's, or BK9000)")
         ->option_text("NAME");
     sub.add_option("--complete-evaluation", ce_, "Map the control/status bytes: on or off")->option_text("on|off");

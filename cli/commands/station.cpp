@@ -116,7 +116,7 @@ class StationCheck : public Command {
            "limits. Prints one line: coupler, terminals, input and output bytes. Errors name the file, line and "
            "column.";
   }
-  std::vector<std::string> examples() const override { return {"station check line3.toml"}; }
+  std::vector<std::string> examples() const override { return {"station check line3.toml", "--json station check line3.toml"}; }
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec spec = load_station(file_, ctx.catalog());

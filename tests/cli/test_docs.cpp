@@ -54,6 +54,7 @@ TEST_CASE("every command has a brief, a man section and is in the man page", "[d
     INFO(it.path);
     CHECK_FALSE(it.cmd->brief().empty());
     CHECK(it.cmd->man().size() > 40);
+    if (it.cmd->children().empty()) CHECK(it.cmd->examples().size() >= 2);  // kscfg CMD --help shows two
     CHECK_THAT(man, Catch::Contains(".SS \"kscfg " + it.path));
     for (const auto& o : it.options) {
       INFO(o);

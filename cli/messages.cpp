@@ -1,0 +1,154 @@
+#include "messages.hpp"
+
+#include <fmt/format.h>
+
+#include <map>
+
+#include "argv.hpp"
+#include "help.hpp"
+#include "kscfg/base/parse.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+std::string value_text(const CLI::Option* o) {
+  return o->get_option_text().empty() ? std::string("a value") : o->get_option_text();
+}
+
+std::string help_hint(const CLI::App* node, bool options = false) {
+  std::string path = command_path(node);
+  if (node->get_parent()) return fmt::format("'kscfg help{}' shows its arguments and options", path.substr(5));
+  return options ? "'kscfg --help' lists the options" : "'kscfg help' lists the commands";
+}
+
+std::string join_or(const std::vector<std::string>& v) {
+  std::string s;
+  for (std::size_t i = 0; i < v.size(); ++i) s += (i == 0 ? "" : i + 1 == v.size() ? " or " : ", ") + v[i];
+  return s;
+}
+
+std::vector<std::string> option_spellings(const CLI::App* node) {
+  std::vector<std::string> v;
+  for (const CLI::Option* o : options_at(node)) {
+    for (const auto& l : o->get_lnames()) v.push_back("--" + l);
+    for (const auto& s : o->get_snames()) v.push_back("-" + s);
+  }
+  return v;
+}
+
+}  // namespace
+
+std::optional<Problem> command_line_problem(const App& a, const std::vector<std::string>& words, bool parsed) {
+  ArgvWalk w = walk_argv(a.cli, words);
+  const auto& t = w.tokens;
+
+  // An option whose value is a command name: `--timeout read R32` took "read" as the timeout.
+  if (!parsed) {
+    for (std::size_t i = 0; i + 1 < t.size(); ++i) {
+      if (t[i].kind != Token::Kind::option || t[i].inline_value || t[i + 1].kind != Token::Kind::value) continue;
+      auto names = command_names(t[i].app);
+      if (std::find(names.begin(), names.end(), t[i + 1].word) == names.end()) continue;
+      return Problem{fmt::format("{} needs {} before the command '{}'", option_label(t[i].option),
+                                 value_text(t[i].option), t[i + 1].word),
+                     fmt::format("kscfg {} {} {} ...", t[i].word, value_text(t[i].option), t[i + 1].word)};
+    }
+  }
+  // Empty values: `-t ''` is a mistake, never "the default".
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    if (t[i].kind == Token::Kind::value && t[i].word.empty())
+      return Problem{fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)),
+                     ""};
+    if (t[i].kind == Token::Kind::option && t[i].inline_value && t[i].word.back() == '=')
+      return Problem{fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)),
+                     ""};
+  }
+  if (parsed) return std::nullopt;
+
+  // Unknown options, with the closest spelling valid at that point.
+  for (const auto& k : t) {
+    if (k.kind != Token::Kind::unknown_option) continue;
+    std::string name = k.word.substr(0, k.word.find('='));
+    std::string where = k.app && k.app->get_parent() ? fmt::format(" for '{}'", command_path(k.app)) : "";
+    if (k.word.rfind("--", 0) != 0 && k.word.size() > 2) {
+      // -v=3, -xyz: a bundle with a letter that is no option
+      for (std::size_t c = 1; c < k.word.size(); ++c) {
+        const CLI::Option* o = find_option(k.app, std::string("-") + k.word[c]);
+        if (!o) {
+          name = std::string("-") + k.word[c];
+          break;
+        }
+        if (!takes_value(o) && c + 1 < k.word.size() && k.word[c + 1] == '=')
+          return Problem{fmt::format("{} takes no value ('{}')", option_label(o), k.word), help_hint(k.app, true)};
+      }
+    }
+    // One letter is too little to guess from.
+    std::string dym = name.size() > 2 ? did_you_mean(name, option_spellings(k.app)) : std::string();
+    return Problem{fmt::format("unknown option '{}'{}", name, where), dym.empty() ? help_hint(k.app, true) : dym};
+  }
+  // An option at the end without its value.
+  if (w.pending)
+    return Problem{fmt::format("{} needs {}", option_label(w.pending), value_text(w.pending)), help_hint(w.node, true)};
+  // An option given twice.
+  std::map<const CLI::Option*, std::vector<std::string>> given;
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    if (t[i].kind == Token::Kind::option && takes_value(t[i].option) && t[i].option->get_expected_max() <= 1) {
+      std::string v = t[i].inline_value ? t[i].word.substr(t[i].word.find('=') == std::string::npos
+                                                               ? 2
+                                                               : t[i].word.find('=') + 1)
+                                        : (i + 1 < t.size() ? t[i + 1].word : "");
+      given[t[i].option].push_back(v);
+    }
+  }
+  for (const auto& [o, vals] : given)
+    if (vals.size() > 1)
+      return Problem{fmt::format("{} is given {} ('{}'); give it once", option_label(o),
+                                 vals.size() == 2 ? std::string("twice") : std::to_string(vals.size()) + " times",
+                                 fmt::format("{}", fmt::join(vals, "', '"))),
+                     ""};
+  // Words that are no command, or more arguments than the command takes.
+  for (const auto& k : t) {
+    if (k.kind != Token::Kind::positional || k.option) continue;
+    auto names = command_names(k.app);
+    if (!names.empty()) {
+      std::string dym = did_you_mean(k.word, names);
+      std::string where = k.app->get_parent() ? fmt::format(" for '{}'", command_path(k.app)) : "";
+      return Problem{fmt::format("unknown command '{}'{}", k.word, where),
+                     dym.empty() ? (k.app->get_parent() ? fmt::format("the commands are {}", join_or(names))
+                                                        : std::string("'kscfg help' lists the commands"))
+                                 : dym};
+    }
+    std::string takes;
+    for (const auto* p : positionals_of(k.app)) takes += " " + positional_text(p);
+    return Problem{fmt::format("unexpected argument '{}': '{}' takes {}", k.word, command_path(k.app),
+                               takes.empty() ? std::string("no arguments") : takes.substr(1)),
+                   help_hint(k.app)};
+  }
+  // A command that needs a sub-command, or its arguments.
+  if (!w.node->get_parent())
+    return Problem{"no command given", "'kscfg help' lists the commands"};
+  auto subs = command_names(w.node);
+  if (!subs.empty())
+    return Problem{fmt::format("'{}' needs a command: {}", command_path(w.node), join_or(subs)), help_hint(w.node)};
+  std::size_t given_count = w.positionals.size();
+  for (const auto* p : positionals_of(w.node)) {
+    if (!p->get_required()) continue;
+    int min = std::max(1, p->get_expected_min());
+    if (given_count >= static_cast<std::size_t>(min)) {
+      given_count -= static_cast<std::size_t>(min);
+      continue;
+    }
+    std::string d = p->get_description();
+    if (!d.empty()) d[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(d[0])));
+    return Problem{fmt::format("'{}' needs {}: {}", command_path(w.node), positional_text(p), d), help_hint(w.node)};
+  }
+  return std::nullopt;
+}
+
+Problem parse_error_text(const CLI::ParseError& e) {
+  std::string m = e.what();
+  if (!m.empty()) m[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(m[0])));
+  return Problem{m, "'kscfg help' lists the commands"};
+}
+
+}  // namespace kscfg::cli
