@@ -252,7 +252,7 @@ static void parse_registers_table(const Ctx& c, const toml::table& root, Termina
     }
     const auto* e = v.as_table();
     if (!e) c.fail(&v, key, "must be an inline table { name, desc, default, storage, access }");
-    c.only_keys(*e, {"name", "desc", "default", "storage", "access"}, key);
+    c.only_keys(*e, {"name", "desc", "default", "storage", "access", "command", "code_word"}, key);
     RegisterDef& r = t.regs[addr];
     r.name = c.str(*e, "name", false, r.name);
     r.desc = c.str(*e, "desc", false, r.desc);
@@ -263,6 +263,9 @@ static void parse_registers_table(const Ctx& c, const toml::table& root, Termina
     r.writable = acc == "rw";
     r.implemented = r.storage != proto::Storage::none || addr < 48;
     r.described = true;
+    r.command = c.boolean(*e, "command", false);
+    r.code_word = c.boolean(*e, "code_word", false);
+    if (r.command && !r.writable) c.fail(*e, "command", "a command register must be writable (access = \"rw\")");
   }
 }
 
@@ -310,12 +313,13 @@ static void parse_params(const Ctx& c, const toml::table& root, TerminalType& t)
       c.fail(*p, "kind", "must be enum, bool or int");
     }
     if (const auto* dv = p->get_as<toml::table>("divisor")) {
-      c.only_keys(*dv, {"clock", "prescale", "low", "tolerance_pct"}, "divisor");
+      c.only_keys(*dv, {"clock", "prescale", "low", "tolerance_pct", "max"}, "divisor");
       Divisor div;
       div.clock = static_cast<std::uint32_t>(c.num(*dv, "clock", true, 0, 1, 1'000'000'000));
       div.prescale = static_cast<std::uint32_t>(c.num(*dv, "prescale", false, 16, 1, 65535));
       div.low = static_cast<std::uint8_t>(c.num(*dv, "low", false, 0xFF, 0, 0xFF));
       div.tolerance_pct = c.real(*dv, "tolerance_pct", 3.0);
+      div.max = static_cast<std::uint32_t>(c.num(*dv, "max", false, 0, 0, 1'000'000'000));
       d.divisor = div;
     }
     if (t.param(d.name)) c.fail(*p, "name", fmt::format("duplicate parameter '{}'", d.name));

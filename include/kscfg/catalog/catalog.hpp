@@ -30,6 +30,8 @@ struct RegisterDef {
   bool writable = false;
   bool implemented = true;
   bool described = false;  // listed in the type's [registers] table (its default is known)
+  bool command = false;    // a command register (R7): each write is an action, never stored state
+  bool code_word = false;  // the manual requires the code word in R31 before writing it (KL6031 R7)
 };
 
 // Bits of a process-data control or status byte/word, for `kscfg decode`.
@@ -57,6 +59,7 @@ struct Divisor {
   std::uint32_t prescale = 16;
   std::uint8_t low = 0xFF;
   double tolerance_pct = 3.0;
+  std::uint32_t max = 0;  // highest rate the manual allows (KL6001: 19200); 0 = none documented
 };
 
 struct ParamDef {
