@@ -55,19 +55,8 @@ class Reset : public Command {
       }
     }
     auto s = ctx.session();
-    // R7 = 0x7000 reports the registers it checked afterwards; what they held before is read
-    // first, so that "changed" says whether the reset changed anything.
-    std::vector<std::pair<unsigned, std::uint16_t>> before;
-    if (plan.r7)
-      for (const auto& [r, v] : plan.values) before.emplace_back(r, s->read(r));
-    auto results = factory_reset(*s, plan);
+    auto results = factory_reset(*s, plan);  // R7: before and after the command, read
     s->close();
-    for (auto& w : results)
-      for (const auto& [r, v] : before)
-        if (r == w.reg && v != w.after) {
-          w.before = v;
-          w.changed = true;
-        }
     bool changed = std::any_of(results.begin(), results.end(), [](auto& w) { return w.changed; });
     if (ctx.json()) {
       nlohmann::json rs = nlohmann::json::array();

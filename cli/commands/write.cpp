@@ -8,6 +8,7 @@
 #include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/parameters.hpp"
 
 namespace kscfg::cli {
 
@@ -25,10 +26,15 @@ class Write : public Command {
            "(R16..R30, R32..R47) are unlocked with the code word 0x1235 in R31 and locked again. The "
            "register is then read back: a different value exits with status 6. With \\fB\\-\\-mask\\fR "
            "\\fIM\\fR only the bits set in \\fIM\\fR change (read-modify-write): new = (old & ~M) | "
-           "(VALUE & M). ROM registers (R8..R14) and the extended area are refused with status 5.";
+           "(VALUE & M). ROM registers (R8..R14) and the extended area are refused with status 5. "
+           "A command register (R7 where the catalog marks it, e.g. KL6031/KL6041) holds no setting: "
+           "writing it runs the command every time (never skipped as unchanged), after the code word "
+           "where the manual requires it, and the command is verified by its effect where the manual "
+           "documents one (R7 = 0x7000: every factory-reset register reads its factory value, else "
+           "status 6); a command whose effect kscfg does not know is reported as not verified.";
   }
   std::vector<std::string> examples() const override {
-    return {"write R32 0x0007", "write R34 0x0000 --mask 0x0001", "-t 1 write 35 5"};
+    return {"write R32 0x0007", "write R34 0x0000 --mask 0x0001", "-t 1 write 35 5", "-t 3 write R7 0x7000"};
   }
   std::vector<std::string> completions() const override { return register_completions(); }
   void add_cli(CLI::App& sub) override {
@@ -42,6 +48,12 @@ class Write : public Command {
     std::uint16_t mask = mask_.empty() ? 0xFFFF : parse_value(mask_);
     auto s = ctx.session();
     const TerminalType& type = *s->terminal().type;
+    if (reg < proto::kRegisterCount && type.regs[reg].command) {
+      if (!mask_.empty())
+        throw Error(Exit::usage, fmt::format("R{} of {} is a command register: --mask does not apply to a command",
+                                             reg, type.type));
+      return run_command_register(ctx, *s, reg, value);
+    }
     WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
     s->close();
     unsigned ch = ctx.options().channel - 1;
@@ -61,6 +73,36 @@ class Write : public Command {
   }
 
  private:
+  // A command register (catalog `command`): the command runs every time and is verified by its
+  // effect where the manual documents one; otherwise the output says that nothing was verified.
+  int run_command_register(Context& ctx, RegisterSession& s, unsigned reg, std::uint16_t value) {
+    CommandResult r = run_command(s, reg, value);
+    s.close();
+    if (ctx.json()) {
+      nlohmann::json checked = nlohmann::json::array();
+      for (const auto& w : r.checked)
+        checked.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
+      nlohmann::json j = terminal_json(s.terminal(), s.channel());
+      j.update({{"register", reg}, {"value", value}, {"command", true}, {"changed", true},
+                {"effect", r.effect ? nlohmann::json(r.effect->what) : nlohmann::json(nullptr)},
+                {"verified", r.verified}, {"checked", checked}});
+      print_json(j);
+      return 0;
+    }
+    if (!r.effect) {
+      std::cout << fmt::format("R{} {} command written; its effect is not known to kscfg, so nothing was verified\n",
+                               reg, hex4(value));
+      return 0;
+    }
+    std::string regs;
+    for (const auto& w : r.checked) regs += fmt::format(" R{}", w.reg);
+    std::cout << fmt::format("R{} {} command executed ({}); verified:{} read their factory values\n", reg,
+                             hex4(value), r.effect->what, regs);
+    for (const auto& w : r.checked)
+      if (w.changed) std::cout << fmt::format("  R{} {} -> {}\n", w.reg, hex4(w.before), hex4(w.after));
+    return 0;
+  }
+
   std::string reg_, value_, mask_;
 };
 

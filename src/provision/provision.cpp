@@ -107,9 +107,12 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
       for (const auto& [r, v] : ch.registers) {
         const RegisterDef& d = type.regs[r];
         int line = ch.register_lines.count(r) ? ch.register_lines.at(r) : want.line;
-        if (!d.implemented || !d.writable || r == proto::kCodeWordRegister || d.storage == proto::Storage::rom)
+        if (!d.implemented || !d.writable || r == proto::kCodeWordRegister || d.storage == proto::Storage::rom ||
+            d.command)
           throw Error(Exit::usage, fmt::format("{}R{} of {} cannot be provisioned ({})", where(line), r, type.type,
                                                r == proto::kCodeWordRegister ? "the code word is not a setting"
+                                               : d.command ? "a command register runs a command, it holds no setting; "
+                                                             "use kscfg reset or kscfg write"
                                                : !d.implemented             ? "not implemented"
                                                                             : "read-only"));
       }

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <chrono>
 #include <map>
 
 #include "kscfg/base/error.hpp"
@@ -98,20 +99,54 @@ ResetPlan reset_plan(const TerminalType& type) {
   return plan;
 }
 
-std::vector<WriteResult> factory_reset(RegisterSession& s, const ResetPlan& plan) {
-  if (plan.r7) {
-    s.command(proto::kFactoryResetCommand);
-    std::vector<WriteResult> out;
-    for (const auto& [reg, v] : plan.values) {
-      std::uint16_t now = s.read(reg);
-      if (now != v)
-        throw Error(Exit::verify,
-                    fmt::format("{}: R{} reads 0x{:04X} after the factory reset (R7 = 0x7000), expected 0x{:04X}",
-                                s.who(), reg, now, v));
-      out.push_back({reg, now, now, false});
+std::optional<CommandEffect> command_effect(const TerminalType& type, unsigned reg, std::uint16_t value) {
+  if (reg == proto::kCommandRegister && value == proto::kFactoryResetCommand && type.reset == FactoryReset::r7 &&
+      type.regs[reg].command)
+    return CommandEffect{"restore factory settings", reset_plan(type).values};
+  return std::nullopt;
+}
+
+CommandResult run_command(RegisterSession& s, unsigned reg, std::uint16_t value) {
+  CommandResult r;
+  r.reg = reg;
+  r.value = value;
+  r.effect = command_effect(*s.terminal().type, reg, value);
+  if (r.effect)
+    for (const auto& [er, v] : r.effect->expect) r.checked.push_back({er, s.read(er), v, false});
+  s.command(reg, value);
+  if (!r.effect) return r;
+  // The terminal may take a moment to carry the command out (EEPROM writes): read until every
+  // register holds its expected value, bounded by the session's timeout.
+  auto deadline = std::chrono::steady_clock::now() + s.timeout();
+  std::vector<std::pair<unsigned, std::uint16_t>> wrong;
+  for (;;) {
+    wrong.clear();
+    for (auto& w : r.checked) {
+      std::uint16_t now = s.read(w.reg);
+      if (now != w.after) wrong.emplace_back(w.reg, now);
     }
-    return out;
+    if (wrong.empty() || std::chrono::steady_clock::now() > deadline) break;
   }
+  if (!wrong.empty()) {
+    std::string list;
+    for (const auto& [wr, now] : wrong) {
+      std::uint16_t want = 0;
+      for (const auto& w : r.checked)
+        if (w.reg == wr) want = w.after;
+      list += fmt::format("{}R{} = 0x{:04X} (factory 0x{:04X})", list.empty() ? "" : ", ", wr, now, want);
+    }
+    throw Error(Exit::verify,
+                fmt::format("{}: R{} = 0x{:04X} ({}) was written but did not take effect: {}", s.who(), reg, value,
+                            r.effect->what, list),
+                "the terminal may not support the command; check it with 'kscfg dump'");
+  }
+  for (auto& w : r.checked) w.changed = w.before != w.after;
+  r.verified = true;
+  return r;
+}
+
+std::vector<WriteResult> factory_reset(RegisterSession& s, const ResetPlan& plan) {
+  if (plan.r7) return run_command(s, proto::kCommandRegister, proto::kFactoryResetCommand).checked;
   return s.write_all(plan.values);
 }
 

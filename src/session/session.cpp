@@ -229,7 +229,14 @@ std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<
 }
 
 std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
-  for (const auto& c : changes) check_writable(c.reg);
+  for (const auto& c : changes) {
+    check_writable(c.reg);
+    if (term_->type->regs[c.reg].command)
+      throw Error(Exit::usage,
+                  fmt::format("R{} of {} is a command register: writing it runs a command, it holds no setting",
+                              c.reg, term_->type->type),
+                  fmt::format("run the command with 'kscfg write R{} VALUE'", c.reg));
+  }
   // Compare first (DESIGN.md decision 6): only registers whose value differs are written. The
   // read is also the "read" of read-modify-write: bits outside the mask keep their value.
   std::vector<WriteResult> results;
@@ -245,7 +252,7 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
   for (const auto& w : results) {
     if (!w.changed) continue;
     any = true;
-    any_protected = any_protected || proto::is_protected(w.reg);
+    any_protected = any_protected || proto::is_protected(w.reg) || term_->type->regs[w.reg].code_word;
   }
   if (!any) return results;
 
@@ -296,10 +303,15 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
   return results;
 }
 
-void RegisterSession::command(std::uint16_t value) {
-  unlock();
-  transact(true, proto::kCommandRegister, value);
-  lock();
+void RegisterSession::command(unsigned reg, std::uint16_t value) {
+  check_writable(reg);
+  const RegisterDef& d = term_->type->regs[reg];
+  if (!d.command)
+    throw Error(Exit::usage, fmt::format("R{} of {} is not a command register", reg, term_->type->type));
+  bool code_word = d.code_word || proto::is_protected(reg);
+  if (code_word) unlock();
+  transact(true, reg, value);
+  if (code_word) lock();
 }
 
 void RegisterSession::close() noexcept {

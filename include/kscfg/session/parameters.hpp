@@ -1,6 +1,7 @@
 // Named parameters over a register session: validate, plan, set with rollback, factory reset.
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -53,7 +54,28 @@ struct ResetPlan {
 };
 ResetPlan reset_plan(const TerminalType& type);
 // Carries out the plan; afterwards every register of the plan holds its factory value (verified).
+// With R7 the results hold each register before the command and after it (`changed` when it moved).
 std::vector<WriteResult> factory_reset(RegisterSession& s, const ResetPlan& plan);
+
+// What a command (a write to a command register) does, where the manual says: KL6031/KL6041
+// R7 = 0x7000 restores the factory values of the registers reset_plan lists. Empty when unknown.
+struct CommandEffect {
+  std::string what;                                        // "restore factory settings"
+  std::vector<std::pair<unsigned, std::uint16_t>> expect;  // registers and the values they must read after it
+};
+std::optional<CommandEffect> command_effect(const TerminalType& type, unsigned reg, std::uint16_t value);
+
+struct CommandResult {
+  unsigned reg = 0;
+  std::uint16_t value = 0;
+  std::optional<CommandEffect> effect;
+  std::vector<WriteResult> checked;  // the effect's registers: before and after the command
+  bool verified = false;             // the effect was read back (false: no known effect to check)
+};
+// Runs a command: reads the registers its effect changes, writes the command (code word first
+// where the catalog says so; never skipped), relocks, then reads the effect's registers until they
+// hold the expected values (bounded by the session timeout) or throws Error(verify) naming them.
+CommandResult run_command(RegisterSession& s, unsigned reg, std::uint16_t value);
 
 // Decoded bits of a process-data control/status value; empty when the type has no table.
 struct DecodedBit {

@@ -45,7 +45,8 @@ class RegisterSession {
   WriteResult write(unsigned reg, std::uint16_t value, std::uint16_t mask = 0xFFFF);
 
   // Several registers as one change: all succeed, or every register already written is restored
-  // and the error is rethrown with what was rolled back.
+  // and the error is rethrown with what was rolled back. Command registers are refused
+  // (Error(usage)): they are run by command().
   std::vector<WriteResult> write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes);
   struct MaskedChange {
     unsigned reg;
@@ -54,8 +55,11 @@ class RegisterSession {
   };
   std::vector<WriteResult> write_masked(const std::vector<MaskedChange>& changes);
 
-  // R7 command (e.g. 0x7000 factory reset): unlock, write, relock; no read-back of R7.
-  void command(std::uint16_t value);
+  // A command register (catalog `command`, e.g. R7 = 0x7000): the code word first where the catalog
+  // says so (`code_word`), one write that is never skipped as unchanged, relock (verified). A
+  // command is not stored state, so R7 is not read back: its effect is checked by the caller
+  // (parameters.hpp run_command).
+  void command(unsigned reg, std::uint16_t value);
 
   void unlock();  // R31 = 0x1235, verified
   void lock();    // R31 = 0, verified
@@ -66,6 +70,7 @@ class RegisterSession {
   void close() noexcept;
 
   const TerminalImage& terminal() const { return *term_; }
+  std::chrono::milliseconds timeout() const { return opt_.timeout; }
   unsigned channel() const { return channel_; }
   std::string who() const;  // "terminal 1 (KL6001)"
 
