@@ -10,6 +10,7 @@
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/session.hpp"
 #include "help.hpp"
+#include "output.hpp"
 #include "messages.hpp"
 
 namespace kscfg::cli {
@@ -40,7 +41,7 @@ std::unique_ptr<App> build_app() {
       ->option_text("POS");
   cli.add_option("-c,--channel", a->channel_text, "Channel of a multi-channel terminal, 1-based (default 1)")
       ->option_text("N");
-  cli.add_option("--station", a->opt.station, "Station file (TOML) describing the station behind the link")
+  cli.add_option("--station", a->opt.station, "Station file (TOML) describing the station behind the link; -: stdin")
       ->option_text("FILE");
   cli.add_option("--catalog", a->opt.catalog, "Directory of extra terminal descriptions (also KSCFG_CATALOG)")
       ->option_text("DIR");
@@ -89,7 +90,7 @@ static void print_error(const std::string& msg, const std::string& hint, int cod
 
 static void print_error(const Error& e) { print_error(e.what(), e.hint(), static_cast<int>(e.code())); }
 
-int run(int argc, char** argv) {
+static int run_command(int argc, char** argv) {
   std::unique_ptr<App> app;
   try {
     app = build_app();
@@ -163,6 +164,26 @@ int run(int argc, char** argv) {
   } catch (const std::exception& e) {
     print_error(fmt::format("internal error: {}", e.what()), "please report this", 70);
     return 70;
+  }
+  return rc;
+}
+
+int run(int argc, char** argv) {
+  CheckedStdout out;
+  int rc = run_command(argc, argv);
+  // Results that did not reach stdout are a failure (exit 7), unless the command failed already
+  // and said why; a reader that went away (EPIPE) ends kscfg the way SIGPIPE ends other tools.
+  try {
+    check_stdout();
+  } catch (const Error& e) {
+    if (rc == 0 || rc == static_cast<int>(Exit::differences) || rc == static_cast<int>(Exit::changed)) {
+      print_error(e);
+      rc = static_cast<int>(e.code());
+    }
+  }
+  if (out.reader_gone()) {
+    std::signal(SIGPIPE, SIG_DFL);
+    std::raise(SIGPIPE);
   }
   return rc;
 }

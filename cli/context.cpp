@@ -10,6 +10,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/open.hpp"
+#include "output.hpp"
 #include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg::cli {
@@ -38,7 +39,7 @@ const StationLayout& Context::layout() {
     if (l) {
       layout_ = *l;
     } else if (!opt_.station.empty()) {
-      layout_ = compute_layout(load_station(opt_.station, catalog()), catalog());
+      layout_ = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
     } else {
       throw Error(Exit::usage, fmt::format("the layout of the station behind '{}' is unknown", opt_.port),
                   "give --station FILE, or run 'kscfg scan'");
@@ -84,6 +85,10 @@ void Context::finish() {
 }
 
 void Context::trace(const std::string& line) const { std::cerr << "kscfg: " << line << '\n'; }
+
+StationSpec load_station_arg(const std::string& path, const Catalog& catalog) {
+  return parse_station(read_input(path, "station file"), input_name(path), catalog);
+}
 
 void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << '\n'; }
 

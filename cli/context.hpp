@@ -59,6 +59,9 @@ class Context {
   std::optional<StationLayout> layout_;
 };
 
+// A station file named on the command line ("-": stdin); read errors carry the OS reason.
+StationSpec load_station_arg(const std::string& path, const Catalog& catalog);
+
 // Prints `j` on stdout (pretty, one document).
 void print_json(const nlohmann::json& j);
 

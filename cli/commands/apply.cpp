@@ -11,7 +11,9 @@
 namespace kscfg::cli {
 
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup) {
-  StationSpec want = load_station(file, ctx.catalog());
+  if (backup == "-")
+    throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
+  StationSpec want = load_station_arg(file, ctx.catalog());
   const StationLayout& layout = ctx.layout();
   Plan plan = make_plan(ctx.link(), layout, want, ctx.catalog(), ctx.session_options());
   if (dry_run || !plan.changes()) {

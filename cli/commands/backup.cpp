@@ -6,6 +6,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../output.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/provision/provision.hpp"
 
@@ -25,7 +26,7 @@ class Backup : public Command {
            "On a terminal screen a progress line is shown on stderr.";
   }
   std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Output file (default: stdout)")->option_text("FILE"); }
+  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Output file (default or -: stdout)")->option_text("FILE"); }
   int run(Context& ctx) override {
     bool tty = isatty(STDERR_FILENO);
     Progress progress;
@@ -39,12 +40,12 @@ class Backup : public Command {
       };
     StationSpec spec = backup_station(ctx.link(), ctx.layout(), ctx.session_options(), progress);
     std::string text = toml_comment("kscfg backup of " + ctx.link().describe()) + station_to_toml(spec);
-    if (file_.empty()) std::cout << text;
+    if (file_.empty() || file_ == "-") write_output("-", text);
     else {
       write_file_atomic(file_, text);
       if (!ctx.json()) std::cout << fmt::format("backup of {} terminals written to {}\n", spec.terminals.size(), file_);
     }
-    if (ctx.json() && !file_.empty()) print_json({{"file", file_}, {"terminal_count", spec.terminals.size()}});
+    if (ctx.json() && !file_.empty() && file_ != "-") print_json({{"file", file_}, {"terminal_count", spec.terminals.size()}});
     return 0;
   }
 

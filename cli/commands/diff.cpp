@@ -58,9 +58,9 @@ class Diff : public Command {
            "failure. \\fB\\-\\-json\\fR gives a \\fBchanged\\fR flag per terminal and overall.";
   }
   std::vector<std::string> examples() const override { return {"diff line3.toml", "--json diff line3.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file")->required()->option_text("FILE"); }
+  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
-    StationSpec want = load_station(file_, ctx.catalog());
+    StationSpec want = load_station_arg(file_, ctx.catalog());
     Plan plan = make_plan(ctx.link(), ctx.layout(), want, ctx.catalog(), ctx.session_options());
     if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);

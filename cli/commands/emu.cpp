@@ -35,11 +35,11 @@ class EmuReset : public Command {
   }
   std::vector<std::string> examples() const override { return {"emu reset", "emu reset --station line3.toml"}; }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("--station", station_, "Emulate the station of this station file")->option_text("FILE");
+    sub.add_option("--station", station_, "Emulate the station of this station file (-: stdin)")->option_text("FILE");
   }
   int run(Context& ctx) override {
     std::string path = state_path(ctx);
-    StationSpec spec = station_.empty() ? default_station() : load_station(station_, ctx.catalog());
+    StationSpec spec = station_.empty() ? default_station() : load_station_arg(station_, ctx.catalog());
     reset_emulator_state(path, spec, ctx.catalog());
     if (ctx.json()) print_json({{"state", path}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}});
     else std::cout << fmt::format("emulator reset: {} with {} terminals ({})\n", spec.coupler, spec.terminals.size(), path);

@@ -90,7 +90,7 @@ class Map : public Command {
         for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}});
         source = "command line";
       } else {
-        spec = load_station(station_file, cat);
+        spec = load_station_arg(station_file, cat);
         source = station_file;
       }
       if (!coupler_.empty()) spec.coupler = coupler_profile(coupler_).name;
@@ -101,7 +101,7 @@ class Map : public Command {
     } else {
       const StationLayout& current = ctx.layout();
       StationSpec spec;
-      if (!station_file.empty()) spec = load_station(station_file, cat);
+      if (!station_file.empty()) spec = load_station_arg(station_file, cat);
       else if (const StationSpec* s = ctx.link().station()) spec = *s;
       else
         throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),

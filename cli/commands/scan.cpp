@@ -8,6 +8,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "../output.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/scan.hpp"
 
@@ -45,7 +46,7 @@ class Scan : public Command {
             "--port rtu:/dev/ttyUSB0?baud=19200 scan --complete-evaluation on", "--json --port tcp://10.0.0.5 scan"};
   }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("--write", write_, "Save the station found as a station file")->option_text("FILE");
+    sub.add_option("--write", write_, "Save the station found as a station file (-: stdout)")->option_text("FILE");
     sub.add_flag("--force", force_, "Replace an existing file with --write");
     sub.add_option("--complete-evaluation", ce_, "The coupler maps control/status bytes (on|off)")
         ->option_text("on|off");
@@ -55,7 +56,9 @@ class Scan : public Command {
 
   int run(Context& ctx) override {
     auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"), mo = on_off(mo_, "--motorola");
-    if (!write_.empty() && !force_ && std::filesystem::exists(write_))
+    if (write_ == "-" && ctx.json())
+      throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
+    if (!write_.empty() && write_ != "-" && !force_ && std::filesystem::exists(write_))
       throw Error(Exit::usage, fmt::format("'{}' exists", write_), "add --force to replace it");
     auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
     if (!link)
@@ -85,9 +88,10 @@ class Scan : public Command {
         text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                             r.digital_out_bits);
       text += station_to_toml(r.spec);
-      write_file_atomic(write_, text);
+      write_output(write_, text);
     }
     for (const auto& n : r.notes) std::cerr << "kscfg: note: " << n << '\n';
+    if (write_ == "-") return 0;  // stdout carries the station file
     if (ctx.json()) {
       nlohmann::json terms = nlohmann::json::array();
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {

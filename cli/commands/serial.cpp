@@ -11,6 +11,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../output.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
@@ -97,7 +98,7 @@ void write_bytes(const std::vector<std::uint8_t>& v, bool hex) {
   } else {
     std::cout.write(reinterpret_cast<const char*>(v.data()), static_cast<std::streamsize>(v.size()));
   }
-  std::cout.flush();
+  check_stdout();  // a full disk or closed stdout ends the command (exit 7)
 }
 
 class SerialInit : public Command {

@@ -7,6 +7,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "../output.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/station/map.hpp"
 
@@ -82,15 +83,15 @@ class StationInit : public Command {
     return {"station init line3.toml", "station init --coupler BK3120 profibus.toml", "station init > example.toml"};
   }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("FILE", file_, "File to write (default: stdout)")->option_text("FILE");
+    sub.add_option("FILE", file_, "File to write (default or -: stdout)")->option_text("FILE");
     sub.add_option("--coupler", coupler_, "Coupler of the example (default BK9000)")->option_text("NAME");
     sub.add_flag("--force", force_, "Overwrite an existing file");
   }
   int run(Context& ctx) override {
     std::string text = example_station(coupler_);
     (void)parse_station(text, "example", ctx.catalog());  // never hand out a file kscfg itself refuses
-    if (file_.empty()) {
-      std::cout << text;
+    if (file_.empty() || file_ == "-") {
+      write_output("-", text);
       return 0;
     }
     std::error_code ec;
@@ -117,18 +118,18 @@ class StationCheck : public Command {
            "column.";
   }
   std::vector<std::string> examples() const override { return {"station check line3.toml", "--json station check line3.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file")->required()->option_text("FILE"); }
+  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
-    StationSpec spec = load_station(file_, ctx.catalog());
+    StationSpec spec = load_station_arg(file_, ctx.catalog());
     StationLayout L = compute_layout(spec, ctx.catalog());
     const CouplerProfile& p = coupler_profile(L.coupler);
     check_image_limits(L, p);
     if (ctx.json()) {
-      print_json({{"file", file_}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
+      print_json({{"file", input_name(file_)}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
                   {"in_bytes", L.in_bytes}, {"out_bytes", L.out_bytes}});
       return 0;
     }
-    std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", file_, L.coupler,
+    std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", input_name(file_), L.coupler,
                              spec.terminals.size(), L.in_bytes, L.out_bytes);
     return 0;
   }
