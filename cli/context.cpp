@@ -63,6 +63,7 @@ SessionOptions Context::session_options() const {
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
+  so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   return so;
 }

@@ -6,11 +6,12 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
 
-int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup) {
+int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force) {
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
@@ -24,6 +25,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     }
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
+  guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
   std::string path = backup.empty() ? default_apply_backup_path() : backup;
   ApplyResult r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path);
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
@@ -49,7 +51,10 @@ class Apply : public ApplyCommand {
            "\\fB\\-\\-backup\\fR to choose it) that \\fBkscfg restore\\fR puts back. If any write fails, every "
            "register this run wrote is restored and the exit status says why. Running apply twice changes "
            "nothing the second time. Exit status: 0 no change needed, 10 changed, other: failure (nothing "
-           "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR.";
+           "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "
+           "A plan that would leave a terminal without its register window at the coupler's next start "
+           "(see \\fBwrite\\fR) is refused with status 5 before anything is written; \\fB\\-\\-force\\fR "
+           "applies it anyway.";
   }
   std::vector<std::string> examples() const override {
     return {"apply line3.toml", "apply --dry-run line3.toml", "--port tcp://10.0.0.5 --json apply line3.toml"};

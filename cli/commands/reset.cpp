@@ -7,6 +7,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -26,10 +27,15 @@ class Reset : public Command {
            "(never the hardware version R16 or undescribed manufacturer registers), as one change that is "
            "rolled back on failure. It first states exactly what it will do and asks for confirmation on "
            "the terminal; \\fB\\-y\\fR skips the question. Without a terminal on stdin it refuses unless "
-           "\\fB\\-y\\fR is given.";
+           "\\fB\\-y\\fR is given. Factory values that would leave a terminal without its register window "
+           "(e.g. a KL6001's alternative format on a coupler without complete evaluation) are refused with "
+           "status 5 before the question; \\fB\\-\\-force\\fR resets anyway (see \\fBwrite\\fR).";
   }
   std::vector<std::string> examples() const override { return {"reset -t 3", "reset -t 1 -y"}; }
-  void add_cli(CLI::App& sub) override { sub.add_flag("-y,--yes", yes_, "Do not ask for confirmation"); }
+  void add_cli(CLI::App& sub) override {
+    sub.add_flag("-y,--yes", yes_, "Do not ask for confirmation");
+    sub.add_flag("--force", force_, "Reset even if a terminal would lose its register window");
+  }
   int run(Context& ctx) override {
     unsigned pos = ctx.terminal_position();
     const TerminalType& type = *ctx.layout().terminal(pos).type;
@@ -42,6 +48,13 @@ class Reset : public Command {
     }
     if (plan.values.empty() && !plan.r7)
       throw Error(Exit::refused, fmt::format("the catalog knows no factory values for {}", type.type));
+    // Factory values can lock kscfg out too (a KL6001's alternative format on a coupler without
+    // complete evaluation): check before asking.
+    unsigned chan = ctx.options().channel - 1;
+    (void)register_terminal(ctx.layout(), pos, chan);
+    std::vector<PlannedWrite> planned;
+    for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF});
+    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
     if (!yes_) {
       if (!isatty(STDIN_FILENO))
         throw Error(Exit::usage, fmt::format("reset of terminal {} ({}) needs confirmation", pos, type.type),
@@ -74,7 +87,7 @@ class Reset : public Command {
   }
 
  private:
-  bool yes_ = false;
+  bool yes_ = false, force_ = false;
 };
 
 }  // namespace

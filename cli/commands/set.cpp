@@ -6,6 +6,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
 #include "param_util.hpp"
@@ -28,7 +29,10 @@ class Set : public Command {
            "or read-back fails, every register already written is restored and the exit status says why. "
            "Baud rates outside the presets are reached through the divisor form where the terminal has one "
            "(KL6001: 4 MHz / (16 x (HB + 1))) and refused when the nearest rate is off by more than the "
-           "terminal's bit-distortion limit.";
+           "terminal's bit-distortion limit. A change that would leave a terminal without its register window "
+           "at the coupler's next start (e.g. \\fBdata\\-bytes 1\\fR on a KL6001 in the standard format, "
+           "\\fBalternative\\-format on\\fR on a coupler without complete evaluation) is refused with "
+           "status 5 before anything is written; \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR).";
   }
   std::vector<std::string> examples() const override {
     return {"set baud 19200", "set frame 8E1 baud 4800", "set rts-cts off", "-t 2 set fold 2 counter-mode on"};
@@ -41,6 +45,7 @@ class Set : public Command {
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("PAIRS", words_, "NAME VALUE pairs")->required()->option_text("NAME VALUE");
+    sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
   }
   int run(Context& ctx) override {
     if (words_.size() % 2)
@@ -49,7 +54,11 @@ class Set : public Command {
     for (std::size_t i = 0; i < words_.size(); i += 2) pairs.emplace_back(words_[i], words_[i + 1]);
     unsigned pos = ctx.terminal_position();
     const TerminalType& type = *ctx.layout().terminal(pos).type;
-    check_params(type, pairs, ctx.catalog(), ctx.options().channel - 1);
+    unsigned chan = ctx.options().channel - 1;
+    check_params(type, pairs, ctx.catalog(), chan);
+    (void)register_terminal(ctx.layout(), pos, chan);
+    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(),
+                  planned_params(type, pos, chan, pairs, ctx.catalog()), force_);
     auto s = ctx.session();
     SetResult r = set_params(*s, pairs, ctx.catalog());
     s->close();
@@ -74,6 +83,7 @@ class Set : public Command {
 
  private:
   std::vector<std::string> words_;
+  bool force_ = false;
 };
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/parameters.hpp"
 
 namespace kscfg::cli {
@@ -31,7 +32,15 @@ class Write : public Command {
            "writing it runs the command every time (never skipped as unchanged), after the code word "
            "where the manual requires it, and the command is verified by its effect where the manual "
            "documents one (R7 = 0x7000: every factory-reset register reads its factory value, else "
-           "status 6); a command whose effect kscfg does not know is reported as not verified.";
+           "status 6); a command whose effect kscfg does not know is reported as not verified. "
+           "Before writing a register that decides a terminal's process image (KL6001 R34/R35, KL6031 "
+           "R34/R35, ...), kscfg lays the station out as the coupler will at its next start; if any "
+           "terminal would lose its register window (KL6001 standard format with one data byte, the "
+           "alternative format on a coupler without complete evaluation, an image larger than the coupler "
+           "maps, ...), it refuses with status 5 and names the consequence and the setting: over the "
+           "process image there is no way back, only the coupler's configuration interface (KS2000). "
+           "\\fB\\-\\-force\\fR writes anyway after saying what recovery needs. The same check guards "
+           "\\fBset\\fR, \\fBreset\\fR, \\fBapply\\fR and \\fBrestore\\fR.";
   }
   std::vector<std::string> examples() const override {
     return {"write R32 0x0007", "write R34 0x0000 --mask 0x0001", "-t 1 write 35 5", "-t 3 write R7 0x7000"};
@@ -41,14 +50,27 @@ class Write : public Command {
     sub.add_option("REG", reg_, "Register to write")->required()->option_text("REG");
     sub.add_option("VALUE", value_, "Value 0..0xFFFF")->required()->option_text("VALUE");
     sub.add_option("--mask", mask_, "Change only the bits set in this mask")->option_text("MASK");
+    sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
   }
   int run(Context& ctx) override {
     unsigned reg = parse_register(reg_);
     std::uint16_t value = parse_value(value_);
     std::uint16_t mask = mask_.empty() ? 0xFFFF : parse_value(mask_);
+    // Before anything is written: the layout this write gives the station at the coupler's next
+    // start must leave every terminal its register window (DESIGN.md section 6).
+    unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
+    const TerminalType& ttype = *register_terminal(ctx.layout(), pos, chan).type;
+    std::vector<PlannedWrite> planned;
+    if (ttype.regs[reg].command) {
+      if (auto eff = command_effect(ttype, reg, value))
+        for (const auto& [r, v] : eff->expect) planned.push_back({pos, chan, r, v, 0xFFFF});
+    } else {
+      planned.push_back({pos, chan, reg, value, mask});
+    }
+    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
     auto s = ctx.session();
     const TerminalType& type = *s->terminal().type;
-    if (reg < proto::kRegisterCount && type.regs[reg].command) {
+    if (type.regs[reg].command) {
       if (!mask_.empty())
         throw Error(Exit::usage, fmt::format("R{} of {} is a command register: --mask does not apply to a command",
                                              reg, type.type));
@@ -104,6 +126,7 @@ class Write : public Command {
   }
 
   std::string reg_, value_, mask_;
+  bool force_ = false;
 };
 
 }  // namespace

@@ -162,6 +162,13 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
   return plan;
 }
 
+std::vector<PlannedWrite> planned_writes(const Plan& plan) {
+  std::vector<PlannedWrite> out;
+  for (const auto& cp : plan.channels)
+    for (const auto& rc : cp.registers) out.push_back({cp.position, cp.channel, rc.reg, rc.to, 0xFFFF});
+  return out;
+}
+
 std::string default_apply_backup_path() {
   auto state = std::filesystem::path(state_dir());
   std::time_t now = std::time(nullptr);

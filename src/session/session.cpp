@@ -19,12 +19,20 @@ const TerminalImage& register_terminal(const StationLayout& layout, unsigned pos
   if (channel >= t.type->channels)
     throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
                                          t.type->type, t.type->channels, channel + 1));
-  if (channel >= t.channels.size() || !t.channels[channel].window)
+  if (channel >= t.channels.size() || !t.channels[channel].window) {
+    std::string why = channel < t.channels.size() && !t.channels[channel].no_window.empty()
+                          ? t.channels[channel].no_window
+                          : fmt::format("its {} image is not mapped", t.format);
+    bool ce = why.find("complete evaluation") != std::string::npos;
     throw Error(Exit::refused,
-                fmt::format("terminal {} ({}) is mapped without its control/status byte (format '{}'); register "
-                            "communication needs it",
-                            position, t.type->type, t.format),
-                "enable complete evaluation on the coupler, or use a format that maps the control/status byte");
+                fmt::format("terminal {} ({}){} has no register window: {}", position, t.type->type,
+                            t.type->channels > 1 ? fmt::format(" channel {}", channel + 1) : "", why),
+                ce ? "switch complete evaluation on in the coupler (fieldbus master configuration or KS2000) and tell "
+                     "kscfg ([mapping] complete-evaluation = true in --station); or change the terminal's format "
+                     "through the coupler's configuration interface (KS2000)"
+                   : "the process image gives no way back: change the terminal's mapping registers through the "
+                     "coupler's configuration interface (KS2000)");
+  }
   return t;
 }
 

@@ -112,8 +112,32 @@ ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, cons
   const ImageByte *ol = by_index(ch.out, vo), *oh = by_index(ch.out, vo + 1);
   const ImageByte *il = by_index(ch.in, vi), *ih = by_index(ch.in, vi + 1);
   bool first_is_ct = !f.out.empty() && f.out.front().is_ctst() && !f.in.empty() && f.in.front().is_ctst();
-  if (ct && first_is_ct && c && st && ol && oh && il && ih)
+  if (ct && first_is_ct && c && st && ol && oh && il && ih) {
     ch.window = RegisterWindow{c->offset, st->offset, ol->offset, oh->offset, il->offset, ih->offset};
+    return ch;
+  }
+  // Say why, in the terms of the manuals: which setting leaves no room for register access.
+  if (f.ctst == CtStMode::none || !first_is_ct) {
+    ch.no_window = fmt::format("its {} image has no control/status byte", f.name);
+  } else if (!ct) {
+    ch.no_window = fmt::format("its {} image maps the control/status byte only with complete evaluation, which "
+                               "the coupler has off",
+                               f.name);
+  } else {
+    // The control/status byte is there, the two bytes for the value are not.
+    auto after = [&](const std::vector<ImageByte>& v, int from) {
+      return std::count_if(v.begin(), v.end(), [&](const ImageByte& b) { return b.index >= from; });
+    };
+    long n = std::min(after(ch.out, vo), after(ch.in, vi));
+    std::string count;
+    for (const auto* list : {&f.out, &f.in})
+      for (const auto& e : *list)
+        if (e.count_register && count.empty())
+          count = fmt::format(" (R{} = {})", *e.count_register, regs[*e.count_register] & 0xFFu);
+    ch.no_window = fmt::format("its {} image maps {} data byte{} after the control/status byte{}; a register "
+                               "value needs 2",
+                               f.name, n, n == 1 ? "" : "s", count);
+  }
   return ch;
 }
 

@@ -84,3 +84,152 @@ TEST_CASE("a command without effect is not reported as verified", "[safety][comm
   CHECK(a.rc == 2);
   CHECK_THAT(a.err, Catch::Contains("command register"));
 }
+
+namespace {
+
+// An emulator with its own station (emu reset --station).
+struct Station {
+  TempDir dir;
+  std::string state = dir.file("emulator.json");
+  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}, {"XDG_STATE_HOME", dir.file("xdg")}};
+  explicit Station(const std::string& toml = "") {
+    if (toml.empty()) return;
+    write_text(dir.file("station.toml"), toml);
+    Run r = (*this)({"emu", "reset", "--station", dir.file("station.toml")});
+    REQUIRE(r.rc == 0);
+  }
+  Run operator()(const std::vector<std::string>& args) const { return run_kscfg(args, env); }
+  std::string snapshot() const {
+    Run b = (*this)({"backup"});
+    REQUIRE(b.rc == 0);
+    return b.out;
+  }
+};
+
+struct LockoutCase {
+  std::string name;
+  std::string station;                   // "" = the default emulator station
+  std::vector<std::string> setup;        // run first (must succeed)
+  std::vector<std::string> change;       // the command that would lock kscfg out
+  std::vector<std::string> says;         // in the refusal
+  std::vector<std::string> after_force;  // a command that shows the change landed
+  int rc = 0;                            // its exit status
+  std::string expect;                    // in its stdout (rc 0) or stderr
+};
+
+const char* kBK7300 = R"(coupler = "BK7300"
+[[terminal]]
+type = "KL6001"
+alternative-format = false
+[[terminal]]
+type = "KL5101"
+[[terminal]]
+type = "KL9010"
+)";
+
+std::string bk4000() {
+  std::string s = "coupler = \"BK4000\"\n[[terminal]]\ntype = \"KL6031\"\nextended-image = false\nimage-size = 3\n";
+  for (int i = 0; i < 9; ++i) s += "[[terminal]]\ntype = \"KL5101\"\n";
+  return s + "[[terminal]]\ntype = \"KL9010\"\n";
+}
+
+}  // namespace
+
+TEST_CASE("writes that would lock kscfg out are refused with exit 5 and leave the station as it was",
+          "[safety][lockout]") {
+  std::vector<LockoutCase> cases = {
+      {"R35 = 1 in the standard format", "", {"set", "alternative-format", "off"}, {"-t", "1", "write", "R35", "1"},
+       {"terminal 1 (KL6001) would have no register window: its standard image maps 1 data byte after the "
+        "control/status byte (R35 = 1)",
+        "caused by terminal 1 (KL6001): data-bytes = 1 (R35 0x0003 -> 0x0001)", "R35 = 0x0003", "KS2000", "--force"},
+       {"-t", "1", "read", "R8"}, 5, "has no register window"},
+      {"set data-bytes 1 in the standard format", "", {"set", "alternative-format", "off"},
+       {"-t", "1", "set", "data-bytes", "1"}, {"data-bytes = 1"}, {"-t", "1", "read", "R8"}, 5, "1 data byte"},
+      {"standard format with one byte in one change", "", {}, {"set", "alternative-format", "off", "data-bytes", "1"},
+       {"terminal 1 (KL6001): alternative-format = off (R34 0x0003 -> 0x0001), data-bytes = 1 (R35 0x0003 -> 0x0001)",
+        "R34 = 0x0003, R35 = 0x0003"},
+       {"-t", "1", "read", "R8"}, 5, "1 data byte"},
+      {"alternative format without complete evaluation", kBK7300, {}, {"-t", "1", "set", "alternative-format", "on"},
+       {"maps the control/status byte only with complete evaluation", "alternative-format = on",
+        "complete evaluation on in the fieldbus master"},
+       {"-t", "1", "read", "R8"}, 5, "only with complete evaluation"},
+      {"factory reset to the alternative format without complete evaluation", kBK7300, {},
+       {"-t", "1", "reset", "-y"}, {"alternative-format = on"}, {"-t", "1", "read", "R8"}, 5, "complete evaluation"},
+      {"a change of another terminal that shifts offsets past the coupler's image", bk4000(), {},
+       {"-t", "1", "set", "extended-image", "on", "image-size", "22"},
+       {"3 terminals would have no register window: terminal 8 (KL5101)", "terminal 10 (KL5101)",
+        "more than the BK4000 maps (64 and 64)", "caused by terminal 1 (KL6031): extended-image = on"},
+       {"-t", "1", "read", "--raw", "R35"}, 0, "0x0017\n"},
+  };
+  for (const auto& c : cases) {
+    SECTION(c.name) {
+      Station st(c.station);
+      if (!c.setup.empty()) REQUIRE(st(c.setup).rc == 0);
+      std::string before = st.snapshot();
+      auto cmd = c.change;
+      cmd.insert(cmd.begin(), "-v");
+      Run r = st(cmd);
+      INFO(r.err);
+      CHECK(r.rc == 5);
+      CHECK_THAT(r.err, Catch::Contains("kscfg: error: refused: after the coupler's next start"));
+      for (const auto& s : c.says) CHECK_THAT(r.err, Catch::Contains(s));
+      // Nothing was written: no register write in the trace, every register as it was.
+      CHECK(count(r.err, ": write R") == 0);
+      CHECK(st.snapshot() == before);
+      // --force writes anyway, after saying what recovery needs.
+      auto forced = c.change;
+      forced.push_back("--force");
+      Run f = st(forced);
+      INFO(f.err);
+      CHECK(f.rc == 0);
+      CHECK_THAT(f.err, Catch::Contains("kscfg: warning: --force: writing although after the coupler's next start"));
+      CHECK_THAT(f.err, Catch::Contains("KS2000"));
+      Run a = st(c.after_force);
+      CHECK(a.rc == c.rc);
+      CHECK_THAT(c.rc == 0 ? a.out : a.err, Catch::Contains(c.expect));
+    }
+  }
+}
+
+TEST_CASE("a terminal without a register window names the real cause", "[safety][lockout]") {
+  Station st;
+  REQUIRE(st({"set", "alternative-format", "off"}).rc == 0);
+  REQUIRE(st({"-t", "1", "write", "R35", "1", "--force"}).rc == 0);
+  // The emulated coupler starts with every run: from now on R35 = 1 is in effect.
+  Run r = st({"-t", "1", "read", "R8"});
+  CHECK(r.rc == 5);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("terminal 1 (KL6001) has no register window: its standard image maps 1 data "
+                                    "byte after the control/status byte (R35 = 1); a register value needs 2"));
+  CHECK(r.err.find("mapped without its control/status byte") == std::string::npos);
+  Station ce(kBK7300);
+  REQUIRE(ce({"-t", "1", "set", "alternative-format", "on", "--force"}).rc == 0);
+  Run r2 = ce({"-t", "1", "reset", "-y"});
+  CHECK(r2.rc == 5);
+  CHECK_THAT(r2.err, Catch::Contains("maps the control/status byte only with complete evaluation, which the "
+                                     "coupler has off"));
+  // Writes that keep every window are not even checked further: no extra reads for R32.
+  Emu emu;
+  Run w = emu({"-v", "write", "R32", "7"});
+  CHECK(w.rc == 0);
+  CHECK(count(w.err, ": read R34") == 0);
+}
+
+TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "[safety][lockout]") {
+  Station st;
+  std::string before = st.snapshot();
+  std::string file = "[[terminal]]\ntype = \"KL6001\"\nalternative-format = false\ndata-bytes = 1\n"
+                     "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
+                     "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+  write_text(st.dir.file("lock.toml"), file);
+  for (const char* cmd : {"apply", "restore"}) {
+    Run r = st({cmd, st.dir.file("lock.toml")});
+    CHECK(r.rc == 5);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("data-bytes = 1"));
+    CHECK(st.snapshot() == before);
+  }
+  Run f = st({"apply", "--force", st.dir.file("lock.toml")});
+  CHECK(f.rc == 10);
+  CHECK_THAT(f.err, Catch::Contains("warning: --force"));
+}

@@ -8,6 +8,7 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"
 
@@ -51,6 +52,9 @@ struct ApplyResult {
   std::string backup_path;  // the touched registers before the change ("" when nothing changed)
   bool changed = false;
 };
+
+// The register writes `plan` makes (for guard_lockout).
+std::vector<PlannedWrite> planned_writes(const Plan& plan);
 
 // Carries out `plan`: first saves the touched registers' current values as a station file at
 // `backup_path` (atomically), then writes terminal by terminal, each write verified. If anything

@@ -19,6 +19,8 @@ namespace kscfg {
 struct SessionOptions {
   std::chrono::milliseconds timeout{1000};        // per acknowledge
   std::function<void(const std::string&)> trace;  // -v: every exchange
+  // Diagnostics the user must see (stderr): a crashed session's leftovers finished, a forced write.
+  std::function<void(const std::string&)> notice;
   bool skip_unlock = false;                       // test hook (KSCFG_TEST_NO_UNLOCK): write without code word
 };
 

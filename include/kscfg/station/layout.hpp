@@ -31,7 +31,10 @@ struct ChannelImage {
   std::vector<ImageByte> out, in;
   std::size_t out_struct = 0, in_struct = 0;  // size of the K-bus structure
   int value_index = 1;                        // structure index of the register value's low byte
-  std::optional<RegisterWindow> window;       // empty: control/status byte not mapped
+  std::optional<RegisterWindow> window;       // empty: no register communication (see no_window)
+  // Why there is no window, e.g. "its standard image maps 1 data byte after the control/status
+  // byte (R35 = 1); a register value needs 2". Empty when there is one.
+  std::string no_window;
 };
 
 struct TerminalImage {

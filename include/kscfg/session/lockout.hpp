@@ -1,0 +1,70 @@
+// No write that locks kscfg out (DESIGN.md section 6, issue 10 item 4): before a write, the station
+// is laid out as the coupler will lay it out at its next start with the written values; a terminal
+// that would lose its register window (KL6001 standard format with one data byte, alternative
+// format without complete evaluation, an image that outgrows the coupler, ...) makes the write a
+// refusal unless the user forces it.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/link/link.hpp"
+#include "kscfg/session/session.hpp"
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+// One register write a command is about to make: new = (old & ~mask) | (value & mask).
+struct PlannedWrite {
+  unsigned position = 0;  // 1-based
+  unsigned channel = 0;   // 0-based
+  unsigned reg = 0;
+  std::uint16_t value = 0;
+  std::uint16_t mask = 0xFFFF;
+};
+
+struct LostWindow {
+  unsigned position = 0, channel = 0;
+  std::string who;     // "terminal 1 (KL6001)"
+  std::string reason;  // why it has no window in the new layout
+};
+
+struct ChangedMapping {  // a planned write to a register that decides an image
+  unsigned position = 0, channel = 0, reg = 0;
+  std::string who;
+  std::uint16_t before = 0, after = 0;
+  std::string setting;  // "data-bytes = 1 (R35 0x0003 -> 0x0001)"
+};
+
+struct LockoutReport {
+  bool checked = false;  // false: no planned write touches a register that decides an image
+  std::vector<ChangedMapping> causes;
+  std::vector<LostWindow> lost;
+  bool locks_out() const { return !lost.empty(); }
+  // "after the coupler's next start terminal 1 (KL6001) would have no register window (its standard
+  //  image maps 1 data byte ...), because of terminal 1 (KL6001) data-bytes = 1 (R35 0x0003 -> 0x0001)"
+  std::string consequence() const;
+  // What it takes to get register access back once the change is in the terminal.
+  std::string recovery() const;
+};
+
+// Computes the layout the planned writes produce at the coupler's next start and compares it with
+// `current`. Reads the image-deciding registers (KL6001 R34/R35, KL6031 R34/R35, ...) of every
+// terminal it can reach, but only when a planned write touches one of them; otherwise nothing is
+// read and `checked` is false.
+LockoutReport check_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes);
+
+// check_lockout, then: a lock-out is Error(Exit::refused) naming the consequence and the setting
+// that causes it; with `force` the write may go ahead and so.notice is told what recovery needs.
+void guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+                   const std::vector<PlannedWrite>& writes, bool force);
+
+// Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).
+std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,
+                                         const std::vector<std::pair<std::string, std::string>>& pairs,
+                                         const Catalog& catalog);
+
+}  // namespace kscfg
