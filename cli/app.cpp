@@ -37,8 +37,10 @@ std::unique_ptr<App> build_app() {
   cli.add_option("-p,--port", a->opt.port,
                  "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..]")
       ->option_text("URI");
-  cli.add_option("-t,--terminal", a->terminal_text, "Plug position of the terminal, 1-based (default: first with registers)")
-      ->option_text("POS");
+  cli.add_option("-t,--terminal", a->terminal_text,
+                 "Terminal(s): plug position (3), type (KL6031), list (1,3), range (2-4) or all; default: the first "
+                 "with registers")
+      ->option_text("SEL");
   cli.add_option("-c,--channel", a->channel_text, "Channel of a multi-channel terminal, 1-based (default 1)")
       ->option_text("N");
   cli.add_option("--station", a->opt.station, "Station file (TOML) describing the station behind the link; -: stdin")
@@ -131,8 +133,8 @@ static int run_command(int argc, char** argv) {
   int rc = 0;
   try {
     if (!app->terminal_text.empty()) {
-      o.terminal = static_cast<unsigned>(parse_uint(app->terminal_text, 255, "terminal position"));
-      if (o.terminal == 0) throw Error(Exit::usage, "invalid terminal position '0': positions start at 1");
+      o.selection = parse_terminal_selection(app->terminal_text);
+      if (o.selection.single_position()) o.terminal = o.selection.ranges[0].first;
     }
     if (!app->channel_text.empty()) {
       o.channel = static_cast<unsigned>(parse_uint(app->channel_text, 16, "channel"));

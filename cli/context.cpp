@@ -50,13 +50,36 @@ const StationLayout& Context::layout() {
 
 unsigned Context::terminal_position() {
   const auto& L = layout();
-  if (opt_.terminal) {
-    (void)L.terminal(opt_.terminal);  // throws for a position that does not exist
-    return opt_.terminal;
+  if (terminal_given()) {
+    auto v = select_terminals(opt_.selection, L, false);
+    if (v.size() != 1) {
+      std::string list;
+      for (unsigned p : v) list += (list.empty() ? "" : ", ") + fmt::format("{} ({})", p, L.terminal(p).type->type);
+      throw Error(Exit::usage,
+                  fmt::format("this command works on one terminal; -t {} selects {}", opt_.selection.text,
+                              v.empty() ? std::string("none") : list),
+                  "give one plug position, e.g. -t " + std::to_string(v.empty() ? 1u : v.front()));
+    }
+    return v.front();
   }
   for (const auto& t : L.terminals)
     if (t.type->has_registers) return t.position;
   throw Error(Exit::usage, "the station has no terminal with registers");
+}
+
+std::vector<unsigned> Context::terminal_positions(bool registers_only) {
+  if (!terminal_given()) return {terminal_position()};
+  auto v = select_terminals(opt_.selection, layout(), registers_only);
+  if (v.empty())
+    throw Error(Exit::usage, fmt::format("-t {} selects no terminal{}", opt_.selection.text,
+                                         registers_only ? " with registers" : ""),
+                "'kscfg info' lists the station");
+  return v;
+}
+
+bool Context::several_terminals() {
+  if (!terminal_given()) return false;
+  return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
 }
 
 SessionOptions Context::session_options() const {
@@ -68,8 +91,9 @@ SessionOptions Context::session_options() const {
   return so;
 }
 
-std::unique_ptr<RegisterSession> Context::session() {
-  unsigned pos = terminal_position();
+std::unique_ptr<RegisterSession> Context::session() { return session(terminal_position()); }
+
+std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
   const TerminalImage& t = register_terminal(layout(), pos, opt_.channel - 1);
   return std::make_unique<RegisterSession>(link(), t, opt_.channel - 1, session_options());
 }
@@ -92,6 +116,15 @@ StationSpec load_station_arg(const std::string& path, const Catalog& catalog) {
 }
 
 void print_json(const nlohmann::json& j) { std::cout << j.dump(2) << '\n'; }
+
+void print_json_terminals(Context& ctx, const std::vector<nlohmann::json>& objects) {
+  if (ctx.several_terminals() || objects.size() != 1) print_json({{"terminals", objects}});
+  else print_json(objects.front());
+}
+
+std::string terminal_prefix(Context& ctx, const TerminalImage& t) {
+  return ctx.several_terminals() ? fmt::format("{:<3} {:<7} ", t.position, t.type->type) : std::string();
+}
 
 nlohmann::json param_json(const std::string& v) {
   // The same rule as station files (station_to_toml): digits are a number, on/off a bool.

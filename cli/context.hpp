@@ -10,13 +10,16 @@
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
+#include "kscfg/station/select.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg::cli {
 
 struct GlobalOptions {
   std::string port;           // --port/-p, KSCFG_PORT, default "emu"
-  unsigned terminal = 0;      // --terminal/-t (1-based; 0 = not given)
+  TerminalSelection selection;  // --terminal/-t as given (empty: not given)
+  unsigned terminal = 0;      // -t when it names one plug position (1-based; 0 = not given or not a position):
+                              // commands use Context::terminal_position(), which also resolves types
   unsigned channel = 1;       // --channel/-c (1-based)
   std::string station;        // --station FILE
   std::string catalog;        // --catalog DIR
@@ -39,11 +42,21 @@ class Context {
   bool link_open() const { return link_ != nullptr; }
   // The station as laid out by the coupler: from the link, or from --station.
   const StationLayout& layout();
-  // The terminal selected by -t (default: the first terminal with registers).
+  // -t was given.
+  bool terminal_given() const { return !opt_.selection.empty(); }
+  // The one terminal -t selects: a position, or a type the station has once (several are an
+  // error); without -t the first terminal with registers.
   unsigned terminal_position();
+  // The terminals -t selects in plug order (without -t: terminal_position()). `registers_only`:
+  // "all", ranges and types keep only terminals with registers.
+  std::vector<unsigned> terminal_positions(bool registers_only = true);
+  // The selection means several terminals (a list, a range, all, or a type several have): output
+  // then names the terminal of each line, and JSON is {"terminals": [...]}.
+  bool several_terminals();
   SessionOptions session_options() const;
-  // A register session with the selected terminal and channel.
+  // A register session with the selected terminal (or the one at `position`) and channel.
   std::unique_ptr<RegisterSession> session();
+  std::unique_ptr<RegisterSession> session(unsigned position);
 
   // Saves emulator state etc. Called once after the command, also after a failed command.
   void finish();
@@ -64,6 +77,13 @@ StationSpec load_station_arg(const std::string& path, const Catalog& catalog);
 
 // Prints `j` on stdout (pretty, one document).
 void print_json(const nlohmann::json& j);
+
+// One object per selected terminal: the object itself, or {"terminals": [...]} when the selection
+// means several terminals (docs/json.md, "Terminal selection").
+void print_json_terminals(Context& ctx, const std::vector<nlohmann::json>& objects);
+
+// "1   KL6001  " in front of each line when -t selects several terminals; "" otherwise.
+std::string terminal_prefix(Context& ctx, const TerminalImage& t);
 
 // A parameter's value typed as in a station file (docs/json.md): a number where the text is a
 // number, true/false for on/off, a string otherwise.

@@ -5,6 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../progress.hpp"
 #include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -25,22 +26,42 @@ class Dump : public Command {
   std::vector<std::string> examples() const override { return {"dump", "-t 3 dump", "--json dump"}; }
   void add_cli(CLI::App&) override {}
   int run(Context& ctx) override {
-    auto s = ctx.session();
+    auto positions = ctx.terminal_positions();
+    std::vector<nlohmann::json> docs;
+    ProgressBar bar(ctx, "dump", 48 * positions.size());
+    for (std::size_t i = 0; i < positions.size(); ++i) docs.push_back(dump_one(ctx, positions[i], bar, 48 * i));
+    bar.finish();
+    if (ctx.json()) print_json_terminals(ctx, docs);
+    return 0;
+  }
+
+ private:
+  nlohmann::json dump_one(Context& ctx, unsigned pos, ProgressBar& bar, std::size_t done) {
+    auto s = ctx.session(pos);
     const TerminalType& type = *s->terminal().type;
     std::array<std::uint16_t, 48> v{};
-    for (unsigned r = 0; r < 48; ++r) v[r] = s->read(r);
+    for (unsigned r = 0; r < 48; ++r) {
+      bar.update(done + r, fmt::format("terminal {} R{}", pos, r));
+      v[r] = s->read(r);
+    }
     s->close();
+    bar.update(done + 48);
+    bar.finish();
     unsigned ch = ctx.options().channel - 1;
+    std::string prefix = terminal_prefix(ctx, s->terminal());
     nlohmann::json arr = nlohmann::json::array();
-    if (!ctx.json())
-      std::cout << fmt::format("{:<4} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", "REG", "VALUE", "STORAGE", "DEFAULT", "",
+    if (!ctx.json() && (prefix.empty() || pos == ctx.terminal_positions().front()))
+      std::cout << (prefix.empty() ? "" : fmt::format("{:<3} {:<7} ", "POS", "TYPE"))
+                << fmt::format("{:<4} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", "REG", "VALUE", "STORAGE", "DEFAULT", "",
                                "NAME", "MEANING");
     for (unsigned r = 0; r < 64; ++r) {
       const RegisterDef& d = type.regs[r];
       if (r >= 48) {
         if (ctx.json()) arr.push_back({{"register", r}, {"implemented", false}});
-        else std::cout << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, "-", "-", "-", "", "-",
-                                      "not implemented");
+        else
+          std::cout << prefix
+                    << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, "-", "-", "-", "", "-",
+                                   "not implemented");
         continue;
       }
       bool differs = d.storage == proto::Storage::seerom && v[r] != d.def;
@@ -54,17 +75,15 @@ class Dump : public Command {
                        {"at_default", has_default ? nlohmann::json(v[r] == d.def) : nlohmann::json(nullptr)},
                        {"name", d.name}, {"meaning", register_meaning(type, r, v[r], ch)}});
       } else {
-        std::cout << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),
+        std::cout << prefix
+                  << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),
                                  proto::storage_name(d.storage), def, differs ? "*" : "", register_label(type, r),
                                  register_meaning(type, r, v[r], ch));
       }
     }
-    if (ctx.json()) {
-      nlohmann::json j = terminal_json(s->terminal(), ch);
-      j["registers"] = arr;
-      print_json(j);
-    }
-    return 0;
+    nlohmann::json j = terminal_json(s->terminal(), ch);
+    j["registers"] = arr;
+    return j;
   }
 };
 

@@ -76,24 +76,22 @@ class EmuFault : public Command {
     if (!emu) throw Error(Exit::usage, "'kscfg emu fault' works on the emulator");
     EmulatedStation& st = emu->emulated();
     if (!delay_.empty()) st.response_delay = static_cast<unsigned>(parse_uint(delay_, 1000, "delay"));
+    unsigned selected = ctx.terminal_given() ? ctx.terminal_position() : 0;
     auto channels = [&]() {
       std::vector<ChannelModel*> v;
       const auto& L = st.layout();
       for (const auto& t : L.terminals) {
-        if (ctx.options().terminal && t.position != ctx.options().terminal) continue;
+        if (selected && t.position != selected) continue;
         for (unsigned c = 0; c < t.type->channels; ++c)
-          if (st.has_channel(t.position, c) && (!ctx.options().terminal || c == ctx.options().channel - 1))
+          if (st.has_channel(t.position, c) && (!selected || c == ctx.options().channel - 1))
             v.push_back(&st.channel(t.position, c));
       }
-      if (ctx.options().terminal && v.empty()) {
-        (void)L.terminal(ctx.options().terminal);
-        throw Error(Exit::usage, fmt::format("terminal {} has no registers", ctx.options().terminal));
-      }
+      if (selected && v.empty()) throw Error(Exit::usage, fmt::format("terminal {} has no registers", selected));
       return v;
     }();
     if (clear_)
       for (auto* c : channels) c->faults = {};
-    if ((!ignore_.empty() || mute_) && !ctx.options().terminal)
+    if ((!ignore_.empty() || mute_) && !selected)
       throw Error(Exit::usage, "give the terminal with -t for --ignore-write or --mute");
     if (!ignore_.empty()) channels.front()->faults.ignore_writes.insert(parse_register(ignore_));
     if (mute_) channels.front()->faults.mute = true;

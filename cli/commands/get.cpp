@@ -5,6 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "param_util.hpp"
 
@@ -27,22 +28,43 @@ class Get : public Command {
     sub.add_option("NAME", names_, "Parameter name(s)")->required()->option_text("NAME");
   }
   int run(Context& ctx) override {
-    unsigned pos = ctx.terminal_position();
-    const TerminalType& type = *ctx.layout().terminal(pos).type;
-    std::vector<const ParamDef*> params;
-    for (const auto& n : names_) params.push_back(&find_param(type, n, ctx.catalog(), ctx.options().channel - 1));
-    auto s = ctx.session();
-    auto vals = read_params(*s, params);
-    s->close();
-    if (ctx.json()) {
-      nlohmann::json values = nlohmann::json::object();
-      for (const auto& v : vals) values[v.param->name] = param_json(v.value);
-      nlohmann::json j = terminal_json(s->terminal(), s->channel());
-      j["values"] = values;
-      print_json(j);
-      return 0;
+    unsigned ch = ctx.options().channel - 1;
+    // Every name is checked before anything is read. With several terminals, those whose type has
+    // none of the names are left out (-t all get baud: the serial terminals).
+    std::vector<std::pair<unsigned, std::vector<const ParamDef*>>> work;
+    bool several = ctx.several_terminals();
+    for (unsigned pos : ctx.terminal_positions()) {
+      const TerminalType& type = *ctx.layout().terminal(pos).type;
+      if (several && std::none_of(names_.begin(), names_.end(), [&](const std::string& n) {
+            const ParamDef* p = type.param(n);
+            return p && (!p->channel || *p->channel == ch);
+          }))
+        continue;
+      std::vector<const ParamDef*> params;
+      for (const auto& n : names_) params.push_back(&find_param(type, n, ctx.catalog(), ch));
+      work.emplace_back(pos, params);
     }
-    for (const auto& v : vals) std::cout << v.value << '\n';
+    if (work.empty())
+      throw Error(Exit::usage, fmt::format("no terminal selected by -t {} has {}", ctx.options().selection.text,
+                                           names_.front()));
+    std::vector<nlohmann::json> docs;
+    for (const auto& [pos, params] : work) {
+      auto s = ctx.session(pos);
+      auto vals = read_params(*s, params);
+      s->close();
+      if (ctx.json()) {
+        nlohmann::json values = nlohmann::json::object();
+        for (const auto& v : vals) values[v.param->name] = param_json(v.value);
+        nlohmann::json j = terminal_json(s->terminal(), s->channel());
+        j["values"] = values;
+        docs.push_back(j);
+        continue;
+      }
+      // One terminal: bare values, one per line; several: "POS NAME VALUE".
+      for (const auto& v : vals)
+        std::cout << (several ? fmt::format("{} {} ", pos, v.param->name) : std::string()) << v.value << '\n';
+    }
+    if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }
 

@@ -1,10 +1,14 @@
 // kscfg info: what terminals are these? R8 type, R9 version, R10..R13, hardware version.
 #include <fmt/format.h>
 
+#include <unistd.h>
+
+#include <cstdlib>
 #include <iostream>
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../help.hpp"
 #include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
@@ -56,10 +60,15 @@ class Info : public Command {
 
   int run(Context& ctx) override {
     const StationLayout& L = ctx.layout();
-    if (ctx.options().terminal) return one(ctx, ctx.terminal_position());
+    if (ctx.terminal_given() && !ctx.several_terminals()) return one(ctx, ctx.terminal_position());
+    std::vector<unsigned> positions;
+    if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
+    else
+      for (const auto& t : L.terminals) positions.push_back(t.position);
     nlohmann::json arr = nlohmann::json::array();
-    std::vector<std::array<std::string, 6>> rows;
-    for (const auto& t : L.terminals) {
+    std::vector<std::vector<std::string>> rows;
+    for (unsigned pos : positions) {
+      const TerminalImage& t = L.terminal(pos);
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
                        {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
       std::string r8 = "-", ver = "-";
@@ -76,7 +85,7 @@ class Info : public Command {
                                    t.position, v8, t.type->type);
       }
       arr.push_back(j);
-      rows.push_back({fmt::format("{}", t.position), t.type->type, t.type->title, r8, ver, image_text(t)});
+      rows.push_back({fmt::format("{}", t.position), t.type->type, r8, ver, image_columns(t), t.type->title});
     }
     if (ctx.json()) {
       nlohmann::json j{{"coupler", L.coupler}};
@@ -86,12 +95,66 @@ class Info : public Command {
       return 0;
     }
     std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
-    std::size_t wt = 5;
-    for (auto& r : rows) wt = std::max(wt, r[2].size());
-    std::cout << fmt::format("{:<4} {:<7} {:<{}} {:<5} {:<4} {}\n", "POS", "TYPE", "TITLE", wt, "R8", "VER", "IMAGE");
-    for (auto& r : rows)
-      std::cout << fmt::format("{:<4} {:<7} {:<{}} {:<5} {:<4} {}\n", r[0], r[1], r[2], wt, r[3], r[4], r[5]);
+    print_table(rows);
     return 0;
+  }
+
+  // POS TYPE R8 VER IMAGE TITLE: the title last, cut with an ellipsis to the terminal's width on
+  // a terminal, whole but wrapped under its column (80 wide) when piped. (The image format is in
+  // `info -t POS`, `map` and the JSON.)
+  static void print_table(std::vector<std::vector<std::string>>& rows) {
+    constexpr std::size_t n = 5;  // columns before the title
+    rows.insert(rows.begin(), {"POS", "TYPE", "R8", "VER", "IMAGE", "TITLE"});
+    std::vector<std::size_t> w(n, 0);
+    for (const auto& r : rows)
+      for (std::size_t c = 0; c < n; ++c) w[c] = std::max(w[c], r[c].size());
+    std::size_t title_col = 0;
+    for (auto x : w) title_col += x + 1;
+    std::size_t width = output_width();
+    bool tty = isatty(STDOUT_FILENO) != 0;
+    std::size_t room = width > title_col + 10 ? width - title_col : 10;
+    for (const auto& r : rows) {
+      std::string line;
+      for (std::size_t c = 0; c < n; ++c) line += fmt::format("{:<{}} ", r[c], w[c]);
+      std::string title = r[n];
+      if (tty) {
+        std::string e = ellipsis();
+        std::size_t ew = e == "..." ? 3 : 1;  // "\u2026" is one column
+        if (title.size() > room) title = title.substr(0, room - ew) + e;
+        std::cout << line << title << '\n';
+      } else {
+        std::cout << line << wrap(title, title_col + room, title_col, title_col);
+      }
+    }
+  }
+
+  static std::string ellipsis() {
+    for (const char* v : {"LC_ALL", "LC_CTYPE", "LANG"}) {
+      const char* e = std::getenv(v);
+      if (!e || !*e) continue;
+      std::string s = e;
+      return s.find("UTF-8") != std::string::npos || s.find("utf8") != std::string::npos ? "\u2026" : "...";
+    }
+    return "...";
+  }
+
+  // "in 0-7 out 0-7", "in 48.0-48.3": where the bytes (or bits) are, compact.
+  static std::string image_columns(const TerminalImage& t) {
+    auto range = [](std::size_t a, std::size_t n) { return n == 1 ? fmt::format("{}", a) : fmt::format("{}-{}", a, a + n - 1); };
+    auto bits = [](std::size_t first, unsigned n) {
+      std::size_t last = first + n - 1;
+      return n == 1 ? fmt::format("{}.{}", first / 8, first % 8)
+                    : fmt::format("{}.{}-{}.{}", first / 8, first % 8, last / 8, last % 8);
+    };
+    std::string s;
+    if (t.complex) {
+      if (t.in_size) s += "in " + range(t.in_offset, t.in_size);
+      if (t.out_size) s += (s.empty() ? "" : " ") + std::string("out ") + range(t.out_offset, t.out_size);
+    } else {
+      if (t.bits_in) s += "in " + bits(t.in_bit, t.bits_in);
+      if (t.bits_out) s += (s.empty() ? "" : " ") + std::string("out ") + bits(t.out_bit, t.bits_out);
+    }
+    return s.empty() ? "-" : s;
   }
 
   int one(Context& ctx, unsigned pos) {

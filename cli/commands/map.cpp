@@ -61,7 +61,9 @@ class Map : public Command {
     sub.add_option("--word-alignment", wa_, "Words on even offsets: on or off")->option_text("on|off");
     sub.add_flag("--online", online_, "Read the terminals' mapping registers through the link (also with --station)");
     sub.add_flag("--grid", grid_, "Show the byte grid also when stdout is not a terminal");
-    sub.add_option("--color", color_, "Colours in the byte grid: auto (default), always, never")
+    sub.add_option("--color", color_,
+                   "Colours in the byte grid: auto (default: on a terminal, not with NO_COLOR or TERM=dumb), always "
+                   "(also shows the grid), never")
         ->option_text("WHEN");
     sub.add_flag("--list-couplers", list_, "List the known couplers and their default settings");
   }
@@ -122,7 +124,15 @@ class Map : public Command {
     check_image_limits(L, p);
     for (const auto& n : notes) std::cerr << "kscfg: note: " << n << '\n';
 
-    unsigned pos = ctx.options().terminal;
+    unsigned pos = 0;
+    if (ctx.terminal_given()) {
+      auto v = select_terminals(ctx.options().selection, L, false);
+      if (v.size() != 1)
+        throw Error(Exit::usage, fmt::format("'map -t' shows one terminal; -t {} selects {}", ctx.options().selection.text,
+                                             v.size()),
+                    "give one plug position or a type the station has once");
+      pos = v.front();
+    }
     if (ctx.json()) {
       nlohmann::json j = map_json(L, p);
       j["source"] = source;
@@ -136,14 +146,17 @@ class Map : public Command {
       return 0;
     }
     bool tty = isatty(STDOUT_FILENO) != 0;
+    // auto: colours on a terminal, unless NO_COLOR is set or TERM is dumb; always: colours (and the grid).
     const char* no_color = std::getenv("NO_COLOR");
-    bool color = color_ == "always" || (color_ == "auto" && tty && !(no_color && *no_color));
+    const char* term = std::getenv("TERM");
+    bool dumb = !term || std::string(term) == "dumb";
+    bool color = color_ == "always" || (color_ == "auto" && tty && !(no_color && *no_color) && !dumb);
     if (pos) {
       std::cout << render_terminal(L, p, pos);
       return 0;
     }
     std::cout << render_table(L, p);
-    if (grid_ || tty) std::cout << '\n' << render_grid(L, color);
+    if (grid_ || tty || color_ == "always") std::cout << '\n' << render_grid(L, color);
     return 0;
   }
 

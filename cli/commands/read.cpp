@@ -42,7 +42,15 @@ class Read : public Command {
     std::vector<unsigned> regs;
     for (const auto& r : regs_)
       for (unsigned x : parse_register_list(r)) regs.push_back(x);
-    auto s = ctx.session();
+    std::vector<nlohmann::json> docs;
+    for (unsigned pos : ctx.terminal_positions()) docs.push_back(read_one(ctx, pos, regs));
+    if (ctx.json()) print_json_terminals(ctx, docs);
+    return 0;
+  }
+
+ private:
+  nlohmann::json read_one(Context& ctx, unsigned pos, const std::vector<unsigned>& regs) {
+    auto s = ctx.session(pos);
     const TerminalType& type = *s->terminal().type;
     for (unsigned r : regs)
       if (!proto::is_implemented(r))
@@ -63,21 +71,21 @@ class Read : public Command {
       }
       nlohmann::json j = terminal_json(s->terminal(), ch);
       j["registers"] = arr;
-      print_json(j);
-      return 0;
+      return j;
     }
+    std::string prefix = terminal_prefix(ctx, s->terminal());
     for (std::size_t i = 0; i < regs.size(); ++i) {
-      if (raw_) {
-        std::cout << hex4(vals[i]) << '\n';
+      if (raw_) {  // several terminals: "POS VALUE"
+        std::cout << (prefix.empty() ? "" : std::to_string(pos) + " ") << hex4(vals[i]) << '\n';
         continue;
       }
-      std::cout << fmt::format("R{:<3} {:<12} {:<16} {}\n", regs[i], format_value(vals[i]),
+      std::cout << prefix
+                << fmt::format("R{:<3} {:<12} {:<16} {}\n", regs[i], format_value(vals[i]),
                                register_label(type, regs[i]), register_meaning(type, regs[i], vals[i], ch));
     }
-    return 0;
+    return {};
   }
 
- private:
   std::vector<std::string> regs_;
   bool raw_ = false;
 };

@@ -25,7 +25,7 @@ namespace {
 // The serial terminal selected by -t (default: the first serial terminal of the station).
 unsigned serial_position(Context& ctx) {
   const auto& L = ctx.layout();
-  if (ctx.options().terminal) return ctx.options().terminal;
+  if (ctx.terminal_given()) return ctx.terminal_position();
   for (const auto& t : L.terminals)
     if (t.type->is_serial()) return t.position;
   throw Error(Exit::usage, "the station has no serial terminal", "'kscfg info' lists the station");

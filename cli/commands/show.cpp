@@ -50,7 +50,19 @@ class Show : public Command {
   std::vector<std::string> examples() const override { return {"show", "-t 3 show", "--json show"}; }
   void add_cli(CLI::App&) override {}
   int run(Context& ctx) override {
-    auto s = ctx.session();
+    std::vector<nlohmann::json> docs;
+    auto positions = ctx.terminal_positions();
+    if (!ctx.json() && ctx.several_terminals())
+      std::cout << fmt::format("{:<3} {:<7} {:<20}  {:<10} {:<10} {}\n", "POS", "TYPE", "PARAMETER", "VALUE", "DEFAULT",
+                               "REGISTER");
+    for (unsigned pos : positions) docs.push_back(show_one(ctx, pos));
+    if (ctx.json()) print_json_terminals(ctx, docs);
+    return 0;
+  }
+
+ private:
+  nlohmann::json show_one(Context& ctx, unsigned pos) {
+    auto s = ctx.session(pos);
     const TerminalType& type = *s->terminal().type;
     std::vector<const ParamDef*> params;
     for (const auto& p : type.params)
@@ -65,13 +77,21 @@ class Show : public Command {
                        {"measured_in", v.param->unit}});
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j["params"] = arr;
-      print_json(j);
-      return 0;
+      return j;
+    }
+    std::string prefix = terminal_prefix(ctx, s->terminal());
+    if (!prefix.empty()) {  // several terminals: one table, each line names its terminal
+      if (vals.empty()) std::cout << prefix << "(no named parameters)\n";
+      for (const auto& v : vals)
+        std::cout << prefix
+                  << fmt::format("{:<20}  {:<10} {:<10} R{} {}\n", v.param->name, v.value + (v.differs ? " *" : ""),
+                                 v.fallback, v.param->reg, hex4(v.reg_value));
+      return {};
     }
     std::cout << fmt::format("{}  {}\n", s->who(), type.title);
     if (vals.empty()) {
       std::cout << "(no named parameters in the catalog; 'kscfg dump' shows the registers)\n";
-      return 0;
+      return {};
     }
     std::size_t w = 9;
     for (const auto& v : vals) w = std::max(w, v.param->name.size());
@@ -79,7 +99,7 @@ class Show : public Command {
     for (const auto& v : vals)
       std::cout << fmt::format("{:<{}}  {:<10} {:<10} R{} {}\n", v.param->name, w,
                                v.value + (v.differs ? " *" : ""), v.fallback, v.param->reg, hex4(v.reg_value));
-    return 0;
+    return {};
   }
 };
 

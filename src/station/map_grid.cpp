@@ -42,6 +42,10 @@ std::string render_grid(const StationLayout& L, bool color) {
       }
     }
     out += fmt::format("{} ({} bytes)\n", input ? "Inputs" : "Outputs", n);
+    // Column header: the byte offset is the row's offset + the column's.
+    out += fmt::format("  {:>4} ", "+");
+    for (std::size_t c = 0; c < std::min<std::size_t>(16, n); ++c) out += fmt::format("{:>3}", c);
+    out += '\n';
     for (std::size_t row = 0; row < n; row += 16) {
       out += fmt::format("  {:>4} ", row);
       for (std::size_t b = row; b < std::min(n, row + 16); ++b) {

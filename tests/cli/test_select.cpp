@@ -1,0 +1,190 @@
+// Terminal selection like ethercat(8)/i2c-tools (-t KL6031, 1,3, 2-4, all), info in 80 columns,
+// the map grid's header and colour rules.
+#include <catch2/catch.hpp>
+
+#include <nlohmann/json.hpp>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/station/select.hpp"
+#include "support.hpp"
+
+using kscfg::test::Emu;
+using kscfg::test::one_line_error;
+using kscfg::test::Run;
+using nlohmann::json;
+
+namespace {
+
+std::size_t widest_line(const std::string& text) {
+  std::size_t w = 0, cur = 0;
+  for (char c : text) {
+    if (c == '\n') {
+      w = std::max(w, cur);
+      cur = 0;
+    } else {
+      ++cur;
+    }
+  }
+  return std::max(w, cur);
+}
+
+}  // namespace
+
+TEST_CASE("terminal selections parse strictly", "[select]") {
+  using kscfg::parse_terminal_selection;
+  auto s = parse_terminal_selection("1,KL6031,4-5");
+  CHECK(s.ranges.size() == 2);
+  CHECK(s.types == std::vector<std::string>{"KL6031"});
+  CHECK(s.plural());
+  CHECK(parse_terminal_selection("3").single_position());
+  CHECK_FALSE(parse_terminal_selection("3").plural());
+  CHECK_FALSE(parse_terminal_selection("kl6031").plural());
+  CHECK(parse_terminal_selection("kl6031").types.front() == "KL6031");
+  CHECK(parse_terminal_selection("all").all);
+  for (const char* bad : {"", "0", "3-1", "1,,2", ",1", "1-", "a b", "2-0"}) {
+    INFO(bad);
+    CHECK_THROWS_AS(parse_terminal_selection(bad), kscfg::Error);
+  }
+}
+
+TEST_CASE("-t by type, list, range and all for read, get, show, dump and info", "[select][cli]") {
+  Emu emu;
+  // By type: the KL6031 is at position 3.
+  Run t = emu({"-t", "KL6031", "read", "--raw", "R8"});
+  CHECK(t.rc == 0);
+  CHECK(t.out == "0x178F\n");
+  CHECK(emu({"-t", "kl6031", "info"}).out == emu({"-t", "3", "info"}).out);
+  // A list: each line says which terminal it belongs to.
+  Run l = emu({"-t", "1,3", "read", "R8"});
+  CHECK(l.rc == 0);
+  CHECK_THAT(l.out, Catch::StartsWith("1   KL6001  R8 "));
+  CHECK_THAT(l.out, Catch::Contains("\n3   KL6031  R8 "));
+  CHECK(emu({"-t", "1,3", "read", "--raw", "R8"}).out == "1 0x1771\n3 0x178F\n");
+  json lj = json::parse(emu({"--json", "-t", "1,3", "read", "R8"}).out);
+  REQUIRE(lj["terminals"].size() == 2);
+  CHECK(lj["terminals"][0]["position"] == 1);
+  CHECK(lj["terminals"][1]["position"] == 3);
+  CHECK(lj["terminals"][1]["registers"][0]["value"] == 6031);
+  // A range keeps the terminals with registers (KL1104 at 5 has none): 2-5 -> 2, 3, 4.
+  json rj = json::parse(emu({"--json", "-t", "2-5", "dump"}).out);
+  REQUIRE(rj["terminals"].size() == 3);
+  CHECK(rj["terminals"][2]["type"] == "KL3022");
+  Run d = emu({"-t", "2-3", "dump"});
+  CHECK(d.rc == 0);
+  CHECK_THAT(d.out, Catch::StartsWith("POS TYPE    REG "));
+  CHECK(std::count(d.out.begin(), d.out.end(), '\n') == 1 + 2 * 64);
+  // all: get skips the terminals without the parameter.
+  Run g = emu({"-t", "all", "get", "baud"});
+  CHECK(g.rc == 0);
+  CHECK(g.out == "1 baud 9600\n3 baud 9600\n");
+  json gj = json::parse(emu({"--json", "-t", "all", "get", "baud"}).out);
+  CHECK(gj["terminals"].size() == 2);
+  CHECK(gj["terminals"][1]["values"]["baud"] == 9600);
+  Run s = emu({"-t", "1,2", "show"});
+  CHECK(s.rc == 0);
+  CHECK_THAT(s.out, Catch::StartsWith("POS TYPE    PARAMETER"));
+  CHECK_THAT(s.out, Catch::Contains("\n1   KL6001  baud "));
+  CHECK_THAT(s.out, Catch::Contains("\n2   KL5101  "));
+  // info with a list: the table of those terminals; JSON as info's.
+  Run i = emu({"-t", "1,3", "info"});
+  CHECK(i.rc == 0);
+  CHECK_THAT(i.out, Catch::Contains("\n1   KL6001 "));
+  CHECK_THAT(i.out, Catch::Contains("\n3   KL6031 "));
+  CHECK_THAT(i.out, !Catch::Contains("KL5101"));
+  json ij = json::parse(emu({"--json", "-t", "2-4", "info"}).out);
+  CHECK(ij["terminals"].size() == 3);
+  // A single position or a unique type is one object, as before.
+  CHECK(json::parse(emu({"--json", "-t", "KL6031", "read", "R8"}).out)["position"] == 3);
+}
+
+TEST_CASE("selections that cannot be used are one-line errors", "[select][cli]") {
+  Emu emu;
+  struct Case {
+    std::vector<std::string> args;
+    std::string text;
+  };
+  const Case cases[] = {
+      {{"-t", "KL6002", "info"}, "the station has no KL6002 (did you mean KL6001"},
+      {{"-t", "1,3", "write", "R32", "7"}, "this command works on one terminal; -t 1,3 selects 1 (KL6001), 3 (KL6031)"},
+      {{"-t", "all", "set", "baud", "19200"}, "this command works on one terminal"},
+      {{"-t", "9", "read", "R8"}, "9"},
+      {{"-t", "3-1", "read", "R8"}, "invalid terminal range '3-1'"},
+      {{"-t", "5-7", "read", "R8"}, "-t 5-7 selects no terminal with registers"},
+  };
+  for (const auto& c : cases) {
+    Run r = emu(c.args);
+    INFO(c.args[1] << ": " << r.err);
+    CHECK(r.rc == 2);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains(c.text));
+  }
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");  // nothing written
+}
+
+TEST_CASE("info fits 80 columns: the title last, whole but wrapped when piped", "[select][cli]") {
+  Emu emu;
+  Run r = emu({"info"});
+  REQUIRE(r.rc == 0);
+  CHECK(widest_line(r.out) <= 80);
+  CHECK_THAT(r.out, Catch::Contains("\nPOS TYPE   R8   VER IMAGE              TITLE\n"));
+  // The KL5101's title (79 characters) is all there, on two lines under the title column.
+  std::string title = "Incremental encoder interface, 5 V (RS422), 16-bit counter and latch, 1 channel";
+  std::string joined;
+  bool in = false;
+  std::size_t col = r.out.find("TITLE") - r.out.rfind('\n', r.out.find("TITLE")) - 1;
+  std::istringstream lines(r.out);
+  std::string line;
+  while (std::getline(lines, line)) {
+    if (line.rfind("2   KL5101", 0) == 0) {
+      in = true;
+      joined = line.substr(col);
+      continue;
+    }
+    if (in && line.size() > col && line.find_first_not_of(' ') == col) joined += " " + line.substr(col);
+    else if (in) break;
+  }
+  CHECK(joined == title);
+
+  // On a terminal (a pty of script(1), 70 columns) the title is cut with an ellipsis instead.
+  std::string cmd = "stty cols 70; KSCFG_PORT=emu:" + emu.state + " LANG=C.UTF-8 " + KSCFG_BIN + " info";
+  FILE* p = popen(("script -qc '" + cmd + "' /dev/null").c_str(), "r");
+  REQUIRE(p);
+  std::string tty;
+  char buf[512];
+  while (fgets(buf, sizeof buf, p)) tty += buf;
+  pclose(p);
+  CHECK_THAT(tty, Catch::Contains("2   KL5101 5101 10  in 8-15 out 8-15   Incremental encoder interface,\u2026\r\n"));
+  for (const auto& l : {std::string("1   KL6001"), std::string("7   KL9010")}) CHECK_THAT(tty, Catch::Contains(l));
+}
+
+TEST_CASE("map grid: a column header, --color always implies the grid, TERM=dumb and NO_COLOR plain",
+          "[select][cli][map]") {
+  Emu emu;
+  Run g = emu({"map", "--grid"});
+  REQUIRE(g.rc == 0);
+  CHECK_THAT(g.out, Catch::Contains("Inputs (49 bytes)\n     +   0  1  2  3"));
+  CHECK(g.out.find('\x1b') == std::string::npos);
+  Run c = emu({"map", "--color", "always"});
+  CHECK_THAT(c.out, Catch::Contains("Inputs (49 bytes)"));
+  CHECK(c.out.find('\x1b') != std::string::npos);
+  Run plain = emu({"map"});
+  CHECK_THAT(plain.out, !Catch::Contains("Inputs (49 bytes)"));  // piped: the table only
+}
+
+TEST_CASE("dump shows progress on stderr only when asked for a terminal, never with --json", "[select][cli][progress]") {
+  Emu emu;
+  Run quiet = emu({"dump"});
+  CHECK(quiet.err.empty());  // stderr is a pipe here
+  auto env = emu.env;
+  env["KSCFG_PROGRESS"] = "1";  // as if stderr were a terminal
+  Run shown = kscfg::test::run_kscfg({"-t", "1,3", "dump"}, env);
+  CHECK(shown.rc == 0);
+  CHECK_THAT(shown.err, Catch::Contains("dump ["));
+  CHECK_THAT(shown.err, Catch::Contains("/96 terminal 3 R"));
+  CHECK(shown.err.find('\n') == std::string::npos);  // one line, redrawn with \r, then cleared
+  CHECK(shown.err.back() == '\r');
+  CHECK(shown.err.find('\x1b') == std::string::npos);
+  Run json = kscfg::test::run_kscfg({"--json", "dump"}, env);
+  CHECK(json.err.empty());
+}
