@@ -2,9 +2,12 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <signal.h>
 #include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -15,11 +18,48 @@
 
 namespace kscfg {
 
+std::string resolve_link(const std::string& path) {
+  std::filesystem::path p = path;
+  for (int hops = 0; hops < 40; ++hops) {
+    struct stat st {};
+    if (::lstat(p.c_str(), &st) != 0 || !S_ISLNK(st.st_mode)) return p.string();
+    std::error_code ec;
+    auto target = std::filesystem::read_symlink(p, ec);
+    if (ec) throw Error(Exit::file, fmt::format("cannot follow the symbolic link '{}': {}", p.string(), ec.message()));
+    p = target.is_absolute() ? target : p.parent_path() / target;
+  }
+  throw Error(Exit::file, fmt::format("cannot write '{}': too many levels of symbolic links", path));
+}
+
+namespace {
+
+// NAME.tmp.PID files beside `target` whose writer is gone (a kill -9 between create and rename).
+void remove_stale_temporaries(const std::filesystem::path& target) {
+  auto dir = target.parent_path();
+  std::string prefix = target.filename().string() + ".tmp.";
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir.empty() ? "." : dir, ec)) {
+    std::string name = e.path().filename().string();
+    if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) continue;
+    std::string digits = name.substr(prefix.size());
+    if (digits.size() > 9 || !std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; }))
+      continue;
+    auto pid = static_cast<pid_t>(std::stol(digits));
+    if (pid == ::getpid() || pid <= 0) continue;
+    if (::kill(pid, 0) == 0 || errno != ESRCH) continue;  // its writer may still be at work
+    std::filesystem::remove(e.path(), ec);
+  }
+}
+
+}  // namespace
+
 void write_file_atomic(const std::string& path, const std::string& content) {
   auto fail = [&](const std::string& what) {
     throw Error(Exit::file, fmt::format("cannot write '{}': {}: {}", path, what, std::strerror(errno)));
   };
-  std::string tmp = path + fmt::format(".tmp.{}", ::getpid());
+  // A symbolic link stays one: its target is what gets replaced.
+  std::string target = resolve_link(path);
+  std::string tmp = target + fmt::format(".tmp.{}", ::getpid());
   int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) fail("create");
   std::size_t done = 0;
@@ -43,19 +83,58 @@ void write_file_atomic(const std::string& path, const std::string& content) {
     fail("fsync");
   }
   ::close(fd);
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+  if (::rename(tmp.c_str(), target.c_str()) != 0) {
     int e = errno;
     ::unlink(tmp.c_str());
     errno = e;
     fail("rename");
   }
   // Make the rename durable.
-  auto dir = std::filesystem::path(path).parent_path();
+  auto dir = std::filesystem::path(target).parent_path();
   int dfd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dfd >= 0) {
     ::fsync(dfd);
     ::close(dfd);
   }
+  remove_stale_temporaries(target);
+}
+
+std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
+  auto fail = [&](const std::string& why) {
+    return Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, path, why));
+  };
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw fail(std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) == 0) {
+    if (S_ISDIR(st.st_mode)) {
+      ::close(fd);
+      throw fail("it is a directory");
+    }
+    if (S_ISREG(st.st_mode) && static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
+      ::close(fd);
+      throw fail(fmt::format("{} bytes, more than the {} KiB such a file may have", st.st_size, max_bytes / 1024));
+    }
+  }
+  std::string text;
+  char buf[65536];
+  for (;;) {
+    ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      int e = errno;
+      ::close(fd);
+      throw fail(std::strerror(e));
+    }
+    if (n == 0) break;
+    text.append(buf, static_cast<std::size_t>(n));
+    if (text.size() > max_bytes) {
+      ::close(fd);
+      throw fail(fmt::format("more than the {} KiB such a file may have", max_bytes / 1024));
+    }
+  }
+  ::close(fd);
+  return text;
 }
 
 int lock_file(const std::string& path, double timeout_s) {
@@ -99,7 +178,75 @@ std::string state_dir() {
   return (base / "kscfg").string();
 }
 
+namespace {
+
+// The limits of parse_toml, checked on the raw text: dots outside strings and comments between two
+// separators (newline = , [ ] { }) bound a key's parts; brackets and braces bound the nesting.
+void check_toml_limits(std::string_view text, std::string_view origin) {
+  if (text.size() > kMaxInputFileBytes)
+    throw Error(Exit::file, fmt::format("{}: {} bytes, more than the {} KiB a TOML file may have", origin,
+                                        text.size(), kMaxInputFileBytes / 1024));
+  std::size_t line = 1, col = 0, dots = 0, depth = 0;
+  auto fail = [&](const std::string& what) {
+    return Error(Exit::file, fmt::format("{}:{}:{}: {} (a limit against crafted files)", origin, line, col, what));
+  };
+  std::size_t i = 0, n = text.size();
+  auto starts = [&](std::string_view s) { return text.substr(i, s.size()) == s; };
+  while (i < n) {
+    char c = text[i];
+    ++col;
+    if (c == '\n') {
+      ++line, col = 0, dots = 0, ++i;
+      continue;
+    }
+    if (c == '#') {  // a comment, to the end of the line
+      while (i < n && text[i] != '\n') ++i;
+      continue;
+    }
+    if (c == '"' || c == '\'') {
+      bool multi = starts(c == '"' ? "\"\"\"" : "\'\'\'");
+      bool escapes = c == '"';
+      std::size_t open = multi ? 3 : 1;
+      i += open;
+      // Up to the matching close; newlines only in multi-line strings (else the parser reports it).
+      while (i < n) {
+        if (escapes && text[i] == '\\') {
+          i += 2;
+          continue;
+        }
+        if (text[i] == '\n') {
+          if (!multi) break;
+          ++line, col = 0;
+        }
+        if (text[i] == c && (!multi || (i + 2 < n && text[i + 1] == c && text[i + 2] == c))) {
+          i += open;
+          // A multi-line string may end in up to two more quotes.
+          while (multi && i < n && text[i] == c) ++i;
+          break;
+        }
+        ++i;
+      }
+      continue;
+    }
+    if (c == '.') {
+      if (++dots >= kMaxTomlKeyParts) throw fail(fmt::format("a key of more than {} dotted parts", kMaxTomlKeyParts));
+    } else if (c == '=' || c == ',') {
+      dots = 0;
+    } else if (c == '[' || c == '{') {
+      dots = 0;
+      if (++depth > kMaxTomlNesting) throw fail(fmt::format("nested more than {} deep", kMaxTomlNesting));
+    } else if (c == ']' || c == '}') {
+      dots = 0;
+      if (depth > 0) --depth;
+    }
+    ++i;
+  }
+}
+
+}  // namespace
+
 toml::table parse_toml(std::string_view text, std::string_view origin) {
+  check_toml_limits(text, origin);
   try {
     return toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {

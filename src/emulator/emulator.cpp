@@ -18,6 +18,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
+#include "state_schema.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg {
@@ -198,8 +199,10 @@ nlohmann::json EmulatedStation::to_json() const {
 std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json& j, const Catalog& catalog) {
   auto bad = [](const std::string& why) -> Error { return Error(Exit::file, why); };
   try {
-    if (!j.is_object() || j.value("format", "") != "kscfg-emulator") throw bad("not a kscfg emulator state");
-    if (j.at("version").get<int>() != 1) throw bad("unsupported state version");
+    if (!j.is_object() || !j.contains("format") || j["format"] != "kscfg-emulator")
+      throw bad("not a kscfg emulator state");
+    if (j.contains("version") && j["version"] != 1) throw bad("unsupported state version");
+    validate_state(j);  // every entry's type and range (state_schema.cpp)
     StationSpec spec = parse_station(j.at("station").get<std::string>(), "state:station", catalog);
     auto st = std::make_unique<EmulatedStation>(spec, catalog);
     st->response_delay = j.value("response_delay", 1u);
@@ -257,18 +260,23 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
   if (ec)
     throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
-  lock_fd_ = lock_file(path_ + ".lock", lock_timeout_s);
-  std::ifstream in(path_);
-  if (!in) {
-    if (std::filesystem::exists(path_, ec))
-      throw Error(Exit::file, fmt::format("cannot read the emulator state file '{}'", path_));
+  // Beside the file a symbolic link points to, so that every name of it takes the same lock.
+  lock_fd_ = lock_file(resolve_link(path_) + ".lock", lock_timeout_s);
+  struct stat st {};
+  if (::stat(path_.c_str(), &st) != 0 && errno == ENOENT) {
     station_ = std::make_unique<EmulatedStation>(default_station(), catalog);
     return;
   }
-  std::stringstream ss;
-  ss << in.rdbuf();
+  std::string text;
   try {
-    auto j = nlohmann::json::parse(ss.str());
+    text = read_input_file(path_, "the emulator state file");
+  } catch (...) {
+    ::close(lock_fd_);
+    lock_fd_ = -1;
+    throw;
+  }
+  try {
+    auto j = nlohmann::json::parse(text);
     station_ = EmulatedStation::from_json(j, catalog);
     saved_ = snapshot();
   } catch (const std::exception& e) {
@@ -359,7 +367,7 @@ void reset_emulator_state(const std::string& path, const StationSpec& spec, cons
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
   if (ec) throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
-  int fd = lock_file(path + ".lock", 10.0);
+  int fd = lock_file(resolve_link(path) + ".lock", 10.0);
   try {
     write_file_atomic(path, fresh.to_json().dump(1) + "\n");
   } catch (...) {

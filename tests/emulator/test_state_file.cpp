@@ -1,4 +1,8 @@
-// The emulator state file. Issue 12: a run that only reads does not write the state file.
+// The emulator state file and the other input files as the reliability campaign found them
+// (issue 11): corrupt numbers are "corrupt state file", exit 7, never undefined behaviour or a
+// silent truncation; a symbolic link stays one; a killed writer's temporary file is cleaned up;
+// input files are bounded before they are read; TOML is bounded before it reaches the parser.
+// And issue 12: a run that only reads does not write the state file.
 #include <catch2/catch.hpp>
 
 #include <sys/stat.h>
@@ -23,6 +27,8 @@ using kscfg::test::write_text;
 
 namespace {
 
+nlohmann::json load(const std::string& path) { return nlohmann::json::parse(read_text(path)); }
+void store(const std::string& path, const nlohmann::json& j) { write_text(path, j.dump(1)); }
 
 struct FileId {
   ino_t ino = 0;
@@ -35,7 +41,58 @@ FileId id_of(const std::string& path) {
   return {st.st_ino, static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec};
 }
 
+// A dotted key of `parts` parts: the 80 KB file that overflowed the parser's stack.
+std::string dotted(std::size_t parts) {
+  std::string s = "a";
+  for (std::size_t i = 1; i < parts; ++i) s += ".a";
+  return s + " = 1\n";
+}
+
 }  // namespace
+
+TEST_CASE("numbers in the emulator state are range-checked: corrupt state file, exit 7", "[state][robust]") {
+  Emu emu;
+  REQUIRE(emu({"read", "R8"}).rc == 0);  // creates the state
+  const nlohmann::json good = load(emu.state);
+  REQUIRE(good["channels"][0]["serial"].is_object());
+  struct Case {
+    const char* what;
+    std::function<void(nlohmann::json&)> spoil;
+    const char* says;
+  };
+  std::vector<Case> cases = {
+      {"a float register", [](auto& j) { j["channels"][0]["registers"][32] = 1e30; }, "registers[32]"},
+      {"a float that looks whole", [](auto& j) { j["channels"][0]["registers"][32] = 7.0; }, "not an integer"},
+      {"a register over 16 bits", [](auto& j) { j["channels"][0]["registers"][32] = 70000; }, "65535"},
+      {"a negative register", [](auto& j) { j["channels"][0]["registers"][32] = -1; }, "registers[32]"},
+      {"prev_status 300", [](auto& j) { j["channels"][0]["serial"]["prev_status"] = 300; }, "prev_status"},
+      {"diag as text", [](auto& j) { j["channels"][0]["serial"]["diag"] = "7"; }, "diag"},
+      {"63 registers", [](auto& j) { j["channels"][0]["registers"].erase(0); }, "64 expected"},
+      {"ignore_writes R99", [](auto& j) { j["channels"][0]["ignore_writes"] = {99}; }, "ignore_writes[0]"},
+      {"an infinite credit", [](auto& j) { j["channels"][0]["serial"]["tx_credit_us"] = 1e300; }, "tx_credit_us"},
+      {"response_delay -1", [](auto& j) { j["response_delay"] = -1; }, "response_delay"},
+      {"outputs not hex", [](auto& j) { j["outputs"] = "zz"; }, "outputs"},
+      {"an unknown entry", [](auto& j) { j["channels"][1]["bogus"] = 1; }, "unknown entry 'channels[1].bogus'"},
+      {"no registers", [](auto& j) { j["channels"][0].erase("registers"); }, "missing"},
+  };
+  for (const auto& c : cases) {
+    DYNAMIC_SECTION(c.what) {
+      nlohmann::json j = good;
+      c.spoil(j);
+      store(emu.state, j);
+      Run r = emu({"read", "R32"});
+      INFO(r.err);
+      CHECK(r.rc == 7);
+      CHECK(one_line_error(r));
+      CHECK_THAT(r.err, Catch::Contains("corrupt"));
+      CHECK_THAT(r.err, Catch::Contains(c.says));
+      // Left as it is; emu reset recovers.
+      CHECK(load(emu.state) == j);
+      CHECK(emu({"emu", "reset"}).rc == 0);
+      CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
+    }
+  }
+}
 
 TEST_CASE("a run that only reads does not write the state file; a change writes it once", "[state][robust]") {
   Emu emu;
@@ -54,3 +111,78 @@ TEST_CASE("a run that only reads does not write the state file; a change writes 
   CHECK(emu({"read", "--raw", "R32"}).out == "0x0007\n");
 }
 
+TEST_CASE("a symbolic link to the state file stays a link; the file it points to is replaced", "[state][robust]") {
+  TempDir d;
+  std::filesystem::create_directories(d.file("real"));
+  std::string target = d.file("real/state.json"), link = d.file("link.json");
+  std::filesystem::create_symlink("real/state.json", link);  // relative, as users make them
+  auto on = [&](std::vector<std::string> a) {
+    a.insert(a.begin(), {"--port", "emu:" + link});
+    return run_kscfg(a);
+  };
+  REQUIRE(on({"write", "R32", "0x0007"}).rc == 0);
+  CHECK(std::filesystem::is_symlink(link));
+  CHECK(std::filesystem::is_regular_file(target));
+  CHECK(on({"read", "--raw", "R32"}).out == "0x0007\n");
+  CHECK(run_kscfg({"--port", "emu:" + target, "read", "--raw", "R32"}).out == "0x0007\n");
+  REQUIRE(on({"emu", "reset"}).rc == 0);
+  CHECK(std::filesystem::is_symlink(link));
+  CHECK(run_kscfg({"--port", "emu:" + target, "read", "--raw", "R32"}).out == "0x0006\n");
+}
+
+TEST_CASE("temporary files left by a killed kscfg are removed by the next save", "[state][robust]") {
+  Emu emu;
+  REQUIRE(emu({"read", "R8"}).rc == 0);
+  // The PID of a process that is gone.
+  pid_t gone = fork();
+  if (gone == 0) _exit(0);
+  waitpid(gone, nullptr, 0);
+  std::string stale = emu.state + ".tmp." + std::to_string(gone);
+  write_text(stale, "{half a state");
+  std::string alive = emu.state + ".tmp." + std::to_string(getpid());  // a writer still at work
+  write_text(alive, "{");
+  REQUIRE(emu({"write", "R32", "0x0007"}).rc == 0);
+  CHECK_FALSE(std::filesystem::exists(stale));
+  CHECK(std::filesystem::exists(alive));
+}
+
+TEST_CASE("a key of 40 000 dotted parts is refused before the TOML parser sees it", "[files][robust]") {
+  Emu emu;
+  TempDir d;
+  std::string file = d.file("dots.toml");
+  write_text(file, dotted(40000));
+  REQUIRE(read_text(file).size() > 80000);
+  auto check = [&](const Run& r, const std::string& what) {
+    INFO(what << ": " << r.err);
+    CHECK(r.rc == 7);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("dotted parts"));
+  };
+  for (const std::vector<std::string>& a :
+       {std::vector<std::string>{"map", "--station", file}, {"apply", file}, {"diff", file},
+        {"emu", "reset", "--station", file}}) {
+    std::vector<std::string> v = {"--port", "emu:" + emu.state};
+    v.insert(v.end(), a.begin(), a.end());
+    check(run_kscfg(v), a.front());
+  }
+  // A catalog directory holding it.
+  std::filesystem::create_directories(d.file("cat"));
+  write_text(d.file("cat/KL9999.toml"), dotted(40000));
+  check(run_kscfg({"--catalog", d.file("cat"), "catalog"}), "--catalog");
+  // A state file whose station holds it.
+  REQUIRE(emu({"read", "R8"}).rc == 0);
+  nlohmann::json j = load(emu.state);
+  j["station"] = dotted(40000);
+  store(emu.state, j);
+  Run r = emu({"read", "R8"});
+  check(r, "state");
+  CHECK_THAT(r.err, Catch::Contains("corrupt"));
+  // Real files are far from the limits: a key of a few parts, nesting of a few levels.
+  write_text(file, "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n\"a.b\".c = 1\n");
+  Run ok = run_kscfg({"map", "--station", file});
+  CHECK_THAT(ok.err, !Catch::Contains("dotted parts"));
+  write_text(file, "x = " + std::string(100, '[') + std::string(100, ']') + "\n");
+  Run deep = run_kscfg({"map", "--station", file});
+  CHECK(deep.rc == 7);
+  CHECK_THAT(deep.err, Catch::Contains("nested more than 64"));
+}

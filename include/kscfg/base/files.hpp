@@ -7,8 +7,22 @@
 namespace kscfg {
 
 // Writes `content` to a temporary file beside `path`, fsyncs it and renames it over `path`.
+// A symbolic link stays one: the file it points to is replaced (beside it). Temporary files that
+// a killed kscfg left beside the target (`NAME.tmp.PID` of a process that is gone) are removed.
 // Throws Error(Exit::file) naming the path and the reason.
 void write_file_atomic(const std::string& path, const std::string& content);
+
+// Where write_file_atomic writes for `path`: the end of its chain of symbolic links (made
+// absolute relative to each link's directory), or `path` itself.
+std::string resolve_link(const std::string& path);
+
+// Input files (station, catalog, emulator state) are read whole, so their size is bounded first:
+// a pipe or a device is read only up to the limit (`apply /dev/zero` stops there).
+constexpr std::size_t kMaxInputFileBytes = 4u << 20;  // 4 MiB: a station file is a few KiB
+// Reads `path` (`what` names it in errors: "station file"). Error(Exit::file) when it cannot be
+// read, is a directory, or holds more than `max_bytes`.
+std::string read_input_file(const std::string& path, std::string_view what,
+                            std::size_t max_bytes = kMaxInputFileBytes);
 
 // Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds.
 // Returns the descriptor; closing it releases the lock. Throws Error(Exit::file).
@@ -21,6 +35,12 @@ std::string line_of(std::string_view text, std::size_t line);
 std::string state_dir();
 
 // Parses TOML text; a syntax error is Error(Exit::file) "ORIGIN:LINE:COL: what (in: the line)".
+// Before the parser sees it, the text is checked against limits that no real file reaches and
+// that keep a crafted one from exhausting the stack: at most kMaxInputFileBytes, keys of at most
+// kMaxTomlKeyParts dotted parts (the parser recurses per part), arrays and inline tables nested
+// at most kMaxTomlNesting deep.
+constexpr std::size_t kMaxTomlKeyParts = 64;
+constexpr std::size_t kMaxTomlNesting = 64;
 toml::table parse_toml(std::string_view text, std::string_view origin);
 
 }  // namespace kscfg
