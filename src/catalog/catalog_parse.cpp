@@ -417,13 +417,7 @@ void Catalog::add_dir(const std::filesystem::path& dir) {
   for (const auto& e : std::filesystem::directory_iterator(dir, ec))
     if (e.path().extension() == ".toml") files.push_back(e.path());
   std::sort(files.begin(), files.end());
-  for (const auto& f : files) {
-    std::ifstream in(f);
-    if (!in) throw Error(Exit::file, fmt::format("cannot read catalog file '{}'", f.string()));
-    std::stringstream ss;
-    ss << in.rdbuf();
-    add_text(f.string(), ss.str());
-  }
+  for (const auto& f : files) add_text(f.string(), read_input_file(f.string(), "catalog file"));
 }
 
 }  // namespace kscfg

@@ -276,11 +276,8 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
 }
 
 StationSpec load_station(const std::string& path, const Catalog& catalog) {
-  std::ifstream in(path);
-  if (!in) throw Error(Exit::file, fmt::format("cannot read station file '{}'", path));
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return parse_station(ss.str(), path, catalog);
+  // Bounded: `apply /dev/zero` stops at the limit instead of reading until memory runs out.
+  return parse_station(read_input_file(path, "station file"), path, catalog);
 }
 
 namespace {

@@ -146,6 +146,39 @@ TEST_CASE("temporary files left by a killed kscfg are removed by the next save",
   CHECK(std::filesystem::exists(alive));
 }
 
+TEST_CASE("input files are bounded before they are read: apply /dev/zero", "[files][robust]") {
+  Emu emu;
+  for (const std::vector<std::string>& a :
+       {std::vector<std::string>{"apply", "/dev/zero"}, {"diff", "/dev/zero"}, {"map", "--station", "/dev/zero"},
+        {"emu", "reset", "--station", "/dev/zero"}}) {
+    Run r = run_kscfg([&] {
+      std::vector<std::string> v = {"--port", "emu:" + emu.state};
+      v.insert(v.end(), a.begin(), a.end());
+      return v;
+    }(), {}, 60);
+    INFO(a.front() << ": " << r.err);
+    CHECK(r.rc == 7);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("KiB"));
+  }
+  // A state file that is a device is bounded too.
+  Run s = run_kscfg({"--port", "emu:/dev/zero", "read", "R8"}, {}, 60);
+  CHECK(s.rc == 7);
+  CHECK(one_line_error(s));
+  // A catalog file that is a device.
+  TempDir cat;
+  std::filesystem::create_symlink("/dev/zero", cat.file("KL9999.toml"));
+  Run c = run_kscfg({"--catalog", cat.path, "catalog"}, {}, 60);
+  CHECK(c.rc == 7);
+  CHECK(one_line_error(c));
+  CHECK_THAT(c.err, Catch::Contains("KiB"));
+  // A directory is said to be one.
+  TempDir d;
+  Run dir = run_kscfg({"map", "--station", d.path});
+  CHECK(dir.rc == 7);
+  CHECK_THAT(dir.err, Catch::Contains("directory"));
+}
+
 TEST_CASE("a key of 40 000 dotted parts is refused before the TOML parser sees it", "[files][robust]") {
   Emu emu;
   TempDir d;
