@@ -31,10 +31,8 @@ std::string resolve_link(const std::string& path) {
   throw Error(Exit::file, fmt::format("cannot write '{}': too many levels of symbolic links", path));
 }
 
-namespace {
-
-// NAME.tmp.PID files beside `target` whose writer is gone (a kill -9 between create and rename).
-void remove_stale_temporaries(const std::filesystem::path& target) {
+void remove_stale_temporaries(const std::string& path) {
+  std::filesystem::path target = resolve_link(path);
   auto dir = target.parent_path();
   std::string prefix = target.filename().string() + ".tmp.";
   std::error_code ec;
@@ -50,8 +48,6 @@ void remove_stale_temporaries(const std::filesystem::path& target) {
     std::filesystem::remove(e.path(), ec);
   }
 }
-
-}  // namespace
 
 void write_file_atomic(const std::string& path, const std::string& content) {
   auto fail = [&](const std::string& what) {

@@ -262,6 +262,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
     throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
   // Beside the file a symbolic link points to, so that every name of it takes the same lock.
   lock_fd_ = lock_file(resolve_link(path_) + ".lock", lock_timeout_s);
+  remove_stale_temporaries(path_);  // what a killed kscfg left, also when this run only reads
   struct stat st {};
   if (::stat(path_.c_str(), &st) != 0 && errno == ENOENT) {
     station_ = std::make_unique<EmulatedStation>(default_station(), catalog);

@@ -130,7 +130,7 @@ TEST_CASE("a symbolic link to the state file stays a link; the file it points to
   CHECK(run_kscfg({"--port", "emu:" + target, "read", "--raw", "R32"}).out == "0x0006\n");
 }
 
-TEST_CASE("temporary files left by a killed kscfg are removed by the next save", "[state][robust]") {
+TEST_CASE("temporary files left by a killed kscfg are removed by the next run", "[state][robust]") {
   Emu emu;
   REQUIRE(emu({"read", "R8"}).rc == 0);
   // The PID of a process that is gone.
@@ -141,9 +141,14 @@ TEST_CASE("temporary files left by a killed kscfg are removed by the next save",
   write_text(stale, "{half a state");
   std::string alive = emu.state + ".tmp." + std::to_string(getpid());  // a writer still at work
   write_text(alive, "{");
+  REQUIRE(emu({"read", "R32"}).rc == 0);  // a run that only reads
+  CHECK_FALSE(std::filesystem::exists(stale));
+  CHECK(std::filesystem::exists(alive));
+  write_text(stale, "{half a state");
   REQUIRE(emu({"write", "R32", "0x0007"}).rc == 0);
   CHECK_FALSE(std::filesystem::exists(stale));
   CHECK(std::filesystem::exists(alive));
+  std::filesystem::remove(alive);
 }
 
 TEST_CASE("input files are bounded before they are read: apply /dev/zero", "[files][robust]") {

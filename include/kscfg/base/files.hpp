@@ -12,6 +12,11 @@ namespace kscfg {
 // Throws Error(Exit::file) naming the path and the reason.
 void write_file_atomic(const std::string& path, const std::string& content);
 
+// Removes the NAME.tmp.PID files beside `path` (its link target) whose writer is gone: what a kill -9
+// between create and rename leaves. write_file_atomic calls it after each write; the emulator
+// store also on open (under its lock), so that a run that only reads cleans up too.
+void remove_stale_temporaries(const std::string& path);
+
 // Where write_file_atomic writes for `path`: the end of its chain of symbolic links (made
 // absolute relative to each link's directory), or `path` itself.
 std::string resolve_link(const std::string& path);
