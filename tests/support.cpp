@@ -133,7 +133,7 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
   }
   close(out[1]);
   out_fd = out[0];
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);  // generous: a loaded machine
   char c;
   while (std::chrono::steady_clock::now() < deadline) {
     pollfd p{out_fd, POLLIN, 0};
@@ -152,7 +152,7 @@ int Server::stop(int sig) {
   if (pid <= 0) return -1;
   kill(pid, sig);
   int status = 0;
-  for (int i = 0; i < 1000; ++i) {
+  for (int i = 0; i < 6000; ++i) {  // up to 60 s, then SIGKILL
     if (waitpid(pid, &status, WNOHANG) == pid) {
       pid = -1;
       return WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);

@@ -49,7 +49,7 @@ struct Server {
   ~Server();
   Server(const Server&) = delete;
   Server& operator=(const Server&) = delete;
-  // Stops with `sig`; returns the exit status (bounded: SIGKILL after 10 s).
+  // Stops with `sig`; returns the exit status (bounded: SIGKILL after 60 s).
   int stop(int sig = 15);
   void kill_now();
   std::string errors() const { return read_text(err_path); }

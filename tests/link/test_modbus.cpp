@@ -218,10 +218,12 @@ TEST_CASE("busy and other exceptions are reported by name and code", "[modbus]")
 
 TEST_CASE("faults are survived: drop, delay, corrupt and busy", "[modbus]") {
   ServeOptions o;
-  o.faults = parse_faults("drop=0.05,delay=0.05,delay_ms=150,corrupt=0.05,busy=0.05");
+  o.faults = parse_faults("drop=0.05,delay=0.05,delay_ms=1500,corrupt=0.05,busy=0.05");
   o.seed = 3;
   Served s(o);
-  auto link = s.link("", 300);  // 100 ms per exchange: a delayed reply comes late
+  // 1 s per exchange: a delayed reply (1.5 s) comes late, while a loaded machine still has a
+  // generous second to answer the others.
+  auto link = s.link("", 3000);
   auto& c = dynamic_cast<ModbusLink&>(*link).client();
   for (int i = 0; i < 40; ++i) CHECK(mbmap::decode_ident(c.read(mbmap::kIdent, mbmap::kIdentRegisters)) == "BK9000");
   CHECK(c.retried() > 0);
