@@ -130,6 +130,14 @@ std::string read_input(const std::string& path, const std::string& what) {
     if (fd != STDIN_FILENO) ::close(fd);
     throw fail(EISDIR);
   }
+  // Bounded as every input file (base/files.hpp): `apply /dev/zero` or an endless pipe stops at
+  // the limit instead of reading until memory runs out.
+  auto too_large = [&] {
+    if (fd != STDIN_FILENO) ::close(fd);
+    return Error(Exit::file, fmt::format("cannot read {} '{}': more than the {} KiB such a file may have", what,
+                                         input_name(path), kMaxInputFileBytes / 1024));
+  };
+  if (S_ISREG(st.st_mode) && static_cast<std::uintmax_t>(st.st_size) > kMaxInputFileBytes) throw too_large();
   std::string text;
   char buf[65536];
   for (;;) {
@@ -142,6 +150,7 @@ std::string read_input(const std::string& path, const std::string& what) {
     }
     if (n == 0) break;
     text.append(buf, static_cast<std::size_t>(n));
+    if (text.size() > kMaxInputFileBytes) throw too_large();
   }
   if (fd != STDIN_FILENO) ::close(fd);
   return text;

@@ -13,6 +13,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "kscfg/base/files.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/station.hpp"
 #include "support.hpp"
@@ -162,6 +163,14 @@ TEST_CASE("input files are bounded before they are read: apply /dev/zero", "[fil
       return v;
     }(), {}, 60);
     INFO(a.front() << ": " << r.err);
+    CHECK(r.rc == 7);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("KiB"));
+  }
+  // Standard input as the station file: an endless pipe is bounded too.
+  {
+    std::string big(kscfg::kMaxInputFileBytes + 1, '#');
+    Run r = run_kscfg({"--port", "emu:" + emu.state, "apply", "-"}, {}, 60, big);
     CHECK(r.rc == 7);
     CHECK(one_line_error(r));
     CHECK_THAT(r.err, Catch::Contains("KiB"));
