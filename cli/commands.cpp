@@ -30,6 +30,7 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_completion());
   v.push_back(make_manpage());
   v.push_back(make_help());
+  v.push_back(make_complete());
   return v;
 }
 

@@ -31,4 +31,5 @@ std::unique_ptr<Command> make_emu();
 std::unique_ptr<Command> make_completion();
 std::unique_ptr<Command> make_manpage();
 std::unique_ptr<Command> make_help();
+std::unique_ptr<Command> make_complete();
 }  // namespace kscfg::cli

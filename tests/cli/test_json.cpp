@@ -94,7 +94,7 @@ std::set<std::string> command_paths() {
   auto app = kscfg::cli::build_app();
   std::set<std::string> out;
   std::function<void(const CLI::App*, std::string)> walk = [&](const CLI::App* a, std::string path) {
-    for (const CLI::App* s : a->get_subcommands([](const CLI::App*) { return true; })) {
+    for (const CLI::App* s : a->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); })) {
       std::string p = path.empty() ? s->get_name() : path + " " + s->get_name();
       if (s->get_subcommands([](const CLI::App*) { return true; }).empty()) out.insert(p);
       walk(s, p);
