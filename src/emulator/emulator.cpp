@@ -237,8 +237,11 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
     }
     // A changed layout (e.g. after a new R35) starts with cleared outputs, as a coupler would.
     return st;
-  } catch (const Error&) {
-    throw;
+  } catch (const Error& e) {
+    // The station inside a state is part of the file: a type the catalog does not know or an
+    // image the coupler refuses is a corrupt state (Exit::file), not a usage error.
+    if (e.code() == Exit::file) throw;
+    throw bad(e.what());
   } catch (const std::exception& e) {
     throw bad(e.what());
   }

@@ -13,8 +13,10 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/station/station.hpp"
 #include "support.hpp"
 
@@ -93,6 +95,32 @@ TEST_CASE("numbers in the emulator state are range-checked: corrupt state file, 
       CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
     }
   }
+}
+
+TEST_CASE("a state whose station does not parse is a corrupt state (Exit::file), for the CLI and the library",
+          "[state][robust]") {
+  // Found by fuzz_state: the station text inside a state named a type the catalog does not know;
+  // from_json let the parser's usage error (exit 2) through instead of "corrupt state".
+  Emu emu;
+  REQUIRE(emu({"read", "R8"}).rc == 0);
+  nlohmann::json j = load(emu.state);
+  std::string station = j["station"].get<std::string>();
+  auto at = station.find("KL6001");
+  REQUIRE(at != std::string::npos);
+  j["station"] = station.replace(at, 6, "KL4505");
+  try {
+    (void)kscfg::EmulatedStation::from_json(j, kscfg::Catalog::standard());
+    FAIL("a state with an unknown terminal type loaded");
+  } catch (const kscfg::Error& e) {
+    CHECK(e.code() == kscfg::Exit::file);
+    CHECK_THAT(e.what(), Catch::Contains("KL4505"));
+  }
+  store(emu.state, j);
+  Run r = emu({"read", "R32"});
+  INFO(r.err);
+  CHECK(r.rc == 7);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("corrupt"));
 }
 
 TEST_CASE("a run that only reads does not write the state file; a change writes it once", "[state][robust]") {
