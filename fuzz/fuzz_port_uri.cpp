@@ -1,0 +1,22 @@
+// libFuzzer: port URIs (link/port_uri.hpp) and the Modbus endpoint they name. Bad ones are
+// Error(usage), one line; never a crash or another exception.
+#include <cstdint>
+#include <string>
+
+#include "fuzz.hpp"
+#include "kscfg/link/modbus_client.hpp"
+#include "kscfg/link/port_uri.hpp"
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  std::string s(reinterpret_cast<const char*>(data), size);
+  kscfg::fuzz::expect_usage([&] {
+    kscfg::PortUri p = kscfg::parse_port_uri(s);
+    FUZZ_CHECK(p.scheme == "emu" || p.scheme == "tcp" || p.scheme == "rtu");
+    if (p.scheme == "emu") return;
+    kscfg::ModbusTarget t = kscfg::modbus_target(p, s);
+    FUZZ_CHECK(t.unit >= 0 && t.unit <= 255);
+    FUZZ_CHECK(t.tcp ? t.port <= 65535 : !t.device.empty());
+    (void)t.where();
+  });
+  return 0;
+}
