@@ -44,7 +44,7 @@ struct ServeOptions {
   // waits save_delay_ms for more), from a thread of the server; at the end of run() once more.
   // Empty: the state is not saved by the server.
   std::function<void(const std::string&)> save_state;
-  unsigned save_delay_ms = 20;
+  unsigned save_delay_ms = 5;
   std::function<void(const std::string&)> trace;  // every request and connection (-v)
   std::function<void(const std::string&)> warn;   // what the user must know (open to the network, refusals)
 };
