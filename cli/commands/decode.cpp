@@ -21,12 +21,14 @@ class Decode : public Command {
     return "Decodes a process-data control byte (\\fBcontrol\\fR, outputs) or status byte (\\fBstatus\\fR, "
            "inputs) of a terminal type, bit by bit, from the catalog's tables: KL6001 CT/ST (TR, RA, IR, OL "
            "and TA, RR, IA, BUF_F, IL), KL6031/KL6041 control and status words (\\fB\\-\\-image large\\fR for "
-           "the 16-bit word with OL/IL in the high byte) and bytes, KL5101 control and status. A value with "
+           "the 16-bit word with OL/IL in the high byte) and bytes, the CX serial interface's word in KL6xx1 mode "
+           "(\\fB\\-T CX\\-KL6xx1\\fR), KL5101 control and status. For a terminal with registers a value with "
            "bit 7 set is decoded as a register request or acknowledge. The type comes from \\fB\\-T\\fR, or "
            "from the selected terminal of the station.";
   }
   std::vector<std::string> examples() const override {
-    return {"decode status 0x35 -T KL6001", "decode control 0x0321 -T KL6031 --image large", "decode status 0x9F -T KL6001"};
+    return {"decode status 0x35 -T KL6001", "decode control 0x0321 -T KL6031 --image large", "decode status 0x9F -T KL6001",
+            "decode status 0x4002 -T CX-KL6xx1"};
   }
   std::vector<std::string> completions() const override { return {"control", "status"}; }
   void add_cli(CLI::App& sub) override {
@@ -77,7 +79,7 @@ class Decode : public Command {
                                  d.write ? " (bit 6 set: the text's form of a write ack)" : "");
       return 0;
     }
-    std::cout << "  process data mode (REG = 0)\n";
+    std::cout << (type->has_registers ? "  process data mode (REG = 0)\n" : "  process data (the type has no register set)\n");
     for (const auto& b : d.bits)
       std::cout << fmt::format("  {:<12} {:<3} {}\n", b.name, b.value, b.desc);
     return 0;

@@ -374,17 +374,24 @@ class SerialStatus : public Command {
       nlohmann::json j{{"position", port->terminal().position}, {"type", port->terminal().type->type},
                        {"format", img.format}, {"data_bytes", img.out_data.size()}, {"status", s},
                        {"ta", (s & serial::kTA) != 0}, {"rr", (s & serial::kRR) != 0}, {"ia", (s & serial::kIA) != 0},
-                       {"buf_f", (s & serial::kBufF) != 0}};
+                       {"buf_f", (s & serial::kBufF) != 0}, {"il", port->in_length()}};
       if (d.known) j.update({{"r0_tx_fifo", d.r0}, {"r1_rx_fifo", d.r1}, {"r6", d.r6}, {"r6_text", diag_text(d.r6)}});
       print_json(j);
       return 0;
     }
     std::cout << fmt::format("{}: {}\n", port->who(), img.describe());
-    std::cout << fmt::format("status 0x{:02X}: TA {} RR {} IA {} BUF_F {}\n", s, s & serial::kTA ? 1 : 0,
-                             s & serial::kRR ? 1 : 0, s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0);
+    if (img.word)
+      std::cout << fmt::format("status word 0x{:04X}: TA {} RR {} IA {} BUF_F {} IL {}\n",
+                               (port->in_length() << 8) | s, s & serial::kTA ? 1 : 0, s & serial::kRR ? 1 : 0,
+                               s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0, port->in_length());
+    else
+      std::cout << fmt::format("status 0x{:02X}: TA {} RR {} IA {} BUF_F {}\n", s, s & serial::kTA ? 1 : 0,
+                               s & serial::kRR ? 1 : 0, s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0);
     if (d.known)
       std::cout << fmt::format("R0 {} bytes in the send FIFO, R1 {} bytes in the receive FIFO, R6 {} ({})\n", d.r0,
                                d.r1, hex4(d.r6), diag_text(d.r6));
+    else if (!port->terminal().type->has_registers)
+      std::cout << fmt::format("R0/R1/R6: none ({} has no registers)\n", port->terminal().type->type);
     else
       std::cout << "R0/R1/R6: not readable (the image maps no control/status byte for register access)\n";
     return 0;
@@ -453,7 +460,10 @@ class Serial : public Command {
     return "Speaks the process-data handshake of the serial terminals (REG = 0): KL6001/KL6011/KL6021 with the "
            "control/status byte in the standard format or the Ser\\-CT/ST byte in the alternative format, and "
            "KL6031/KL6041 with the control byte (small and medium images, length in bits 6..4) or the 16\\-bit "
-           "control/status word (large image, length in its own byte). Where the bytes are comes from the station "
+           "control/status word (large image, length in its own byte), and the RS232/RS485 interface of a CX embedded PC "
+           "in KL6xx1 mode (type CX\\-KL6xx1: a control/status word with OL/IL in bits 15..8 and a 64-byte data "
+           "array, up to 64 bytes per handshake; it has no registers, so R0, R1 and R6 are not shown). Where the "
+           "bytes are comes from the station "
            "layout, so a changed R35 or image size is followed. The terminal is chosen with \\fB\\-t\\fR "
            "(default: the first serial terminal). Every wait is bounded by \\fB\\-\\-timeout\\fR; the terminal is "
            "always left in process-data mode.";

@@ -76,7 +76,16 @@ const TerminalType* Catalog::find(std::string_view type) const {
   auto it = types_.find(up);
   if (it != types_.end()) return it->second.get();
   it = types_.find(std::string(type));
-  return it == types_.end() ? nullptr : it->second.get();
+  if (it != types_.end()) return it->second.get();
+  // Names with lower-case letters (CX-KL6xx1) match in any case too.
+  for (const auto& [k, t] : types_) {
+    if (k.size() != up.size()) continue;
+    bool same = true;
+    for (std::size_t i = 0; i < k.size() && same; ++i)
+      same = std::toupper(static_cast<unsigned char>(k[i])) == static_cast<unsigned char>(up[i]);
+    if (same) return t.get();
+  }
+  return nullptr;
 }
 
 const TerminalType& Catalog::get(std::string_view type) const {

@@ -30,7 +30,7 @@ ChannelModel::ChannelModel(const TerminalType& type, std::array<std::uint16_t, p
     : type_(&type), regs_(regs) {
   // ROM is what the factory burnt in, whatever a state file says.
   for (unsigned r = 8; r < 15; ++r) regs_[r] = type.regs[r].def;
-  if (type.is_serial() && type.has_registers) serial_ = std::make_unique<SerialModel>(type);
+  if (type.is_serial()) serial_ = std::make_unique<SerialModel>(type);
 }
 
 std::uint16_t ChannelModel::read_register(unsigned r) const {
@@ -114,11 +114,18 @@ void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std
 // ---------------------------------------------------------------------------------------------
 // EmulatedStation
 
+bool EmulatedStation::has_model(const TerminalType& type) {
+  // Terminals with registers answer in register mode; serial devices without registers (the CX
+  // interface in KL6xx1 mode) still run their handshake. Digital, power and end terminals have no
+  // model: their bytes are the image's.
+  return type.has_registers || type.is_serial();
+}
+
 EmulatedStation::EmulatedStation(const StationSpec& spec, const Catalog& catalog) : spec_(spec), catalog_(&catalog) {
   for (std::size_t i = 0; i < spec_.terminals.size(); ++i) {
     const auto& ts = spec_.terminals[i];
     const TerminalType& type = catalog.get(ts.type);
-    if (!type.has_registers) continue;
+    if (!has_model(type)) continue;
     for (unsigned ch = 0; ch < type.channels; ++ch)
       slots_.push_back({static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}});
   }

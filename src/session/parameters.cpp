@@ -16,6 +16,9 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
                            unsigned channel) {
   for (const auto& p : type.params)
     if (p.name == name && (!p.channel || *p.channel == channel)) return p;
+  if (!type.has_registers)
+    throw Error(Exit::usage, fmt::format("{} has no registers, so no parameter '{}'", type.type, name),
+                "'kscfg catalog " + type.type + "' describes the type");
   std::vector<std::string> others;
   for (const auto& [n, t] : catalog.types())
     if (t.get() != &type && t->param(name)) others.push_back(n);
@@ -166,7 +169,7 @@ Decoded decode_ctst(const TerminalType& type, const std::string& kind, const std
   d.width = table->width;
   if (table->width == 8 && value > 0xFF)
     throw Error(Exit::usage, fmt::format("{} {} is a byte: 0x{:X} is too large", type.type, kind, value));
-  if (value & proto::kReg) {
+  if (type.has_registers && (value & proto::kReg)) {  // no REG bit without a register set
     d.register_mode = true;
     d.reg = value & proto::kAddrMask;
     d.write = (value & proto::kWrite) != 0;

@@ -154,6 +154,11 @@ void SerialPort::write_out() {
   link_.write_outputs(out_lo_, out_);
 }
 
+unsigned SerialPort::in_length() const {
+  if (img_.word) return in_[img_.in_len->offset - in_lo_];
+  return static_cast<unsigned>((status_ & serial::kLenMask) >> serial::kLenShift);
+}
+
 void SerialPort::queue(std::span<const std::uint8_t> bytes) { txq_.insert(txq_.end(), bytes.begin(), bytes.end()); }
 
 bool SerialPort::poll(bool receive) {
@@ -167,8 +172,7 @@ bool SerialPort::poll(bool receive) {
     progress = true;
   }
   if (receive && ((status_ & serial::kRR) != 0) != ((ctrl_ & serial::kRA) != 0)) {
-    unsigned il = img_.word ? in_[img_.in_len->offset - in_lo_]
-                            : static_cast<unsigned>((status_ & serial::kLenMask) >> serial::kLenShift);
+    unsigned il = in_length();
     if (il > img_.in_data.size()) {
       trace(fmt::format("{}: IL {} exceeds the {} data bytes; taking {}", who(), il, img_.in_data.size(),
                         img_.in_data.size()));

@@ -112,6 +112,12 @@ ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, cons
   const ImageByte *ol = by_index(ch.out, vo), *oh = by_index(ch.out, vo + 1);
   const ImageByte *il = by_index(ch.in, vi), *ih = by_index(ch.in, vi + 1);
   bool first_is_ct = !f.out.empty() && f.out.front().is_ctst() && !f.in.empty() && f.in.front().is_ctst();
+  // Only a terminal with a register set has a register window (the CX interface's control word
+  // has no REG bit).
+  if (!type.has_registers) {
+    ch.no_window = "it has no register set";
+    return ch;
+  }
   if (ct && first_is_ct && c && st && ol && oh && il && ih) {
     ch.window = RegisterWindow{c->offset, st->offset, ol->offset, oh->offset, il->offset, ih->offset};
     return ch;

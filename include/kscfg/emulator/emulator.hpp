@@ -70,6 +70,8 @@ class EmulatedStation {
   const StationLayout& layout() const { return layout_; }
   const StationSpec& spec() const { return spec_; }
   ChannelModel& channel(unsigned position, unsigned ch);  // throws Error(usage)
+  // Whether a terminal of this type is emulated by a ChannelModel (has_channel then holds).
+  static bool has_model(const TerminalType& type);
   bool has_channel(unsigned position, unsigned ch) const;
   unsigned response_delay = 1;  // cycles between seeing a request and answering it
   unsigned kbus_cycle_us = 1000;  // emulated time of one K-bus cycle (serial lines run in it)

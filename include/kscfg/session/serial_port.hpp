@@ -62,6 +62,8 @@ class SerialPort {
 
   // Last status as read: BUF_F, IA, ...
   std::uint8_t status() const { return status_; }
+  // The length of the last status read: IL of a status word (its own byte), bits 6..4 of a byte.
+  unsigned in_length() const;
   bool buffer_full() const { return (status_ & serial::kBufF) != 0; }
   const SerialImage& image() const { return img_; }
   const TerminalImage& terminal() const { return *term_; }
