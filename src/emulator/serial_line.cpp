@@ -7,12 +7,14 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <deque>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/serial_model.hpp"
+#include "kscfg/emulator/uart.hpp"
 
 namespace kscfg {
 
@@ -37,6 +39,27 @@ class OpenLine : public FarEnd {
 
  private:
   std::string why_;
+};
+
+// A device at the far end that sends back every character it receives (with its own UART: with a
+// frame of its own, it receives what its UART makes of the terminal's characters).
+class Echo : public FarEnd {
+ public:
+  bool put(std::uint8_t b) override {
+    if (q_.size() >= 4096) return false;
+    q_.push_back(b);
+    return true;
+  }
+  std::optional<std::uint8_t> get() override {
+    if (q_.empty()) return std::nullopt;
+    std::uint8_t b = q_.front();
+    q_.pop_front();
+    return b;
+  }
+  std::string describe() const override { return "echo (a device that sends back what it receives)"; }
+
+ private:
+  std::deque<std::uint8_t> q_;
 };
 
 class Pty : public FarEnd {
@@ -93,15 +116,16 @@ class Pty : public FarEnd {
 }  // namespace
 
 std::string check_far_end(const std::string& spec) {
-  if (spec == "loopback" || spec == "none" || spec == "pty") return spec;
+  if (spec == "loopback" || spec == "none" || spec == "echo" || spec == "pty") return spec;
   if (spec.rfind("pty:", 0) == 0 && spec.size() > 4) return spec;
-  throw Error(Exit::usage, fmt::format("unknown far end '{}'", spec), "use loopback, none, pty or pty:LINK");
+  throw Error(Exit::usage, fmt::format("unknown far end '{}'", spec), "use loopback, echo, none, pty or pty:LINK");
 }
 
 std::unique_ptr<FarEnd> make_far_end(const std::string& spec) {
   check_far_end(spec);
   if (spec == "loopback") return std::make_unique<Loopback>();
   if (spec == "none") return std::make_unique<OpenLine>();
+  if (spec == "echo") return std::make_unique<Echo>();
   return std::make_unique<Pty>(spec == "pty" ? std::string() : spec.substr(4));
 }
 
@@ -109,9 +133,24 @@ std::unique_ptr<FarEnd> make_far_end(const std::string& spec) {
 // The line of one terminal
 
 void SerialModel::set_far_end(const std::string& spec) {
-  far_spec_ = check_far_end(spec);
+  std::string s = check_far_end(spec);
+  if (s == "loopback" && far_frame_)
+    throw Error(Exit::usage, "a loopback bridge has no frame of its own",
+                "use 'echo' for a device with its own baud rate and frame, or --match");
+  far_spec_ = s;
   far_.reset();
 }
+
+void SerialModel::set_far_frame(const std::optional<LineSettings>& f) {
+  if (f && far_spec_ == "loopback")
+    throw Error(Exit::usage, "a loopback bridge has no frame of its own (TxD is wired to RxD)",
+                "set a far end with its own UART first: 'kscfg serial line echo', or pty");
+  far_frame_ = f;
+  to_far_.clear();
+  from_far_.clear();
+}
+
+void SerialModel::far_send(std::span<const std::uint8_t> bytes) { far_out_.insert(far_out_.end(), bytes.begin(), bytes.end()); }
 
 FarEnd& SerialModel::far() {
   if (!far_) {
@@ -131,10 +170,32 @@ std::string SerialModel::far_end_description() const {
   return far_spec_;
 }
 
+std::optional<std::uint8_t> SerialModel::next_tx(const std::array<std::uint16_t, proto::kRegisterCount>& regs,
+                                                 bool take) {
+  bool continuous = (regs[34] & serial::kFeatContinuousSend) && type_->param("continuous-send");
+  if (!ctl_out_.empty()) {  // XON/XOFF go before the FIFO
+    std::uint8_t b = ctl_out_.front();
+    if (take) ctl_out_.pop_front();
+    return b;
+  }
+  bool may_send = !tx_paused_ && (!continuous || release_);
+  if (tx_.empty() || !may_send) return std::nullopt;
+  std::uint8_t b = tx_.front();
+  if (take) tx_.pop_front();
+  return b;
+}
+
+std::optional<std::uint8_t> SerialModel::next_from_far(FarEnd& fe) {
+  if (!far_out_.empty()) {
+    std::uint8_t b = far_out_.front();
+    far_out_.pop_front();
+    return b;
+  }
+  return fe.get();
+}
+
 void SerialModel::run_line(double us, const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
   LineSettings ls = line_settings(*type_, regs);
-  double char_us = 1e6 * ls.char_bits() / ls.baud;
-  std::uint8_t mask = ls.data_bits == 7 ? 0x7F : 0xFF;
   FarEnd& fe = far();
   bool loop = far_spec_ == "loopback";
   if ((regs[34] & serial::kFeatXonXoffReceive) && xoff_sent_ && rx_.size() < 18) {
@@ -142,31 +203,69 @@ void SerialModel::run_line(double us, const std::array<std::uint16_t, proto::kRe
     xoff_sent_ = false;
   }
   bool continuous = (regs[34] & serial::kFeatContinuousSend) && type_->param("continuous-send");
-  // Transmit: one character per character time; XON/XOFF go before the FIFO.
-  tx_credit_ += us;
-  while (tx_credit_ >= char_us) {
-    bool ctl = !ctl_out_.empty();
-    bool may_send = !tx_paused_ && (!continuous || release_);
-    if (!ctl && (tx_.empty() || !may_send)) break;
-    std::uint8_t b = static_cast<std::uint8_t>((ctl ? ctl_out_.front() : tx_.front()) & mask);
-    if (!fe.put(b)) break;
-    if (ctl) ctl_out_.pop_front();
-    else tx_.pop_front();
-    tx_credit_ -= char_us;
-    if (loop) deliver(b, regs);  // the bridge: TxD is RxD
+  if (far_frame_ && !loop) {
+    run_bits(us, ls, *far_frame_, fe, regs);
+  } else {
+    double char_us = 1e6 * ls.char_bits() / ls.baud;
+    std::uint8_t mask = ls.data_bits == 7 ? 0x7F : 0xFF;
+    // Transmit: one character per character time.
+    tx_credit_ += us;
+    while (tx_credit_ >= char_us) {
+      auto next = next_tx(regs, false);
+      if (!next) break;
+      std::uint8_t b = static_cast<std::uint8_t>(*next & mask);
+      if (!fe.put(b)) break;
+      next_tx(regs, true);
+      tx_credit_ -= char_us;
+      if (loop) deliver(b, regs);  // the bridge: TxD is RxD
+    }
+    tx_credit_ = std::min(tx_credit_, char_us);  // an idle line saves no time for later
+    if (!loop || !far_out_.empty()) {
+      rx_credit_ += us;
+      while (rx_credit_ >= char_us) {
+        auto b = next_from_far(fe);
+        if (!b) break;
+        rx_credit_ -= char_us;
+        deliver(static_cast<std::uint8_t>(*b & mask), regs);
+      }
+      rx_credit_ = std::min(rx_credit_, char_us);
+    }
   }
   if (continuous && tx_.empty()) release_ = false;
-  tx_credit_ = std::min(tx_credit_, char_us);  // an idle line saves no time for later
-  if (!loop) {
-    rx_credit_ += us;
-    while (rx_credit_ >= char_us) {
-      auto b = fe.get();
-      if (!b) break;
-      rx_credit_ -= char_us;
-      deliver(static_cast<std::uint8_t>(*b & mask), regs);
-    }
-    rx_credit_ = std::min(rx_credit_, char_us);
+}
+
+void SerialModel::run_bits(double us, const LineSettings& term, const LineSettings& far_frame, FarEnd& fe,
+                           const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
+  // The far end has a UART of its own with its own baud rate and frame: both directions run at the
+  // level of bits (uart.hpp), so a frame that differs from the terminal's shows up as it does on a
+  // real line: parity and framing errors in R6, characters lost, or wrong characters.
+  double begin = now_us_;
+  now_us_ += us;
+  double now = now_us_;
+  for (;;) {
+    double start = std::max(to_far_.free_at(), begin);
+    if (start >= now) break;  // a character that starts in this cycle may end in a later one
+    auto b = next_tx(regs, true);
+    if (!b) break;
+    to_far_.send(start, *b, term);
   }
+  far_rx_.receive(to_far_, now, far_frame, [&](std::uint8_t b, unsigned errors) {
+    if (!errors) fe.put(b);  // the far device's UART drops what it could not receive
+  });
+  for (;;) {
+    double start = std::max(from_far_.free_at(), begin);
+    if (start >= now) break;
+    auto b = next_from_far(fe);
+    if (!b) break;
+    from_far_.send(start, *b, far_frame);
+  }
+  term_rx_.receive(from_far_, now, term, [&](std::uint8_t b, unsigned errors) {
+    // Seed KL6001 "Error handling": with a parity, framing or overrun error the data item is lost
+    // and not loaded into the receive FIFO; the corresponding bits are set in R6.
+    if (errors & UartReceiver::kParity) diag_ |= serial::kDiagParity;
+    if (errors & UartReceiver::kFraming) diag_ |= serial::kDiagFraming;
+    if (!errors) deliver(b, regs);
+  });
 }
 
 }  // namespace kscfg

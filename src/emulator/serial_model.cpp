@@ -61,6 +61,9 @@ nlohmann::json SerialModel::to_json() const {
   j["tx_credit_us"] = tx_credit_;
   j["rx_credit_us"] = rx_credit_;
   if (prev_status_) j["prev_status"] = *prev_status_;
+  if (far_frame_) j["far_frame"] = fmt::format("{} {}{}{}", far_frame_->baud, far_frame_->data_bits,
+                                               far_frame_->parity, far_frame_->stop_bits);
+  if (!far_out_.empty()) j["far_out"] = to_hex(far_out_);
   return j;
 }
 
@@ -89,6 +92,19 @@ void SerialModel::from_json(const nlohmann::json& j) {
   rx_credit_ = std::clamp(j.value("rx_credit_us", 0.0), 0.0, 1e7);
   if (j.contains("prev_status")) prev_status_ = j.at("prev_status").get<std::uint8_t>();
   else prev_status_.reset();
+  far_frame_.reset();
+  if (j.contains("far_frame")) {
+    const auto& f = j.at("far_frame");
+    std::string text = f.is_string() ? f.get<std::string>() : std::string();
+    auto sp = text.find(' ');
+    try {
+      if (sp == std::string::npos) throw Error(Exit::usage, "expected 'BAUD FRAME'");
+      set_far_frame(parse_line_settings(text.substr(0, sp), text.substr(sp + 1)));
+    } catch (const Error& e) {
+      throw Error(Exit::file, fmt::format("serial state: far_frame '{}': {}", text, e.what()));
+    }
+  }
+  far_out_ = fifo("far_out", 65536);
 }
 
 }  // namespace kscfg

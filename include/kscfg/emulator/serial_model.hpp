@@ -17,6 +17,7 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/serial_image.hpp"
+#include "kscfg/emulator/uart.hpp"
 
 namespace kscfg {
 
@@ -31,8 +32,9 @@ class FarEnd {
   virtual std::string describe() const = 0;
 };
 
-// "loopback" (TxD bridged to RxD, the default), "none" (an open line: bytes leave, nothing comes
-// back) or "pty[:LINK]" (a pseudo-terminal; LINK is a symlink to its slave, made while it exists).
+// "loopback" (TxD bridged to RxD, the default), "echo" (a device that sends back what it receives),
+// "none" (an open line: bytes leave, nothing comes back) or "pty[:LINK]" (a pseudo-terminal; LINK
+// is a symlink to its slave, made while it exists).
 // Throws Error(usage) for anything else.
 std::unique_ptr<FarEnd> make_far_end(const std::string& spec);
 std::string check_far_end(const std::string& spec);  // normalised spec, or Error(usage)
@@ -63,6 +65,12 @@ class SerialModel {
 
   const std::string& far_end() const { return far_spec_; }
   void set_far_end(const std::string& spec);  // Error(usage) for a bad spec
+  // The far end's own baud rate and frame (its UART); empty: it follows the terminal's R32/R33.
+  // A loopback bridge has none (Error(usage)).
+  const std::optional<LineSettings>& far_frame() const { return far_frame_; }
+  void set_far_frame(const std::optional<LineSettings>& f);
+  // Bytes the far end sends towards RxD, before anything its own source (pty, echo) has (tests).
+  void far_send(std::span<const std::uint8_t> bytes);
   std::string far_end_description() const;    // e.g. the pty's slave path once it exists
 
   // Emulated state (FIFOs, toggles, flags) for the state file.
@@ -80,6 +88,10 @@ class SerialModel {
 
  private:
   void init();
+  std::optional<std::uint8_t> next_tx(const std::array<std::uint16_t, proto::kRegisterCount>& regs, bool take);
+  std::optional<std::uint8_t> next_from_far(FarEnd& fe);
+  void run_bits(double us, const LineSettings& term, const LineSettings& far_frame, FarEnd& fe,
+                const std::array<std::uint16_t, proto::kRegisterCount>& regs);
   void deliver(std::uint8_t b, const std::array<std::uint16_t, proto::kRegisterCount>& regs);
   unsigned buf_f_level(const std::array<std::uint16_t, proto::kRegisterCount>& regs) const;
   FarEnd& far();
@@ -102,6 +114,11 @@ class SerialModel {
   std::optional<std::uint8_t> prev_status_;   // R34 bit 2: status one cycle behind the data
   std::string far_spec_ = "loopback";
   std::unique_ptr<FarEnd> far_;
+  std::optional<LineSettings> far_frame_;     // the far end's UART; empty: the terminal's settings
+  std::deque<std::uint8_t> far_out_;          // bytes the far end is about to send (far_send)
+  double now_us_ = 0;                         // emulated time of the line (bit level)
+  Wire to_far_, from_far_;                    // TxD and RxD at the level of bits
+  UartReceiver far_rx_, term_rx_;
 };
 
 }  // namespace kscfg
