@@ -1,6 +1,7 @@
 // kscfg emu reset|fault|path: the embedded emulator's state.
 #include <fmt/format.h>
 
+#include <cstdlib>
 #include <iostream>
 
 #include "../command.hpp"
@@ -105,6 +106,130 @@ class EmuFault : public Command {
   bool mute_ = false, clear_ = false;
 };
 
+class EmuEncoder : public Command {
+ public:
+  std::string name() const override { return "encoder"; }
+  std::string brief() const override { return "Turn the encoder on an emulated KL5101's far end (speed, pulses, gate)"; }
+  std::string man() const override {
+    return "Emulator only. The selected KL5101 (default: the first of the station) has an incremental encoder "
+           "on its far end: \\fB\\-\\-speed\\fR \\fIHZ\\fR is the frequency of signal A (periods per "
+           "second of emulated time, up to 250000: the 1 MHz count rate of 4-fold evaluation), "
+           "\\fB\\-\\-direction\\fR \\fBup\\fR|\\fBdown\\fR (A leads B, or in counter mode input B open or "
+           "at 0 V), \\fB\\-\\-lines\\fR \\fIN\\fR periods a revolution with one zero pulse (C) each "
+           "revolution (0: none), \\fB\\-\\-step\\fR \\fIN\\fR turns it by N periods (negative: backwards) at "
+           "the next K\\-bus cycle, \\fB\\-\\-ref\\-pulse\\fR gives one C pulse, \\fB\\-\\-latch\\-pulse\\fR "
+           "one pulse on the external latch input (24 V), \\fB\\-\\-latch\\-input\\fR \\fBon\\fR|\\fBoff\\fR "
+           "sets that input's level (on: a rising edge), and \\fB\\-\\-gate\\fR \\fBon\\fR|\\fBoff\\fR the gate "
+           "input (on: counting suppressed). The terminal counts as R32 says (1-, 2- or 4-fold, counter "
+           "mode, fast mode) and as its control byte asks (CNT_SET, EN_LATC, EN_LAT_EXT, CFAST_M); emulated "
+           "time advances one K\\-bus cycle (1 ms) with every exchange of the emulator link and in real time "
+           "under \\fBkscfg serve\\fR; this command runs one cycle itself, so a step or a pulse has taken effect when "
+           "it prints the far end, the counter, the latch and the status bits.";
+  }
+  std::vector<std::string> examples() const override {
+    return {"emu encoder", "emu encoder --speed 1000 --direction down", "emu encoder --step 100 --lines 1024",
+            "emu encoder --ref-pulse", "emu encoder --gate on", "--json emu encoder"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("--speed", speed_, "Frequency of signal A in Hz (0..250000)")->option_text("HZ");
+    sub.add_option("--direction", direction_, "up or down")->option_text("up|down");
+    sub.add_option("--lines", lines_, "Periods a revolution, one C pulse each (0: none)")->option_text("N");
+    sub.add_option("--step", step_, "Turn by N periods at the next K-bus cycle")->option_text("N");
+    sub.add_flag("--ref-pulse", ref_, "One zero pulse (C) at the next K-bus cycle");
+    sub.add_flag("--latch-pulse", latch_, "One pulse on the external latch input at the next K-bus cycle");
+    sub.add_option("--latch-input", latch_input_, "Level of the external latch input: on or off")
+        ->option_text("on|off");
+    sub.add_option("--gate", gate_, "Gate input: on (counting suppressed) or off")->option_text("on|off");
+  }
+  int run(Context& ctx) override {
+    (void)state_path(ctx);
+    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
+    if (!emu) throw Error(Exit::usage, "'kscfg emu encoder' works on the emulator");
+    EmulatedStation& st = emu->emulated();
+    unsigned pos = ctx.options().terminal;
+    if (!pos)
+      for (const auto& t : st.layout().terminals)
+        if (st.has_channel(t.position, 0) && st.channel(t.position, 0).encoder()) {
+          pos = t.position;
+          break;
+        }
+    if (!pos) throw Error(Exit::usage, "the emulated station has no KL5101", "'kscfg info' lists the station");
+    const TerminalImage& t = st.layout().terminal(pos);
+    if (!st.has_channel(pos, 0) || !st.channel(pos, 0).encoder())
+      throw Error(Exit::usage, fmt::format("terminal {} ({}) is not an emulated KL5101", pos, t.type->type));
+    EncoderModel& enc = *st.channel(pos, 0).encoder();
+    auto on_off = [](const std::string& v, const char* opt) {
+      if (v == "on") return true;
+      if (v == "off") return false;
+      throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: expected on or off", v, opt));
+    };
+    // Everything is checked before anything changes.
+    EncoderFarEnd far = enc.far;
+    if (!speed_.empty()) {
+      double hz = parse_real(speed_, "speed");
+      if (!(hz >= 0 && hz <= encoder::kMaxSpeedHz))
+        throw Error(Exit::usage, fmt::format("invalid speed {}: 0..{} Hz", speed_, encoder::kMaxSpeedHz));
+      far.speed_hz = hz;
+    }
+    if (!direction_.empty()) {
+      if (direction_ != "up" && direction_ != "down")
+        throw Error(Exit::usage, fmt::format("invalid direction '{}': up or down", direction_));
+      far.up = direction_ == "up";
+    }
+    if (!lines_.empty()) far.lines = static_cast<unsigned>(parse_uint(lines_, 1000000, "lines"));
+    if (!step_.empty()) {
+      std::string mag = step_.rfind('-', 0) == 0 ? step_.substr(1) : step_;
+      auto n = static_cast<std::int64_t>(parse_uint(mag, encoder::kMaxStep, "step"));
+      far.step += step_.rfind('-', 0) == 0 ? -n : n;
+      if (std::llabs(far.step) > encoder::kMaxStep)
+        throw Error(Exit::usage, fmt::format("step: at most {} periods pending", encoder::kMaxStep));
+    }
+    if (ref_) ++far.ref_pulses;
+    if (latch_) ++far.latch_pulses;
+    if (!latch_input_.empty()) {
+      bool level = on_off(latch_input_, "--latch-input");
+      if (level && !far.latch_input) ++far.latch_pulses;  // the rising edge (0 V to 24 V)
+      far.latch_input = level;
+    }
+    if (!gate_.empty()) far.gate = on_off(gate_, "--gate");
+    if (far.ref_pulses > 1000 || far.latch_pulses > 1000) throw Error(Exit::usage, "too many pulses pending");
+    enc.far = far;
+    st.cycle();  // one K-bus cycle (1 ms): a step or a pulse takes effect
+    far = enc.far;
+    std::uint8_t s = enc.status();
+    if (ctx.json()) {
+      print_json({{"position", pos},
+                  {"type", t.type->type},
+                  {"speed_hz", far.speed_hz},
+                  {"direction", far.up ? "up" : "down"},
+                  {"lines", far.lines},
+                  {"gate", far.gate},
+                  {"latch_input", far.latch_input},
+                  {"pending", {{"step", far.step}, {"ref_pulses", far.ref_pulses}, {"latch_pulses", far.latch_pulses}}},
+                  {"counter", enc.counter()},
+                  {"latch", enc.latch()},
+                  {"status", s},
+                  {"c", enc.c_level()}});
+    } else {
+      std::cout << fmt::format("terminal {} ({}): encoder {} Hz {}, {} lines a revolution, gate {}, latch input {}\n",
+                               pos, t.type->type, far.speed_hz, far.up ? "up" : "down", far.lines,
+                               far.gate ? "on" : "off", far.latch_input ? "on" : "off");
+      if (far.step || far.ref_pulses || far.latch_pulses)
+        std::cout << fmt::format("pending at the next K-bus cycle: step {} periods, {} C pulse(s), {} latch pulse(s)\n",
+                                 far.step, far.ref_pulses, far.latch_pulses);
+      std::cout << fmt::format("counter {}  latch {}  status 0x{:02X}:{}{}{}{}{}\n", enc.counter(), enc.latch(), s,
+                               s & encoder::kOverflow ? " OVERFLOW" : "", s & encoder::kUnderflow ? " UNDERFLOW" : "",
+                               s & encoder::kCntSetAcc ? " CNTSET_ACC" : "", s & encoder::kLatExtVal ? " LAT_EXT_VAL" : "",
+                               s & encoder::kLatcVal ? " LATC_VAL" : "");
+    }
+    return 0;
+  }
+
+ private:
+  std::string speed_, direction_, lines_, step_, latch_input_, gate_;
+  bool ref_ = false, latch_ = false;
+};
+
 class EmuPath : public Command {
  public:
   std::string name() const override { return "path"; }
@@ -122,7 +247,7 @@ class EmuPath : public Command {
 class Emu : public Command {
  public:
   std::string name() const override { return "emu"; }
-  std::string brief() const override { return "Manage the embedded emulator (reset, fault, path)"; }
+  std::string brief() const override { return "Manage the embedded emulator (reset, fault, encoder, path)"; }
   std::string man() const override {
     return "The embedded emulator is a fake of the hardware: a coupler whose terminals look at their "
            "control byte every K\\-bus cycle and answer in their status byte, with the register tables and "
@@ -132,11 +257,12 @@ class Emu : public Command {
   }
   void add_cli(CLI::App&) override {}
   int run(Context&) override { return 0; }
-  std::vector<Command*> children() override { return {&reset_, &fault_, &path_}; }
+  std::vector<Command*> children() override { return {&reset_, &fault_, &encoder_, &path_}; }
 
  private:
   EmuReset reset_;
   EmuFault fault_;
+  EmuEncoder encoder_;
   EmuPath path_;
 };
 

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
+#include <cmath>
 
 #include "kscfg/base/error.hpp"
 
@@ -53,6 +55,14 @@ std::uint64_t parse_uint(std::string_view text, std::uint64_t max, std::string_v
     v = v * base + d;
   }
   if (v > max) return fail(fmt::format("out of range (0..{})", max));
+  return v;
+}
+
+double parse_real(std::string_view text, std::string_view what) {
+  double v = 0;
+  auto [p, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (text.empty() || ec != std::errc() || p != text.data() + text.size() || !std::isfinite(v))
+    throw Error(Exit::usage, fmt::format("invalid {} '{}': expected a number", what, text));
   return v;
 }
 

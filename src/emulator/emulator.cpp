@@ -31,6 +31,7 @@ ChannelModel::ChannelModel(const TerminalType& type, std::array<std::uint16_t, p
   // ROM is what the factory burnt in, whatever a state file says.
   for (unsigned r = 8; r < 15; ++r) regs_[r] = type.regs[r].def;
   if (type.is_serial()) serial_ = std::make_unique<SerialModel>(type);
+  if (type.family == "encoder" && type.r8 == 5101) encoder_ = std::make_unique<EncoderModel>(type);
 }
 
 std::uint16_t ChannelModel::read_register(unsigned r) const {
@@ -73,6 +74,7 @@ void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std
     serial_->mute = faults.mute;
     serial_->run_line(cycle_us, regs_);
   }
+  if (encoder_) encoder_->run(cycle_us, regs_);  // the encoder turns and the counter counts in any mode
   auto serial_registers = [&] {
     if (!serial_) return;
     regs_[0] = serial_->tx_count();
@@ -85,6 +87,7 @@ void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std
     if (reg_mode_) std::fill(in.begin(), in.end(), 0);
     reg_mode_ = false;
     if (serial_) serial_->handshake(out, in, regs_);
+    if (encoder_) encoder_->process_data(out, in, regs_);
     serial_registers();
     return;
   }
@@ -194,6 +197,7 @@ nlohmann::json EmulatedStation::to_json() const {
     if (!s.model.faults.ignore_writes.empty()) c["ignore_writes"] = s.model.faults.ignore_writes;
     if (s.model.faults.mute) c["mute"] = true;
     if (const auto* ser = s.model.serial()) c["serial"] = ser->to_json();
+    if (const auto* enc = s.model.encoder()) c["encoder"] = enc->to_json();
     chans.push_back(c);
   }
   j["channels"] = chans;
@@ -235,6 +239,7 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
       if (c.contains("ignore_writes")) slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
       slot.model.faults.mute = c.value("mute", false);
       if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
+      if (auto* enc = slot.model.encoder(); enc && c.contains("encoder")) enc->from_json(c.at("encoder"));
     }
     st->power_on();  // the coupler lays out the image from the terminals' registers
     auto hex = j.at("outputs").get<std::string>();

@@ -12,6 +12,10 @@ namespace kscfg {
 // or when the value exceeds `max`.
 std::uint64_t parse_uint(std::string_view text, std::uint64_t max, std::string_view what = "number");
 
+// Parses a whole string as a finite decimal number ("1000", "-2.5", "1e3"). No blanks, no suffix.
+// Throws Error(Exit::usage) naming `what` on failure.
+double parse_real(std::string_view text, std::string_view what = "number");
+
 // A register: "R32", "r32", "32" or "0x20"; R0..R63 only.
 unsigned parse_register(std::string_view text);
 

@@ -13,6 +13,7 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/emulator/encoder_model.hpp"
 #include "kscfg/emulator/serial_model.hpp"
 #include "kscfg/station/station.hpp"
 
@@ -44,6 +45,9 @@ class ChannelModel {
   // Serial terminals: the process-data side (FIFOs, handshake, line); null for other types.
   SerialModel* serial() { return serial_.get(); }
   const SerialModel* serial() const { return serial_.get(); }
+  // The KL5101: counter, latches and the encoder on the far end; null for other types.
+  EncoderModel* encoder() { return encoder_.get(); }
+  const EncoderModel* encoder() const { return encoder_.get(); }
 
   ChannelFaults faults;
 
@@ -56,6 +60,7 @@ class ChannelModel {
   std::uint64_t req_seen_ = 0;
   bool executed_ = false;
   std::unique_ptr<SerialModel> serial_;
+  std::unique_ptr<EncoderModel> encoder_;
 };
 
 class EmulatedStation {
