@@ -46,7 +46,7 @@ void check_names(const json& j, const std::string& where, std::vector<std::strin
     if (k == "position" && !(v.is_number_unsigned() && v.get<unsigned>() >= 1)) fail(k, "not a position: " + v.dump());
     if (k == "channel" && !(v.is_number_unsigned() && v.get<unsigned>() >= 1)) fail(k, "not a channel: " + v.dump());
     if (k == "register" && !(v.is_number_unsigned() && v.get<unsigned>() <= 63)) fail(k, "not a register: " + v.dump());
-    if (k == "type" && !(v.is_string() && std::regex_match(v.get<std::string>(), std::regex("[A-Z]{2}[0-9]{3,4}[A-Z0-9-]*"))))
+    if (k == "type" && !(v.is_string() && std::regex_match(v.get<std::string>(), std::regex("[A-Z]{2}[0-9]{3,4}[A-Z0-9-]*|CX-[A-Za-z0-9]+"))))
       fail(k, "not a terminal type: " + v.dump());
     if ((k == "changed" || k == "dry_run" || k == "verified" || k == "complex") && !v.is_boolean())
       fail(k, "not a bool: " + v.dump());
@@ -210,6 +210,7 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   J("ports", {"ports"});
   CHECK(J("emu path", {"emu", "path"})["state"] == emu.state);
   CHECK(J("emu fault", {"emu", "fault", "--clear"})["changed"] == true);
+  CHECK(J("emu encoder", {"emu", "encoder", "--step", "1"})["position"] == 2);
   CHECK(J("emu reset", {"emu", "reset"})["terminal_count"] == 7);
 
   // A Modbus link: scan, and the unit of the provisioning commands.
