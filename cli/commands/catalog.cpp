@@ -21,6 +21,7 @@ std::string elements_text(const std::vector<Element>& v) {
       case Element::Kind::ctst: t = "CT/ST"; break;
       case Element::Kind::ctst_word: t = "CT/ST+" + e.hi; break;
       case Element::Kind::word: t = e.lo + "+" + e.hi; break;
+      case Element::Kind::dword: t = e.names[0] + "+" + e.names[1] + "+" + e.names[2] + "+" + e.names[3]; break;
       case Element::Kind::byte: t = e.lo; break;
       case Element::Kind::pad: t = "(" + e.lo + ")"; break;
       case Element::Kind::bytes:

@@ -4,7 +4,9 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstdlib>
 #include <stdexcept>
 
@@ -12,6 +14,13 @@
 #include "kscfg/base/parse.hpp"
 
 namespace kscfg {
+
+std::uint16_t Scale::word(double v) const {
+  double r = raw0 + (v - value0) * (raw1 - raw0) / (value1 - value0);
+  double lo = is_unsigned() ? 0 : -32768, hi = is_unsigned() ? 65535 : 32767;
+  r = std::clamp(std::round(r), lo, hi);
+  return static_cast<std::uint16_t>(static_cast<std::int32_t>(r) & 0xFFFF);
+}
 
 unsigned ParamDef::shift() const {
   unsigned s = 0;

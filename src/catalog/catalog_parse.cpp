@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <sstream>
 #include <toml++/toml.h>
@@ -157,6 +158,11 @@ Element parse_element(const Ctx& c, const toml::node& n, std::string_view field)
     e.kind = Element::Kind::word;
     e.lo = w[1];
     e.hi = w[2];
+  } else if (w[0] == "dword" && w.size() == 5) {
+    e.kind = Element::Kind::dword;
+    for (unsigned i = 0; i < 4; ++i) e.names[i] = w[1 + i];
+    e.lo = w[1];
+    e.hi = w[4];
   } else if ((w[0] == "byte" || w[0] == "pad") && w.size() == 2) {
     e.kind = w[0] == "byte" ? Element::Kind::byte : Element::Kind::pad;
     e.lo = w[1];
@@ -180,7 +186,8 @@ Element parse_element(const Ctx& c, const toml::node& n, std::string_view field)
     }
     if (e.min > e.max) bad("min > max");
   } else {
-    bad("expected ctst | ctst-word LEN | word LO HI | byte NAME | pad NAME | bytes PREFIX N | bytes PREFIX Rn MIN MAX");
+    bad("expected ctst | ctst-word LEN | word LO HI | dword B0 B1 B2 B3 | byte NAME | pad NAME | bytes PREFIX N | "
+        "bytes PREFIX Rn MIN MAX");
   }
   return e;
 }
@@ -200,8 +207,8 @@ std::vector<Element> parse_elements(const Ctx& c, const toml::table& t, std::str
 
 std::shared_ptr<TerminalType> parse_type(const Ctx& c, const toml::table& root) {
   c.only_keys(root,
-              {"type", "title", "family", "registers", "r8", "version", "channels", "factory_reset",
-               "source", "fifo_tx", "fifo_rx", "param", "image", "decode"},
+              {"type", "title", "family", "registers", "r8", "version", "channels", "direction", "scale",
+               "factory_reset", "source", "fifo_tx", "fifo_rx", "param", "image", "decode"},
               "the top level");
   auto t = std::make_shared<TerminalType>();
   t->origin = c.origin;
@@ -221,7 +228,51 @@ std::shared_ptr<TerminalType> parse_type(const Ctx& c, const toml::table& root) 
   t->r8 = static_cast<std::uint16_t>(c.num(root, "r8", false, 0, 0, 0xFFFF));
   t->version = c.str(root, "version", false, "10");
   if (t->version.size() != 2) c.fail(root, "version", "must be two ASCII characters");
-  t->channels = static_cast<unsigned>(c.num(root, "channels", false, 1, 1, 16));
+  // A register set per channel: at most 16 (the largest KL terminals). Without registers the
+  // channels are inputs/outputs: up to 256, the most bits a format may carry.
+  t->channels = static_cast<unsigned>(c.num(root, "channels", false, 1, 1, t->has_registers ? 16 : 256));
+  // The direction of the process data: from the family unless the file says it.
+  auto dir = c.str(root, "direction", false,
+                   t->family == "analog-in" ? "in" : t->family == "analog-out" ? "out" : "both");
+  if (dir == "in") t->direction = Direction::in;
+  else if (dir == "out") t->direction = Direction::out;
+  else if (dir == "both") t->direction = Direction::both;
+  else c.fail(root, "direction", "must be \"in\", \"out\" or \"both\"");
+  if (const toml::node* sn = root.get("scale")) {
+    const auto* st = sn->as_table();
+    if (!st) c.fail(sn, "scale", "must be { raw = [R0, R1], value = [V0, V1], unit = \"..\" }");
+    c.only_keys(*st, {"raw", "value", "unit"}, "scale");
+    auto pair = [&](const char* key, bool integer) {
+      const toml::node* n = st->get(key);
+      const auto* a = n ? n->as_array() : nullptr;
+      if (!a || a->size() != 2) c.fail(*st, key, "must be an array of two numbers");
+      std::array<double, 2> v{};
+      for (std::size_t i = 0; i < 2; ++i) {
+        const toml::node& e = *a->get(i);
+        if (integer) {
+          auto x = e.value_exact<std::int64_t>();
+          if (!x || *x < -32768 || *x > 65535) c.fail(&e, key, "raw points are integers -32768..65535");
+          v[i] = static_cast<double>(*x);
+        } else {
+          auto x = e.value<double>();
+          if (!x || !std::isfinite(*x)) c.fail(&e, key, "must be numbers");
+          v[i] = *x;
+        }
+      }
+      return v;
+    };
+    Scale sc;
+    auto raw = pair("raw", true);
+    auto val = pair("value", false);
+    sc.raw0 = static_cast<std::int32_t>(raw[0]);
+    sc.raw1 = static_cast<std::int32_t>(raw[1]);
+    sc.value0 = val[0];
+    sc.value1 = val[1];
+    if (sc.raw0 == sc.raw1) c.fail(*st, "raw", "the two raw points must differ");
+    if (sc.value0 == sc.value1) c.fail(*st, "value", "the two values must differ");
+    sc.unit = c.str(*st, "unit", true);
+    t->scale = sc;
+  }
   auto reset = c.str(root, "factory_reset", false, "defaults");
   if (reset == "r7") t->reset = FactoryReset::r7;
   else if (reset == "defaults") t->reset = FactoryReset::defaults;

@@ -34,6 +34,7 @@ EncoderModel::EncoderModel(const TerminalType& type) : type_(&type) {
           if (e.lo == "D3") i_lat_lo_ = idx, i_lat_hi_ = idx + 1;
           idx += 2;
           break;
+        case Element::Kind::dword: idx += 4; break;
         case Element::Kind::byte:
         case Element::Kind::pad: idx += 1; break;
         case Element::Kind::bytes: idx += static_cast<int>(e.count ? e.count : e.min); break;

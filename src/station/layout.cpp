@@ -59,6 +59,15 @@ std::vector<ImageByte> lay_out(const std::vector<Element>& elements, bool ct, co
         }
         idx += 2;
         break;
+      case Element::Kind::dword:
+        // A 32-bit value: Motorola format swaps all four bytes (B3 B2 B1 B0), not two words.
+        if (s.word_alignment && pos % 2) push("reserved", -1);
+        for (int k = 0; k < 4; ++k) {
+          int b = s.motorola ? 3 - k : k;
+          push(e.names[static_cast<std::size_t>(b)], idx + b);
+        }
+        idx += 4;
+        break;
       case Element::Kind::byte:
         push(e.lo, idx++);
         break;
@@ -96,10 +105,10 @@ ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, cons
                             std::size_t in_start) {
   ChannelImage ch;
   bool ct = ctst_mapped(f, s);
-  // Without the control/status byte an analog input terminal has no outputs and an analog output
-  // terminal no inputs (the data words exist in one direction only).
-  bool skip_out = !ct && type.family == "analog-in";
-  bool skip_in = !ct && type.family == "analog-out";
+  // Without the control/status byte a one-way terminal (catalog key `direction`: an analog input
+  // has no outputs, an analog output no inputs) maps only the side its data goes.
+  bool skip_out = !ct && type.direction == Direction::in;
+  bool skip_in = !ct && type.direction == Direction::out;
   std::size_t n = 0;
   int vo = 1, vi = 1;
   if (!skip_out) ch.out = lay_out(f.out, ct, s, regs, out_start, n, vo);

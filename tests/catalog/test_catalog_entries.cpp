@@ -132,9 +132,9 @@ TEST_CASE("catalog entries: every file is consistent", "[catalog][entries]") {
       const unsigned bits = t->images[0].bits_in + t->images[0].bits_out;
       CHECK(bits >= 1);
       CHECK(t->channels <= bits);
-      // The file states the channel count; the loader accepts 1..16, so the 32- and 64-channel KM
-      // modules leave the key out (their files say why).
-      if (bits <= 16) CHECK(text.find("\nchannels = ") != std::string::npos);
+      // The file states the channel count (up to 256 without registers: the 32- and 64-channel KM
+      // modules too).
+      CHECK(text.find("\nchannels = ") != std::string::npos);
       // KL1xxx are inputs (KL1859: inputs and outputs), KL2xxx outputs.
       if (type.rfind("KL1", 0) == 0) CHECK(t->images[0].bits_in >= 1);
       if (type.rfind("KL2", 0) == 0 || type.rfind("KM2", 0) == 0) CHECK(t->images[0].bits_out >= 1);
@@ -188,10 +188,7 @@ TEST_CASE("catalog entries: every file is consistent", "[catalog][entries]") {
         {"CX-", {"serial"}}};
     auto fam = families.find(head);
     REQUIRE(fam != families.end());
-    if (type == "KL5001")
-      CHECK(t->family == "analog-in");  // SSI interface filed by its mapping behaviour (see KL5001.toml)
-    else
-      CHECK(fam->second.count(t->family) == 1);
+    CHECK(fam->second.count(t->family) == 1);
   }
 }
 
@@ -375,9 +372,7 @@ TEST_CASE("mapping example 7: terminal mapping tables (KL5111, KL1501, KL5001, K
   //   CANopen: 0: D0 | CB/SB  1: D2 | D1  2: res. | D3  -> CB/SB D0 D1 D2 D3 (5 bytes).
   //   Lightbus: 0: res. | CB/SB  1: D1 | D0  2: D3 | D2  -> 6 bytes.
   //   Profibus: 0: D3 | CB/SB  1: D1 | D2  2: res. | D0  -> CB/SB D3 D2 D1 D0: the 32-bit value is
-  //   swapped as a whole. The catalog's two 16-bit words give CB/SB D1 D0 D3 D2 under Motorola: the
-  //   offsets and the size agree with the manual, the byte names do not (format gap, no 'dword'
-  //   element; see the report). Only the offsets are asserted for Motorola.
+  //   swapped as a whole (the catalog's 'dword' element).
   CHECK(bytes_of(compute_layout(station("BK5120", {"KL1501"}), cat()).terminal(1).channels[0].in) ==
         "0:CT/ST 1:D0 2:D1 3:D2 4:D3");
   CHECK(bytes_of(compute_layout(station("BK9000", {"KL1501"}), cat()).terminal(1).channels[0].in) ==
@@ -385,14 +380,21 @@ TEST_CASE("mapping example 7: terminal mapping tables (KL5111, KL1501, KL5001, K
   StationLayout M = compute_layout(station("BK3000", {"KL1501"}), cat());
   CHECK(M.terminal(1).in_size == 5);
   CHECK(M.terminal(1).out_size == 5);
-  CHECK(M.terminal(1).channels[0].in.front().name == "CT/ST");
+  CHECK(bytes_of(M.terminal(1).channels[0].in) == "0:CT/ST 1:D3 2:D2 3:D1 4:D0");
+  CHECK(bytes_of(M.terminal(1).channels[0].out) == "0:CT/ST 1:D3 2:D2 3:D1 4:D0");
+  // KL5151 and KL5001: the same double word (KL5001 mapped with its CB/SB under Profibus when the
+  // master asks for complete evaluation).
+  CHECK(bytes_of(compute_layout(station("BK3000", {"KL5151"}), cat()).terminal(1).channels[0].in) ==
+        "0:CT/ST 1:D3 2:D2 3:D1 4:D0");
+  StationSpec kl5001m = station("BK3000", {"KL5001"});
+  CHECK(bytes_of(compute_layout(kl5001m, cat()).terminal(1).channels[0].in) == "0:D3 1:D2 2:D1 3:D0");
 
   // KL5001 standard format, https://infosys.beckhoff.com/content/1033/kl5001/4401520779.html :
   //   complete evaluation no: 4 bytes (D0..D3), no CB/SB; yes + word alignment: CB/SB, -, D0..D3.
   StationLayout S = compute_layout(station("BK5120", {"KL5001"}), cat());
   CHECK(bytes_of(S.terminal(1).channels[0].in) == "0:D0 1:D1 2:D2 3:D3");
   // Without complete evaluation no output bytes (BK51x0 PDO example: "KL5001 ... by default 4 byte
-  // inputs"); the catalog files KL5001 as analog-in for that reason (format gap, see the file).
+  // inputs"): the catalog says direction = "in".
   CHECK(S.terminal(1).out_size == 0);
   CHECK(bytes_of(compute_layout(station("BK9000", {"KL5001"}), cat()).terminal(1).channels[0].in) ==
         "0:CT/ST 1:reserved 2:D0 3:D1 4:D2 5:D3");

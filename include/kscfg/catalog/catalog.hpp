@@ -84,11 +84,12 @@ struct ParamDef {
 };
 
 struct Element {
-  enum class Kind { ctst, ctst_word, word, byte, pad, bytes };
+  enum class Kind { ctst, ctst_word, word, dword, byte, pad, bytes };
   bool is_ctst() const { return kind == Kind::ctst || kind == Kind::ctst_word; }
   Kind kind = Kind::byte;
   std::string lo;  // name (word: low byte; bytes: prefix)
   std::string hi;  // word: high byte; ctst_word: name of the length byte
+  std::array<std::string, 4> names;  // dword: its bytes, least significant first
   unsigned count = 0;            // bytes: fixed count
   std::optional<unsigned> count_register;  // bytes: count from this register's low byte
   unsigned min = 0, max = 0;     // bytes with count_register: clamp
@@ -114,6 +115,27 @@ struct ImageFormat {
 
 enum class FactoryReset { defaults, r7 };
 
+// An analog channel's data word as a value with a unit (catalog key `scale`).
+struct Scale {
+  std::int32_t raw0 = 0, raw1 = 32767;
+  double value0 = 0, value1 = 1;
+  std::string unit;
+  bool is_unsigned() const { return raw1 > 32767 || raw0 > 32767; }
+  // The word as the terminal means it: signed 16-bit, or unsigned for 0..65535 ranges.
+  std::int32_t raw(std::uint16_t word) const {
+    return is_unsigned() ? static_cast<std::int32_t>(word) : static_cast<std::int32_t>(static_cast<std::int16_t>(word));
+  }
+  double value(std::uint16_t word) const {
+    return value0 + (raw(word) - raw0) * (value1 - value0) / static_cast<double>(raw1 - raw0);
+  }
+  // The word that gives `v` (rounded, clamped to the word's range): for forcing outputs.
+  std::uint16_t word(double v) const;
+};
+
+// Which way a terminal's process data goes. A one-way terminal maps the other side only together
+// with its control/status byte (complete evaluation): an analog input has no output data word.
+enum class Direction { in, out, both };
+
 struct TerminalType {
   std::string type;
   std::string title;
@@ -124,6 +146,8 @@ struct TerminalType {
   std::uint16_t r8 = 0;
   std::string version = "00";
   unsigned channels = 1;
+  Direction direction = Direction::both;
+  std::optional<Scale> scale;
   FactoryReset reset = FactoryReset::defaults;
   unsigned fifo_tx = 0, fifo_rx = 0;
   std::array<RegisterDef, proto::kRegisterCount> regs{};
