@@ -23,6 +23,7 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_map());
   v.push_back(make_station());
   v.push_back(make_serial());
+  v.push_back(make_data());
   v.push_back(make_scan());
   v.push_back(make_ports());
   v.push_back(make_serve());

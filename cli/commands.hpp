@@ -24,6 +24,7 @@ std::unique_ptr<Command> make_restore();
 std::unique_ptr<Command> make_map();
 std::unique_ptr<Command> make_station();
 std::unique_ptr<Command> make_serial();
+std::unique_ptr<Command> make_data();
 std::unique_ptr<Command> make_scan();
 std::unique_ptr<Command> make_ports();
 std::unique_ptr<Command> make_serve();

@@ -211,6 +211,7 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(J("emu path", {"emu", "path"})["state"] == emu.state);
   CHECK(J("emu fault", {"emu", "fault", "--clear"})["changed"] == true);
   CHECK(J("emu encoder", {"emu", "encoder", "--step", "1"})["position"] == 2);
+  CHECK(J("data", {"-t", "2", "data", "--once"})["counter"] == 4);  // one channel: one JSON line
   CHECK(J("emu reset", {"emu", "reset"})["terminal_count"] == 7);
 
   // A Modbus link: scan, and the unit of the provisioning commands.

@@ -1,0 +1,285 @@
+// kscfg data [force NAME=VALUE... --yes]: the live process data of the station, decoded per the
+// catalog (library: kscfg/session/process_data.hpp), and forcing outputs.
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <iostream>
+#include <thread>
+
+#include "../command.hpp"
+#include "../commands.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/session/process_data.hpp"
+
+namespace kscfg::cli {
+
+namespace {
+
+// "0x13 TA=1 RR=1 ..." in the order of the catalog's table.
+std::string bits_text(const nlohmann::json& b, const TerminalType* type, const char* kind, const std::string& format) {
+  std::string s = fmt::format("0x{:02X}", b.at("value").get<unsigned>());
+  if (!b.contains("bits")) return s;
+  const auto& bits = b.at("bits");
+  const DecodeTable* table = nullptr;
+  if (type)
+    for (const auto& t : type->decode)
+      if (t.kind == kind && (t.image.empty() || t.image == format)) {
+        table = &t;
+        break;
+      }
+  if (table) {
+    for (const auto& f : table->fields)
+      if (bits.contains(f.name)) s += fmt::format(" {}={}", f.name, bits.at(f.name).get<unsigned>());
+  } else {
+    for (auto it = bits.begin(); it != bits.end(); ++it) s += fmt::format(" {}={}", it.key(), it.value().get<unsigned>());
+  }
+  return s;
+}
+
+std::string hex_list(const nlohmann::json& a) {
+  std::string s;
+  for (const auto& b : a) s += fmt::format("{}{:02x}", s.empty() ? "" : " ", b.get<unsigned>());
+  return s;
+}
+
+std::string bit_string(const nlohmann::json& a) {
+  std::string s;
+  for (const auto& b : a) s += b.get<int>() ? '1' : '0';
+  return s;
+}
+
+// One line for people from a channel's JSON object.
+std::string line_text(const nlohmann::json& j, const Catalog& cat) {
+  const TerminalType* type = cat.find(j.at("type").get<std::string>());
+  std::string format = j.value("format", "");
+  std::string ch = j.contains("channel") ? std::to_string(j.at("channel").get<unsigned>()) : "-";
+  std::string s = fmt::format("{:<4}{:<3}{:<10}", j.at("position").get<unsigned>(), ch, j.at("type").get<std::string>());
+  std::vector<std::string> parts;
+  if (j.value("register_mode", false)) parts.push_back("REGISTER MODE");
+  if (j.contains("status")) parts.push_back("status " + bits_text(j.at("status"), type, "status", format));
+  if (j.contains("in_data")) parts.push_back("in [" + hex_list(j.at("in_data")) + "]");
+  if (j.contains("control")) parts.push_back("control " + bits_text(j.at("control"), type, "control", format));
+  if (j.contains("out_data")) parts.push_back("out [" + hex_list(j.at("out_data")) + "]");
+  if (j.contains("counter")) parts.push_back(fmt::format("counter {}", j.at("counter").get<std::uint32_t>()));
+  if (j.contains("latch")) parts.push_back(fmt::format("latch {}", j.at("latch").get<std::uint32_t>()));
+  if (j.contains("word")) {
+    std::string v = fmt::format("word {}", j.at("word").get<std::int32_t>());
+    if (j.contains("scaled"))
+      v += fmt::format(" = {:.3f} {}", j.at("scaled").get<double>(), j.at("unit").get<std::string>());
+    parts.push_back(v);
+  }
+  if (j.contains("inputs")) parts.push_back("inputs " + bit_string(j.at("inputs")));
+  if (j.contains("outputs")) parts.push_back("outputs " + bit_string(j.at("outputs")));
+  if (parts.empty() && j.contains("bytes")) {
+    std::string b;
+    for (const char* side : {"in", "out"})
+      for (auto it = j.at("bytes").at(side).begin(); it != j.at("bytes").at(side).end(); ++it)
+        b += fmt::format("{}{}.{}=0x{:02X}", b.empty() ? "" : " ", side, it.key(), it.value().get<unsigned>());
+    parts.push_back(b);
+  }
+  for (std::size_t i = 0; i < parts.size(); ++i) s += (i ? "  " : "") + parts[i];
+  return s;
+}
+
+bool write_out(const std::string& s) {
+  std::cout << s;
+  std::cout.flush();
+  if (!std::cout) throw Error(Exit::file, "cannot write to stdout");
+  return true;
+}
+
+class Data : public Command {
+ public:
+  std::string name() const override { return "data"; }
+  std::string brief() const override { return "Show the live process data, decoded; force outputs (data force)"; }
+  std::string man() const override {
+    return "Shows the process data of every terminal of the station, or of the one given with \\fB\\-t\\fR, as "
+           "the coupler's image holds it now, decoded per the catalog: the handshake bits and lengths of serial "
+           "terminals (status TA, RR, IA, BUF_F, IL and control TR, RA, IR, OL, with the bytes IL and OL say are "
+           "valid), the counter, latch and status bits of encoder and counter terminals (KL5101: OVERFLOW, "
+           "UNDERFLOW, CNTSET_ACC, LAT_EXT_VAL, LATC_VAL), the data word of analog terminals and its value "
+           "in the catalog's unit (e.g. mA, V, \\(deC), and the bits of digital terminals. A channel whose "
+           "control byte has REG set is marked as being in register mode (its data bytes carry register values "
+           "then). On a terminal screen the view refreshes in place every \\fB\\-\\-interval\\fR ms until "
+           "Ctrl\\-C; otherwise each sample is printed after the previous one. \\fB\\-\\-once\\fR takes one "
+           "sample, \\fB\\-\\-count\\fR \\fIN\\fR N samples. With \\fB\\-\\-json\\fR every channel of every "
+           "sample is one JSON line (keys in docs/json.md: \\fBposition\\fR, \\fBchannel\\fR, \\fBtype\\fR, "
+           "\\fBfamily\\fR, \\fBformat\\fR, \\fBsample\\fR, \\fBregister_mode\\fR, \\fBstatus\\fR and "
+           "\\fBcontrol\\fR as {value, bits}, \\fBin_length\\fR, \\fBin_data\\fR, \\fBout_length\\fR, "
+           "\\fBout_data\\fR, \\fBcounter\\fR, \\fBlatch\\fR, \\fBword\\fR, \\fBscaled\\fR, \\fBunit\\fR, "
+           "\\fBinputs\\fR, \\fBoutputs\\fR, and \\fBbytes\\fR with every named byte). Works over every link: "
+           "the emulator (whose K\\-bus then runs in real time between samples, so an encoder turning with "
+           "\\fBkscfg emu encoder \\-\\-speed\\fR counts on screen), Modbus TCP and RTU. Nothing is written.\\n"
+           ".IP\\n"
+           "\\fBdata force\\fR \\fINAME\\fR=\\fIVALUE\\fR... \\fB\\-\\-yes\\fR forces outputs of the terminal "
+           "given with \\fB\\-t\\fR (channel \\fB\\-c\\fR): digital outputs by number (\\fB1=on 2=off\\fR), an "
+           "analog output channel by value in its unit (\\fBvalue=5.0\\fR) or data word (\\fBword=0x4000\\fR), any "
+           "output byte of a channel by name (\\fBD0=0x12\\fR, \\fBCT/ST=0x04\\fR; a control byte with REG set is "
+           "refused). Outputs move real actuators, so nothing is written without \\fB\\-\\-yes\\fR (exit status 5), "
+           "and never on a terminal whose control byte shows register mode. The previous values are read first; "
+           "the forced values are held (written again every interval, so a coupler watchdog does not drop them) "
+           "while the live view runs, until Ctrl\\-C, \\fB\\-\\-hold\\fR \\fIMS\\fR, \\fB\\-\\-once\\fR or "
+           "\\fB\\-\\-count\\fR; then the previous values are written back and read back, also after an error. "
+           "With \\fB\\-\\-json\\fR the last line is {position, channel, forced: [{name, before, after}], "
+           "restored}. Ctrl\\-C ends \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0).";
+  }
+  std::vector<std::string> examples() const override {
+    return {"data", "data --once", "--json data --once", "-t 2 data --count 5 --interval 100",
+            "-t 6 data force 1=on 3=on --yes", "-t 2 data force D0=0x10 D1=0x27 CT/ST=0x04 --yes --hold 2000",
+            "-p tcp://10.0.3.11 --station line3.toml -t 5 data force value=4.5 --yes"};
+  }
+  std::vector<std::string> completions() const override { return {"force"}; }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("ARGS", args_, "Nothing (the live view), or: force NAME=VALUE...")->option_text("[force NAME=VALUE...]");
+    sub.add_flag("--once", once_, "One sample, then exit");
+    sub.add_option("--count", count_, "N samples, then exit")->option_text("N");
+    sub.add_option("--interval", interval_, "Time between samples in ms (default 500)")->option_text("MS");
+    sub.add_flag("--yes", yes_, "data force: really write the outputs");
+    sub.add_option("--hold", hold_, "data force: hold the forced values for MS ms, then restore")->option_text("MS");
+  }
+
+  int run(Context& ctx) override {
+    bool force = !args_.empty() && args_.front() == "force";
+    if (!args_.empty() && !force)
+      throw Error(Exit::usage, fmt::format("unknown argument '{}' for data", args_.front()),
+                  "kscfg data shows the process data; kscfg data force NAME=VALUE... --yes forces outputs");
+    if (!force && (yes_ || !hold_.empty()))
+      throw Error(Exit::usage, "--yes and --hold go with 'data force'");
+    if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
+    std::size_t count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
+    auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
+    if (interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
+    std::optional<std::chrono::milliseconds> hold;
+    if (!hold_.empty()) hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));
+
+    const StationLayout& L = ctx.layout();
+    unsigned only = ctx.options().terminal;
+    if (only) (void)L.terminal(only);  // an error for a position that does not exist
+    Link& link = ctx.link();
+    std::size_t din = 0, dout = 0;
+    for (const auto& t : L.terminals)
+      if (!t.complex) din += t.bits_in, dout += t.bits_out;
+    if (!only && (L.digital_in_bits > din || L.digital_out_bits > dout))
+      std::cerr << fmt::format("kscfg: note: {} digital input and {} output bits belong to no terminal here (a scan "
+                               "sees only their totals); give --station FILE to see them by terminal\n",
+                               L.digital_in_bits - din, L.digital_out_bits - dout);
+
+    ForcePlan plan;
+    const TerminalImage* ft = nullptr;
+    unsigned fch = ctx.options().channel - 1;
+    if (force) {
+      if (!only)
+        throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
+      std::vector<std::string> specs(args_.begin() + 1, args_.end());
+      ft = &L.terminal(only);
+      ImageSnapshot before = read_image(link, L);
+      plan = plan_force(*ft, fch, specs, before.out);  // checks everything, writes nothing
+      if (!yes_)
+        throw Error(Exit::refused,
+                    fmt::format("forcing outputs of terminal {} ({}) moves what is wired to them; nothing written",
+                                ft->position, ft->type->type),
+                    "add --yes to force them");
+      apply_force(link, plan);
+    }
+    int rc = 0;
+    auto restore_after_error = [&] {
+      if (!force) return;
+      bool was = g_interrupted.exchange(false);  // the link refuses to work while it is set
+      try {
+        restore_force(link, plan);
+        std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
+                                 ft->type->type);
+      } catch (const Error& e) {
+        std::cerr << fmt::format("kscfg: warning: restoring the outputs of terminal {} failed: {}\n", ft->position,
+                                 e.what());
+      }
+      if (was) g_interrupted = true;
+    };
+    try {
+      rc = loop(ctx, link, L, only, count, interval, hold, force ? &plan : nullptr);
+    } catch (const Error& e) {
+      // Ctrl-C during an exchange ends the view like Ctrl-C between two samples.
+      if (e.code() != Exit::interrupted) {
+        restore_after_error();
+        throw;
+      }
+      g_interrupted = false;
+    } catch (...) {
+      restore_after_error();
+      throw;
+    }
+    if (force) {
+      restore_force(link, plan);
+      if (ctx.json()) {
+        nlohmann::json j{{"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes},
+                         {"restored", true}};
+        if (ft->complex) j["channel"] = fch + 1;
+        write_out(j.dump() + "\n");
+      } else {
+        write_out(fmt::format("terminal {} ({}): outputs restored\n", ft->position, ft->type->type));
+      }
+    }
+    return rc;
+  }
+
+ private:
+  int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, std::size_t count,
+           std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold, const ForcePlan* plan) {
+    auto* emu = dynamic_cast<EmulatorLink*>(&link);
+    const bool tty = !ctx.json() && isatty(1) && count == 0;
+    const auto start = std::chrono::steady_clock::now();
+    auto last = start;
+    for (std::size_t n = 1;; ++n) {
+      if (g_interrupted) break;
+      if (plan && n > 1) apply_force(link, *plan);  // held: written again every interval
+      ImageSnapshot s = read_image(link, L);
+      auto rows = decode_station(L, s, only);
+      std::string out;
+      if (ctx.json()) {
+        for (auto& r : rows) {
+          r["sample"] = n;
+          out += r.dump() + "\n";
+        }
+      } else {
+        if (tty) out += "\x1b[H\x1b[J";
+        out += fmt::format("{} sample {}{}\n", link.describe(), n,
+                           plan ? fmt::format(", outputs of terminal {} forced (Ctrl-C restores them)", only) : "");
+        for (const auto& r : rows) out += line_text(r, ctx.catalog()) + "\n";
+        if (!tty && (count == 0 || count > 1)) out += "\n";
+      }
+      write_out(out);
+      if (count && n >= count) break;
+      if (hold && std::chrono::steady_clock::now() - start >= *hold) break;
+      // Wait for the next sample; the emulated K-bus runs for the time that passed.
+      auto next = last + interval;
+      while (!g_interrupted && std::chrono::steady_clock::now() < next) {
+        if (hold && std::chrono::steady_clock::now() - start >= *hold) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      }
+      auto now = std::chrono::steady_clock::now();
+      if (emu) {
+        auto us = std::chrono::duration_cast<std::chrono::microseconds>(now - last).count();
+        auto cycles = std::min<long long>(us / std::max(1u, emu->emulated().kbus_cycle_us), 100000);
+        for (long long i = 0; i < cycles; ++i) emu->emulated().cycle();
+      }
+      last = now;
+    }
+    g_interrupted = false;  // Ctrl-C is how the live view ends: exit status 0
+    return 0;
+  }
+
+  std::vector<std::string> args_;
+  std::string count_, interval_, hold_;
+  bool once_ = false, yes_ = false;
+};
+
+}  // namespace
+
+std::unique_ptr<Command> make_data() { return std::make_unique<Data>(); }
+
+}  // namespace kscfg::cli

@@ -1,0 +1,58 @@
+// The live process data of a station, decoded per the catalog (kscfg data): serial control/status
+// bits and lengths, encoder counter/latch/status, analog raw and scaled values, digital bits; and
+// forcing outputs with the previous values kept for restoring them.
+#pragma once
+#include <cstdint>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "kscfg/link/link.hpp"
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+// The whole input and output image, read through a link (two reads).
+struct ImageSnapshot {
+  std::vector<std::uint8_t> in, out;
+};
+ImageSnapshot read_image(Link& link, const StationLayout& layout);
+
+// One JSON object per channel of a complex terminal, one per digital terminal; nothing for
+// terminals without bytes (end, power). Keys (docs/json.md): position, channel (complex only),
+// type, family, format, register_mode, status / control ({value, bits}), and by family:
+// serial in_length/out_length/in_data/out_data (the valid data bytes, numbers), encoder and counter
+// "counter"/"latch", analog "word" (the data word, signed unless the scale is unsigned)/"scaled"/"unit", digital "inputs"/"outputs" (arrays of 0/1); every complex channel
+// also "bytes": {"in": {NAME: value}, "out": {...}}.
+std::vector<nlohmann::json> decode_station(const StationLayout& layout, const ImageSnapshot& image,
+                                           unsigned only_position = 0);
+nlohmann::json decode_channel(const TerminalImage& t, unsigned channel, const ImageSnapshot& image);
+
+// Whether a channel's control byte asks for register mode now (a register session is running).
+bool in_register_mode(const TerminalImage& t, unsigned channel, const std::vector<std::uint8_t>& out);
+
+// One output byte a force changes: `mask` are the bits it sets to `after`.
+struct ForcedByte {
+  std::size_t offset = 0;
+  std::uint8_t before = 0, after = 0, mask = 0xFF;
+};
+struct ForcePlan {
+  std::vector<ForcedByte> bytes;
+  nlohmann::json changes = nlohmann::json::array();  // [{name, before, after}] for people and JSON
+};
+// NAME=VALUE specs for the terminal at `position` (channel 0-based for complex terminals):
+//  digital outputs:  N=on|off|1|0        (N: output 1..bits_out)
+//  analog outputs:   value=V (in the catalog's unit, needs `scale`) or word=N (the data word)
+//  any complex:      BYTE=VALUE          (an output byte of the channel by name: D0, D1, OL/IL, CT/ST)
+// Error(usage) for a bad spec, Error(refused) for a terminal in register mode, for inputs only, or
+// for a control byte value with REG set.
+ForcePlan plan_force(const TerminalImage& t, unsigned channel, const std::vector<std::string>& specs,
+                     const std::vector<std::uint8_t>& out);
+// Writes the forced bits of every byte (the other bits as the coupler holds them now) and reads
+// them back: Error(verify) when they do not read back.
+void apply_force(Link& link, const ForcePlan& p);
+// Writes the bits back as they were before the force (other bits as they are now), verified.
+void restore_force(Link& link, const ForcePlan& p);
+
+}  // namespace kscfg
