@@ -10,6 +10,7 @@
 #include <string>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/emulator/encoder_model.hpp"
 
 namespace kscfg {
 
@@ -62,6 +63,37 @@ constexpr Field kSerial[] = {
     number("tx_credit_us", 0, 1e7),
     number("rx_credit_us", 0, 1e7),
     integer("prev_status", 0, 0xFF),
+    text("far_frame", 64),
+    hex("far_out", 65536),
+};
+
+// encoder.far_end: EncoderModel::to_json (encoder_model.cpp)
+constexpr Field kEncoderFarEnd[] = {
+    number("speed_hz", 0, encoder::kMaxSpeedHz),
+    flag("up"),
+    integer("lines", 0, 1000000),
+    flag("gate"),
+    flag("latch_input"),
+    integer("latch_pulses", 0, 1000),
+    integer("ref_pulses", 0, 1000),
+    integer("step", -static_cast<double>(encoder::kMaxStep), static_cast<double>(encoder::kMaxStep)),
+};
+
+// encoder: EncoderModel::to_json (encoder_model.cpp)
+constexpr Field kEncoder[] = {
+    integer("counter", 0, 0xFFFF),
+    integer("latch", 0, 0xFFFF),
+    flag("overflow"),
+    flag("underflow"),
+    flag("latc_val"),
+    flag("lat_ext_val"),
+    flag("cntset_acc"),
+    integer("control", 0, 0x7F),
+    flag("c_used"),
+    flag("ext_used"),
+    integer("position", -1152921504606846976.0, 1152921504606846976.0),  // 2^60
+    number("credit", 0, 1),
+    {"far_end", Kind::object, 0, 0, 0, 0, kEncoderFarEnd},
 };
 
 // channels[]: EmulatedStation::to_json (emulator.cpp)
@@ -73,6 +105,7 @@ constexpr Field kChannel[] = {
     integers("ignore_writes", 0, 63, 0, 64),
     flag("mute"),
     {"serial", Kind::object, 0, 0, 0, 0, kSerial},
+    {"encoder", Kind::object, 0, 0, 0, 0, kEncoder},
 };
 
 // The file: EmulatedStation::to_json (emulator.cpp)
