@@ -230,9 +230,15 @@ void option_value(Completions& c, const CLI::Option* o, const Scene& s, const Ca
     for (const auto& p : coupler_profiles()) add(c, p.name, p.title);
     return;
   }
-  if (text == "on|off") {
-    add(c, "on");
-    add(c, "off");
+  if (text.find('|') != std::string::npos &&
+      text.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789-|") == std::string::npos) {
+    // A value named by its choices: on|off, up|down.
+    for (std::size_t b = 0;;) {
+      std::size_t e = text.find('|', b);
+      add(c, text.substr(b, e == std::string::npos ? std::string::npos : e - b));
+      if (e == std::string::npos) break;
+      b = e + 1;
+    }
     return;
   }
   if (n == "--color") {

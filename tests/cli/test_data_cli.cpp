@@ -464,3 +464,41 @@ TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[
   sh(tmux + "send-keys -t t C-c");
   CHECK(wait_for([](const std::string& p) { return p.find("EXIT=0") != std::string::npos; }, 20));
 }
+
+// The commands of issue 14 in the completion (the shells' scripts ask 'kscfg __complete'), next to
+// their help and man sections that tests/cli/test_docs.cpp keeps from drifting.
+TEST_CASE("data, emu encoder and serial line: completion of commands, options and values", "[data][completion]") {
+  Emu emu;
+  auto complete = [&](std::vector<std::string> words) {
+    words.insert(words.begin(), {"__complete", "--", "kscfg"});
+    Run r = run_kscfg(words, emu.env);
+    REQUIRE(r.rc == 0);
+    return "\n" + r.out;
+  };
+  CHECK_THAT(complete({""}), Catch::Contains("\ndata\t"));
+  CHECK_THAT(complete({"data", ""}), Catch::Contains("\nforce"));
+  for (const char* o : {"--once\t", "--count\t", "--interval\t", "--yes\t", "--hold\t"})
+    CHECK_THAT(complete({"data", "-"}), Catch::Contains(std::string("\n") + o));
+  CHECK_THAT(complete({"emu", ""}), Catch::Contains("\nencoder\t"));
+  for (const char* o : {"--speed\t", "--direction\t", "--lines\t", "--step\t", "--ref-pulse\t", "--latch-pulse\t",
+                        "--latch-input\t", "--gate\t"})
+    CHECK_THAT(complete({"emu", "encoder", "-"}), Catch::Contains(std::string("\n") + o));
+  std::string dir = complete({"emu", "encoder", "--direction", ""});
+  CHECK_THAT(dir, Catch::Contains("\nup") && Catch::Contains("\ndown"));
+  std::string gate = complete({"emu", "encoder", "--gate", ""});
+  CHECK_THAT(gate, Catch::Contains("\non") && Catch::Contains("\noff"));
+  std::string far = complete({"serial", "line", ""});
+  for (const char* f : {"\nloopback", "\necho", "\nnone", "\npty"}) CHECK_THAT(far, Catch::Contains(f));
+  for (const char* o : {"--baud\t", "--frame\t", "--match\t", "--send\t"})
+    CHECK_THAT(complete({"serial", "line", "-"}), Catch::Contains(std::string("\n") + o));
+  // Help and the man page name them.
+  for (const std::vector<std::string>& h : {std::vector<std::string>{"help", "data"}, {"help", "emu", "encoder"},
+                                            {"help", "serial", "line"}}) {
+    Run r = run_kscfg(h);
+    CHECK(r.rc == 0);
+    CHECK_THAT(r.out, Catch::StartsWith("Usage: kscfg [GLOBAL OPTIONS] " + h[1]));
+  }
+  Run man = run_kscfg({"manpage"});
+  for (const char* s : {".SS \"kscfg data", ".SS \"kscfg emu encoder\"", ".SS \"kscfg serial line"})
+    CHECK_THAT(man.out, Catch::Contains(s));
+}
