@@ -289,6 +289,27 @@ TEST_CASE("data --once --json over Modbus TCP to kscfg serve: the same as over t
   }
 }
 
+TEST_CASE("data --once --json over Modbus RTU to kscfg serve --pty: the same as over the emulator",
+          "[data][cli][serve]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "encoder", "--step", "25"}).rc == 0);
+  auto local = lines_of(emu({"--json", "data", "--once"}).out);
+  Server srv(emu.state, {"--pty"}, emu.dir.file("serve.err"));
+  REQUIRE(srv.uri.rfind("rtu:", 0) == 0);
+  std::string station = emu.dir.file("station.toml");
+  write_text(station, kDefaultStation);
+  Run r = run_kscfg({"--port", srv.uri, "--station", station, "--json", "data", "--once"});
+  INFO(r.err);
+  REQUIRE(r.rc == 0);
+  auto remote = lines_of(r.out);
+  check_default_station(remote, 100, {0, 0, 0, 0});
+  REQUIRE(remote.size() == local.size());
+  for (std::size_t i = 0; i < local.size(); ++i) {
+    INFO(local[i].dump());
+    CHECK(without_sample(remote[i]) == without_sample(local[i]));
+  }
+}
+
 TEST_CASE("data --once --json over the independent pymodbus peer", "[data][cli][peer]") {
   Child peer({"/usr/bin/python3", std::string(KSCFG_SOURCE_DIR) + "/tests/peer/bk_coupler.py", "--tcp",
               "127.0.0.1:0", "--station", "KL6001,KL5101,KL6031,KL3022,KL1104,KL2134,KL9010", "--digital-in",
