@@ -3,8 +3,11 @@
 #include <catch2/catch.hpp>
 
 #include <functional>
+#include <set>
+#include <sstream>
 
 #include "app.hpp"
+#include "kscfg/base/error.hpp"
 #include "support.hpp"
 
 using namespace kscfg::cli;
@@ -94,4 +97,44 @@ TEST_CASE("flags are documented without a value, options with one", "[docs]") {
     for (const CLI::App* s : a->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); })) walk(s);
   };
   walk(&app->cli);
+}
+
+TEST_CASE("the README's exit status table and the man page list exactly the Exit codes", "[docs]") {
+  std::set<int> codes;  // every value of the Exit enum: exit_name() knows it
+  for (int i = 0; i < 256; ++i)
+    if (std::string(kscfg::exit_name(static_cast<kscfg::Exit>(i))) != "?") codes.insert(i);
+  REQUIRE(codes.count(70));
+  std::string readme = kscfg::test::read_text(std::string(KSCFG_SOURCE_DIR) + "/README.md");
+  auto at = readme.find("<!-- exit-codes");
+  REQUIRE(at != std::string::npos);
+  std::set<int> table;
+  std::istringstream in(readme.substr(readme.find("\n|---", at) + 5));
+  std::string line;
+  std::getline(in, line);  // the rest of the separator row
+  while (std::getline(in, line) && line.rfind("| ", 0) == 0) table.insert(std::stoi(line.substr(2)));
+  CHECK(table == codes);
+  std::string man = generate_manpage(*build_app());
+  std::string section = man.substr(man.find(".SH EXIT STATUS"));
+  section = section.substr(0, section.find(".SH ", 4));
+  std::set<int> listed;
+  for (auto p = section.find(".B "); p != std::string::npos; p = section.find(".B ", p + 1))
+    listed.insert(std::stoi(section.substr(p + 3)));
+  CHECK(listed == codes);
+}
+
+TEST_CASE("the packaged examples are valid station files", "[docs]") {
+  kscfg::test::Emu emu;
+  std::string dir = std::string(KSCFG_SOURCE_DIR) + "/examples/";
+  for (const char* f : {"serial-line.toml", "profibus-layout.toml"}) {
+    auto r = emu({"station", "check", dir + f});
+    INFO(f << ": " << r.err);
+    CHECK(r.rc == 0);
+  }
+  // serial-line.toml is the emulator's station: diff shows what apply would change.
+  auto d = emu({"diff", dir + "serial-line.toml"});
+  CHECK(d.rc == 1);
+  CHECK_THAT(d.out, Catch::Contains("baud                 9600 -> 19200"));
+  auto m = emu({"map", "--station", dir + "profibus-layout.toml"});
+  CHECK(m.rc == 0);
+  CHECK_THAT(m.out, Catch::Contains("BK3120"));
 }
