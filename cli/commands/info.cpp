@@ -157,14 +157,20 @@ class Info : public Command {
     return s.empty() ? "-" : s;
   }
 
+  // "type     KL5101  Incremental encoder ...", the title wrapped under itself to the output width.
+  static std::string type_line(const TerminalImage& t) {
+    std::string head = fmt::format("type     {}  ", t.type->type);
+    return head + wrap(t.type->title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
+  }
+
   int one(Context& ctx, unsigned pos) {
     const TerminalImage& t = ctx.layout().terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
     if (!t.type->has_registers) {
       if (ctx.json()) print_json(j);
       else
-        std::cout << fmt::format("terminal {}\ntype     {}  {}\nimage    {}\nregisters none\n", pos, t.type->type,
-                                 t.type->title, image_text(t));
+        std::cout << fmt::format("terminal {}\n", pos) << type_line(t)
+                  << fmt::format("image    {}\nregisters none\n", image_text(t));
       return 0;
     }
     auto s = ctx.session();
@@ -186,11 +192,13 @@ class Info : public Command {
       print_json(j);
       return 0;
     }
-    std::cout << fmt::format("terminal {}\ntype     {}  {}\n", pos, t.type->type, t.type->title);
+    std::cout << fmt::format("terminal {}\n", pos) << type_line(t);
     for (auto& [r, v] : vals) {
       std::string label = r == 16 ? "hw-version" : register_label(*t.type, r);
-      std::cout << fmt::format("R{:<3} {:<16} {:<12} {}\n", r, label, format_value(v),
-                               r == 16 ? "" : register_meaning(*t.type, r, v));
+      std::string head = fmt::format("R{:<3} {:<16} {:<12} ", r, label, format_value(v));
+      std::string meaning = r == 16 ? "" : register_meaning(*t.type, r, v);
+      if (meaning.empty()) std::cout << head << '\n';
+      else std::cout << head << wrap(meaning, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
     }
     std::cout << fmt::format("image    {}\n", image_text(t));
     return 0;

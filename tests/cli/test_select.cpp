@@ -188,3 +188,17 @@ TEST_CASE("dump shows progress on stderr only when asked for a terminal, never w
   Run json = kscfg::test::run_kscfg({"--json", "dump"}, env);
   CHECK(json.err.empty());
 }
+
+TEST_CASE("info of every terminal, one by one or all, fits 80 columns when piped", "[select][cli]") {
+  Emu emu;
+  for (std::string sel : {"all", "1", "2", "3", "4", "5", "6", "7", "KL6031"}) {
+    Run r = emu({"info", "-t", sel});
+    INFO("kscfg info -t " << sel << "\n" << r.out);
+    REQUIRE(r.rc == 0);
+    CHECK(widest_line(r.out) <= 80);
+  }
+  // The KL5101's 79-character title wraps under itself in the type line.
+  Run r = emu({"info", "-t", "2"});
+  CHECK_THAT(r.out, Catch::Contains("type     KL5101  Incremental encoder interface, 5 V (RS422), 16-bit counter and\n"
+                                    "                 latch, 1 channel\n"));
+}
