@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -43,15 +44,17 @@ void ProgressBar::update(std::size_t done, const std::string& item) {
   auto now = std::chrono::steady_clock::now();
   bool forced = std::getenv("KSCFG_PROGRESS") && std::strcmp(std::getenv("KSCFG_PROGRESS"), "1") == 0;
   if (!forced && now - start_ < kQuiet) return;
-  if (shown_ && now - last_ < kRedraw && done < total_) return;
+  if (shown_ && now - last_ < kRedraw && (total_ == 0 || done < total_)) return;
   last_ = now;
   double elapsed = std::chrono::duration<double>(now - start_).count();
   std::string eta;
   if (done > 0 && done < total_) eta = ", about " + duration_text(elapsed / done * (total_ - done)) + " left";
   const int bar = 20;
-  int fill = total_ ? static_cast<int>(done * bar / total_) : bar;
-  std::string line = fmt::format("{} [{}{}] {}/{}{}{}", what_, std::string(fill, '#'), std::string(bar - fill, ' '),
-                                 done, total_, item.empty() ? "" : " " + item, eta);
+  int fill = total_ ? static_cast<int>(std::min(done, total_) * bar / total_) : bar;
+  // An open end (total 0: receiving until the line is idle) has no bar and no estimate.
+  std::string line = total_ ? fmt::format("{} [{}{}] {}/{}{}{}", what_, std::string(fill, '#'),
+                                          std::string(bar - fill, ' '), done, total_, item.empty() ? "" : " " + item, eta)
+                            : fmt::format("{} {}{}", what_, done, item.empty() ? "" : " " + item);
   if (line.size() > 79) line.resize(79);
   std::size_t pad = width_ > line.size() ? width_ - line.size() : 0;
   std::cerr << '\r' << line << std::string(pad, ' ') << std::flush;

@@ -4,6 +4,7 @@
 #pragma once
 #include <chrono>
 #include <cstddef>
+#include <functional>
 #include <string>
 
 namespace kscfg::cli {
@@ -12,7 +13,8 @@ class Context;
 
 class ProgressBar {
  public:
-  // `what`: the command ("dump"); `total`: units of work (registers, bytes, terminals).
+  // `what`: the command ("dump"); `total`: units of work (registers, bytes, terminals); 0: an
+  // open end ("recv 1200 bytes", no bar, no estimate).
   ProgressBar(const Context& ctx, std::string what, std::size_t total);
   ~ProgressBar();
   ProgressBar(const ProgressBar&) = delete;
@@ -21,6 +23,13 @@ class ProgressBar {
   // `done` units finished; `item` says what is being worked on (optional).
   void update(std::size_t done, const std::string& item = {});
   void set_total(std::size_t total) { total_ = total; }
+  // For the library's progress callbacks (done, total, what): sets the total and updates.
+  std::function<void(unsigned, unsigned, const std::string&)> callback() {
+    return [this](unsigned done, unsigned total, const std::string& item) {
+      set_total(total);
+      update(done, item);
+    };
+  }
   // Clears the line (also done by the destructor).
   void finish();
   bool shown() const { return shown_; }

@@ -7,16 +7,22 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/session/lockout.hpp"
+#include "../progress.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
 
-int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force) {
+int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
+              const std::string& what) {
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
   const StationLayout& layout = ctx.layout();
-  Plan plan = make_plan(ctx.link(), layout, want, ctx.catalog(), ctx.session_options());
+  Plan plan;
+  {
+    ProgressBar bar(ctx, what + ": reading", 0);  // on a terminal only (progress.hpp)
+    plan = make_plan(ctx.link(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
+  }
   if (dry_run || !plan.changes()) {
     if (ctx.json()) {
       print_json(provision_json(ctx, plan, dry_run, ""));
@@ -27,7 +33,11 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   }
   guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
   std::string path = backup.empty() ? default_apply_backup_path() : backup;
-  ApplyResult r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path);
+  ApplyResult r;
+  {
+    ProgressBar bar(ctx, what + ": writing", 0);
+    r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback());
+  }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   if (ctx.json()) {
     print_json(provision_json(ctx, plan, false, r.backup_path));

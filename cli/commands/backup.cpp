@@ -7,6 +7,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../output.hpp"
+#include "../progress.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/provision/provision.hpp"
 
@@ -23,22 +24,16 @@ class Backup : public Command {
            "the named parameters) and writes a station file (TOML) that \\fBkscfg restore\\fR and "
            "\\fBkscfg diff\\fR take. The hardware version (R16) is identity, not configuration, and is not "
            "saved. With \\fIFILE\\fR the file is written atomically; without it the file goes to stdout. "
-           "On a terminal screen a progress line is shown on stderr.";
+           "On a terminal a progress line with an estimate of the time left is shown on stderr.";
   }
   std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Output file (default or -: stdout)")->option_text("FILE"); }
   int run(Context& ctx) override {
-    bool tty = isatty(STDERR_FILENO);
-    Progress progress;
-    if (tty)
-      progress = [](unsigned done, unsigned total, const std::string& what) {
-        int width = 30;
-        int fill = total ? static_cast<int>(done * width / total) : width;
-        std::cerr << fmt::format("\rbackup [{}{}] {}/{} {:<30}", std::string(fill, '#'), std::string(width - fill, ' '),
-                                 done, total, what)
-                  << (done == total ? "\n" : "") << std::flush;
-      };
-    StationSpec spec = backup_station(ctx.link(), ctx.layout(), ctx.session_options(), progress);
+    StationSpec spec;
+    {
+      ProgressBar bar(ctx, "backup", 0);  // on a terminal only (progress.hpp)
+      spec = backup_station(ctx.link(), ctx.layout(), ctx.session_options(), bar.callback());
+    }
     std::string text = toml_comment("kscfg backup of " + ctx.link().describe()) + station_to_toml(spec);
     if (file_.empty() || file_ == "-") write_output("-", text);
     else {

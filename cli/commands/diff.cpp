@@ -7,6 +7,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "../progress.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
@@ -61,7 +62,11 @@ class Diff : public Command {
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec want = load_station_arg(file_, ctx.catalog());
-    Plan plan = make_plan(ctx.link(), ctx.layout(), want, ctx.catalog(), ctx.session_options());
+    Plan plan;
+    {
+      ProgressBar bar(ctx, "diff: reading", 0);  // on a terminal only (progress.hpp)
+      plan = make_plan(ctx.link(), ctx.layout(), want, ctx.catalog(), ctx.session_options(), bar.callback());
+    }
     if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);
     else std::cout << "no differences\n";

@@ -12,7 +12,9 @@ nlohmann::json plan_json(const Plan& plan);
 nlohmann::json provision_json(Context& ctx, const Plan& plan, bool dry_run, const std::string& backup);
 std::string plan_text(const Plan& plan);
 // apply and restore: plan, back up, write, roll back on failure. Returns the exit code.
-int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force);
+// `what` ("apply", "restore") names the progress line on a terminal.
+int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
+              const std::string& what = "apply");
 
 // apply and restore share their arguments and their run(); they differ in name and text.
 class ApplyCommand : public Command {
@@ -23,7 +25,7 @@ class ApplyCommand : public Command {
     sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
     sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
   }
-  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_, force_); }
+  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_, force_, name()); }
 
  private:
   std::string file_, backup_;

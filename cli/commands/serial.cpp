@@ -5,13 +5,17 @@
 #include <termios.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <functional>
+#include <memory>
 #include <iostream>
 #include <iterator>
 
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../output.hpp"
+#include "../progress.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
@@ -92,6 +96,31 @@ nlohmann::json report_diagnostics(Context& ctx, const SerialPort& port) {
   return j;
 }
 
+// Progress on a terminal (progress.hpp) for more than a few hundred bytes: a bar with an
+// estimate when the count is known, the bytes so far when receiving until the line is idle.
+constexpr std::size_t kProgressBytes = 256;
+
+class ByteProgress {
+ public:
+  // `done` says how many bytes have moved; `total` 0 is an open end (shown past kProgressBytes).
+  ByteProgress(Context& ctx, SerialPort& port, const char* what, std::size_t total, std::function<std::size_t()> done)
+      : port_(port) {
+    if (total && total <= kProgressBytes) return;
+    bar_ = std::make_unique<ProgressBar>(ctx, what, total);
+    port_.on_moved([this, total, done = std::move(done)] {
+      std::size_t n = done();
+      if (total || n > kProgressBytes) bar_->update(n, "bytes");
+    });
+  }
+  ~ByteProgress() { port_.on_moved({}); }
+  ByteProgress(const ByteProgress&) = delete;
+  ByteProgress& operator=(const ByteProgress&) = delete;
+
+ private:
+  SerialPort& port_;
+  std::unique_ptr<ProgressBar> bar_;
+};
+
 void write_bytes(const std::vector<std::uint8_t>& v, bool hex) {
   if (hex) {
     if (!v.empty()) std::cout << to_hex_text(v) << '\n';
@@ -168,10 +197,15 @@ class SerialSend : public Command {
       count = static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     }
     auto port = open_port(ctx);
-    port->send(bytes, recv_);
+    {
+      ByteProgress bar(ctx, *port, "send", bytes.size(),
+                       [&] { return bytes.size() - std::min(bytes.size(), port->queued()); });
+      port->send(bytes, recv_);
+    }
     if (recv_) {
       std::size_t want = count;
       if (!want || port->received().size() < want) {
+        ByteProgress bar(ctx, *port, "recv", want, [&] { return port->received().size(); });
         try {
           port->receive(want, std::chrono::milliseconds(ctx.options().timeout_ms));
         } catch (const Error&) {
@@ -225,6 +259,7 @@ class SerialRecv : public Command {
     std::size_t count = count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     auto port = open_port(ctx);
     try {
+      ByteProgress bar(ctx, *port, "recv", count, [&] { return port->received().size(); });
       port->receive(count, std::chrono::milliseconds(ctx.options().timeout_ms));
     } catch (const Error&) {
       if (!ctx.json()) write_bytes(port->received(), hex_);

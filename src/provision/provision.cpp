@@ -8,6 +8,7 @@
 #include <ctime>
 #include <filesystem>
 #include <map>
+#include <set>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
@@ -82,7 +83,7 @@ StationSpec backup_station(Link& link, const StationLayout& layout, const Sessio
 }
 
 Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
-               const SessionOptions& so) {
+               const SessionOptions& so, const Progress& progress) {
   auto where = [&](int line) { return line ? fmt::format("{}:{}: ", desired.origin, line) : desired.origin + ": "; };
   // 1. Composition: same types at the same positions, before anything else.
   if (desired.terminals.size() != layout.terminals.size()) {
@@ -118,6 +119,16 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
       }
   }
   // 3. Read what the file configures and compare.
+  unsigned reads = 0, total_reads = 0;
+  for (const auto& want : desired.terminals) {
+    const TerminalType& type = catalog.get(want.type);
+    for (const auto& cs : want.channels) {
+      std::set<unsigned> regs;
+      for (const auto& [r, v] : cs.registers) regs.insert(r);
+      for (const auto& p : cs.params) regs.insert(type.param(p.name)->reg);
+      total_reads += static_cast<unsigned>(regs.size());
+    }
+  }
   Plan plan;
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
@@ -136,6 +147,7 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
       std::vector<unsigned> order;
       auto need = [&](unsigned r) {
         if (!cur.count(r)) {
+          if (progress) progress(reads++, total_reads, fmt::format("terminal {}", have.position));
           cur[r] = s.read(r);
           order.push_back(r);
         }
@@ -178,10 +190,12 @@ std::string default_apply_backup_path() {
 }
 
 ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
-                       const std::string& coupler, const std::string& backup_path) {
+                       const std::string& coupler, const std::string& backup_path, const Progress& progress) {
   ApplyResult res;
   res.plan = plan;
   if (!plan.changes()) return res;
+  unsigned written = 0, total_writes = 0;
+  for (const auto& cp : plan.channels) total_writes += static_cast<unsigned>(cp.registers.size());
 
   // Safety first: the touched registers as they are now, as a station file `restore` can apply.
   StationSpec undo;
@@ -209,6 +223,8 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
   std::vector<Done> done;
   try {
     for (const auto& cp : plan.channels) {
+      if (progress && !cp.registers.empty()) progress(written, total_writes, fmt::format("terminal {}", cp.position));
+      written += static_cast<unsigned>(cp.registers.size());
       if (cp.registers.empty()) continue;
       const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
       RegisterSession s(link, ti, cp.channel, so);

@@ -199,6 +199,7 @@ bool SerialPort::poll(bool receive) {
     dirty = true;
   }
   if (dirty) write_out();
+  if (progress && moved_) moved_();
   return progress;
 }
 

@@ -202,3 +202,52 @@ TEST_CASE("info of every terminal, one by one or all, fits 80 columns when piped
   CHECK_THAT(r.out, Catch::Contains("type     KL5101  Incremental encoder interface, 5 V (RS422), 16-bit counter and\n"
                                     "                 latch, 1 channel\n"));
 }
+
+TEST_CASE("backup, apply, restore, diff and serial send/recv show progress only for a terminal", "[cli][progress]") {
+  Emu emu;
+  auto env = emu.env;
+  kscfg::test::TempDir dir;
+  env["XDG_STATE_HOME"] = dir.path;
+  env["KSCFG_PROGRESS"] = "1";  // as if stderr were a terminal (tests/cli/progress_pty.py uses a real one)
+  std::string backup = dir.file("b.toml");
+  Run b = kscfg::test::run_kscfg({"backup", backup}, env);
+  REQUIRE(b.rc == 0);
+  CHECK_THAT(b.err, Catch::Contains("backup ["));
+  std::string file = std::string(KSCFG_SOURCE_DIR) + "/examples/serial-line.toml";
+  Run d = kscfg::test::run_kscfg({"diff", file}, env);
+  CHECK(d.rc == 1);
+  CHECK_THAT(d.err, Catch::Contains("diff: reading ["));
+  Run a = kscfg::test::run_kscfg({"apply", file}, env);
+  CHECK(a.rc == 10);
+  CHECK_THAT(a.err, Catch::Contains("apply: reading ["));
+  CHECK_THAT(a.err, Catch::Contains("apply: writing ["));
+  CHECK_THAT(a.err, Catch::Contains("] 0/3 terminal 1"));  // three registers to write, KL6001's first
+  Run r = kscfg::test::run_kscfg({"restore", backup}, env);
+  CHECK(r.rc == 10);
+  CHECK_THAT(r.err, Catch::Contains("restore: writing ["));
+  for (const Run* x : {&b, &d, &a, &r}) CHECK(x->err.find('\x1b') == std::string::npos);
+
+  std::string data(1000, 'x');
+  for (std::size_t i = 0; i < data.size(); ++i) data[i] = static_cast<char>('a' + i % 26);
+  Run s = kscfg::test::run_kscfg({"serial", "send", "--recv", "--count", "1000", "-"}, env, 60, data);
+  CHECK(s.rc == 0);
+  CHECK(s.out == data);
+  CHECK_THAT(s.err, Catch::Contains("send ["));
+  CHECK_THAT(s.err, Catch::Contains("/1000 bytes"));
+  // A few bytes show nothing; neither does --json, nor a pipe.
+  Run small = kscfg::test::run_kscfg({"serial", "send", "--recv", "--count", "5", "-"}, env, 60, "hello");
+  CHECK(small.rc == 0);
+  CHECK(small.err.empty());
+  env["KSCFG_PROGRESS"] = "0";
+  Run piped = kscfg::test::run_kscfg({"serial", "send", "--recv", "--count", "1000", "-"}, env, 60, data);
+  CHECK(piped.rc == 0);
+  CHECK(piped.err.empty());
+  env.erase("KSCFG_PROGRESS");
+  Run quiet = kscfg::test::run_kscfg({"restore", backup}, env);
+  CHECK(quiet.rc == 0);
+  CHECK(quiet.err.empty());
+  env["KSCFG_PROGRESS"] = "1";
+  Run json = kscfg::test::run_kscfg({"--json", "apply", file}, env);
+  CHECK(json.rc == 10);
+  CHECK_THAT(json.err, !Catch::Contains("["));
+}

@@ -44,8 +44,9 @@ struct Plan {
 // Refuses (Error(Exit::refused)) when the file's terminals do not match the station's types and
 // positions, and (Error(Exit::usage)) a register in the file that cannot be written, naming the
 // file line; then reads the station and returns what differs. Nothing is written.
+// `progress` is told of each register read (done, total, "terminal N").
 Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
-               const SessionOptions& so);
+               const SessionOptions& so, const Progress& progress = {});
 
 struct ApplyResult {
   Plan plan;
@@ -60,8 +61,9 @@ std::vector<PlannedWrite> planned_writes(const Plan& plan);
 // `backup_path` (atomically), then writes terminal by terminal, each write verified. If anything
 // fails, every register written by this run is restored (in reverse order) and the error is
 // rethrown saying what was rolled back.
+// `progress` is told of each terminal's change before it is written (registers done, total).
 ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
-                       const std::string& coupler, const std::string& backup_path);
+                       const std::string& coupler, const std::string& backup_path, const Progress& progress = {});
 
 // $XDG_STATE_HOME/kscfg/backups/apply-YYYYmmdd-HHMMSS-PID.toml
 std::string default_apply_backup_path();

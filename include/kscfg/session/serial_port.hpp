@@ -59,6 +59,8 @@ class SerialPort {
   void receive(std::size_t count, std::chrono::milliseconds idle_timeout);
 
   std::vector<std::uint8_t>& received() { return rx_; }
+  // Called after every exchange that moved bytes (the CLI's progress line: queued(), received()).
+  void on_moved(std::function<void()> f) { moved_ = std::move(f); }
 
   // Last status as read: BUF_F, IA, ...
   std::uint8_t status() const { return status_; }
@@ -90,6 +92,7 @@ class SerialPort {
   std::size_t tx_len_ = 0;
   std::vector<std::uint8_t> rx_;
   std::size_t polls_ = 0;
+  std::function<void()> moved_;
 };
 
 }  // namespace kscfg
