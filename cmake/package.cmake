@@ -65,7 +65,7 @@ encoders, analog and special terminals) through the control/status byte in a
 bus coupler's process image, over Modbus TCP or RTU, like the KS2000 software.
 Writes are verified by reading them back and rolled back on failure.
 
-It knows 161 terminal types by their named parameters (baud rates, frames,
+It knows over 160 terminal types by their named parameters (baud rates, frames,
 ranges), backs up, compares, applies and restores whole station files, scans
 a coupler's layout, and has an emulated station for trying it without
 hardware. Output is JSON with --json. Completion for bash, zsh and fish and
