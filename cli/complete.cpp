@@ -1,4 +1,5 @@
 #include "complete.hpp"
+#include "serial_map.hpp"
 
 #include <fmt/format.h>
 
@@ -215,6 +216,10 @@ void option_value(Completions& c, const CLI::Option* o, const Scene& s, const Ca
   if (n == "--channel") {
     unsigned k = s.type ? s.type->channels : 2;
     for (unsigned i = 1; i <= std::max(1u, k); ++i) add(c, std::to_string(i));
+    return;
+  }
+  if (n == "--omap" || n == "--imap") {  // serial term, picocom's maps
+    for (const auto& m : serial_map_names()) add(c, m);
     return;
   }
   if (n == "--catalog" || text == "DIR") {

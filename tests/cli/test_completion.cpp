@@ -118,6 +118,7 @@ TEST_CASE("bash, zsh and fish complete from the catalog, the station and the com
       {"kscfg map --color ", {"auto", "always", "never"}, {}},
       {"kscfg decode ", {"control", "status"}, {}},
       {"kscfg completion ", {"bash", "zsh", "fish"}, {}},
+      {"kscfg serial term --omap ", {"crlf", "crcrlf", "lfcrlf", "delbs"}, {"on"}},
       // port schemes; emu: must survive the ':' word break of bash
       {"kscfg --port ", {"emu", "emu:", "emu:mem", "tcp://", "rtu:"}, {}},
       {"kscfg --port emu:m", {"emu:mem"}, {}, {{"bash", {"mem"}}}},

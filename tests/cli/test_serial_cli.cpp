@@ -196,7 +196,7 @@ TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[s
     std::string cmd = "KSCFG_PORT=emu:" + emu.state + " timeout --foreground 60 " + std::string(KSCFG_BIN) +
                       " serial term; echo EXIT=$?; sleep 60";
     sh(tmux + "new-session -d -s t -x 200 -y 20 \"" + cmd + "\"");
-    return wait_for("Ctrl-] quits", 30);
+    return wait_for("Ctrl-] q quits", 30);
   };
   struct Kill {
     std::string t;
@@ -209,7 +209,7 @@ TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[s
   // No fixed wait: the keys and then Ctrl-] go in order, so once the program has quit it has
   // read the text; an echo (the terminal not in raw mode) would be on the screen by then.
   sh(tmux + "send-keys -t t -l 'quiet please'");
-  sh(tmux + "send-keys -t t C-]");
+  sh(tmux + "send-keys -t t C-] q");
   CHECK(wait_for("EXIT=0", 30));
   CHECK(pane().find("quiet please") == std::string::npos);
   sh(tmux + "kill-server 2>/dev/null");
@@ -218,10 +218,63 @@ TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[s
   REQUIRE(emu({"serial", "line", "loopback"}).rc == 0);
   REQUIRE(start());
   CHECK_THAT(pane(), Catch::Contains("far end of the emulated line: loopback"));
+  // The banner: port, terminal, baud rate, frame, flow control (from R32..R34), maps, escape key.
+  CHECK_THAT(pane(), Catch::Contains("kscfg: terminal 1 (KL6001) on emu:"));
+  CHECK_THAT(pane(), Catch::Contains("kscfg: 9600 baud, 8N1, flow control RTS/CTS;"));
+  CHECK_THAT(pane(), Catch::Contains("kscfg: omap none, imap none, echo off, log file none"));
   sh(tmux + "send-keys -t t -l 'hello through the KL6001'");
   CHECK(wait_for("hello through the KL6001", 30));
-  sh(tmux + "send-keys -t t C-]");
+  // Ctrl-] then ? lists the escape keys; Ctrl-] alone does not quit.
+  sh(tmux + "send-keys -t t C-] ?");
+  CHECK(wait_for("escape keys, each after Ctrl-]", 30));
+  CHECK_THAT(pane(), Catch::Contains("q, x    quit"));
+  CHECK_THAT(pane(), !Catch::Contains("EXIT="));
+  sh(tmux + "send-keys -t t C-] q");
   CHECK(wait_for("EXIT=0", 30));
+}
+
+TEST_CASE("serial term: banner, --omap/--imap, --echo, --logfile and the escape keys", "[serial][cli][term]") {
+  Emu emu;
+  REQUIRE(emu({"set", "baud", "19200", "frame", "8E1", "xon-xoff-send", "on", "xon-xoff-receive", "on"}).rc == 0);
+  std::string log = emu.dir.file("session.log");
+  // stdin is not a terminal: what it holds is typed, then the command waits for the line to be
+  // quiet (--timeout) and ends. LF goes out as CR LF (lfcrlf), comes back through the loopback,
+  // and CR LF shows as LF LF on the screen (imap crlf).
+  Run r = emu({"serial", "term", "--omap", "lfcrlf", "--imap", "crlf", "--logfile", log}, "hello\n");
+  REQUIRE(r.rc == 0);
+  CHECK(r.out == "hello\n\n");
+  CHECK(kscfg::test::read_text(log) == "hello\n\n");
+  CHECK_THAT(r.err, Catch::Contains("kscfg: terminal 1 (KL6001) on emu:" + emu.state + "\r\n"));
+  CHECK_THAT(r.err, Catch::Contains("kscfg: 19200 baud, 8E1, flow control RTS/CTS and XON/XOFF;"));
+  CHECK_THAT(r.err, Catch::Contains("kscfg: omap lfcrlf, imap crlf, echo off, log file " + log + "\r\n"));
+  CHECK_THAT(r.err, Catch::Contains("Ctrl-] q quits, Ctrl-] ? lists the keys"));
+  // The log is appended to; --echo shows what is typed (an open line: nothing comes back).
+  REQUIRE(emu({"serial", "line", "none"}).rc == 0);
+  Run e = emu({"serial", "term", "--echo", "--logfile", log}, "typed\r");
+  REQUIRE(e.rc == 0);
+  CHECK(e.out == "typed\r\n");
+  CHECK(kscfg::test::read_text(log) == "hello\n\ntyped\r\n");
+  // Escape keys: ? lists them, s the counts, an unknown key says so, Ctrl-] Ctrl-] sends Ctrl-],
+  // q quits at once (before the quiet time).
+  REQUIRE(emu({"serial", "line", "loopback"}).rc == 0);
+  Run k = emu({"serial", "term"}, "ab\x1d?\x1ds\x1dZ\x1d\x1d\x1dqNOT SENT");
+  REQUIRE(k.rc == 0);
+  CHECK_THAT(k.err, Catch::Contains("[kscfg: escape keys, each after Ctrl-]:"));
+  CHECK_THAT(k.err, Catch::Contains("  e       local echo on/off"));
+  CHECK_THAT(k.err, Catch::Contains("2 bytes sent"));
+  CHECK_THAT(k.err, Catch::Contains("[kscfg: no escape key 'Z'; Ctrl-] ? lists them]"));
+  CHECK_THAT(k.err, Catch::Contains("kscfg: bye"));
+  CHECK(k.out.find("NOT SENT") == std::string::npos);
+  Run st = emu({"--json", "serial", "status"});
+  REQUIRE(st.rc == 0);
+  // Errors: an unknown map (exit 2), a log file that cannot be opened (exit 7), one line each.
+  Run m = emu({"serial", "term", "--omap", "crlf,cr"});
+  CHECK(m.rc == 2);
+  CHECK(one_line_error(m));
+  CHECK_THAT(m.err, Catch::Contains("--omap: unknown map 'cr'"));
+  Run l = emu({"serial", "term", "--logfile", emu.dir.path});
+  CHECK(l.rc == 7);
+  CHECK(one_line_error(l));
 }
 
 TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchanged", "[serial][cli][serve]") {
