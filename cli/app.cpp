@@ -51,6 +51,8 @@ std::unique_ptr<App> build_app() {
   cli.add_option("--timeout", a->timeout_text, "Longest wait for one acknowledge, in ms (default 1000)")
       ->option_text("MS");
   cli.add_flag("-v,--verbose", a->opt.verbose, "Trace every control/status exchange on stderr");
+  cli.add_flag("--rescan", a->opt.rescan,
+               "Modbus: scan the coupler again instead of using the scan kept from an earlier run");
   cli.set_help_flag("-h,--help", "Show this help (also: kscfg help COMMAND)");
   cli.set_version_flag("-V,--version", std::string("kscfg ") + KSCFG_VERSION, "Print kscfg's version");
   a->commands = make_commands();

@@ -9,9 +9,12 @@
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/open.hpp"
-#include "output.hpp"
+#include "kscfg/discovery/scan.hpp"
+#include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/modbus_link.hpp"
+#include "output.hpp"
 
 namespace kscfg::cli {
 
@@ -24,33 +27,144 @@ Link& Context::link() {
     LinkOptions lo;
     lo.timeout_ms = opt_.timeout_ms;
     if (opt_.verbose) lo.trace = [this](const std::string& s) { trace(s); };
+    lo.cache_dir = default_cache_dir();
+    lo.rescan = opt_.rescan;
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
   return *link_;
 }
 
+void Context::set_layout(StationLayout L, bool complete) {
+  // Sessions may point into the layout they were opened with: an older one stays alive.
+  if (layout_) retired_.push_back(std::move(layout_));
+  layout_ = std::make_unique<StationLayout>(std::move(L));
+  layout_complete_ = complete;
+}
+
 const StationLayout& Context::layout() {
-  if (!layout_) {
-    // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
-    // --station (or discovered by scan).
-    // A link that would have to scan the device for its layout (Modbus) yields to --station.
-    const StationLayout* l = opt_.station.empty() || !link().discovers_layout() ? link().layout() : nullptr;
-    if (l) {
-      layout_ = *l;
-    } else if (!opt_.station.empty()) {
-      layout_ = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
-    } else {
-      throw Error(Exit::usage, fmt::format("the layout of the station behind '{}' is unknown", opt_.port),
-                  "give --station FILE, or run 'kscfg scan'");
-    }
+  if (layout_) return *layout_;
+  return layout_upto(0);
+}
+
+const StationLayout& Context::layout_upto(unsigned position) {
+  if (layout_ && (layout_complete_ || (position && layout_->terminals.size() >= position))) return *layout_;
+  // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
+  // --station (checked against the image lengths it reports) or discovered by a scan.
+  Link& l = link();
+  if (!opt_.station.empty() && l.discovers_layout()) {
+    StationSpec spec = load_station_arg(opt_.station, catalog());
+    StationLayout L = compute_layout(spec, catalog());
+    if (auto* mb = dynamic_cast<ModbusLink*>(&l)) check_image_lengths(L, read_image_lengths(mb->client()), opt_.station);
+    set_layout(std::move(L), true);
+    return *layout_;
+  }
+  const StationLayout* found = l.layout_upto(position);
+  if (found) {
+    const auto* mb = dynamic_cast<ModbusLink*>(&l);
+    set_layout(*found, !mb || !mb->scan() || mb->scan()->complete);
+    if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
+  } else if (!opt_.station.empty()) {
+    set_layout(compute_layout(load_station_arg(opt_.station, catalog()), catalog()), true);
+  } else {
+    throw Error(Exit::usage, fmt::format("the layout of the station behind '{}' is unknown", opt_.port),
+                "give --station FILE, or run 'kscfg scan'");
   }
   return *layout_;
 }
 
-unsigned Context::terminal_position() {
-  const auto& L = layout();
+const StationLayout& Context::layout_unchecked() {
+  check_cached_ = false;
+  try {
+    const StationLayout& L = layout();
+    check_cached_ = true;
+    return L;
+  } catch (...) {
+    check_cached_ = true;
+    throw;
+  }
+}
+
+bool Context::layout_from_cache() const {
+  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
+  return layout_ && opt_.station.empty() && mb && mb->scan() && mb->scan()->from_cache;
+}
+
+std::optional<std::uint16_t> Context::known_r8(unsigned position) const {
+  if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
+  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
+  if (opt_.station.empty() && mb && mb->scan() && !mb->scan()->from_cache && position >= 1 &&
+      position <= mb->scan()->r8.size())
+    return static_cast<std::uint16_t>(mb->scan()->r8[position - 1]);
+  return std::nullopt;
+}
+
+void Context::forget_layout() {
+  kept_.reset();
+  if (auto* mb = dynamic_cast<ModbusLink*>(link_.get())) mb->forget_station();
+  if (layout_) retired_.push_back(std::move(layout_));
+  matched_.reset();
+  layout_complete_ = false;
+  checked_r8_.clear();
+}
+
+// A layout from the scan cache was validated by the image lengths only: a terminal replaced by
+// another type of the same size would go unnoticed. So before kscfg relies on it, a terminal
+// tells its type (R8) once per run; on a difference the station is scanned again. Returns false
+// then. With `keep`, the session that read R8 on the selected channel is kept for session().
+bool Context::check_terminal(const TerminalImage& t, bool keep) {
+  if (checked_r8_.count(t.position) || !t.type->has_registers) return true;
+  unsigned ch = opt_.channel - 1;
+  bool own = keep && ch < t.type->channels && ch < t.channels.size() && t.channels[ch].window;
+  if (!own) {
+    ch = 0;
+    if (t.channels.empty() || !t.channels[0].window) return true;
+  }
+  auto s = std::make_unique<RegisterSession>(link(), t, ch, session_options());
+  std::uint16_t r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
+  checked_r8_[t.position] = r8;
+  if (r8 != t.type->r8) {
+    s->close();
+    if (opt_.verbose)
+      trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
+                        t.type->type));
+    return false;
+  }
+  if (own) kept_ = Kept{t.position, ch, std::move(s)};
+  else s->close();
+  return true;
+}
+
+void Context::check_cached_terminals() {
+  for (int round = 0; round < 2 && layout_from_cache(); ++round) {
+    bool stale = false;
+    for (const auto& t : layout_->terminals)
+      if (!check_terminal(t, false)) {
+        stale = true;
+        break;
+      }
+    if (!stale) return;
+    bool complete = layout_complete_;
+    forget_layout();
+    layout_upto(complete ? 0 : 1);
+  }
+}
+
+const StationLayout& Context::layout_for(const StationSpec& file) {
+  auto* mb = dynamic_cast<ModbusLink*>(&link());
+  if (!mb || !opt_.station.empty()) return layout_upto(0);
+  if (!matched_) {
+    layout_upto(0);
+    if (!mb->scan()) return *layout_;
+    matched_ = match_scan(*mb->scan(), file, catalog());
+  }
+  return *matched_;
+}
+
+unsigned Context::select_position() {
   if (terminal_given()) {
+    // A plug position needs terminals 1..position; a type, list or range the whole station.
+    const auto& L = opt_.terminal ? layout_upto(opt_.terminal) : layout();
     auto v = select_terminals(opt_.selection, L, false);
     if (v.size() != 1) {
       std::string list;
@@ -62,9 +176,23 @@ unsigned Context::terminal_position() {
     }
     return v.front();
   }
-  for (const auto& t : L.terminals)
-    if (t.type->has_registers) return t.position;
+  // The first terminal with registers: walk on terminal by terminal until there is one.
+  for (unsigned n = 1;; ++n) {
+    const auto& L = layout_upto(n);
+    for (const auto& t : L.terminals)
+      if (t.type->has_registers) return t.position;
+    if (layout_complete_ || L.terminals.size() < n) break;
+  }
   throw Error(Exit::usage, "the station has no terminal with registers");
+}
+
+unsigned Context::terminal_position() {
+  unsigned pos = select_position();
+  if (layout_from_cache() && !check_terminal(layout_->terminal(pos), true)) {
+    forget_layout();
+    pos = select_position();  // from a fresh scan now
+  }
+  return pos;
 }
 
 std::vector<unsigned> Context::terminal_positions(bool registers_only) {
@@ -94,8 +222,24 @@ SessionOptions Context::session_options() const {
 std::unique_ptr<RegisterSession> Context::session() { return session(terminal_position()); }
 
 std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
-  const TerminalImage& t = register_terminal(layout(), pos, opt_.channel - 1);
-  return std::make_unique<RegisterSession>(link(), t, opt_.channel - 1, session_options());
+  unsigned ch = opt_.channel - 1;
+  if (kept_ && kept_->position == pos && kept_->channel == ch) {
+    auto s = std::move(kept_->session);
+    kept_.reset();
+    return s;
+  }
+  kept_.reset();
+  const TerminalImage& t = register_terminal(layout(), pos, ch);
+  if (layout_from_cache() && !check_terminal(t, false)) {
+    // (terminal_position() and the whole-station layout() check before anyone gets here)
+    std::string was = t.type->type;
+    std::uint16_t r8 = checked_r8_[pos];
+    forget_layout();
+    throw Error(Exit::refused,
+                fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8, was),
+                "the station changed; the kept scan was dropped: run the command again");
+  }
+  return std::make_unique<RegisterSession>(link(), t, ch, session_options());
 }
 
 nlohmann::json Context::link_json() {
@@ -106,6 +250,7 @@ nlohmann::json Context::link_json() {
 }
 
 void Context::finish() {
+  kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
   if (link_) link_->commit();
 }
 

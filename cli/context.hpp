@@ -3,7 +3,9 @@
 #include <chrono>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <map>
 #include <optional>
+#include <vector>
 #include <string>
 
 #include "kscfg/catalog/catalog.hpp"
@@ -26,6 +28,7 @@ struct GlobalOptions {
   bool json = false;          // --json
   unsigned timeout_ms = 1000; // --timeout
   bool verbose = false;       // -v
+  bool rescan = false;        // --rescan: scan a Modbus coupler even if the scan cache is valid
 };
 
 class Context {
@@ -40,8 +43,28 @@ class Context {
   // The link named by --port (opened on first use).
   Link& link();
   bool link_open() const { return link_ != nullptr; }
-  // The station as laid out by the coupler: from the link, or from --station.
+  // The station as laid out by the coupler: from the link, or from --station (checked against the
+  // image lengths a Modbus coupler reports). A Modbus station is scanned only as far as needed:
+  // after terminal_position() or session(), layout() holds terminals 1..position at least;
+  // before, the whole station.
   const StationLayout& layout();
+  // Terminals 1..position at least (0: all of them).
+  const StationLayout& layout_upto(unsigned position);
+  // As layout(), but a layout from an earlier run's scan (the scan cache) is not checked here
+  // terminal by terminal: the caller reads every terminal's R8 itself and calls
+  // forget_layout() when one differs (info).
+  const StationLayout& layout_unchecked();
+  // The layout comes from an earlier run's scan, validated by the image lengths only.
+  bool layout_from_cache() const;
+  // R8 of the terminal as read in this run (by the scan, or to check a cached layout).
+  std::optional<std::uint16_t> known_r8(unsigned position) const;
+  // The station is not what the layout says: drop it (and the scan cache); the next layout()
+  // scans again.
+  void forget_layout();
+  // The station with the positions of a station file that will be compared with it (diff, apply,
+  // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
+  // order and its digital terminals by bit totals (DESIGN.md section 4); otherwise layout().
+  const StationLayout& layout_for(const StationSpec& file);
   // -t was given.
   bool terminal_given() const { return !opt_.selection.empty(); }
   // The one terminal -t selects: a position, or a type the station has once (several are an
@@ -67,9 +90,25 @@ class Context {
   nlohmann::json link_json();
 
  private:
+  void set_layout(StationLayout L, bool complete);
+  unsigned select_position();
+  bool check_terminal(const TerminalImage& t, bool keep);
+  void check_cached_terminals();
+
   GlobalOptions opt_;
   std::unique_ptr<Link> link_;
-  std::optional<StationLayout> layout_;
+  std::unique_ptr<StationLayout> layout_;
+  std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
+  bool layout_complete_ = false;
+  bool check_cached_ = true;                      // layout(): check a cached layout's R8s
+  std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
+  std::optional<StationLayout> matched_;
+  // The session that checked the selected terminal's R8, handed out by session().
+  struct Kept {
+    unsigned position = 0, channel = 0;
+    std::unique_ptr<RegisterSession> session;
+  };
+  std::optional<Kept> kept_;
 };
 
 // A station file named on the command line ("-": stdin); read errors carry the OS reason.

@@ -17,7 +17,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
-  const StationLayout& layout = ctx.layout();
+  const StationLayout& layout = ctx.layout_for(want);
   Plan plan;
   {
     ProgressBar bar(ctx, what + ": reading", 0);  // on a terminal only (progress.hpp)

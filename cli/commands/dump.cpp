@@ -39,11 +39,10 @@ class Dump : public Command {
   nlohmann::json dump_one(Context& ctx, unsigned pos, ProgressBar& bar, std::size_t done) {
     auto s = ctx.session(pos);
     const TerminalType& type = *s->terminal().type;
-    std::array<std::uint16_t, 48> v{};
-    for (unsigned r = 0; r < 48; ++r) {
-      bar.update(done + r, fmt::format("terminal {} R{}", pos, r));
-      v[r] = s->read(r);
-    }
+    std::vector<unsigned> all(48);
+    for (unsigned r = 0; r < 48; ++r) all[r] = r;
+    std::vector<std::uint16_t> v = s->read_many(
+        all, [&](std::size_t r) { bar.update(done + r, fmt::format("terminal {} R{}", pos, r)); });
     s->close();
     bar.update(done + 48);
     bar.finish();

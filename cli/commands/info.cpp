@@ -59,8 +59,10 @@ class Info : public Command {
   void add_cli(CLI::App&) override {}
 
   int run(Context& ctx) override {
-    const StationLayout& L = ctx.layout();
     if (ctx.terminal_given() && !ctx.several_terminals()) return one(ctx, ctx.terminal_position());
+    // Every terminal's R8 is read below (or was read by this run's scan): a layout from the scan
+    // cache is checked here rather than by a second read of each R8.
+    const StationLayout& L = ctx.layout_unchecked();
     std::vector<unsigned> positions;
     if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
     else
@@ -74,8 +76,22 @@ class Info : public Command {
       std::string r8 = "-", ver = "-";
       if (t.type->has_registers && !t.channels.empty() && t.channels[0].window) {
         RegisterSession s(ctx.link(), t, 0, ctx.session_options());
-        std::uint16_t v8 = s.read(8), v9 = s.read(9);
+        std::uint16_t v8, v9;
+        if (auto known = ctx.known_r8(t.position)) {
+          v8 = *known;  // this run's scan read it
+          v9 = s.read(9);
+        } else {
+          auto v89 = s.read_many({8, 9});
+          v8 = v89[0];
+          v9 = v89[1];
+        }
         s.close();
+        if (v8 != t.type->r8 && ctx.layout_from_cache() && !rescanned_) {
+          // The station changed since the scan kept in the cache: scan it again, start over.
+          rescanned_ = true;
+          ctx.forget_layout();
+          return run(ctx);
+        }
         r8 = fmt::format("{}", v8);
         ver = proto::version_text(v9);
         j["r8"] = v8;
@@ -163,6 +179,8 @@ class Info : public Command {
     return head + wrap(t.type->title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
   }
 
+  bool rescanned_ = false;
+
   int one(Context& ctx, unsigned pos) {
     const TerminalImage& t = ctx.layout().terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
@@ -175,7 +193,9 @@ class Info : public Command {
     }
     auto s = ctx.session();
     std::vector<std::pair<unsigned, std::uint16_t>> vals;
-    for (unsigned r : {8u, 9u, 10u, 11u, 12u, 13u, 16u}) vals.emplace_back(r, s->read(r));
+    std::vector<unsigned> regs{8, 9, 10, 11, 12, 13, 16};
+    auto got = s->read_many(regs);
+    for (std::size_t i = 0; i < regs.size(); ++i) vals.emplace_back(regs[i], got[i]);
     s->close();
     if (vals[0].second != t.type->r8)
       std::cerr << fmt::format("kscfg: warning: terminal {} reports type {} in R8, the station says {}\n", pos,

@@ -57,7 +57,7 @@ class Read : public Command {
         throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
                                                type.type));
     std::vector<std::uint16_t> vals;
-    for (unsigned r : regs) vals.push_back(s->read(r));
+    vals = s->read_many(regs);
     s->close();
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {

@@ -11,6 +11,7 @@
 #include "../output.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/scan.hpp"
+#include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg::cli {
 
@@ -28,10 +29,16 @@ class Scan : public Command {
   std::string name() const override { return "scan"; }
   std::string brief() const override { return "Discover the station behind a Modbus coupler"; }
   std::string man() const override {
-    return "Reads a Modbus coupler's identification (0x1000..0x1006), its image lengths in bits "
-           "(0x1010..0x1013) and its watchdog settings (0x1120..0x1122, read only: scan never changes them). "
+    return "Reads a Modbus coupler's identification (0x1000..0x1006; two characters per register or one, "
+           "either byte order), its image lengths in bits (0x1010..0x1013) and its watchdog settings (0x1120 "
+           "and 0x1122, each on its own and read only: scan never changes them; a coupler that does not serve "
+           "them shows them as unknown). Only documented registers are read, each block in its own request. "
+           "An identification that names no known coupler is reported, and the walk goes on with BK9000 "
+           "settings from the image lengths. "
            "With complete evaluation on (BK9000 default), it then walks the complex area: it reads R8 of the "
-           "terminal whose control byte comes next, looks the type number up in the catalog, reads the "
+           "terminal whose control byte comes next (the value may follow the control/status byte directly, "
+           "as in the KL6001 standard format, or after a reserved byte; R8 tells which), looks the type number "
+           "up in the catalog, reads the "
            "registers that decide the terminal's image (KL6001: R34, R35) and moves on by that terminal's "
            "size, until the area the coupler reports is covered. Digital terminals cannot be told apart over "
            "Modbus; scan reports their bit counts only, and plug positions count the complex terminals. "
@@ -39,7 +46,12 @@ class Scan : public Command {
            "\\fB\\-\\-word\\-alignment\\fR or \\fB\\-\\-motorola\\fR say otherwise. \\fB\\-\\-write\\fR "
            "\\fIFILE\\fR saves what was found as a station file (see kscfg-station(5)); an existing file is "
            "replaced only with \\fB\\-\\-force\\fR. Without \\fB\\-\\-station\\fR, other commands on a Modbus "
-           "port scan the same way to find the terminals.";
+           "port find the terminals the same way, walking only as far as they need (\\fB\\-t 2\\fR: terminals "
+           "1 and 2). What a scan found is kept per port and unit in "
+           "\\fI$XDG_CACHE_HOME/kscfg/scans/\\fR with the terminals' acknowledge latencies; a later command uses "
+           "it while the coupler reports the same identification and image lengths (two requests), and each "
+           "terminal it talks to first tells its type (R8). When they differ, it scans again; "
+           "\\fB\\-\\-rescan\\fR forces that. \\fBscan\\fR itself always scans and replaces what is kept.";
   }
   std::vector<std::string> examples() const override {
     return {"--port tcp://192.168.1.10 scan", "--port tcp://127.0.0.1:5020 scan --write station.toml",
@@ -67,17 +79,16 @@ class Scan : public Command {
     std::optional<MappingSettings> settings;
     if (ce || wa || mo) {
       // Defaults of the coupler family, overridden: ask the coupler who it is first.
-      auto id = link->client().read(mbmap::kIdent, mbmap::kIdentRegisters);
-      std::string ident = mbmap::decode_ident(id);
-      MappingSettings s = coupler_profile("BK9000").defaults;
-      for (const auto& p : coupler_profiles())
-        if (p.name == ident.substr(0, ident.find(' '))) s = p.defaults;
+      MappingSettings s = begin_scan(read_scan_head(link->client()), "", std::nullopt).settings;
       if (ce) s.complete_evaluation = *ce;
       if (wa) s.word_alignment = *wa;
       if (mo) s.motorola = *mo;
       settings = s;
     }
     ScanResult r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings);
+    // Later commands on this port use it (the scan cache) while the coupler reports the same
+    // identification and image lengths.
+    if (auto* d = link->discovery()) d->adopt(r);
     if (!write_.empty()) {
       if (!r.walked)
         throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
@@ -103,14 +114,17 @@ class Scan : public Command {
       print_json({{"port", link->describe()},
                   {"identification", r.ident},
                   {"coupler", r.coupler},
+                  {"coupler_known", r.known_coupler},
                   {"image_bits",
                    {{"complex_out", r.complex_out_bits},
                     {"complex_in", r.complex_in_bits},
                     {"digital_out", r.digital_out_bits},
                     {"digital_in", r.digital_in_bits}}},
                   {"watchdog",
-                   {{"preset_ms", r.watchdog_preset},
-                    {"retrigger", r.watchdog_type == 1 ? "telegrams" : "write_telegrams"}}},
+                   {{"preset_ms", r.watchdog_preset ? nlohmann::json(*r.watchdog_preset) : nlohmann::json(nullptr)},
+                    {"retrigger", !r.watchdog_type      ? nlohmann::json(nullptr)
+                                  : *r.watchdog_type == 1 ? nlohmann::json("telegrams")
+                                                          : nlohmann::json("write_telegrams")}}},
                   {"settings",
                    {{"complete_evaluation", r.settings.complete_evaluation},
                     {"motorola", r.settings.motorola},
@@ -122,13 +136,23 @@ class Scan : public Command {
       return 0;
     }
     auto yn = [](bool b) { return b ? "on" : "off"; };
-    std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
+    if (r.known_coupler)
+      std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
+    else
+      std::cout << fmt::format("coupler   unknown ({}); walked with {} settings\n",
+                               r.ident_read ? fmt::format("identification \"{}\"", r.ident)
+                                            : std::string("no identification"),
+                               r.coupler);
     std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
                              r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
-    std::cout << fmt::format("watchdog  {} ms, {}\n", r.watchdog_preset,
-                             r.watchdog_preset == 0 ? "off"
-                             : r.watchdog_type == 1 ? "retriggered by every telegram"
-                                                    : "retriggered by write telegrams");
+    if (!r.watchdog_preset)
+      std::cout << "watchdog  unknown (the coupler does not serve 0x1120)\n";
+    else
+      std::cout << fmt::format("watchdog  {} ms, {}\n", *r.watchdog_preset,
+                               *r.watchdog_preset == 0 ? "off"
+                               : !r.watchdog_type      ? "type unknown (0x1122 not served)"
+                               : *r.watchdog_type == 1 ? "retriggered by every telegram"
+                                                       : "retriggered by write telegrams");
     std::cout << fmt::format("mapping   complete evaluation {}, word alignment {}, {}\n",
                              yn(r.settings.complete_evaluation), yn(r.settings.word_alignment),
                              r.settings.motorola ? "Motorola" : "Intel");

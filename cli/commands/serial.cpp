@@ -61,9 +61,10 @@ Diagnostics read_diagnostics(Context& ctx, const SerialPort& port) {
   unsigned ch = ctx.options().channel - 1;
   if (ch >= t.channels.size() || !t.channels[ch].window) return d;
   RegisterSession s(ctx.link(), t, ch, ctx.session_options());
-  d.r0 = s.read(0);
-  d.r1 = s.read(1);
-  d.r6 = s.read(6);
+  auto v = s.read_many({0, 1, 6});
+  d.r0 = v[0];
+  d.r1 = v[1];
+  d.r6 = v[2];
   s.close();
   d.known = true;
   return d;

@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <map>
 
 #include "kscfg/base/error.hpp"
@@ -32,10 +33,10 @@ OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec
         continue;
       }
       RegisterSession s(link, t, ch, opt);
-      for (unsigned r : regs) {
-        std::uint16_t v = s.read(r);
-        read[{pos, ch}][r] = v;
-        m.readings.push_back({pos, ch, r, v});
+      auto values = s.read_many(regs);
+      for (std::size_t i = 0; i < regs.size(); ++i) {
+        read[{pos, ch}][regs[i]] = values[i];
+        m.readings.push_back({pos, ch, regs[i], values[i]});
       }
       s.close();
     }
@@ -47,6 +48,16 @@ OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec
       for (auto [r, v] : it->second) regs[r] = v;
     return regs;
   });
+  // A scanned station lists only its complex terminals; its digital bits come from the coupler's
+  // image lengths and stay where the complex area now ends.
+  bool digital_listed = std::any_of(m.layout.terminals.begin(), m.layout.terminals.end(),
+                                    [](const TerminalImage& t) { return !t.complex && (t.bits_in || t.bits_out); });
+  if (!digital_listed && (current.digital_in_bits || current.digital_out_bits)) {
+    m.layout.digital_in_bits = current.digital_in_bits;
+    m.layout.digital_out_bits = current.digital_out_bits;
+    m.layout.in_bytes = m.layout.complex_in + (current.digital_in_bits + 7) / 8;
+    m.layout.out_bytes = m.layout.complex_out + (current.digital_out_bits + 7) / 8;
+  }
   return m;
 }
 

@@ -27,7 +27,10 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(mo.ack_timeout_ms);
   so.trace = mo.trace;
-  discover_by_scan(*link, catalog, so);
+  DiscoveryOptions d;
+  d.cache_dir = opt.cache_dir;
+  d.rescan = opt.rescan;
+  discover_by_scan(*link, catalog, so, d);
   return link;
 }
 

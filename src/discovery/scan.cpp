@@ -1,12 +1,15 @@
 // Discovery of a Modbus coupler's station: identification, image lengths, then a walk over the
-// complex area reading each terminal's R8 (DESIGN.md section 4, issue "Finding terminals").
+// complex area reading each terminal's R8 (DESIGN.md section 4).
+#include "kscfg/discovery/scan.hpp"
+
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <memory>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/station/map.hpp"
-#include "kscfg/discovery/scan.hpp"
 
 namespace kscfg {
 
@@ -41,93 +44,192 @@ ImageFormat probe_format() {
   return f;
 }
 
+bool same_window(const RegisterWindow& a, const RegisterWindow& b) {
+  return a.ctrl == b.ctrl && a.status == b.status && a.in_lo == b.in_lo && a.in_hi == b.in_hi &&
+         a.out_lo == b.out_lo && a.out_hi == b.out_hi;
+}
+
+std::string bytes_text(std::size_t lo, std::size_t hi) { return fmt::format("{}-{}", std::min(lo, hi), std::max(lo, hi)); }
+
 }  // namespace
 
-ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
-                        std::optional<MappingSettings> settings) {
-  ScanResult r;
-  auto head = client.read(mbmap::kIdent, mbmap::kImageLengths + 4 - mbmap::kIdent);
-  r.ident = mbmap::decode_ident(std::span<const std::uint16_t>(head.data(), mbmap::kIdentRegisters));
-  const std::uint16_t* len = head.data() + (mbmap::kImageLengths - mbmap::kIdent);
-  r.complex_out_bits = len[0];
-  r.complex_in_bits = len[1];
-  r.digital_out_bits = len[2];
-  r.digital_in_bits = len[3];
-  auto wd = client.read(mbmap::kWatchdogPreset, 3);
-  r.watchdog_preset = wd[0];
-  r.watchdog_type = wd[2];
+// The layout of the terminals found so far, from the registers read (type defaults elsewhere).
+StationLayout scan_layout(const ScanResult& r, const Catalog& catalog) {
+  StationLayout L = compute_layout(r.spec, catalog, r.settings, [&](unsigned pos, unsigned ch) {
+    const TerminalType& t = catalog.get(r.spec.terminals.at(pos - 1).type);
+    auto regs = t.defaults();
+    if (pos - 1 < r.regs.size() && ch < r.regs[pos - 1].size())
+      for (auto [k, v] : r.regs[pos - 1][ch]) regs[k] = v;
+    return regs;
+  });
+  // Digital terminals cannot be identified over Modbus: the image lengths give their bits.
+  L.digital_in_bits = r.digital_in_bits;
+  L.digital_out_bits = r.digital_out_bits;
+  L.in_bytes = std::max<std::size_t>(r.complex_in_bits / 8, L.complex_in) + (r.digital_in_bits + 7) / 8;
+  L.out_bytes = std::max<std::size_t>(r.complex_out_bits / 8, L.complex_out) + (r.digital_out_bits + 7) / 8;
+  return L;
+}
 
-  // The coupler's name starts the identification; unknown couplers are walked as a BK9000.
-  std::string name = r.ident.substr(0, r.ident.find(' '));
+void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t r8,
+                          std::vector<std::map<unsigned, std::uint16_t>> regs) {
+  r.r8.push_back(r8);
+  TerminalSpec ts;
+  ts.type = type.type;
+  // The station file keeps only what differs from the type's defaults.
+  auto defaults = type.defaults();
+  for (unsigned ch = 0; ch < type.channels; ++ch) {
+    ChannelSpec cs;
+    if (ch < regs.size())
+      for (auto [reg, v] : regs[ch])
+        if (reg != 8 && v != defaults[reg]) cs.registers[reg] = v;
+    ts.channels.push_back(cs);
+  }
+  while (!ts.channels.empty() && ts.channels.back().registers.empty()) ts.channels.pop_back();
+  regs.resize(type.channels);
+  r.spec.terminals.push_back(std::move(ts));
+  r.regs.push_back(std::move(regs));
+}
+
+
+std::array<unsigned, 4> read_image_lengths(ModbusClient& client) {
+  auto len = client.read_optional(mbmap::kImageLengths, 4);
+  if (!len)
+    throw Error(Exit::link,
+                fmt::format("{} refuses the image lengths (0x1010..0x1013, Modbus exception 2)", client.target().where()),
+                "it does not look like a BK9000/BK7300-style coupler; check the address and the unit id (?unit=N)");
+  return {(*len)[0], (*len)[1], (*len)[2], (*len)[3]};
+}
+
+ScanHead read_scan_head(ModbusClient& client) {
+  ScanHead h;
+  if (auto id = client.read_optional(mbmap::kIdent, mbmap::kIdentRegisters)) {
+    h.ident = mbmap::decode_ident(*id);
+    h.ident_other = mbmap::decode_ident_other(*id);
+    h.ident_read = true;
+  }
+  h.lengths = read_image_lengths(client);
+  return h;
+}
+
+ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::optional<MappingSettings> settings) {
+  ScanResult r;
+  r.ident = head.ident;
+  r.ident_read = head.ident_read;
+  r.complex_out_bits = head.lengths[0];
+  r.complex_in_bits = head.lengths[1];
+  r.digital_out_bits = head.lengths[2];
+  r.digital_in_bits = head.lengths[3];
+  // The coupler's name starts the identification.
   const CouplerProfile* prof = nullptr;
   for (const auto& p : coupler_profiles())
-    if (p.name == name) prof = &p;
+    if (!r.ident.empty() && r.ident.rfind(p.name, 0) == 0 &&
+        (r.ident.size() == p.name.size() || !std::isalnum(static_cast<unsigned char>(r.ident[p.name.size()]))))
+      prof = &p;
+  r.known_coupler = prof != nullptr;
   if (!prof) {
     prof = &coupler_profile("BK9000");
-    r.notes.push_back(fmt::format("identification '{}' names no known coupler; assuming BK9000 settings", r.ident));
+    r.notes.push_back(
+        r.ident_read
+            ? fmt::format("the identification \"{}\"{} names no coupler kscfg knows; going on from the image "
+                          "lengths with BK9000 settings (complete evaluation on, word alignment on, Intel)",
+                          r.ident,
+                          head.ident_other.empty() ? ""
+                                                   : fmt::format(" (\"{}\" with the other byte order)", head.ident_other))
+            : "the coupler does not serve its identification (0x1000..0x1006); going on from the image lengths "
+              "with BK9000 settings (complete evaluation on, word alignment on, Intel)");
   }
   r.coupler = prof->name;
   r.settings = settings ? *settings : prof->defaults;
+  r.settings_given = settings.has_value();
   r.spec.coupler = r.coupler;
-  r.spec.origin = fmt::format("scan of {}", link.describe());
+  r.spec.origin = origin;
   r.spec.complete_evaluation = r.settings.complete_evaluation;
   r.spec.motorola = r.settings.motorola;
   r.spec.word_alignment = r.settings.word_alignment;
   if (r.complex_out_bits % 8 || r.complex_in_bits % 8)
     r.notes.push_back("the complex image lengths are not whole bytes");
-  std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   if (r.digital_in_bits || r.digital_out_bits)
     r.notes.push_back(fmt::format("digital terminals: {} input bit(s), {} output bit(s); their types cannot be read "
                                   "over Modbus and are not listed",
                                   r.digital_in_bits, r.digital_out_bits));
-  if (!r.settings.complete_evaluation) {
+  r.walked = r.settings.complete_evaluation;
+  if (!r.walked) {
+    r.complete = true;
     r.notes.push_back("complete evaluation is off: the control/status bytes are not mapped, so terminals cannot be "
                       "identified (enable it on the coupler, or describe the station with --station)");
-    r.layout = compute_layout(r.spec, catalog, r.settings, [&](unsigned, unsigned) {
-      return std::array<std::uint16_t, proto::kRegisterCount>{};
-    });
-    return r;
   }
+  return r;
+}
 
-  // Registers read per terminal/channel; the rest are the type's defaults.
-  std::vector<std::vector<std::map<unsigned, std::uint16_t>>> read;
-  auto source = [&](unsigned pos, unsigned ch) {
-    const TerminalType& t = catalog.get(r.spec.terminals.at(pos - 1).type);
-    auto regs = t.defaults();
-    if (pos - 1 < read.size() && ch < read[pos - 1].size())
-      for (auto [k, v] : read[pos - 1][ch]) regs[k] = v;
-    return regs;
-  };
+void read_watchdog(ScanResult& r, ModbusClient& client) {
+  if (auto v = client.read_optional(mbmap::kWatchdogPreset, 1)) r.watchdog_preset = (*v)[0];
+  if (auto v = client.read_optional(mbmap::kWatchdogType, 1)) r.watchdog_type = (*v)[0];
+}
+
+void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto) {
+  if (!r.walked || r.complete) return;
+  std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   const ImageFormat probe = probe_format();
+  MappingSettings unaligned = r.settings;
+  unaligned.word_alignment = false;
   for (unsigned guard = 0; guard < 64; ++guard) {
-    r.layout = compute_layout(r.spec, catalog, r.settings, source);
+    r.layout = scan_layout(r, catalog);
     std::size_t out = r.layout.complex_out, in = r.layout.complex_in;
     if (r.settings.word_alignment) {
       out += out % 2;
       in += in % 2;
     }
-    if (out >= co && in >= ci) break;
-    // The next terminal's control/status byte.
-    ChannelImage pc = layout_channel(probe, probe_type(), r.settings, {}, out, in);
-    if (!pc.window || pc.window->out_hi >= std::max<std::size_t>(co, 1) || pc.window->in_hi >= std::max<std::size_t>(ci, 1)) {
-      r.notes.push_back(fmt::format("{} output and {} input byte(s) at the end of the complex area fit no terminal",
-                                    co - std::min(co, out), ci - std::min(ci, in)));
+    if (out >= co && in >= ci) {
+      r.complete = true;
       break;
     }
+    if (upto && r.spec.terminals.size() >= upto) break;
+    // The next terminal's control/status byte, and where its register value can be: after a
+    // reserved byte when the coupler aligns words (KL6001 alternative format, KL5101), or right
+    // after the control/status byte (KL6001 standard format: CT/ST, D0, D1, ... whatever the
+    // alignment, seed KL6001 annex). The terminal's R8 tells which.
+    ChannelImage pa = layout_channel(probe, probe_type(), r.settings, {}, out, in);
+    ChannelImage pb = layout_channel(probe, probe_type(), unaligned, {}, out, in);
+    if (!pa.window || pa.window->out_hi >= std::max<std::size_t>(co, 1) ||
+        pa.window->in_hi >= std::max<std::size_t>(ci, 1)) {
+      if (!pb.window || pb.window->out_hi >= std::max<std::size_t>(co, 1) ||
+          pb.window->in_hi >= std::max<std::size_t>(ci, 1)) {
+        r.notes.push_back(fmt::format("{} output and {} input byte(s) at the end of the complex area fit no terminal",
+                                      co - std::min(co, out), ci - std::min(ci, in)));
+        r.complete = true;
+        break;
+      }
+      pa = pb;
+    }
+    unsigned position = static_cast<unsigned>(r.spec.terminals.size() + 1);
     TerminalImage t;
-    t.position = static_cast<unsigned>(r.spec.terminals.size() + 1);
+    t.position = position;
     t.type = &probe_type();
     t.complex = true;
     t.out_offset = out;
     t.in_offset = in;
-    t.channels.push_back(pc);
-    std::uint16_t r8 = 0;
+    t.channels.push_back(pa);
+    std::vector<RegisterWindow> cands{*pa.window};
+    if (pb.window && !same_window(*pb.window, *pa.window)) cands.push_back(*pb.window);
+    std::vector<std::uint16_t> values;
     {
       RegisterSession s(link, t, 0, so);
       try {
-        r8 = s.read(8);
+        std::uint16_t first = s.read(8);
+        values.push_back(first);
+        if (cands.size() > 1) {
+          // The terminal keeps answering R8 while its control byte asks for it: the other
+          // candidate's bytes are in the same input bytes now.
+          std::size_t lo = std::min({pa.window->status, cands[1].in_lo, cands[1].in_hi});
+          std::size_t hi = std::max({pa.window->status, cands[1].in_lo, cands[1].in_hi});
+          std::vector<std::uint8_t> b(hi - lo + 1);
+          link.read_inputs(lo, b);
+          if (proto::is_ack(b[pa.window->status - lo], 8))
+            values.push_back(static_cast<std::uint16_t>(b[cands[1].in_lo - lo] | (b[cands[1].in_hi - lo] << 8)));
+        }
       } catch (const Error& e) {
         s.close();
+        if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
         throw Error(e.code(),
                     fmt::format("scan: the terminal whose control byte would be output byte {} does not answer: {}",
                                 out, e.what()),
@@ -135,53 +237,231 @@ ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog
       }
       s.close();
     }
-    const TerminalType* type = catalog.find_by_number(r8);
-    if (!type)
+    const TerminalType* type = nullptr;
+    RegisterWindow win = cands[0];
+    std::uint16_t r8 = values[0];
+    for (std::size_t i = 0; i < values.size() && !type; ++i)
+      if ((type = catalog.find_by_number(values[i]))) {
+        win = cands[i];
+        r8 = values[i];
+      }
+    if (!type) {
+      std::string seen = fmt::format("{}", values[0]);
+      if (values.size() > 1)
+        seen += fmt::format(" (input bytes {}), or {} (input bytes {})", bytes_text(cands[0].in_lo, cands[0].in_hi),
+                            values[1], bytes_text(cands[1].in_lo, cands[1].in_hi));
       throw Error(Exit::refused,
-                  fmt::format("scan: terminal {} (output byte {}) reports type number {} in R8, which the catalog "
-                              "does not know",
-                              t.position, out, r8),
+                  fmt::format("scan: terminal {} (control byte at output byte {}) reports type number {} in R8, which "
+                              "the catalog does not know",
+                              position, out, seen),
                   "add its description with --catalog DIR, or describe the station with --station");
-    r.r8.push_back(r8);
-    TerminalSpec ts;
-    ts.type = type->type;
-    r.spec.terminals.push_back(ts);
-    read.emplace_back(type->channels);
+    }
+    add_scanned_terminal(r, *type, r8, std::vector<std::map<unsigned, std::uint16_t>>(type->channels));
+    r.regs.back()[0][8] = r8;
     // The registers that decide the image, channel by channel (a channel's place depends on the
-    // channels before it).
+    // channels before it). Channel 1 through the window that answered.
     auto mregs = mapping_registers(*type);
     for (unsigned ch = 0; ch < type->channels && !mregs.empty(); ++ch) {
-      StationLayout L = compute_layout(r.spec, catalog, r.settings, source);
-      const TerminalImage& ti = L.terminal(t.position);
-      if (ch >= ti.channels.size() || !ti.channels[ch].window) break;
+      TerminalImage ti;
+      if (ch == 0) {
+        ti = t;
+        ti.type = type;
+        ti.channels[0].window = win;
+      } else {
+        StationLayout L = scan_layout(r, catalog);
+        const TerminalImage& lt = L.terminal(position);
+        if (ch >= lt.channels.size() || !lt.channels[ch].window) break;
+        ti = lt;
+      }
       RegisterSession s(link, ti, ch, so);
-      for (unsigned reg : mregs) read.back()[ch][reg] = s.read(reg);
+      auto values = s.read_many(mregs);
+      for (std::size_t i = 0; i < mregs.size(); ++i) r.regs.back()[ch][mregs[i]] = values[i];
       s.close();
     }
-    // Remember in the station file only what differs from the type's defaults.
-    auto defaults = type->defaults();
-    auto& spec_t = r.spec.terminals.back();
-    for (unsigned ch = 0; ch < type->channels; ++ch) {
-      ChannelSpec cs;
-      for (auto [reg, v] : read.back()[ch])
-        if (v != defaults[reg]) cs.registers[reg] = v;
-      spec_t.channels.push_back(cs);
+    // The terminal's layout from what it holds must put the window where it answered.
+    {
+      StationLayout L = scan_layout(r, catalog);
+      const TerminalImage& lt = L.terminal(position);
+      if (lt.channels.empty() || !lt.channels[0].window || !same_window(*lt.channels[0].window, win)) {
+        std::string regs;
+        for (auto [k, v] : r.regs.back()[0])
+          if (k != 8) regs += fmt::format("{}R{} = 0x{:04X}", regs.empty() ? "" : ", ", k, v);
+        throw Error(Exit::refused,
+                    fmt::format("scan: terminal {} ({}) answers with its register value in input bytes {}, but its "
+                                "mapping registers{} put it {}",
+                                position, type->type, bytes_text(win.in_lo, win.in_hi),
+                                regs.empty() ? "" : " (" + regs + ")",
+                                lt.channels.empty() || !lt.channels[0].window
+                                    ? std::string("nowhere (no control/status byte)")
+                                    : "in bytes " + bytes_text(lt.channels[0].window->in_lo,
+                                                               lt.channels[0].window->in_hi)),
+                    fmt::format("a coupler lays out its image when it starts: if these registers changed since, "
+                                "restart the coupler; otherwise its mapping settings differ from the {} defaults: "
+                                "give them to 'kscfg scan' (--complete-evaluation, --word-alignment, --motorola), "
+                                "or describe the station with --station",
+                                r.coupler));
+      }
     }
-    while (!spec_t.channels.empty() && spec_t.channels.back().registers.empty()) spec_t.channels.pop_back();
+    // The station file keeps only what differs from the type's defaults.
+    auto regs = std::move(r.regs.back());
+    r.regs.pop_back();
+    r.r8.pop_back();
+    r.spec.terminals.pop_back();
+    add_scanned_terminal(r, *type, r8, std::move(regs));
   }
-  r.layout = compute_layout(r.spec, catalog, r.settings, source);
-  r.walked = true;
-  r.matches = r.layout.complex_out == co && r.layout.complex_in == ci;
-  if (!r.matches)
-    r.notes.push_back(fmt::format("the terminals found take {} output and {} input byte(s); the coupler reports {} "
-                                  "and {}: the mapping settings may differ from the coupler's",
-                                  r.layout.complex_out, r.layout.complex_in, co, ci));
+  r.layout = scan_layout(r, catalog);
+  if (r.complete) {
+    r.matches = r.layout.complex_out == co && r.layout.complex_in == ci;
+    if (!r.matches)
+      r.notes.push_back(fmt::format("the terminals found take {} output and {} input byte(s); the coupler reports {} "
+                                    "and {}: the mapping settings may differ from the coupler's",
+                                    r.layout.complex_out, r.layout.complex_in, co, ci));
+  }
+}
+
+ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
+                        std::optional<MappingSettings> settings) {
+  ScanHead head = read_scan_head(client);
+  ScanResult r = begin_scan(head, fmt::format("scan of {}", link.describe()), settings);
+  read_watchdog(r, client);
+  r.layout = scan_layout(r, catalog);
+  walk(r, link, catalog, so, 0);
   return r;
 }
 
-void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so) {
-  ModbusLink* l = &link;
-  link.set_discovery([l, &catalog, so] { return scan_station(l->client(), *l, catalog, so); });
+namespace {
+
+// A scan found once per run, and (with a cache directory) kept between runs.
+class ScanDiscovery : public StationDiscovery {
+ public:
+  ScanDiscovery(ModbusLink& link, const Catalog& catalog, SessionOptions so, DiscoveryOptions opt)
+      : link_(link), catalog_(catalog), so_(std::move(so)), opt_(std::move(opt)) {
+    if (!opt_.cache_dir.empty()) cache_.emplace(opt_.cache_dir, link.client().target());
+  }
+
+  const ScanResult* find(unsigned upto) override {
+    if (!r_) start();
+    if (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto)) {
+      std::size_t before = r_->spec.terminals.size();
+      walk(*r_, link_, catalog_, so_, upto);
+      if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;
+      save();
+    }
+    if (cache_) cache_->unlock();
+    return &*r_;
+  }
+
+  void forget() override {
+    trace("the scan does not describe the station any more; scanning again");
+    r_.reset();
+    kept_.reset();
+    forgotten_ = true;
+    dirty_ = true;
+  }
+
+  void adopt(const ScanResult& r) override {
+    r_ = r;
+    r_->from_cache = false;
+    dirty_ = true;
+    save();
+  }
+
+  void prime() noexcept override {
+    if (primed_ || !cache_) return;
+    primed_ = true;
+    try {
+      if (!cache_->lock(kLockSeconds)) return;
+      auto c = cache_->load(catalog_);
+      cache_->unlock();
+      if (!c) return;
+      for (auto [pos, w] : c->ack_wait) link_.set_ack_wait(pos, w);
+      saved_wait_ = c->ack_wait;
+      if (!forgotten_ && !opt_.rescan) kept_ = std::move(c->scan);
+    } catch (...) {
+    }
+  }
+
+  void save() noexcept override {
+    if (!cache_) return;
+    try {
+      CachedScan c;
+      if (r_) c.scan = *r_;
+      else if (kept_) c.scan = *kept_;  // a command with --station: the scan kept stays
+      // A latency that held a whole run without a poll coming too early is kept a little
+      // shorter (3 %): it comes down to what the terminal needs, at the price of an early poll
+      // now and then, which puts it up again.
+      for (const auto& [pos, t] : link_.ack_timings())
+        if (t.wait.count() > 0) c.ack_wait[pos] = t.missed || t.samples || t.acks < 8 ? t.wait : t.wait * 97 / 100;
+      bool changed = dirty_ || c.ack_wait != saved_wait_;
+      if (!changed || (!c.scan && c.ack_wait.empty())) {
+        cache_->unlock();
+        return;
+      }
+      if (!cache_->lock(kLockSeconds)) return;
+      if (cache_->store(c)) {
+        dirty_ = false;
+        saved_wait_ = c.ack_wait;
+      } else {
+        trace(fmt::format("cannot write the scan cache {}", cache_->path()));
+      }
+      cache_->unlock();
+    } catch (...) {
+    }
+  }
+
+ private:
+  static constexpr double kLockSeconds = 10;
+
+  void trace(const std::string& s) const {
+    if (so_.trace) so_.trace(s);
+  }
+
+  void start() {
+    ScanHead head = read_scan_head(link_.client());
+    prime();
+    if (cache_ && !opt_.rescan && !forgotten_) {
+      if (!cache_->lock(kLockSeconds)) {
+        trace(fmt::format("the scan cache {} is locked by another kscfg; scanning without it", cache_->path()));
+        cache_.reset();
+      } else if (kept_) {
+        ScanHead was;
+        was.ident = kept_->ident;
+        was.ident_read = kept_->ident_read;
+        was.lengths = {kept_->complex_out_bits, kept_->complex_in_bits, kept_->digital_out_bits,
+                       kept_->digital_in_bits};
+        if (was == head) {
+          trace(fmt::format("scan of {} from the cache {} (same identification and image lengths)",
+                            link_.describe(), cache_->path()));
+          r_ = std::move(kept_);
+          kept_.reset();
+          // The lock stays taken while find() walks on, so two runs do not scan one coupler at once.
+          return;
+        }
+        trace(fmt::format("the scan cache {} is out of date (identification or image lengths differ); scanning",
+                          cache_->path()));
+        kept_.reset();
+      }
+    }
+    r_ = begin_scan(head, fmt::format("scan of {}", link_.describe()), std::nullopt);
+    r_->layout = scan_layout(*r_, catalog_);
+    dirty_ = true;
+  }
+
+  ModbusLink& link_;
+  const Catalog& catalog_;
+  SessionOptions so_;
+  DiscoveryOptions opt_;
+  std::optional<ScanCache> cache_;
+  std::optional<ScanResult> r_;     // this run's
+  std::optional<ScanResult> kept_;  // the cache's, not used (yet) in this run
+  std::map<unsigned, std::chrono::microseconds> saved_wait_;
+  bool dirty_ = false, forgotten_ = false, primed_ = false;
+};
+
+}  // namespace
+
+void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so, DiscoveryOptions opt) {
+  link.set_discovery(std::make_unique<ScanDiscovery>(link, catalog, so, std::move(opt)));
 }
 
 }  // namespace kscfg

@@ -17,6 +17,7 @@
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/station/station.hpp"
 
 namespace kscfg {
 
@@ -36,15 +37,49 @@ std::array<std::uint16_t, kIdentRegisters> encode_ident(const std::string& text)
 }
 
 std::string decode_ident(std::span<const std::uint16_t> regs) {
-  std::string s;
-  for (auto v : regs) {
-    s += static_cast<char>(v & 0xFF);
-    s += static_cast<char>(v >> 8);
+  // Candidate texts: two characters per register (low first, high first), one per register.
+  auto text = [&](int mode) {
+    std::string s;
+    for (auto v : regs) {
+      char lo = static_cast<char>(v & 0xFF), hi = static_cast<char>(v >> 8);
+      if (mode == 0) s += {lo, hi};
+      else if (mode == 1) s += {hi, lo};
+      else s += mode == 2 ? lo : hi;
+    }
+    s.erase(std::remove(s.begin(), s.end(), '\0'), s.end());
+    while (!s.empty() && s.back() == ' ') s.pop_back();
+    while (!s.empty() && s.front() == ' ') s.erase(s.begin());
+    return s;
+  };
+  auto printable = [](const std::string& s) {
+    return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) { return c >= 0x20 && c <= 0x7E; });
+  };
+  // One character per register only when every register has one byte zero on the same side.
+  bool high_zero = std::all_of(regs.begin(), regs.end(), [](std::uint16_t v) { return (v >> 8) == 0; });
+  bool low_zero = std::all_of(regs.begin(), regs.end(), [](std::uint16_t v) { return (v & 0xFF) == 0; });
+  std::vector<std::string> cands{text(0), text(1)};
+  if (high_zero) cands.insert(cands.begin(), text(2));
+  if (low_zero) cands.insert(cands.begin(), text(3));
+  for (const auto& c : cands) {
+    if (!printable(c)) continue;
+    for (const auto& p : coupler_profiles())
+      if (c.rfind(p.name, 0) == 0) return c;
   }
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\0')) s.pop_back();
+  for (const auto& c : cands)
+    if (printable(c)) return c;
+  std::string s = text(0);
   for (auto& c : s)
     if (static_cast<unsigned char>(c) < 0x20 || static_cast<unsigned char>(c) > 0x7E) c = '?';
   return s;
+}
+
+std::string decode_ident_other(std::span<const std::uint16_t> regs) {
+  std::string first = decode_ident(regs);
+  std::vector<std::uint16_t> swapped(regs.begin(), regs.end());
+  for (auto& v : swapped) v = static_cast<std::uint16_t>((v >> 8) | (v << 8));
+  std::string other = decode_ident(swapped);
+  if (other == first || other.find('?') != std::string::npos) return "";
+  return other;
 }
 
 std::string exception_name(int code) {
@@ -220,6 +255,20 @@ bool is_exception(int e) { return e > MODBUS_ENOBASE && e < MODBUS_ENOBASE + MOD
 bool is_garbled(int e) { return e == EMBBADCRC || e == EMBBADDATA || e == EMBBADEXC || e == EMBUNKEXC || e == EMBMDATA || e == EMBBADSLAVE; }
 bool is_broken(int e) { return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN || e == ECONNABORTED; }
 
+// Exception 2 (illegal data address): what the addresses were, so the hint names the real cause.
+std::string illegal_address_hint(std::uint16_t addr, unsigned count) {
+  unsigned last = addr + (count ? count : 1) - 1;
+  auto in = [&](unsigned lo, unsigned hi) { return addr >= lo && last <= hi; };
+  if (in(mbmap::kInputImage, mbmap::kInputImage + mbmap::kImageRegisters - 1) ||
+      in(mbmap::kOutputImage, mbmap::kOutputImage + mbmap::kImageRegisters - 1))
+    return fmt::format("the coupler's process image does not reach register 0x{:04X}: the station description does "
+                       "not match the coupler ('kscfg scan' shows what the coupler reports)",
+                       last);
+  return fmt::format("the coupler does not serve 0x{:04X}..0x{:04X}; a BK9000/BK7300 serves 0x1000..0x1006, "
+                     "0x1010..0x1013, 0x1020 and 0x1120..0x1122 (check the address and the unit id)",
+                     addr, last);
+}
+
 std::string errtext(int e) {
   if (is_exception(e)) {
     int code = e - MODBUS_ENOBASE;
@@ -304,7 +353,7 @@ void ModbusClient::connect() {
 }
 
 template <class F>
-void ModbusClient::run(const std::string& what, F&& f) {
+void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, bool* refused) {
   unsigned timeouts = 0, others = 0;
   for (;;) {
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
@@ -318,9 +367,13 @@ void ModbusClient::run(const std::string& what, F&& f) {
     if (opt_.trace) opt_.trace(fmt::format("modbus {}: {} ({})", what, errtext(e), target_.where()));
     if (is_exception(e) && e != EMBXSBUSY) {
       int code = e - MODBUS_ENOBASE;
+      if (code == 2 && refused) {
+        *refused = true;
+        return;
+      }
       std::string hint;
       if (code == 11 || code == 10) hint = fmt::format("check the unit id (?unit=N; this link uses {})", target_.unit);
-      else if (code == 2) hint = "the coupler's image is smaller than the station description says";
+      else if (code == 2) hint = illegal_address_hint(addr, count);
       else if (code == 4) hint = "the coupler reports a watchdog or K-bus error";
       throw Error(Exit::link, fmt::format("{} from {} ({})", errtext(e), target_.where(), what), hint);
     }
@@ -356,10 +409,19 @@ std::vector<std::uint16_t> ModbusClient::read(std::uint16_t addr, unsigned count
   for (unsigned done = 0; done < count;) {
     unsigned n = std::min(count - done, mbmap::kMaxRead);
     auto a = static_cast<std::uint16_t>(addr + done);
-    run(fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a),
+    run(fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, n,
         [&](modbus_t* c) { return modbus_read_registers(c, a, static_cast<int>(n), v.data() + done); });
     done += n;
   }
+  return v;
+}
+
+std::optional<std::vector<std::uint16_t>> ModbusClient::read_optional(std::uint16_t addr, unsigned count) {
+  std::vector<std::uint16_t> v(count);
+  bool refused = false;
+  run(fmt::format("reading {} register{} at 0x{:04X}", count, count == 1 ? "" : "s", addr), addr, count,
+      [&](modbus_t* c) { return modbus_read_registers(c, addr, static_cast<int>(count), v.data()); }, &refused);
+  if (refused) return std::nullopt;
   return v;
 }
 
@@ -367,7 +429,8 @@ void ModbusClient::write(std::uint16_t addr, std::span<const std::uint16_t> valu
   for (std::size_t done = 0; done < values.size();) {
     std::size_t n = std::min<std::size_t>(values.size() - done, mbmap::kMaxWrite);
     auto a = static_cast<std::uint16_t>(addr + done);
-    run(fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), [&](modbus_t* c) {
+    run(fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, static_cast<unsigned>(n),
+        [&](modbus_t* c) {
       return modbus_write_registers(c, a, static_cast<int>(n), values.data() + done);
     });
     done += n;
@@ -381,7 +444,7 @@ std::vector<std::uint16_t> ModbusClient::write_read(std::uint16_t waddr, std::sp
     return read(raddr, count);
   }
   std::vector<std::uint16_t> v(count);
-  run(fmt::format("writing 0x{:04X} and reading 0x{:04X} (FC23)", waddr, raddr), [&](modbus_t* c) {
+  run(fmt::format("writing 0x{:04X} and reading 0x{:04X} (FC23)", waddr, raddr), raddr, count, [&](modbus_t* c) {
     return modbus_write_and_read_registers(c, waddr, static_cast<int>(values.size()), values.data(), raddr,
                                            static_cast<int>(count), v.data());
   });

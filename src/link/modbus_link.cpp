@@ -26,14 +26,23 @@ static void check_image(std::size_t offset, std::size_t n, const char* what) {
                                         offset + n));
 }
 
-void ModbusLink::wait_settled() {
-  auto due = last_write_ + std::chrono::microseconds(client_.options().settle_us);
-  if (std::chrono::steady_clock::now() < due) std::this_thread::sleep_until(due);
+ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
+  if (discovery_ && !primed_) {
+    primed_ = true;
+    discovery_->prime();
+  }
+  auto it = timings_.find(position);
+  if (it == timings_.end()) {
+    // A terminal not timed yet: start from the slowest one known on this coupler.
+    AckTiming t;
+    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait);
+    it = timings_.emplace(position, t).first;
+  }
+  return &it->second;
 }
 
 void ModbusLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "input");
-  wait_settled();
   std::size_t w0 = offset / 2, w1 = (offset + dst.size() - 1) / 2;
   auto words = client_.read(static_cast<std::uint16_t>(mbmap::kInputImage + w0), static_cast<unsigned>(w1 - w0 + 1));
   count();
@@ -91,8 +100,8 @@ void ModbusLink::write_outputs(std::size_t offset, std::span<const std::uint8_t>
   auto words = merge_words(offset, src);
   std::size_t w0 = offset / 2;
   client_.write(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words);
-  last_write_ = std::chrono::steady_clock::now();
   remember_outputs(w0, words);
+  last_written_ = {offset, src.size()};
   count();
 }
 
@@ -102,11 +111,10 @@ void ModbusLink::write_outputs_read_inputs(std::size_t out_offset, std::span<con
   auto words = merge_words(out_offset, src);
   std::size_t w0 = out_offset / 2;
   std::size_t r0 = in_offset / 2, r1 = (in_offset + dst.size() - 1) / 2;
-  wait_settled();  // the read half must see the answer to the previous request
   auto in = client_.write_read(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words,
                                static_cast<std::uint16_t>(mbmap::kInputImage + r0), static_cast<unsigned>(r1 - r0 + 1));
-  last_write_ = std::chrono::steady_clock::now();
   remember_outputs(w0, words);
+  last_written_ = {out_offset, src.size()};
   count();
   for (std::size_t i = 0; i < dst.size(); ++i) {
     std::size_t b = in_offset + i;
@@ -121,26 +129,63 @@ void ModbusLink::pause(unsigned poll_number) {
   std::this_thread::sleep_for(std::chrono::microseconds(us));
 }
 
-const StationLayout* ModbusLink::layout() {
-  if (scan_failed_) return nullptr;
-  if (!scan_) {
-    if (!discover_) {
-      scan_failed_ = true;
-      return nullptr;
-    }
-    scan_ = discover_();
-    count();
-  }
-  if (!scan_->walked) {
-    scan_failed_ = true;
-    return nullptr;
-  }
+const StationLayout* ModbusLink::layout_upto(unsigned position) {
+  if (!discovery_) return nullptr;
+  scan_ = discovery_->find(position);
+  count();
+  if (!scan_ || !scan_->walked) return nullptr;
   return &scan_->layout;
+}
+
+void ModbusLink::forget_station() {
+  scan_ = nullptr;
+  if (discovery_) discovery_->forget();
+}
+
+void ModbusLink::commit() {
+  if (discovery_) discovery_->save();
 }
 
 const StationSpec* ModbusLink::station() {
   if (!layout()) return nullptr;
   return &scan_->spec;
+}
+
+std::optional<Error> ModbusLink::explain_no_ack() {
+  // A coupler whose watchdog has expired sets its outputs to 0 and (on some couplers) ignores
+  // output writes until the watchdog is reset: the control byte never reaches the terminal.
+  // Compare what the coupler holds with what this link wrote last.
+  if (!last_written_) return std::nullopt;
+  auto [offset, n] = *last_written_;
+  std::size_t w0 = offset / 2, w1 = (offset + n - 1) / 2;
+  std::vector<std::uint16_t> words;
+  try {
+    words = client_.read(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), static_cast<unsigned>(w1 - w0 + 1));
+  } catch (const Error&) {
+    return std::nullopt;
+  }
+  count();
+  std::optional<Error> why;
+  for (std::size_t b = offset; b < offset + n && !why; ++b) {
+    std::uint16_t w = words[b / 2 - w0];
+    int got = b % 2 ? w >> 8 : w & 0xFF;
+    if (got == out_cache_[b]) continue;
+    std::string wd;
+    try {
+      if (auto p = client_.read_optional(mbmap::kWatchdogPreset, 1)) wd = fmt::format(" (0x1120: {} ms)", (*p)[0]);
+    } catch (const Error&) {
+    }
+    why = Error(Exit::link,
+                fmt::format("the coupler does not keep what kscfg writes to its outputs (output byte {} reads "
+                            "0x{:02X} after writing 0x{:02X}): its watchdog{} has probably expired and switched the "
+                            "outputs off",
+                            b, got, out_cache_[b], wd),
+                "reset the coupler's watchdog (write 0xBECF, then 0xAFFE to register 0x1121) or power-cycle the "
+                "coupler; kscfg does not touch the watchdog by itself");
+  }
+  remember_outputs(w0, words);
+  count();
+  return why;
 }
 
 }  // namespace kscfg

@@ -46,15 +46,19 @@ StationSpec backup_station(Link& link, const StationLayout& layout, const Sessio
         RegisterSession s(link, ti, ch, so);
         ChannelSpec cs;
         if (ch == 0) {
-          std::uint16_t r8 = s.read(8), r9 = s.read(9);
+          auto v89 = s.read_many({8, 9});
+          std::uint16_t r8 = v89[0], r9 = v89[1];
           if (r8 != t.type->r8)
             throw Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station says {}",
                                                    t.position, r8, t.type->type));
           comment = fmt::format("position {}: R8 {}, version {}", t.position, r8, proto::version_text(r9));
         }
         std::map<unsigned, std::uint16_t> regs;
+        std::vector<unsigned> which;
         for (unsigned r = 17; r < 48; ++r)
-          if (backed_up(*t.type, r)) regs[r] = s.read(r);
+          if (backed_up(*t.type, r)) which.push_back(r);
+        auto values = s.read_many(which);
+        for (std::size_t i = 0; i < which.size(); ++i) regs[which[i]] = values[i];
         s.close();
         for (const auto& p : t.type->params) {
           if (p.channel && *p.channel != ch) continue;

@@ -40,8 +40,11 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
 std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params) {
   const TerminalType& type = *s.terminal().type;
   std::map<unsigned, std::uint16_t> regs;
+  std::vector<unsigned> order;
   for (const auto* p : params)
-    if (!regs.count(p->reg)) regs[p->reg] = s.read(p->reg);
+    if (std::find(order.begin(), order.end(), p->reg) == order.end()) order.push_back(p->reg);
+  auto values = s.read_many(order);
+  for (std::size_t i = 0; i < order.size(); ++i) regs[order[i]] = values[i];
   std::vector<ParamValue> out;
   for (const auto* p : params) {
     ParamValue v;

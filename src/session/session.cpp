@@ -57,6 +57,7 @@ RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsi
   link_.read_outputs(saved_at_, saved_out_);
   shadow_.assign(saved_out_.begin() + static_cast<std::ptrdiff_t>(out_lo_ - lo),
                  saved_out_.begin() + static_cast<std::ptrdiff_t>(out_hi_ - lo + 1));
+  if (link_.pipelines()) timing_ = link_.ack_timing(terminal.position);
 }
 
 RegisterSession::~RegisterSession() { close(); }
@@ -79,13 +80,33 @@ void RegisterSession::put(std::uint8_t ctrl, std::optional<std::uint16_t> value)
   }
 }
 
-RegisterSession::Status RegisterSession::poll_once() {
-  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
-  link_.read_inputs(in_lo_, in);
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::microseconds;
+
+// Read-ahead timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is
+// known, the first poll goes out this long after the request and the next ones every kStep; the
+// latency is then the longest of kLearnSamples acknowledges.
+constexpr microseconds kLearnFirst{500};
+constexpr microseconds kStep{250};
+constexpr unsigned kLearnSamples = 3;
+
+microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
+
+}  // namespace
+
+RegisterSession::Status RegisterSession::status_of(const std::vector<std::uint8_t>& in) const {
   Status s;
   s.status = in[w_.status - in_lo_];
   s.value = static_cast<std::uint16_t>(in[w_.in_lo - in_lo_] | (in[w_.in_hi - in_lo_] << 8));
   return s;
+}
+
+RegisterSession::Status RegisterSession::poll_once() {
+  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
+  link_.read_inputs(in_lo_, in);
+  return status_of(in);
 }
 
 RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
@@ -93,13 +114,18 @@ RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
   shadow_[w_.ctrl - out_lo_] = ctrl;
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
-  Status s;
-  s.status = in[w_.status - in_lo_];
-  s.value = static_cast<std::uint16_t>(in[w_.in_lo - in_lo_] | (in[w_.in_hi - in_lo_] << 8));
-  return s;
+  return status_of(in);
+}
+
+void RegisterSession::sleep_until(Clock::time_point due) const {
+  if (timing_ && Clock::now() < due) std::this_thread::sleep_until(due);
 }
 
 std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
+  return request(write, reg, value, std::nullopt);
+}
+
+std::uint16_t RegisterSession::request(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
   if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
   if (pending_) {
     // A read request written ahead may still be answered. Its ack cannot be told from the ack of
@@ -108,7 +134,7 @@ std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t 
     pending_.reset();
     if (write && p == reg) {
       try {
-        wait_ack(false, p, 0, false);
+        wait_ack(false, p, 0, std::nullopt);
       } catch (const Error& e) {
         if (e.code() != Exit::timeout) throw;
         last_status_.reset();
@@ -119,75 +145,146 @@ std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t 
   // DESIGN.md decision 2: if the status already shows this ack (left by an earlier request to the
   // same address), a new answer could not be told from the old one. Address another register
   // first and wait for its ack, so the ack we wait for is a visible change.
-  // The status is known after our own last transaction; only the first one needs a look.
-  std::uint8_t before = last_status_ ? *last_status_ : poll_once().status;
+  // The status is known after our own last transaction; only the first one needs a look. On a
+  // link that pipelines, a read's first look goes with its request: FC23 writes the request and
+  // reads the status as it was before the terminal saw it.
+  std::uint8_t before;
+  if (last_status_) {
+    before = *last_status_;
+  } else if (!write && timing_) {
+    sent_ = Clock::now();
+    before = poll_ahead(reg).status;
+    if (!proto::is_ack(before, reg)) return wait_ack(false, reg, 0, next);
+  } else {
+    before = poll_once().status;
+  }
   if (proto::is_ack(before, reg)) {
     if (opt_.trace) opt_.trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(),
                                            before, reg, reg == 8 ? 9 : 8));
     // Status shows ack(reg), so the ack of the other register is a visible change.
     unsigned other = reg == 8 ? 9 : 8;
+    sent_ = Clock::now();
     put(proto::control_byte(false, other), std::nullopt);
-    wait_ack(false, other, 0, false);
+    wait_ack(false, other, 0, std::nullopt);
   }
   last_status_.reset();
+  sent_ = Clock::now();
   put(ctrl, write ? std::optional<std::uint16_t>(value) : std::nullopt);
-  return wait_ack(write, reg, value, true);
+  return wait_ack(write, reg, value, write ? std::nullopt : next);
 }
 
-std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t value, bool speculate) {
+std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
   std::uint8_t ctrl = proto::control_byte(write, reg);
-  // Read ahead only where it cannot hurt: a read followed by a read of the next implemented
-  // register, on a link whose combined write+read shows the image from before the write.
-  std::optional<unsigned> next;
-  if (speculate && !write && link_.pipelines() && ahead_misses_ < 3 && reg + 1 < proto::kRegisterCount &&
-      proto::is_implemented(reg + 1))
-    next = reg + 1;
+  const Clock::time_point sent = sent_;
+  // The first poll: once the terminal's latency is known, when it has answered; it may carry the
+  // request for the next register (read-ahead) unless a read-ahead came too early before.
+  bool known = timing_ && timing_->wait.count() > 0;
+  bool ahead_ok = next && known && !timing_->missed && *next != reg;
+  if (timing_) sleep_until(sent + (known ? timing_->wait : kLearnFirst));
+  microseconds step = known ? std::max(kStep, timing_->wait / 8) : kStep;
   std::optional<unsigned> ahead;  // written ahead, not yet answered
-  auto start = std::chrono::steady_clock::now();
+  Clock::time_point ahead_sent{};
+  auto start = Clock::now();
   Status s{};
   for (unsigned poll = 1;; ++poll) {
-    bool wrote_ahead = poll == 1 && next;
+    bool wrote_ahead = poll == 1 && ahead_ok;
+    auto t = Clock::now();
     s = wrote_ahead ? poll_ahead(*next) : poll_once();
+    if (wrote_ahead) {
+      ahead = next;
+      ahead_sent = t;
+    }
     if (proto::is_ack(s.status, reg)) {
       last_status_ = s.status;
-      if (wrote_ahead) pending_ = next;
-      else if (ahead) pending_ = ahead;
+      if (ahead) {
+        pending_ = ahead;
+        sent_ = ahead_sent;
+      }
+      if (timing_) {
+        ++timing_->acks;
+        microseconds took = us(t - sent);
+        if (!known) {
+          // Learning: time a few acknowledges, then trust the longest.
+          timing_->longest = std::max(timing_->longest, took);
+          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->longest;
+        } else if (poll > 1) {
+          // It needed longer than we thought (bounded: one slow answer under load is not the rule).
+          timing_->wait = std::max(timing_->wait, std::min(took, 2 * timing_->wait));
+        }
+      }
       if (opt_.trace)
-        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{})", who(),
+        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{})", who(),
                                write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
                                s.status, s.value, poll, poll == 1 ? "" : "s",
+                               timing_ ? fmt::format(", {} us after the request", us(t - sent).count()) : "",
                                pending_ ? fmt::format(", R{} requested ahead", *pending_) : ""));
       return s.value;
     }
-    if (wrote_ahead) {
-      ++ahead_misses_;
-      ahead = next;
+    if (poll == 1 && known) {
+      // The terminal is slower than we thought. A request written ahead replaced ours before it
+      // was answered, so how much slower is unknown: a quarter more.
+      timing_->missed = true;
+      if (wrote_ahead) timing_->wait += timing_->wait / 4;
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.
       if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
       last_status_ = s.status;
-      return transact(write, reg, value);
+      return request(write, reg, value, std::nullopt);
     }
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
-    if (std::chrono::steady_clock::now() - start > opt_.timeout)
+    if (Clock::now() - start > opt_.timeout) {
+      if (auto why = link_.explain_no_ack()) throw *why;  // e.g. the coupler's watchdog
       throw Error(Exit::timeout,
                   fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})",
                               who(), write ? "writing" : "reading", reg, opt_.timeout.count(), ctrl, s.status),
                   "check the terminal and the link, or raise --timeout");
-    link_.pause(poll);
+    }
+    if (timing_ && poll < 64) sleep_until(t + step);
+    else link_.pause(poll);
   }
 }
 
-std::uint16_t RegisterSession::read(unsigned reg) {
+std::uint16_t RegisterSession::read_one(unsigned reg, std::optional<unsigned> next) {
   if (reg >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", reg));
+  bool rom = term_->type->regs[reg].storage == proto::Storage::rom;
+  if (rom) {
+    if (auto it = rom_.find(reg); it != rom_.end()) return it->second;
+  }
+  std::uint16_t v;
   if (pending_ && *pending_ == reg) {
     // Requested ahead by the previous read: only its answer is missing.
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
     pending_.reset();
-    return wait_ack(false, reg, 0, true);
+    v = wait_ack(false, reg, 0, next);
+  } else {
+    v = request(false, reg, 0, next);
   }
-  return transact(false, reg, 0);
+  if (rom) rom_[reg] = v;
+  return v;
+}
+
+std::uint16_t RegisterSession::read(unsigned reg) { return read_one(reg, std::nullopt); }
+
+std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
+                                                      const std::function<void(std::size_t)>& progress) {
+  std::vector<std::uint16_t> out(regs.size());
+  // ROM registers read before cost nothing; the others are fetched in order, each request going
+  // out with the poll for the one before.
+  std::vector<std::size_t> todo;
+  for (std::size_t i = 0; i < regs.size(); ++i) {
+    if (regs[i] >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", regs[i]));
+    auto it = rom_.find(regs[i]);
+    if (it != rom_.end() && term_->type->regs[regs[i]].storage == proto::Storage::rom) out[i] = it->second;
+    else todo.push_back(i);
+  }
+  for (std::size_t k = 0; k < todo.size(); ++k) {
+    std::optional<unsigned> next;
+    if (k + 1 < todo.size()) next = regs[todo[k + 1]];
+    if (progress) progress(todo[k]);
+    out[todo[k]] = read_one(regs[todo[k]], next);
+  }
+  return out;
 }
 
 void RegisterSession::check_writable(unsigned reg) const {
@@ -341,10 +438,17 @@ void RegisterSession::close() noexcept {
       }
     }
   }
-  // Never leave it in register mode: restore the process-data control and data bytes.
-  for (int attempt = 0; attempt < 3; ++attempt) {
+  // Never leave it in register mode: put back the process-data bytes this session changed (the
+  // control byte, and the data bytes of a write); the channel's other bytes were never touched.
+  std::size_t lo = out_hi_ + 1, hi = 0;
+  for (std::size_t b = out_lo_; b <= out_hi_; ++b)
+    if (shadow_[b - out_lo_] != saved_out_[b - saved_at_]) {
+      lo = std::min(lo, b);
+      hi = std::max(hi, b);
+    }
+  for (int attempt = 0; lo <= hi && attempt < 3; ++attempt) {
     try {
-      link_.write_outputs(saved_at_, saved_out_);
+      link_.write_outputs(lo, std::span<const std::uint8_t>(&saved_out_[lo - saved_at_], hi - lo + 1));
       break;
     } catch (const Error& e) {
       if (e.code() != Exit::link) break;

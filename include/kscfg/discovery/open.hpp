@@ -13,6 +13,8 @@ namespace kscfg {
 struct LinkOptions {
   unsigned timeout_ms = 1000;
   std::function<void(const std::string&)> trace;  // -v: link-level events (retries of a Modbus link)
+  std::string cache_dir;  // Modbus: keep scans here between runs (scan_cache.hpp); empty: no cache
+  bool rescan = false;    // Modbus: scan even when the cache holds a valid scan
 };
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);

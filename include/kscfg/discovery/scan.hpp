@@ -1,6 +1,10 @@
 // Discovery of the station behind a Modbus coupler (DESIGN.md section 4).
 #pragma once
+#include <array>
+#include <map>
+#include <vector>
 #include <optional>
+#include <string>
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/modbus_link.hpp"
@@ -9,13 +13,56 @@
 
 namespace kscfg {
 
-// Reads the identification, the image lengths and the watchdog registers, then (with complete
-// evaluation) walks the complex area reading each terminal's R8 and mapping registers.
-// `settings` overrides the coupler's defaults.
+// The coupler's identification and image lengths: two requests, because a coupler serves only
+// the documented blocks 0x1000..0x1006 and 0x1010..0x1013 (a read spanning the gap between them
+// is answered with exception 2). A refused identification is "unknown", not a failure.
+struct ScanHead {
+  std::string ident;
+  bool ident_read = false;
+  std::array<unsigned, 4> lengths{};  // bits: complex out, complex in, digital out, digital in
+  std::string ident_other;            // the identification read with the other byte order
+  bool operator==(const ScanHead& o) const {
+    return ident == o.ident && ident_read == o.ident_read && lengths == o.lengths;
+  }
+};
+ScanHead read_scan_head(ModbusClient& client);
+// Only the image lengths (one request): enough to tell whether the station changed.
+std::array<unsigned, 4> read_image_lengths(ModbusClient& client);
+
+// A scan that knows the coupler but no terminal yet: the coupler profile named by the
+// identification (unknown: said in a note, BK9000 settings assumed, the lengths decide), the
+// mapping settings (`settings` overrides the profile's defaults).
+ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::optional<MappingSettings> settings);
+
+// Walks the complex area on from where `r` stopped, reading each terminal's R8 and the registers
+// that decide its image, until terminals 1..upto are known (upto 0: the whole area).
+void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto = 0);
+
+// The layout of the terminals in `r` (registers as read, type defaults elsewhere); the digital
+// bits and whole image sizes from the coupler's image lengths.
+StationLayout scan_layout(const ScanResult& r, const Catalog& catalog);
+// Appends a terminal identified by R8 with the registers read from each of its channels.
+void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t r8,
+                          std::vector<std::map<unsigned, std::uint16_t>> regs);
+
+// The watchdog registers, each on its own; a register the coupler refuses stays unknown.
+void read_watchdog(ScanResult& r, ModbusClient& client);
+
+// Everything: head, watchdog and the whole walk.
 ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
                         std::optional<MappingSettings> settings = std::nullopt);
 
-// Makes `link` discover its station with scan_station on first use of layout().
-void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so);
+struct DiscoveryOptions {
+  // Where scans are kept between runs (scan_cache.hpp); empty: nowhere, every run scans.
+  std::string cache_dir;
+  bool rescan = false;  // ignore what the cache holds (it is replaced by the new scan)
+};
+
+// Makes `link` discover its station with a scan on first use of layout(), only as far as the
+// command needs. With a cache directory, an earlier run's scan is used when the coupler reports
+// the same identification and image lengths (two requests), and a scan is kept there, with the
+// terminals' acknowledge latencies, for the next run.
+void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
+                      DiscoveryOptions opt = {});
 
 }  // namespace kscfg

@@ -1,11 +1,13 @@
 // The one seam: a Link moves bytes of a coupler's process image. It knows nothing of registers.
 #pragma once
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <span>
 #include <string>
 
+#include "kscfg/base/error.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
 
@@ -26,6 +28,20 @@ class Link {
   // Waits a little between two polls of the input image (bounded by the caller's timeout).
   virtual void pause(unsigned poll_number) { (void)poll_number; }
 
+  // How fast the terminals behind a link answer (session read-ahead). A pipelining link keeps one
+  // per terminal position; a Modbus link keeps them with its scan cache between runs.
+  struct AckTiming {
+    std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
+    unsigned samples = 0;               // acknowledges timed while learning (this run)
+    std::chrono::microseconds longest{0};  // longest latency timed while learning
+    bool missed = false;                // a poll at `wait` came too early (this run); no more read-ahead
+    unsigned acks = 0;                  // acknowledges seen this run
+  };
+  virtual AckTiming* ack_timing(unsigned position) {
+    (void)position;
+    return nullptr;
+  }
+
   // Writes output bytes, then reads input bytes, in one exchange when the link can (Modbus FC23).
   // On a link that pipelines, the read sees the image as it was before the K-bus carried the
   // write: it shows the answer to the previous request, so register reads can overlap.
@@ -44,7 +60,17 @@ class Link {
   // (the emulator does; a Modbus link learns it from a station file or a scan).
   // The pointer stays valid as long as the link.
   virtual const StationLayout* layout() { return nullptr; }
+  // As layout(), but a link that discovers its station may stop once terminals 1..position are
+  // known (position 0: all of them).
+  virtual const StationLayout* layout_upto(unsigned position) {
+    (void)position;
+    return layout();
+  }
   virtual const StationSpec* station() { return nullptr; }
+
+  // A terminal did not acknowledge: the link may know a cause beyond the terminal (a coupler
+  // whose watchdog switched the outputs off). Returns the error to report instead, if any.
+  virtual std::optional<Error> explain_no_ack() { return std::nullopt; }
 
   // Makes the station's state durable (emulator: saves its state file). Called once at the end.
   virtual void commit() {}

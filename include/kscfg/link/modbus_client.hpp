@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -34,7 +35,15 @@ constexpr unsigned kMaxRead = 125, kMaxWrite = 123, kMaxWriteRead = 121;
 // Identification: 14 ASCII characters, the first character in the LOW byte of 0x1000 (as public
 // BK9000 drivers decode it). The emulator puts the coupler name there, padded with spaces.
 std::array<std::uint16_t, kIdentRegisters> encode_ident(const std::string& text);
-std::string decode_ident(std::span<const std::uint16_t> regs);  // trailing spaces/NULs trimmed
+// No manual says how the characters sit in the registers, so every plausible way is tried: two
+// per register (low byte first, or high byte first) or one per register (in the low or the high
+// byte). The first decoding that starts with a known coupler name wins, then the first that is
+// all printable ASCII; NUL padding and trailing spaces are dropped, other bytes shown as '?'.
+std::string decode_ident(std::span<const std::uint16_t> regs);
+// The same registers read the other way (high byte first when decode_ident took the low byte
+// first, and so on); "" when that gives no printable text. For an identification kscfg does not
+// recognise, so a user can read it either way.
+std::string decode_ident_other(std::span<const std::uint16_t> regs);
 
 // "slave device busy" for 6; "unknown exception" otherwise.
 std::string exception_name(int code);
@@ -67,10 +76,7 @@ struct ModbusOptions {
   unsigned connect_timeout_ms = 1000;
   unsigned retries = 3;                // extra attempts after busy, CRC or garbled replies
   unsigned timeout_retries = 1;        // extra attempts after a timeout
-  // After writing outputs, reads of the input image wait this long: the K-bus needs a cycle to
-  // carry the request to the terminal and one to bring the answer back.
-  unsigned settle_us = 2500;
-  unsigned poll_us = 500;  // between two polls of the input image
+  unsigned poll_us = 500;  // between two polls of the input image (pause())
   unsigned ack_timeout_ms = 1000;  // the user's --timeout: register sessions of a scan
   std::function<void(const std::string&)> trace;
 };
@@ -84,6 +90,9 @@ class ModbusClient {
   ModbusClient& operator=(const ModbusClient&) = delete;
 
   std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count);
+  // As read(), but a register the coupler does not serve (exception 2, illegal data address) is
+  // not an error: std::nullopt. For optional registers (DESIGN.md section 4).
+  std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count);
   void write(std::uint16_t addr, std::span<const std::uint16_t> values);
   // FC23: writes first, then reads, in one exchange.
   std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
@@ -97,8 +106,10 @@ class ModbusClient {
  private:
   void connect();
   void disconnect();
+  // Runs one request with bounded retries. `addr`/`count`: the registers it reads or writes (for
+  // the hint of an exception 2). With `refused`, exception 2 sets it and returns instead of throwing.
   template <class F>
-  void run(const std::string& what, F&& f);
+  void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, bool* refused = nullptr);
 
   ModbusTarget target_;
   ModbusOptions opt_;

@@ -3,11 +3,14 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <map>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
+#include "kscfg/base/error.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/station/layout.hpp"
@@ -15,19 +18,45 @@
 
 namespace kscfg {
 
-// What a scan of a Modbus coupler found.
+// What a scan of a Modbus coupler found (DESIGN.md section 4). A scan may stop after the terminals
+// a command needs and go on later (`complete` says whether it covered the whole complex area).
 struct ScanResult {
-  std::string ident;    // identification registers, decoded
-  std::string coupler;  // coupler profile used for the walk
+  std::string ident;         // identification registers, decoded ("" when the coupler refuses them)
+  bool ident_read = false;   // the coupler answered 0x1000..0x1006
+  std::string coupler;       // coupler profile used for the walk
+  bool known_coupler = false;  // the identification names a coupler kscfg has a profile for
   unsigned complex_out_bits = 0, complex_in_bits = 0, digital_out_bits = 0, digital_in_bits = 0;
-  std::uint16_t watchdog_preset = 0, watchdog_type = 0;
+  std::optional<std::uint16_t> watchdog_preset, watchdog_type;  // empty: not read or refused
   MappingSettings settings;
+  bool settings_given = false;  // the caller's settings, not the profile's defaults
   StationSpec spec;       // the complex terminals found, with the registers that decide their image
-  StationLayout layout;   // their layout
+  StationLayout layout;   // their layout; digital_*_bits and in/out_bytes from the image lengths
   std::vector<unsigned> r8;  // type number read from each terminal
-  bool walked = false;    // complete evaluation on: terminals identified
+  // Registers read per terminal and channel (R8 and the mapping registers): lets a walk go on.
+  std::vector<std::vector<std::map<unsigned, std::uint16_t>>> regs;
+  bool walked = false;    // complete evaluation on: terminals can be identified
+  bool complete = false;  // the walk covered the whole complex area
   bool matches = false;   // the terminals found fill the complex area exactly
+  bool from_cache = false;  // the terminals come from an earlier run's scan, validated by the lengths
   std::vector<std::string> notes;
+};
+
+// How a ModbusLink finds its station (discovery/scan.hpp implements it: a scan runs register
+// sessions, which live above this layer).
+class StationDiscovery {
+ public:
+  virtual ~StationDiscovery() = default;
+  // Terminals 1..upto at least (0: all of them); what is known so far, or nullptr.
+  virtual const ScanResult* find(unsigned upto) = 0;
+  // The station is not what was found (a terminal reports another type): find it again.
+  virtual void forget() = 0;
+  // Keeps what was learned for the next run (the scan cache); never throws.
+  virtual void save() noexcept = 0;
+  // A whole scan made elsewhere (kscfg scan) replaces what was found, and is kept.
+  virtual void adopt(const ScanResult& r) = 0;
+  // What is kept for this port without asking the coupler (acknowledge latencies), also for
+  // commands that never scan (--station). Called by the link before it first needs a latency.
+  virtual void prime() noexcept = 0;
 };
 
 class ModbusLink : public Link {
@@ -44,28 +73,40 @@ class ModbusLink : public Link {
   bool discovers_layout() const override { return true; }
   // Discovers the station on first use (the discovery set below, a scan); nullptr when there is
   // none or it cannot identify the terminals.
-  const StationLayout* layout() override;
+  const StationLayout* layout() override { return layout_upto(0); }
+  const StationLayout* layout_upto(unsigned position) override;
   const StationSpec* station() override;
+  std::optional<Error> explain_no_ack() override;
+
+  AckTiming* ack_timing(unsigned position) override;
+  // Learned acknowledge latencies by terminal position (for the scan cache).
+  const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
+  void set_ack_wait(unsigned position, std::chrono::microseconds wait) { timings_[position].wait = wait; }
 
   ModbusClient& client() { return client_; }
-  // How layout() finds the station: set by discovery/open.hpp (a scan runs register sessions,
-  // which live above this layer).
-  void set_discovery(std::function<ScanResult()> discover) { discover_ = std::move(discover); }
+  // How layout() finds the station: set by discovery/open.hpp.
+  void set_discovery(std::unique_ptr<StationDiscovery> d) { discovery_ = std::move(d); }
+  StationDiscovery* discovery() { return discovery_.get(); }
+  // What discovery found so far (nullptr: nothing yet).
+  const ScanResult* scan() const { return scan_; }
+  // The station found is out of date: the next layout() finds it again.
+  void forget_station();
+  void commit() override;
 
  private:
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
   // from what the link last read or wrote, or are read first (never clobbered).
   std::vector<std::uint16_t> merge_words(std::size_t offset, std::span<const std::uint8_t> src);
   void remember_outputs(std::size_t first_word, std::span<const std::uint16_t> words);
-  void wait_settled();
   void count() { exchanges_ = client_.exchanges(); }
 
   ModbusClient client_;
-  std::function<ScanResult()> discover_;
+  std::unique_ptr<StationDiscovery> discovery_;
   std::vector<int> out_cache_;  // output image bytes as the coupler holds them, -1 unknown
-  std::chrono::steady_clock::time_point last_write_{};
-  std::optional<ScanResult> scan_;
-  bool scan_failed_ = false;
+  std::optional<std::pair<std::size_t, std::size_t>> last_written_;  // offset and size of the last write
+  const ScanResult* scan_ = nullptr;
+  std::map<unsigned, AckTiming> timings_;
+  bool primed_ = false;
 };
 
 }  // namespace kscfg

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <utility>
@@ -39,7 +40,16 @@ class RegisterSession {
   RegisterSession(const RegisterSession&) = delete;
   RegisterSession& operator=(const RegisterSession&) = delete;
 
+  // One register. Never requests another register ahead of time.
   std::uint16_t read(unsigned reg);
+  // Registers in this order. On a link that pipelines (Modbus FC23), once the terminal's
+  // acknowledge latency is known, the request for the next register of the list goes out in the
+  // exchange that fetches the answer to the one before (read-ahead): about one exchange per
+  // register. Never past the last register of the list; after the first read-ahead that came too
+  // early for the terminal, none more in this session.
+  // `progress(i)` is called before the i-th register is fetched.
+  std::vector<std::uint16_t> read_many(const std::vector<unsigned>& regs,
+                                       const std::function<void(std::size_t)>& progress = {});
 
   // Unlock (protected registers) -> compare -> write -> relock -> read back. Unchanged values are
   // not rewritten. With a mask only the bits set in it change: new = (old & ~mask) | (value & mask).
@@ -86,10 +96,18 @@ class RegisterSession {
     std::uint16_t value;
   };
   Status poll_once();
-  // Writes the request for `next` and reads the image in one exchange (pipelining links).
+  Status status_of(const std::vector<std::uint8_t>& in) const;
+  // Writes the request for `next` and reads the image in one exchange (pipelining links): the
+  // read shows the image from before the terminal saw the new request.
   Status poll_ahead(unsigned next);
-  // Polls until the terminal acknowledges the request for `reg` already in the control byte.
-  std::uint16_t wait_ack(bool write, unsigned reg, std::uint16_t value, bool speculate);
+  // Polls until the terminal acknowledges the request for `reg` already in the control byte
+  // (sent at sent_). With `next`, the first poll requests that register ahead (read-ahead).
+  std::uint16_t wait_ack(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next);
+  // Waits, on a link that pipelines, until `due` (the acknowledge latency after sent_).
+  void sleep_until(std::chrono::steady_clock::time_point due) const;
+  std::uint16_t read_one(unsigned reg, std::optional<unsigned> next);
+  // One register request and its acknowledge; with `next`, read-ahead as in read_many().
+  std::uint16_t request(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next);
 
   Link& link_;
   const TerminalImage* term_;
@@ -108,7 +126,9 @@ class RegisterSession {
   // On a link that pipelines, a read writes the request for the next register in the exchange
   // that fetches its own answer (FC23); reading that register next costs one exchange.
   std::optional<unsigned> pending_;
-  unsigned ahead_misses_ = 0;  // the terminal was slower than the link: stop reading ahead
+  std::chrono::steady_clock::time_point sent_{};  // when the exchange with the current request left
+  Link::AckTiming* timing_ = nullptr;  // the terminal's acknowledge latency (pipelining links)
+  std::map<unsigned, std::uint16_t> rom_;  // ROM registers read in this session: they cannot change
 };
 
 // Resolves position/channel to a terminal image with a register window; throws a clear

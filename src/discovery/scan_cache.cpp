@@ -1,0 +1,214 @@
+#include "kscfg/discovery/scan_cache.hpp"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/file.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <thread>
+
+#include "kscfg/discovery/scan.hpp"
+
+namespace kscfg {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+constexpr int kFormat = 1;
+
+std::string safe(const std::string& s) {
+  std::string o;
+  for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
+  return o;
+}
+
+}  // namespace
+
+std::string default_cache_dir() {
+  fs::path base;
+  if (const char* x = std::getenv("XDG_CACHE_HOME"); x && *x) base = x;
+  else if (const char* h = std::getenv("HOME"); h && *h) base = fs::path(h) / ".cache";
+  else return "/tmp/kscfg-cache";
+  return (base / "kscfg").string();
+}
+
+ScanCache::ScanCache(std::string dir, const ModbusTarget& t) : dir_(std::move(dir)) {
+  std::string key = t.tcp ? fmt::format("tcp-{}-{}-unit{}", safe(t.host), t.port, t.unit)
+                          : fmt::format("rtu-{}-unit{}", safe(t.device), t.unit);
+  path_ = (fs::path(dir_) / "scans" / (key + ".json")).string();
+}
+
+ScanCache::~ScanCache() { unlock(); }
+
+bool ScanCache::lock(double timeout_s) {
+  if (lock_fd_ >= 0) return true;
+  std::error_code ec;
+  fs::create_directories(fs::path(path_).parent_path(), ec);
+  int fd = ::open((path_ + ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) return false;
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+    if ((errno != EWOULDBLOCK && errno != EINTR) || std::chrono::steady_clock::now() > deadline) {
+      ::close(fd);
+      return false;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  lock_fd_ = fd;
+  return true;
+}
+
+void ScanCache::unlock() noexcept {
+  if (lock_fd_ >= 0) {
+    ::close(lock_fd_);
+    lock_fd_ = -1;
+  }
+}
+
+namespace {
+
+ScanResult scan_from_json(const json& j, const Catalog& catalog) {
+  ScanResult r;
+  r.ident = j.at("ident").get<std::string>();
+  r.ident_read = j.at("ident_read").get<bool>();
+  r.coupler = j.at("coupler").get<std::string>();
+  (void)coupler_profile(r.coupler);
+  r.known_coupler = j.at("known_coupler").get<bool>();
+  auto len = j.at("lengths").get<std::vector<unsigned>>();
+  if (len.size() != 4) throw std::runtime_error("lengths");
+  r.complex_out_bits = len[0];
+  r.complex_in_bits = len[1];
+  r.digital_out_bits = len[2];
+  r.digital_in_bits = len[3];
+  const json& s = j.at("settings");
+  r.settings.complete_evaluation = s.at("complete_evaluation").get<bool>();
+  r.settings.motorola = s.at("motorola").get<bool>();
+  r.settings.word_alignment = s.at("word_alignment").get<bool>();
+  r.settings_given = j.at("settings_given").get<bool>();
+  r.walked = j.at("walked").get<bool>();
+  r.complete = j.at("complete").get<bool>();
+  r.notes = j.at("notes").get<std::vector<std::string>>();
+  r.spec.coupler = r.coupler;
+  r.spec.complete_evaluation = r.settings.complete_evaluation;
+  r.spec.motorola = r.settings.motorola;
+  r.spec.word_alignment = r.settings.word_alignment;
+  for (const json& t : j.at("terminals")) {
+    const TerminalType* type = catalog.find(t.at("type").get<std::string>());
+    if (!type) throw std::runtime_error("type");  // a catalog without this type: scan again
+    std::vector<std::map<unsigned, std::uint16_t>> chans;
+    for (const json& ch : t.at("channels")) {
+      std::map<unsigned, std::uint16_t> regs;
+      for (auto it = ch.begin(); it != ch.end(); ++it) {
+        unsigned reg = static_cast<unsigned>(std::stoul(it.key()));
+        if (reg >= proto::kRegisterCount) throw std::runtime_error("register");
+        regs[reg] = it.value().get<std::uint16_t>();
+      }
+      chans.push_back(std::move(regs));
+    }
+    if (chans.size() != type->channels) throw std::runtime_error("channels");
+    add_scanned_terminal(r, *type, t.at("r8").get<std::uint16_t>(), std::move(chans));
+  }
+  r.from_cache = true;
+  r.layout = scan_layout(r, catalog);
+  if (r.complete)
+    r.matches = r.layout.complex_out == r.complex_out_bits / 8 && r.layout.complex_in == r.complex_in_bits / 8;
+  return r;
+}
+
+json scan_to_json(const ScanResult& r) {
+  json terms = json::array();
+  for (std::size_t i = 0; i < r.spec.terminals.size(); ++i) {
+    json chans = json::array();
+    for (const auto& ch : r.regs.at(i)) {
+      json o = json::object();
+      for (auto [k, v] : ch) o[std::to_string(k)] = v;
+      chans.push_back(o);
+    }
+    terms.push_back({{"type", r.spec.terminals[i].type}, {"r8", r.r8.at(i)}, {"channels", chans}});
+  }
+  return {{"ident", r.ident},
+          {"ident_read", r.ident_read},
+          {"coupler", r.coupler},
+          {"known_coupler", r.known_coupler},
+          {"lengths", {r.complex_out_bits, r.complex_in_bits, r.digital_out_bits, r.digital_in_bits}},
+          {"settings",
+           {{"complete_evaluation", r.settings.complete_evaluation},
+            {"motorola", r.settings.motorola},
+            {"word_alignment", r.settings.word_alignment}}},
+          {"settings_given", r.settings_given},
+          {"walked", r.walked},
+          {"complete", r.complete},
+          {"notes", r.notes},
+          {"terminals", terms}};
+}
+
+}  // namespace
+
+std::optional<CachedScan> ScanCache::load(const Catalog& catalog) const {
+  try {
+    std::ifstream f(path_);
+    if (!f) return std::nullopt;
+    std::stringstream ss;
+    ss << f.rdbuf();
+    json j = json::parse(ss.str());
+    if (j.value("format", 0) != kFormat) return std::nullopt;
+    CachedScan c;
+    for (auto it = j.at("ack_wait_us").begin(); it != j.at("ack_wait_us").end(); ++it)
+      c.ack_wait[static_cast<unsigned>(std::stoul(it.key()))] = std::chrono::microseconds(it.value().get<long>());
+    if (!j.at("scan").is_null()) {
+      try {
+        c.scan = scan_from_json(j.at("scan"), catalog);
+      } catch (const std::exception&) {
+        c.scan.reset();  // a scan this kscfg cannot use (another catalog): scan again
+      }
+    }
+    return c;
+  } catch (const std::exception&) {
+    return std::nullopt;  // unreadable, corrupt, or from another version: scan again
+  }
+}
+
+bool ScanCache::store(const CachedScan& c) const noexcept {
+  try {
+    json wait = json::object();
+    for (auto [pos, us] : c.ack_wait) wait[std::to_string(pos)] = us.count();
+    json j{{"format", kFormat}, {"scan", c.scan ? scan_to_json(*c.scan) : json(nullptr)}, {"ack_wait_us", wait}};
+    std::error_code ec;
+    fs::create_directories(fs::path(path_).parent_path(), ec);
+    // Written beside and renamed over: a reader sees the old entry or the new one, never half of
+    // one. Not fsynced: a cache lost in a crash is scanned again.
+    std::string tmp = fmt::format("{}.tmp.{}", path_, ::getpid());
+    {
+      std::ofstream f(tmp, std::ios::trunc);
+      f << j.dump(1) << '\n';
+      f.close();
+      if (!f) {
+        fs::remove(tmp, ec);
+        return false;
+      }
+    }
+    fs::rename(tmp, path_, ec);
+    if (ec) {
+      fs::remove(tmp, ec);
+      return false;
+    }
+    return true;
+  } catch (...) {
+    return false;
+  }
+}
+
+void ScanCache::remove() const noexcept {
+  std::error_code ec;
+  fs::remove(path_, ec);
+}
+
+}  // namespace kscfg
