@@ -19,10 +19,19 @@ extern char** environ;
 
 namespace kscfg::test {
 
+namespace {
+// One cache directory per test process, removed at exit.
+const std::string& test_cache_dir() {
+  static TempDir dir;
+  return dir.path;
+}
+}  // namespace
+
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
           const std::string& input) {
   int out[2], err[2], in[2];
   if (pipe(out) || pipe(err) || pipe(in)) throw std::runtime_error("pipe");
+  const std::string& cache = test_cache_dir();  // made here, in the parent: removed at its exit
   pid_t pid = fork();
   if (pid == 0) {
     dup2(out[1], 1);
@@ -31,6 +40,9 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
     close(out[0]);
     close(err[0]);
     close(in[1]);
+    // Scans of Modbus couplers are kept per port in $XDG_CACHE_HOME/kscfg: a test's go in a
+    // directory of this test process, not in the user's cache.
+    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
     for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
     std::vector<char*> argv;
     std::string bin = KSCFG_BIN;

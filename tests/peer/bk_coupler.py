@@ -789,7 +789,7 @@ class Coupler:
         if IDENT[0] <= a <= IDENT[1] or LENGTHS[0] <= a <= LENGTHS[1]:
             return True
         if a in (WD_TIME, WD_PRESET, WD_RESET, WD_TYPE):
-            return True
+            return not self.args.no_watchdog_regs
         if self.args.extra_regs and (OPT_RO[0] <= a <= OPT_RO[1] or OPT_RW[0] <= a <= OPT_RW[1]):
             return True
         return False
@@ -798,7 +798,7 @@ class Coupler:
         if OUT_IMAGE[0] <= a <= OUT_IMAGE[1]:
             return True
         if a in (WD_PRESET, WD_RESET, WD_TYPE):
-            return True
+            return not self.args.no_watchdog_regs
         if self.args.extra_regs and OPT_RW[0] <= a <= OPT_RW[1]:
             return True
         return False
@@ -844,8 +844,11 @@ class Coupler:
             i = (a - OUT_IMAGE[0]) * 2
             return self.out[i] | (self.out[i + 1] << 8)
         if IDENT[0] <= a <= IDENT[1]:
-            name = self.name.encode("ascii").ljust(14, b"\0")
+            text = self.args.ident if self.args.ident is not None else self.name
+            name = text.encode("ascii").ljust(14, b"\0")
             i = (a - IDENT[0]) * 2
+            if self.args.ident_order == "one-per-register":
+                return name[i // 2]
             if self.args.ident_order == "low-first":
                 return name[i] | (name[i + 1] << 8)
             return (name[i] << 8) | name[i + 1]
@@ -1190,8 +1193,12 @@ def main(argv=None):
     ap.add_argument("--max-delay", type=int, default=3, help="most K-bus cycles before a terminal answers")
     ap.add_argument("--ack-style", choices=("example", "echo"), default="example",
                     help="write acknowledge: 0x80|addr like the seeds' example (default) or the control byte")
-    ap.add_argument("--ident-order", choices=("low-first", "high-first"), default="low-first",
-                    help="identification text: first character in the low byte of each register (default)")
+    ap.add_argument("--ident-order", choices=("low-first", "high-first", "one-per-register"), default="low-first",
+                    help="identification text: first character in the low byte of each register (default), "
+                    "in the high byte, or one character per register (in its low byte)")
+    ap.add_argument("--ident", help="identification text instead of the coupler name (14 characters at most)")
+    ap.add_argument("--no-watchdog-regs", action="store_true",
+                    help="serve no watchdog registers (0x1020, 0x1120-0x1122): reads get exception 2")
     ap.add_argument("--watchdog-ms", type=int, default=1000, help="watchdog preset at power-on (0x1120)")
     ap.add_argument("--strict-watchdog", action="store_true",
                     help="after expiry ignore output writes until 0x1121 gets 0xBECF, 0xAFFE")

@@ -99,6 +99,7 @@ class Ctx:
         env = dict(os.environ)
         env.pop("KSCFG_PORT", None)
         env["XDG_STATE_HOME"] = self.path("xdg")
+        env["XDG_CACHE_HOME"] = self.path("xdg-cache")
         try:
             p = subprocess.run(cmd, input=stdin, capture_output=True, text=True,
                                timeout=timeout, env=env)
@@ -120,6 +121,24 @@ class Ctx:
         if not ok:
             raise CaseFailure("exit %s (want %s)%s" % (rc, want, "; " + fact if fact else ""))
         return out, err
+
+    def restart_peer(self, types):
+        """Stops the peer and starts another one on the same endpoint with other terminals: a
+        coupler whose station was changed while kscfg was not looking (TCP only)."""
+        host_port = self.port[len("tcp://"):]
+        self.peer.stop()
+        args = ["--tcp", host_port, "--dump-state", self.dump_path, "--station", ",".join(types)]
+        end = time.monotonic() + 20
+        while True:
+            try:
+                self.peer = Peer(args)
+                break
+            except RuntimeError:
+                if time.monotonic() > end:
+                    raise
+                time.sleep(0.05)
+        self.types = list(types)
+        check(self.peer.endpoint == self.port, "restarted peer on %s, not %s" % (self.peer.endpoint, self.port))
 
     # -- peer state ----------------------------------------------------------
     def state(self):
@@ -483,6 +502,154 @@ def c_stale_station(ctx):
         check(raw_value(out) == 6001, "exit 0 with R8 = %s (the terminal holds 6001)" % out.strip())
 
 
+@case("scan-ident-one-char-per-register", "no manual says how the 14 identification characters sit "
+      "in 0x1000-0x1006 (peer choice 1); a coupler that puts one character in each register must "
+      "still be recognised", passes=("tcp",), peer_extra=["--ident-order", "one-per-register"])
+def c_scan_one_per_reg(ctx):
+    c_scan(ctx)
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8")
+    check(raw_value(out) == 6001, "R8 = %s" % out.strip())
+
+
+@case("scan-unknown-coupler", "DESIGN.md section 4: the image lengths 0x1010-0x1013 describe the image "
+      "whatever the coupler is called; an identification that names no known coupler is reported and "
+      "the scan goes on", passes=("tcp",), peer_extra=["--ident", "XY-COUPLER"])
+def c_scan_unknown(ctx):
+    out, err = ctx.expect_rc(0, "--json", "scan")
+    text = json.dumps(json.loads(out))
+    # (either byte order may be the coupler's: an unknown name is reported both ways)
+    check("XY-COUPLER" in text + err, "identification not reported")
+    check("XY-COUPLER" in err, "no note that the coupler is unknown: %r" % err[:200])
+    pos = [text.find(str(v)) for v in (6001, 5101, 6031, 3022)]
+    check(all(p >= 0 for p in pos) and pos == sorted(pos), "R8 6001/5101/6031/3022 not found in order")
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8")
+    check(raw_value(out) == 6001, "R8 = %s" % out.strip())
+
+
+@case("scan-without-watchdog-registers", "DESIGN.md section 4: optional registers (the watchdog, "
+      "0x100A-0x100C) refused with exception 2 are unknown, never a failure", passes=("tcp",),
+      peer_extra=["--no-watchdog-regs"])
+def c_scan_no_wd(ctx):
+    out, _ = ctx.expect_rc(0, "--json", "scan")
+    doc = json.loads(out)
+    check(doc.get("watchdog", {}).get("preset_ms") is None, "watchdog preset reported: %r" % doc.get("watchdog"))
+    out, _ = ctx.expect_rc(0, "scan")
+    check("unknown" in out, "plain scan does not say the watchdog is unknown")
+
+
+@case("image-lengths-change-rescans", "the coupler builds its image at power-on (DESIGN.md section 3): "
+      "after a mapping change and a restart (SIGHUP) the image lengths differ, and a command must "
+      "follow the new layout (seed KL6001 annex: standard format, value in bytes 1-2), never "
+      "read through the old one", passes=("tcp",))
+def c_rescan(ctx):
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8")
+    check(raw_value(out) == 6001, "R8 = %s" % out.strip())
+    ctx.expect_rc(0, "write", "R34", "0x0001")        # standard format
+    ctx.expect_rc(0, "write", "R35", "5")             # 5 data bytes
+    before = ctx.peer.event_count("power-on")
+    ctx.peer.send(signal.SIGHUP)                      # power cycle: image rebuilt
+    end = time.monotonic() + 5
+    while ctx.peer.event_count("power-on") <= before:
+        check(time.monotonic() < end, "peer did not restart")
+        time.sleep(0.005)
+    st = ctx.state()
+    check(st["terminals"][0]["channels"][0]["layout"]["in_size"] == 6, "peer did not apply R34/R35")
+    out, _ = ctx.expect_rc(0, "read", "--raw", "R8")
+    check(raw_value(out) == 6001, "R8 = %s after the restart" % out.strip())
+    out, _ = ctx.expect_rc(0, "-t", "2", "read", "--raw", "R8")
+    check(raw_value(out) == 5101, "-t 2 R8 = %s after the restart (KL5101 moved)" % out.strip())
+    out, _ = ctx.expect_rc(0, "--json", "map", "--online")
+    bad = compare_map(ctx, json.loads(out), ctx.state(), scanned=True)
+    check(not bad, "; ".join(bad[:4]))
+
+
+@case("cache-terminal-removed", "the image lengths 0x1010-0x1013 change when a terminal is removed "
+      "(DESIGN.md section 3: complex terminals in plug order); kscfg keeps a scan between runs and must "
+      "notice: with the KL6031 gone, terminal 3 is the KL3022 (R8 = 3022, seed example)", passes=("tcp",))
+def c_cache_removed(ctx):
+    out, _ = ctx.expect_rc(0, "-t", "4", "read", "--raw", "R8")
+    check(raw_value(out) == 3022, "-t 4 R8 = %s" % out.strip())
+    ctx.restart_peer(["KL6001", "KL5101", "KL3022", "KL1104", "KL2134", "KL9010"])
+    out, _ = ctx.expect_rc(0, "-t", "3", "read", "--raw", "R8")
+    check(raw_value(out) == 3022, "-t 3 R8 = %s after the KL6031 was removed" % out.strip())
+    ctx.expect_rc(2, "-t", "4", "read", "--raw", "R8", fact="there is no fourth complex terminal now")
+
+
+@case("cache-terminal-added", "the image lengths change when a terminal is added; terminal 3 is then "
+      "the KL6031 (R8 = 0x178F = 6031, KL6031 manual)", passes=("tcp",),
+      types={"tcp": ["KL6001", "KL5101", "KL3022", "KL1104", "KL2134", "KL9010"]})
+def c_cache_added(ctx):
+    out, _ = ctx.expect_rc(0, "--json", "info")
+    got = [t.get("r8") for t in json.loads(out)["terminals"]]
+    check(got == [6001, 5101, 3022], "R8 list %r" % got)
+    ctx.restart_peer(DEFAULT_TYPES)
+    out, _ = ctx.expect_rc(0, "-t", "3", "read", "--raw", "R8")
+    check(raw_value(out) == 6031, "-t 3 R8 = %s after a KL6031 was added" % out.strip())
+    out, _ = ctx.expect_rc(0, "--json", "info")
+    got = [t.get("r8") for t in json.loads(out)["terminals"]]
+    check(got == [6001, 5101, 6031, 3022], "R8 list %r" % got)
+
+
+@case("cache-terminal-replaced-same-size", "a KL3062 in place of the KL3022 keeps the image lengths "
+      "(two analog channels either way); R8 tells them apart (3062 vs 3022): a command must never use "
+      "the layout of the station as it was", passes=("tcp",))
+def c_cache_replaced(ctx):
+    out, _ = ctx.expect_rc(0, "-t", "4", "read", "--raw", "R8")
+    check(raw_value(out) == 3022, "-t 4 R8 = %s" % out.strip())
+    ctx.restart_peer(["KL6001", "KL5101", "KL6031", "KL3062", "KL1104", "KL2134", "KL9010"])
+    out, _ = ctx.expect_rc(0, "-t", "4", "--json", "info")
+    check(json.loads(out).get("type") == "KL3062", "info -t 4 says %s" % json.loads(out).get("type"))
+    out, _ = ctx.expect_rc(0, "--json", "info")
+    got = [(t.get("type"), t.get("r8")) for t in json.loads(out)["terminals"]]
+    check(got[3] == ("KL3062", 3062), "info lists %r" % got)
+
+
+INIT_TYPES = ["KL6001", "KL1104", "KL5101", "KL9100", "KL3022", "KL2134", "KL9010"]
+
+
+@case("fleet-apply-station-init", "README fleet example: 'kscfg --port tcp://HOST --json apply "
+      "line3.toml' on a file written by 'kscfg station init', without --station. A scan sees "
+      "the complex terminals by R8 in plug order and the digital ones as bit totals "
+      "(DESIGN.md section 4): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
+      passes=("tcp",), types={"tcp": INIT_TYPES})
+def c_fleet(ctx):
+    f = ctx.path("line3.toml")
+    ctx.expect_rc(0, "station", "init", f)
+    with open(f, "rb") as fh:
+        types = [t["type"] for t in tomllib.load(fh)["terminal"]]
+    check(types == INIT_TYPES, "station init wrote %r; the peer was started with %r" % (types, INIT_TYPES))
+    ctx.expect_rc(10, "--json", "apply", f, fact="the file asks for the standard format with 5 data bytes")
+    st = ctx.state()
+    check(ctx.reg(1, 35, state=st) == 5, "peer R35 = %d" % ctx.reg(1, 35, state=st))
+    check(ctx.reg(1, 34, state=st) & 0x0002 == 0, "peer R34 = 0x%04X (alternative format)" % ctx.reg(1, 34, state=st))
+    writes = dict(st["eeprom_writes"])
+    ctx.expect_rc(0, "--json", "apply", f, fact="a second apply has nothing to do")
+    check(ctx.state()["eeprom_writes"] == writes, "second apply wrote the EEPROM again")
+
+
+@case("apply-digital-bits-differ-refused", "a scan sees digital terminals only as bit totals "
+      "(DESIGN.md section 4): a file whose digital terminals add up to 8 input bits on a coupler "
+      "reporting 4 (0x1013) must be refused, naming the difference, before anything is written",
+      passes=("tcp",))
+def c_digital_refused(ctx):
+    types = DEFAULT_TYPES[:5] + ["KL1104"] + DEFAULT_TYPES[5:]
+    bad = ctx.write_station("BK9000", types, {1: {"baud": "19200"}}, name="bad.toml")
+    rc, out, err = ctx.kscfg("apply", bad)
+    check(rc == 5, "exit %s: %s" % (rc, err.strip()[:160]))
+    check("8" in err and "4" in err and "bit" in err, "the difference is not named: %s" % err.strip()[:200])
+    check(not ctx.state()["eeprom_writes"], "something was written")
+
+
+@case("apply-complex-order-refused", "complex terminals are matched by R8 and plug position: a file "
+      "with KL5101 and KL6001 swapped is refused before anything is written", passes=("tcp",))
+def c_complex_refused(ctx):
+    types = ["KL5101", "KL6001"] + DEFAULT_TYPES[2:]
+    bad = ctx.write_station("BK9000", types, {2: {"baud": "19200"}}, name="bad.toml")
+    rc, out, err = ctx.kscfg("apply", bad)
+    check(rc == 5, "exit %s: %s" % (rc, err.strip()[:160]))
+    check(not ctx.state()["eeprom_writes"], "something was written")
+
+
 # On the BK7300 the KL3022 has no control/status byte, so no register of it
 # can be read: the rtu pass backs up a station without it.
 NO_ANALOG = {"rtu": ["KL6001", "KL5101", "KL6031", "KL1104", "KL2134", "KL9010"]}
@@ -678,6 +845,8 @@ def main():
     ap.add_argument("--kscfg", help="path of the kscfg binary (or env KSCFG_BIN)")
     ap.add_argument("--pass", dest="passes", action="append", choices=sorted(PASSES))
     ap.add_argument("-k", dest="filter", help="run only cases whose name contains this")
+    ap.add_argument("--shard", metavar="I/N", help="run only every N-th case starting at the I-th (1-based), "
+                    "to split the suite into N parallel runs")
     ap.add_argument("--list", action="store_true", help="list the cases")
     ap.add_argument("--report", help="write a JSON report here")
     ap.add_argument("-v", action="store_true", help="print every kscfg command of failed cases")
@@ -689,6 +858,13 @@ def main():
     passes = args.passes or ["tcp", "rtu"]
     todo = [(p, c) for p in passes for c in CASES
             if p in c["passes"] and (not args.filter or args.filter in c["name"])]
+    if args.shard:
+        try:
+            i, n = (int(x) for x in args.shard.split("/"))
+            assert 1 <= i <= n
+        except (ValueError, AssertionError):
+            ap.error("--shard I/N with 1 <= I <= N")
+        todo = todo[i - 1::n]
     if args.list:
         for p, c in todo:
             print("%s/%s" % (p, c["name"]))
