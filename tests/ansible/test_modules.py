@@ -104,16 +104,18 @@ def main():
               'missing station file: %s' % x['msg'])
         x = res['unit_conflict']
         check(x['failed'] and 'names unit 2 but unit is 3' in x['msg'], 'unit against the URI: %s' % x['msg'])
+        # Issue 10 item 8: without a layout, the file's complex terminals are matched with the
+        # scan by R8 and order, its digital terminals by bit totals, so the seven-terminal file
+        # applies over Modbus as it is.
         x = res['no_layout']
-        check(x['failed'] and x['rc'] == 5 and 'describes 7 terminals, the station has 4' in x['msg'] and
-              x['unchanged'] is True and not x['rolled_back'],
-              'no layout over Modbus: refused, nothing written: %s' % x['msg'])
-        x = res['with_layout']
-        check(x['changed'] and x['rc'] == 10 and '--station' in x['cmd'] and x['port'] == tcp + '?unit=1',
-              'layout: changed over Modbus, port %s' % x['port'])
+        check(x['changed'] and x['rc'] == 10 and '--station' not in x['cmd'] and x['port'] == tcp + '?unit=1',
+              'no layout over Modbus: the file matches the scan, changed: %s' % x.get('msg'))
         check([(t['position'], t['registers']) for t in x['terminals'] if t['changed']] ==
-              [(3, [{'register': 32, 'before': 6, 'after': 8}])], 'layout: KL6031 R32 6 -> 8 (the refusal wrote nothing)')
-        check(read(tcp, 3, 32) == 8, 'layout: KL6031 R32 = 8 (38400 baud)')
+              [(3, [{'register': 32, 'before': 6, 'after': 8}])], 'no layout: KL6031 R32 6 -> 8')
+        check(read(tcp, 3, 32) == 8, 'no layout: KL6031 R32 = 8 (38400 baud)')
+        x = res['with_layout']
+        check(not x['changed'] and x['rc'] == 0 and '--station' in x['cmd'] and x['port'] == tcp + '?unit=1',
+              'layout: nothing left to change over Modbus, port %s' % x['port'])
         x = res['wrong_unit']
         check(x['failed'] and x['rc'] == 3 and 'unit 3' in x['msg'], 'unit 3: link failure: %s' % x['msg'])
 

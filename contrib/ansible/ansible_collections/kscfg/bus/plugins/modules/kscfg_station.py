@@ -30,8 +30,9 @@ options:
     description:
       - Path of a station file on the host the task runs on (C(kscfg station init) writes a
         commented example, C(kscfg backup) and C(kscfg scan --write) write one from a station).
-      - It must list every terminal the station has, in plug order; over Modbus that is the
-        complex terminals (digital terminals cannot be identified over Modbus, see I(layout)).
+      - It must list every terminal the station has, in plug order; over Modbus the complex
+        terminals are matched with the coupler's by R8 and order, and digital terminals (which
+        cannot be identified over Modbus) by their total bit counts, so a file may list them or not.
       - Mutually exclusive with I(terminals).
     type: path
   terminals:
@@ -71,8 +72,7 @@ options:
   layout:
     description:
       - Also give the station file as the station's layout (C(kscfg --station FILE)) instead of
-        scanning the coupler. Needed over Modbus when the file lists digital terminals, whose
-        types a Modbus scan cannot read.
+        scanning the coupler (kscfg checks the file against the image lengths the coupler reports).
     type: bool
     default: false
   backup_file:
