@@ -43,7 +43,7 @@ void Context::set_layout(StationLayout L, bool complete) {
 }
 
 const StationLayout& Context::layout() {
-  if (layout_) return *layout_;
+  if (layout_ && layout_complete_) return *layout_;
   return layout_upto(0);
 }
 
@@ -196,7 +196,7 @@ unsigned Context::terminal_position() {
 }
 
 std::vector<unsigned> Context::terminal_positions(bool registers_only) {
-  if (!terminal_given()) return {terminal_position()};
+  if (!terminal_given() || opt_.terminal) return {terminal_position()};  // one: walk no further
   auto v = select_terminals(opt_.selection, layout(), registers_only);
   if (v.empty())
     throw Error(Exit::usage, fmt::format("-t {} selects no terminal{}", opt_.selection.text,
@@ -206,7 +206,7 @@ std::vector<unsigned> Context::terminal_positions(bool registers_only) {
 }
 
 bool Context::several_terminals() {
-  if (!terminal_given()) return false;
+  if (!terminal_given() || opt_.terminal) return false;  // a plug position is one terminal
   return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
 }
 
@@ -229,7 +229,7 @@ std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
     return s;
   }
   kept_.reset();
-  const TerminalImage& t = register_terminal(layout(), pos, ch);
+  const TerminalImage& t = register_terminal(layout_upto(pos), pos, ch);
   if (layout_from_cache() && !check_terminal(t, false)) {
     // (terminal_position() and the whole-station layout() check before anyone gets here)
     std::string was = t.type->type;

@@ -43,12 +43,11 @@ class Context {
   // The link named by --port (opened on first use).
   Link& link();
   bool link_open() const { return link_ != nullptr; }
-  // The station as laid out by the coupler: from the link, or from --station (checked against the
-  // image lengths a Modbus coupler reports). A Modbus station is scanned only as far as needed:
-  // after terminal_position() or session(), layout() holds terminals 1..position at least;
-  // before, the whole station.
+  // The whole station as laid out by the coupler: from the link, or from --station (checked
+  // against the image lengths a Modbus coupler reports).
   const StationLayout& layout();
-  // Terminals 1..position at least (0: all of them).
+  // Terminals 1..position at least (0: all of them): a Modbus coupler is scanned only as far as
+  // that (terminal_position() and session() need no more than the terminal they select).
   const StationLayout& layout_upto(unsigned position);
   // As layout(), but a layout from an earlier run's scan (the scan cache) is not checked here
   // terminal by terminal: the caller reads every terminal's R8 itself and calls
