@@ -95,6 +95,7 @@ TEST_CASE("version (-V), help CMD, and per-command help with the global options 
   CHECK(k({"help", "emu", "reset"}).out == k({"emu", "reset", "--help"}).out);
   CHECK(k({"help"}).out == k({"--help"}).out);
   CHECK_THAT(k({"--help"}).out, Catch::Contains("\n  read "));
+  CHECK(widest_line(k({"--help"}).out) <= 80);  // the whole tool's help too, piped
 
   for (const auto& path : command_paths()) {
     std::vector<std::string> args = path;
