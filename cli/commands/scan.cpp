@@ -11,6 +11,7 @@
 #include "../output.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/scan.hpp"
+#include "../progress.hpp"
 #include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg::cli {
@@ -85,7 +86,11 @@ class Scan : public Command {
       if (mo) s.motorola = *mo;
       settings = s;
     }
-    ScanResult r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings);
+    ScanResult r;
+    {
+      ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
+      r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+    }
     // Later commands on this port use it (the scan cache) while the coupler reports the same
     // identification and image lengths.
     if (auto* d = link->discovery()) d->adopt(r);

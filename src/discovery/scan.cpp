@@ -166,7 +166,8 @@ void read_watchdog(ScanResult& r, ModbusClient& client) {
   if (auto v = client.read_optional(mbmap::kWatchdogType, 1)) r.watchdog_type = (*v)[0];
 }
 
-void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto) {
+void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto,
+          const ScanProgress& progress) {
   if (!r.walked || r.complete) return;
   std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   const ImageFormat probe = probe_format();
@@ -184,6 +185,9 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
       break;
     }
     if (upto && r.spec.terminals.size() >= upto) break;
+    if (progress)
+      progress(static_cast<unsigned>(std::min(in, ci)), static_cast<unsigned>(ci),
+               fmt::format("terminal {}", r.spec.terminals.size() + 1));
     // The next terminal's control/status byte, and where its register value can be: after a
     // reserved byte when the coupler aligns words (KL6001 alternative format, KL5101), or right
     // after the control/status byte (KL6001 standard format: CT/ST, D0, D1, ... whatever the
@@ -320,12 +324,12 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
 }
 
 ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
-                        std::optional<MappingSettings> settings) {
+                        std::optional<MappingSettings> settings, const ScanProgress& progress) {
   ScanHead head = read_scan_head(client);
   ScanResult r = begin_scan(head, fmt::format("scan of {}", link.describe()), settings);
   read_watchdog(r, client);
   r.layout = scan_layout(r, catalog);
-  walk(r, link, catalog, so, 0);
+  walk(r, link, catalog, so, 0, progress);
   return r;
 }
 

@@ -1,6 +1,7 @@
 // Discovery of the station behind a Modbus coupler (DESIGN.md section 4).
 #pragma once
 #include <array>
+#include <functional>
 #include <map>
 #include <vector>
 #include <optional>
@@ -34,9 +35,14 @@ std::array<unsigned, 4> read_image_lengths(ModbusClient& client);
 // mapping settings (`settings` overrides the profile's defaults).
 ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::optional<MappingSettings> settings);
 
+// Told before each terminal is read: (input bytes of the complex area walked, all of them,
+// "terminal N").
+using ScanProgress = std::function<void(unsigned done, unsigned total, const std::string& what)>;
+
 // Walks the complex area on from where `r` stopped, reading each terminal's R8 and the registers
 // that decide its image, until terminals 1..upto are known (upto 0: the whole area).
-void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto = 0);
+void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto = 0,
+          const ScanProgress& progress = {});
 
 // The layout of the terminals in `r` (registers as read, type defaults elsewhere); the digital
 // bits and whole image sizes from the coupler's image lengths.
@@ -50,7 +56,7 @@ void read_watchdog(ScanResult& r, ModbusClient& client);
 
 // Everything: head, watchdog and the whole walk.
 ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
-                        std::optional<MappingSettings> settings = std::nullopt);
+                        std::optional<MappingSettings> settings = std::nullopt, const ScanProgress& progress = {});
 
 struct DiscoveryOptions {
   // Where scans are kept between runs (scan_cache.hpp); empty: nowhere, every run scans.
