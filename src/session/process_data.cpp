@@ -290,8 +290,11 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
       } else {
         word = static_cast<std::uint16_t>(parse_int(value, "data word") & 0xFFFF);
       }
+      // The elements themselves, not a copy: e points into them after the loop.
+      static const std::vector<Element> kNone;
+      const std::vector<Element>& elements = f ? f->out : kNone;
       const Element* e = nullptr;
-      for (const auto& x : f ? f->out : std::vector<Element>{})
+      for (const auto& x : elements)
         if (x.kind == Element::Kind::word) {
           e = &x;
           break;
