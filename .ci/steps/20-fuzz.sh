@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # libFuzzer targets (fuzz/README.md) under ASan+UBSan: the regression inputs and seeds once, then
-# 30 s per target. About 9 minutes on 2 cores: ~5 min to build the library with clang, 6 x 30 s
-# of fuzzing, the rest for the regression inputs.
+# 30 s per target. About 8-10 minutes on 2 cores: building the library with clang, ASan and UBSan
+# (no ccache) took 6 min on the shared machine at load 10 (less on an idle one), then 6 x 30 s of
+# fuzzing; the regression inputs and seeds take about a second.
 set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
 pkgs=(clang-14 libfuzzer-14-dev)
