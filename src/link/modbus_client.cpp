@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include <modbus/modbus.h>
 #include <netdb.h>
+#include <poll.h>
 #include <sys/file.h>
 #include <sys/socket.h>
 #include <termios.h>
@@ -398,9 +399,38 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
       disconnect();
       continue;
     }
+    // RTU has no transaction id: a reply that comes after the timeout would be taken for the
+    // answer to the next request of the same shape (an input read's bytes as the output image).
+    // After a timeout the line is read until the late reply has passed or it stayed silent.
+    if (timeout && serial_fd_ >= 0) drain_late_reply();
     // A late or garbled reply may still be on its way: let it arrive, then drop it.
     std::this_thread::sleep_for(std::chrono::milliseconds(e == EMBXSBUSY ? 5 : 2));
     modbus_flush(ctx_);
+  }
+}
+
+void ModbusClient::drain_late_reply() {
+  using Clock = std::chrono::steady_clock;
+  using std::chrono::milliseconds;
+  // Waits one more response timeout for a late reply; once bytes come, until the line is quiet
+  // for a few character times. Bounded: at most two response timeouts in all.
+  const auto start = Clock::now();
+  const auto window = milliseconds(opt_.response_timeout_ms);
+  const int quiet_ms = static_cast<int>(std::max<unsigned>(5, 40'000u / std::max(1u, target_.baud) + 1));
+  bool heard = false;
+  for (;;) {
+    auto spent = std::chrono::duration_cast<milliseconds>(Clock::now() - start);
+    if (spent >= 2 * window || (!heard && spent >= window)) return;
+    int wait = heard ? quiet_ms : static_cast<int>((window - spent).count());
+    pollfd p{serial_fd_, POLLIN, 0};
+    int r = ::poll(&p, 1, wait);
+    if (r < 0 && errno == EINTR && !g_interrupted) continue;
+    if (r <= 0) return;  // quiet after the late reply, nothing at all, or interrupted
+    std::uint8_t buf[256];
+    ssize_t n = ::read(serial_fd_, buf, sizeof buf);
+    if (n <= 0) return;
+    heard = true;
+    if (opt_.trace) opt_.trace(fmt::format("modbus: {} late byte(s) dropped ({})", n, target_.where()));
   }
 }
 

@@ -13,6 +13,7 @@
 #include <chrono>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <map>
 #include <regex>
 
 #include "kscfg/catalog/catalog.hpp"
@@ -242,6 +243,38 @@ TEST_CASE("with faults injected, commands succeed or fail clearly and leave no t
       CHECK(channels >= 4);
     }
   }
+}
+
+TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for the next answer",
+          "[serve]") {
+  // Modbus RTU has no transaction id. Every third reply here comes 150 ms after a 100 ms timeout;
+  // read as the answer to the next request of the same shape, an input read's bytes became the
+  // "saved" output image and were written back at the end: terminals left in register mode.
+  Station st;
+  Server srv(st.state, {"--pty", "--watchdog-ms", "0", "--fault", "delay=0.3,delay_ms=150", "--seed", "5"},
+             st.dir.file("serve.err"));
+  std::map<unsigned, std::string> last;  // terminal -> R32 value last written and verified
+  const std::vector<std::pair<unsigned, std::string>> writes = {
+      {1, "0x0005"}, {2, "0x0010"}, {1, "0x0006"}, {2, "0x0011"}, {1, "0x0007"}, {2, "0x0012"}};
+  for (const auto& [pos, value] : writes) {
+    Run r = on(srv.uri, {"--timeout", "300", "-t", std::to_string(pos), "write", "R32", value}, 60);
+    INFO("write R32 " << value << " on terminal " << pos << ": " << r.err);
+    if (r.rc == 0) last[pos] = value;
+    else CHECK(one_line_error(r));
+  }
+  CHECK(srv.stop() == 0);
+  kscfg::EmulatorStore store(st.state, kscfg::Catalog::standard());
+  auto& station = store.station();
+  for (const auto& t : station.layout().terminals)
+    for (unsigned ch = 0; ch < t.channels.size(); ++ch) {
+      if (!t.channels[ch].window) continue;
+      INFO("terminal " << t.position << " channel " << ch + 1);
+      CHECK((station.outputs()[t.channels[ch].window->ctrl] & 0x80) == 0);
+      CHECK_FALSE(station.channel(t.position, ch).unlocked());
+    }
+  for (const auto& [pos, value] : last)
+    CHECK(station.channel(pos, 0).read_register(32) == std::stoul(value, nullptr, 16));
+  CHECK(last.size() == 2);
 }
 
 TEST_CASE("bad links: refused, silent, wrong unit, not a tty, malformed URI", "[serve]") {

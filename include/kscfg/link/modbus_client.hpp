@@ -106,6 +106,8 @@ class ModbusClient {
  private:
   void connect();
   void disconnect();
+  // RTU, after a timeout: reads and drops a late reply before the next request goes out.
+  void drain_late_reply();
   // Runs one request with bounded retries. `addr`/`count`: the registers it reads or writes (for
   // the hint of an exception 2). With `refused`, exception 2 sets it and returns instead of throwing.
   template <class F>
