@@ -35,7 +35,8 @@ ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
   if (it == timings_.end()) {
     // A terminal not timed yet: start from the slowest one known on this coupler.
     AckTiming t;
-    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait);
+    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.base);
+    t.base = t.wait;
     it = timings_.emplace(position, t).first;
   }
   return &it->second;

@@ -206,10 +206,12 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
         if (!known) {
           // Learning: time a few acknowledges, then trust the longest.
           timing_->longest = std::max(timing_->longest, took);
-          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->longest;
+          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->base = timing_->longest;
         } else if (poll > 1) {
-          // It needed longer than we thought (bounded: one slow answer under load is not the rule).
-          timing_->wait = std::max(timing_->wait, std::min(took, 2 * timing_->wait));
+          // It needed longer than we thought. Bounded by twice what the run started with: on a
+          // loaded machine one slow answer after another must not ratchet the wait up.
+          microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
+          timing_->wait = std::max(timing_->wait, std::min(took, cap));
         }
       }
       if (opt_.trace)
@@ -224,7 +226,10 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
       // The terminal is slower than we thought. A request written ahead replaced ours before it
       // was answered, so how much slower is unknown: a quarter more.
       timing_->missed = true;
-      if (wrote_ahead) timing_->wait += timing_->wait / 4;
+      if (wrote_ahead) {
+        microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
+        timing_->wait = std::min(timing_->wait + timing_->wait / 4, std::max(cap, timing_->wait));
+      }
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.

@@ -32,6 +32,8 @@ class Link {
   // per terminal position; a Modbus link keeps them with its scan cache between runs.
   struct AckTiming {
     std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
+    std::chrono::microseconds base{0};  // `wait` as the run started or as learned in it: a slow answer
+                                        // (a loaded machine) raises `wait` to twice this at most
     unsigned samples = 0;               // acknowledges timed while learning (this run)
     std::chrono::microseconds longest{0};  // longest latency timed while learning
     bool missed = false;                // a poll at `wait` came too early (this run); no more read-ahead

@@ -81,7 +81,10 @@ class ModbusLink : public Link {
   AckTiming* ack_timing(unsigned position) override;
   // Learned acknowledge latencies by terminal position (for the scan cache).
   const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
-  void set_ack_wait(unsigned position, std::chrono::microseconds wait) { timings_[position].wait = wait; }
+  void set_ack_wait(unsigned position, std::chrono::microseconds wait) {
+    timings_[position].wait = wait;
+    timings_[position].base = wait;
+  }
 
   ModbusClient& client() { return client_; }
   // How layout() finds the station: set by discovery/open.hpp.
