@@ -10,6 +10,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/match.hpp"
+#include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
@@ -29,6 +30,7 @@ Link& Context::link() {
     if (opt_.verbose) lo.trace = [this](const std::string& s) { trace(s); };
     lo.cache_dir = default_cache_dir();
     lo.rescan = opt_.rescan;
+    lo.notice = session_options().notice;
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
@@ -216,6 +218,7 @@ SessionOptions Context::session_options() const {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
+  if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) so.kill_after_write = parse_register(e);
   return so;
 }
 

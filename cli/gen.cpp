@@ -261,7 +261,7 @@ std::string generate_manpage(const App& a) {
   m << ".SH JSON OUTPUT\n" << md_to_roff(embedded_doc("json.md"));
   m << ".SH EXIT STATUS\n";
   for (Exit e : {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify,
-                 Exit::file, Exit::interrupted, Exit::changed, Exit::internal}) {
+                 Exit::file, Exit::interrupted, Exit::unverified, Exit::changed, Exit::internal}) {
     static const std::map<Exit, const char*> text = {
         {Exit::ok, "Success."},
         {Exit::differences, "diff: the station differs from the file."},
@@ -273,6 +273,10 @@ std::string generate_manpage(const App& a) {
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
         {Exit::interrupted, "Interrupted by SIGINT or SIGTERM; the terminal was restored."},
+        {Exit::unverified,
+         "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
+         "that went down): the message names the registers that may hold the new value; read them with "
+         "\\fBkscfg dump\\fR."},
         {Exit::changed, "apply: the station was changed (success)."},
         {Exit::internal, "Internal error (a bug)."},
     };
@@ -283,7 +287,9 @@ std::string generate_manpage(const App& a) {
        ".TP\n.B KSCFG_CATALOG\nDirectory of extra terminal descriptions, like \\fB\\-\\-catalog\\fR.\n"
        ".TP\n.B XDG_STATE_HOME\nWhere the emulator keeps its state (\\fIkscfg/emulator.json\\fR).\n"
        ".TP\n.B KSCFG_TEST_NO_UNLOCK\nTest hook: when 1, writes skip the code word, so the read-back "
-       "must catch the refused write.\n";
+       "must catch the refused write.\n"
+       ".TP\n.B KSCFG_TEST_KILL_AFTER\nTest hook: a register such as R31; kscfg kills itself (SIGKILL) right after "
+       "the terminal acknowledged a write of it, leaving the terminal as a crashed session would.\n";
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
        "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR.\n";
   m << ".SH SEE ALSO\n.BR kscfg\\-station (5),\n.BR kscfg\\-catalog (5)\n";

@@ -22,6 +22,7 @@ const char* exit_name(Exit e) {
     case Exit::verify: return "verify";
     case Exit::file: return "file";
     case Exit::interrupted: return "interrupted";
+    case Exit::unverified: return "unverified";
     case Exit::changed: return "changed";
     case Exit::internal: return "internal";
   }

@@ -30,6 +30,7 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
+  so.notice = opt.notice;  // e.g. a dead session's register mode, finished by the scan's session
   discover_by_scan(*link, catalog, so, d);
   return link;
 }

@@ -12,6 +12,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -221,46 +222,77 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
                                  "#   kscfg restore " + backup_path + "\n" + station_to_toml(undo));
   res.backup_path = backup_path;
 
-  struct Done {
-    const ChannelPlan* cp;
-  };
-  std::vector<Done> done;
+  std::vector<const ChannelPlan*> done;
+  const ChannelPlan* current = nullptr;
   try {
     for (const auto& cp : plan.channels) {
       if (progress && !cp.registers.empty()) progress(written, total_writes, fmt::format("terminal {}", cp.position));
       written += static_cast<unsigned>(cp.registers.size());
       if (cp.registers.empty()) continue;
+      current = &cp;
       const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
       RegisterSession s(link, ti, cp.channel, so);
       std::vector<std::pair<unsigned, std::uint16_t>> changes;
       for (const auto& rc : cp.registers) changes.emplace_back(rc.reg, rc.to);
-      s.write_all(changes);  // verified; rolls back its own registers on failure
+      s.write_all(changes);  // verified; on failure rolled back from what the terminal holds
       s.close();
-      done.push_back({&cp});
+      done.push_back(&cp);
+      current = nullptr;
     }
   } catch (const Error& e) {
-    std::string undone;
-    std::string failed;
+    // Roll back from what the terminals hold, and claim "as it was" only for what was read.
+    std::string cause = e.what();
+    Exit code = e.code();
+    std::size_t verified = 0;
+    std::vector<unsigned> rolled;
+    std::vector<std::string> unverified;
+    auto who = [](const ChannelPlan& cp) {
+      return fmt::format("terminal {} ({}){}", cp.position, cp.type,
+                         cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
+    };
+    auto account = [&](const ChannelPlan& cp, const RollbackResult& rb) {
+      verified += rb.verified.size();
+      rolled.push_back(cp.position);
+      if (rb.ok()) return;
+      std::string list;
+      for (const auto& u : rb.unverified) list += (list.empty() ? "" : ", ") + u;
+      unverified.push_back(fmt::format("{}: {}", who(cp), list));
+    };
+    if (const auto* cf = dynamic_cast<const ChangeFailed*>(&e); cf && current) {
+      cause = cf->cause();
+      code = cf->cause_code();
+      account(*current, cf->rollback());
+    }
+    bool was_interrupted = g_interrupted.exchange(false);
     for (auto it = done.rbegin(); it != done.rend(); ++it) {
-      const ChannelPlan& cp = *it->cp;
+      const ChannelPlan& cp = **it;
       try {
-        const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
-        RegisterSession s(link, ti, cp.channel, so);
-        std::vector<std::pair<unsigned, std::uint16_t>> back;
-        for (const auto& rc : cp.registers) back.emplace_back(rc.reg, rc.from);
-        s.write_all(back);
+        RegisterSession s(link, register_terminal(layout, cp.position, cp.channel), cp.channel, so);
+        std::vector<WriteResult> back;
+        for (const auto& rc : cp.registers) back.push_back({rc.reg, rc.from, rc.to, true});
+        RollbackResult rb = s.roll_back(back);
         s.close();
-        undone += fmt::format(" {}", cp.position);
+        account(cp, rb);
       } catch (const Error& e2) {
-        failed += fmt::format(" {} ({})", cp.position, e2.what());
+        rolled.push_back(cp.position);
+        unverified.push_back(fmt::format("{}: {}", who(cp), e2.what()));
       }
     }
-    std::string msg = fmt::format("apply failed: {}", e.what());
-    if (!undone.empty()) msg += "; rolled back terminal(s)" + undone;
-    if (!failed.empty())
-      throw Error(e.code(), msg + "; ROLLBACK FAILED for terminal(s)" + failed,
-                  "restore by hand with: kscfg restore " + backup_path);
-    throw Error(e.code(), msg, "the station is as it was; the backup is " + backup_path);
+    if (was_interrupted) g_interrupted = true;
+    std::string terms;
+    for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
+    std::string msg = fmt::format("apply failed: {}", cause);
+    if (!unverified.empty()) {
+      std::string list;
+      for (const auto& u : unverified) list += (list.empty() ? "" : "; ") + u;
+      throw Error(Exit::unverified, fmt::format("{}; rollback failed: could not verify {}", msg, list),
+                  "those registers may hold the new values: read them with 'kscfg dump' when the terminal answers "
+                  "again; 'kscfg restore " + backup_path + "' puts every touched register back");
+    }
+    if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
+    throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),
+                fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", verified,
+                            verified == 1 ? "" : "s", backup_path));
   }
   res.changed = true;
   return res;

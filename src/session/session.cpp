@@ -3,6 +3,8 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <csignal>
+#include <set>
 #include <thread>
 
 #include "kscfg/base/error.hpp"
@@ -58,6 +60,85 @@ RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsi
   shadow_.assign(saved_out_.begin() + static_cast<std::ptrdiff_t>(out_lo_ - lo),
                  saved_out_.begin() + static_cast<std::ptrdiff_t>(out_hi_ - lo + 1));
   if (link_.pipelines()) timing_ = link_.ack_timing(terminal.position);
+  // A control byte in register mode is not process data: a session died here (DESIGN.md section
+  // 6). Restoring it would repeat the dead session's request (e.g. the code word) after ours, so the
+  // bytes to restore are the idle process-data ones: control byte 0, register value bytes 0.
+  std::uint8_t& found = saved_out_[w_.ctrl - saved_at_];
+  if (found & proto::kReg) {
+    leftover_ = found;
+    found = 0;
+    saved_out_[w_.out_lo - saved_at_] = 0;
+    saved_out_[w_.out_hi - saved_at_] = 0;
+    maybe_unlocked_ = true;  // relock at the end whatever happens
+  }
+}
+
+void RegisterSession::note(const std::string& s) const {
+  if (opt_.notice) opt_.notice(s);
+  if (opt_.trace) opt_.trace(s);
+}
+
+void RegisterSession::finish_leftover() {
+  leftover_done_ = true;
+  std::string r31;
+  try {
+    std::uint16_t v = read_retry(proto::kCodeWordRegister);
+    if (v == proto::kCodeWord) {
+      write_checked(proto::kCodeWordRegister, 0);
+      std::uint16_t after = read_retry(proto::kCodeWordRegister);
+      r31 = after == 0 ? "it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"
+                       : fmt::format("it was unlocked (R31 = 0x1235) and still reads R31 = 0x{:04X}", after);
+      if (after == 0) unlocked_ = false;
+    } else {
+      r31 = fmt::format("R31 reads 0x{:04X} (locked)", v);
+    }
+  } catch (const Error& e) {
+    if (e.code() == Exit::interrupted) throw;
+    r31 = fmt::format("R31 could not be checked ({}); relocking at the end", e.what());
+  }
+  note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
+                   "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
+                   who(), *leftover_, r31, *leftover_));
+}
+
+void RegisterSession::forget() {
+  last_status_.reset();
+  pending_.reset();
+}
+
+std::uint16_t RegisterSession::read_retry(unsigned reg) {
+  for (int attempt = 0;; ++attempt) {
+    try {
+      return read(reg);
+    } catch (const Error& e) {
+      if (e.code() != Exit::link || attempt >= 2) throw;
+      forget();
+      if (opt_.trace) opt_.trace(fmt::format("{}: reading R{} again after: {}", who(), reg, e.what()));
+    }
+  }
+}
+
+void RegisterSession::write_checked(unsigned reg, std::uint16_t value) {
+  for (int attempt = 0;; ++attempt) {
+    try {
+      transact(true, reg, value);
+      return;
+    } catch (const Error& e) {
+      // A link error after the request went out: the write may have landed. Read before deciding.
+      if (e.code() != Exit::link || attempt >= 2) throw;
+      forget();
+      std::uint16_t now = 0;
+      try {
+        now = read_retry(reg);
+      } catch (const Error&) {
+        throw e;
+      }
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), reg, e.what(),
+                               now, now == value ? "the write landed" : "writing again"));
+      if (now == value) return;
+    }
+  }
 }
 
 RegisterSession::~RegisterSession() { close(); }
@@ -127,6 +208,7 @@ std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t 
 
 std::uint16_t RegisterSession::request(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
   if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+  if (leftover_ && !leftover_done_) finish_leftover();
   if (pending_) {
     // A read request written ahead may still be answered. Its ack cannot be told from the ack of
     // a write to the same register, so let it finish first; any other register's ack differs.
@@ -170,7 +252,9 @@ std::uint16_t RegisterSession::request(bool write, unsigned reg, std::uint16_t v
   last_status_.reset();
   sent_ = Clock::now();
   put(ctrl, write ? std::optional<std::uint16_t>(value) : std::nullopt);
-  return wait_ack(write, reg, value, write ? std::nullopt : next);
+  std::uint16_t answer = wait_ack(write, reg, value, write ? std::nullopt : next);
+  if (write && opt_.kill_after_write && *opt_.kill_after_write == reg) ::raise(SIGKILL);  // test hook
+  return answer;
 }
 
 std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
@@ -306,8 +390,16 @@ void RegisterSession::check_writable(unsigned reg) const {
 
 void RegisterSession::unlock() {
   if (opt_.skip_unlock) return;
+  if (!unlock_checked_) {
+    // Unlocked before this session touched it: another session's leftover (or 'kscfg unlock').
+    unlock_checked_ = true;
+    if (!leftover_ && read_retry(proto::kCodeWordRegister) == proto::kCodeWord)
+      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
+                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
+                       who()));
+  }
   maybe_unlocked_ = true;
-  transact(true, proto::kCodeWordRegister, proto::kCodeWord);
+  write_checked(proto::kCodeWordRegister, proto::kCodeWord);
   unlocked_ = true;
 }
 
@@ -317,12 +409,12 @@ void RegisterSession::lock() {
 }
 
 void RegisterSession::relock_write() {
-  transact(true, proto::kCodeWordRegister, 0);
+  write_checked(proto::kCodeWordRegister, 0);
   unlocked_ = false;
 }
 
 void RegisterSession::verify_locked() {
-  std::uint16_t v = read(proto::kCodeWordRegister);
+  std::uint16_t v = read_retry(proto::kCodeWordRegister);
   if (v != 0)
     throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), v));
   maybe_unlocked_ = false;
@@ -366,19 +458,16 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
   }
   if (!any) return results;
 
-  std::vector<const WriteResult*> written;
+  std::vector<WriteResult> change;
+  for (const auto& w : results)
+    if (w.changed) change.push_back(w);
   try {
     if (any_protected) unlock();
-    for (const auto& w : results) {
-      if (!w.changed) continue;
-      written.push_back(&w);
-      transact(true, w.reg, w.after);
-    }
+    for (const auto& w : change) write_checked(w.reg, w.after);
     // Relock before reading back, so no read-back waits on a stale ack of the same register.
     if (any_protected) relock_write();
-    for (const auto& w : results) {
-      if (!w.changed) continue;
-      std::uint16_t back = read(w.reg);
+    for (const auto& w : change) {
+      std::uint16_t back = read_retry(w.reg);
       if (back != w.after)
         throw Error(Exit::verify,
                     fmt::format("{}: R{} reads back 0x{:04X} after writing 0x{:04X}", who(), w.reg, back, w.after),
@@ -386,32 +475,98 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
     }
     if (any_protected) verify_locked();
   } catch (const Error& e) {
-    if (e.code() == Exit::interrupted || written.empty() || (written.size() == 1 && results.size() == 1)) {
-      // A single register: nothing else to undo; the session still relocks on close.
-      throw;
-    }
-    // Roll back every register this call wrote.
-    std::string undone;
-    try {
-      if (any_protected) unlock();
-      for (const auto* w : written) {
-        transact(true, w->reg, w->before);
-        undone += fmt::format(" R{}=0x{:04X}", w->reg, w->before);
-      }
-      if (any_protected) relock_write();
-      for (const auto* w : written) {
-        if (read(w->reg) != w->before)
-          throw Error(Exit::verify, fmt::format("R{} did not return to 0x{:04X}", w->reg, w->before));
-      }
-      if (any_protected) verify_locked();
-    } catch (const Error& e2) {
-      throw Error(e.code(), fmt::format("{}; rollback failed too: {}", e.what(), e2.what()),
-                  "check the terminal with 'kscfg dump'");
-    }
-    throw Error(e.code(), fmt::format("{}; rolled back:{}", e.what(), undone));
+    // Whatever failed, what the terminal holds now decides: read every register of the change,
+    // write back those that moved, read them again (also after Ctrl-C: the change is all or nothing).
+    bool was_interrupted = g_interrupted.exchange(false);
+    RollbackResult rb = roll_back(change);
+    if (was_interrupted) g_interrupted = true;
+    throw ChangeFailed(e.code(), e.what(), std::move(rb), who());
   }
   return results;
 }
+
+RollbackResult RegisterSession::roll_back(const std::vector<WriteResult>& changes) {
+  RollbackResult rb;
+  std::set<unsigned> unreadable;
+  std::vector<const WriteResult*> moved;
+  auto unreadable_text = [&](unsigned reg, const Error& e) {
+    unreadable.insert(reg);
+    rb.unverified.push_back(fmt::format("R{} (could not be read: {})", reg, e.what()));
+  };
+  for (const auto& w : changes) {
+    try {
+      if (read_retry(w.reg) != w.before) moved.push_back(&w);
+    } catch (const Error& e) {
+      unreadable_text(w.reg, e);
+    }
+  }
+  std::string write_error;
+  if (!moved.empty()) {
+    bool prot = std::any_of(moved.begin(), moved.end(), [&](const WriteResult* w) {
+      return proto::is_protected(w->reg) || term_->type->regs[w->reg].code_word;
+    });
+    try {
+      if (prot) {
+        maybe_unlocked_ = true;
+        write_checked(proto::kCodeWordRegister, proto::kCodeWord);
+        unlocked_ = true;
+      }
+      for (const auto* w : moved) {
+        write_checked(w->reg, w->before);
+        rb.rewritten.push_back(w->reg);
+      }
+    } catch (const Error& e) {
+      write_error = e.what();
+    }
+  }
+  for (const auto& w : changes) {
+    if (unreadable.count(w.reg)) continue;
+    try {
+      std::uint16_t now = read_retry(w.reg);
+      if (now == w.before) rb.verified.emplace_back(w.reg, now);
+      else
+        rb.unverified.push_back(fmt::format("R{} (reads 0x{:04X}, was 0x{:04X}{})", w.reg, now, w.before,
+                                            write_error.empty() ? "" : "; writing it back failed: " + write_error));
+    } catch (const Error& e) {
+      unreadable_text(w.reg, e);
+    }
+  }
+  // Never leave it unlocked: R31 must read 0.
+  try {
+    std::uint16_t v = read_retry(proto::kCodeWordRegister);
+    if (v != 0) {
+      write_checked(proto::kCodeWordRegister, 0);
+      v = read_retry(proto::kCodeWordRegister);
+    }
+    rb.locked = v == 0;
+    if (rb.locked) maybe_unlocked_ = unlocked_ = false;
+    else rb.unverified.push_back(fmt::format("R31 (reads 0x{:04X}: still unlocked)", v));
+  } catch (const Error& e) {
+    rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", e.what()));
+  }
+  return rb;
+}
+
+std::string RollbackResult::text(const std::string& what) const {
+  std::string seen;
+  for (const auto& [r, v] : verified) seen += fmt::format("{}R{} 0x{:04X}", seen.empty() ? "" : ", ", r, v);
+  if (ok())
+    return fmt::format("{} is as it was: verified by reading {} register{} ({}) and R31 = 0x0000", what,
+                       verified.size(), verified.size() == 1 ? "" : "s", seen);
+  std::string bad;
+  for (const auto& u : unverified) bad += (bad.empty() ? "" : ", ") + u;
+  return fmt::format("could not verify {}: {}{}", what, bad, seen.empty() ? "" : "; read back as before: " + seen);
+}
+
+ChangeFailed::ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who)
+    : Error(rb.ok() ? cause_code : Exit::unverified,
+            rb.ok() ? fmt::format("{}; rolled back: {}", cause, rb.text(who))
+                    : fmt::format("{}; rollback failed: {}", cause, rb.text(who)),
+            rb.ok() ? std::string() : "these registers may hold the new values: read them with 'kscfg dump' when the "
+                                      "terminal answers again"),
+      cause_code_(cause_code),
+      cause_(std::move(cause)),
+      rb_(std::move(rb)) {}
 
 void RegisterSession::command(unsigned reg, std::uint16_t value) {
   check_writable(reg);
@@ -428,20 +583,35 @@ void RegisterSession::close() noexcept {
   if (closed_) return;
   closed_ = true;
   bool was_interrupted = g_interrupted.exchange(false);
+  if (leftover_ && !leftover_done_) {
+    try {
+      finish_leftover();
+    } catch (...) {
+    }
+  }
   // Never leave a terminal unlocked: relock if this session may have unlocked it.
   // A link failure (a lossy line) is tried again; a terminal that does not answer is not.
   if (maybe_unlocked_ || unlocked_) {
+    std::string failed;
     for (int attempt = 0; attempt < 3; ++attempt) {
       try {
         transact(true, proto::kCodeWordRegister, 0);
+        failed.clear();
         break;
       } catch (const Error& e) {
+        failed = e.what();
         if (e.code() != Exit::link) break;
-        last_status_.reset();
+        forget();
       } catch (...) {
+        failed = "unknown error";
         break;
       }
     }
+    if (!failed.empty())
+      try {
+        note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+      } catch (...) {
+      }
   }
   // Never leave it in register mode: put back the process-data bytes this session changed (the
   // control byte, and the data bytes of a write); the channel's other bytes were never touched.

@@ -4,6 +4,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/link/modbus_client.hpp"
+#include "kscfg/link/port_uri.hpp"
 #include "support.hpp"
 
 using kscfg::test::Emu;
@@ -232,4 +235,149 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
   Run f = st({"apply", "--force", st.dir.file("lock.toml")});
   CHECK(f.rc == 10);
   CHECK_THAT(f.err, Catch::Contains("warning: --force"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Issue 11 item 3: a crashed session's leftovers.
+
+namespace {
+
+// Output word 0x0800 of a Modbus coupler: image bytes 0 (low) and 1 (high).
+std::uint8_t output_byte0(const std::string& uri) {
+  kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri), uri), {});
+  return static_cast<std::uint8_t>(c.read(kscfg::mbmap::kOutputImage, 1).at(0) & 0xFF);
+}
+
+}  // namespace
+
+TEST_CASE("emulator: a terminal left in register mode and unlocked is finished by the next command",
+          "[safety][recovery]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  // The state a client killed right after 'write R31 0x1235' leaves: KL6001's control byte 0xDF
+  // with the code word in the value bytes, the terminal unlocked.
+  kscfg::EmulatedStation ref(kscfg::default_station(), kscfg::Catalog::standard());
+  const kscfg::RegisterWindow w = *ref.layout().terminal(1).channels[0].window;
+  auto j = nlohmann::json::parse(read_text(st.state));
+  std::string out = j["outputs"];
+  auto put = [&](std::size_t at, const char* hex) { out.replace(2 * at, 2, hex); };
+  put(w.ctrl, "df");
+  put(w.out_lo, "35");
+  put(w.out_hi, "12");
+  j["outputs"] = out;
+  j["channels"][0]["registers"][31] = 0x1235;
+  write_text(st.state, j.dump());
+  Run wr = st({"write", "R32", "7"});
+  CHECK(wr.rc == 0);
+  CHECK_THAT(wr.err, Catch::Contains("kscfg: note: terminal 1 (KL6001) was in register mode (control byte 0xDF), "
+                                     "left by a session that did not finish; it was unlocked (R31 = 0x1235): "
+                                     "locked again, R31 reads 0x0000; its control byte goes back to process-data "
+                                     "mode (0x00), not to 0xDF"));
+  Run lk = st({"lock"});
+  CHECK(lk.rc == 0);
+  CHECK(lk.err.empty());
+  CHECK(st({"read", "--raw", "R31"}).out == "0x0000\n");
+  auto after = nlohmann::json::parse(read_text(st.state));
+  std::string o = after["outputs"];
+  CHECK((std::stoul(o.substr(2 * w.ctrl, 2), nullptr, 16) & 0x80) == 0);
+  CHECK(after["channels"][0]["registers"][31] == 0);
+  CHECK(after["channels"][0]["registers"][32] == 7);
+}
+
+TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves nothing behind the next command",
+          "[safety][recovery][serve]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  // Watchdog off: it would clear the outputs (see the peer case for that path).
+  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, st.dir.file("serve.err"));
+  auto on = [&](std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
+    args.insert(args.begin(), {"--port", srv.uri});
+    env["XDG_STATE_HOME"] = st.dir.file("xdg");
+    return run_kscfg(args, env);
+  };
+  Run killed = on({"write", "R31", "0x1235"}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
+  REQUIRE(killed.rc == -9);
+  REQUIRE(output_byte0(srv.uri) == 0xDF);  // the dead session's register request is still there
+  Run wr = on({"write", "R32", "7"});
+  CHECK(wr.rc == 0);
+  CHECK_THAT(wr.err, Catch::Contains("was in register mode (control byte 0xDF)"));
+  CHECK_THAT(wr.err, Catch::Contains("it was unlocked (R31 = 0x1235): locked again"));
+  CHECK(on({"lock"}).rc == 0);
+  CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
+  CHECK((output_byte0(srv.uri) & 0x80) == 0);
+  CHECK(on({"read", "--raw", "R32"}).out == "0x0007\n");
+  // Unlocked with the control byte already back in process-data mode (a watchdog cleared it, or
+  // 'kscfg unlock'): the next write says so and locks it.
+  REQUIRE(on({"unlock"}).rc == 0);
+  Run w2 = on({"write", "R32", "6"});
+  CHECK(w2.rc == 0);
+  CHECK_THAT(w2.err, Catch::Contains("was already unlocked (R31 = 0x1235) when this session began"));
+  CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Issue 11 item 4: rollback that reads, against kscfg serve dropping replies.
+
+TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it verified, and it is true",
+          "[safety][rollback][serve]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  std::string head = "coupler = \"BK9000\"\n";
+  auto file = [&](const char* baud1, const char* frame1, const char* baud3) {
+    return head + "[[terminal]]\ntype = \"KL6001\"\nbaud = " + baud1 + "\nframe = \"" + frame1 +
+           "\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\nbaud = " + baud3 +
+           "\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n"
+           "[[terminal]]\ntype = \"KL9010\"\n";
+  };
+  write_text(st.dir.file("a.toml"), file("19200", "8E1", "57600"));
+  write_text(st.dir.file("b.toml"), file("9600", "8N1", "9600"));
+  write_text(st.dir.file("station.toml"), file("9600", "8N1", "9600"));
+  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0", "--fault", "drop=0.3", "--seed", "5"},
+                          st.dir.file("serve.err"));
+  auto on = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), {"--port", srv.uri, "--station", st.dir.file("station.toml"), "--timeout", "300"});
+    return run_kscfg(args, {{"XDG_STATE_HOME", st.dir.file("xdg")}}, 120);
+  };
+  // What the station holds, read until the lossy link lets a whole read through (bounded).
+  auto truth = [&]() {
+    for (int i = 0; i < 40; ++i) {
+      Run a = on({"read", "--raw", "-t", "1", "R31", "R32", "R33"});
+      Run b = on({"read", "--raw", "-t", "3", "R31", "R32"});
+      if (a.rc == 0 && b.rc == 0) return a.out + b.out;
+    }
+    FAIL("no fault-free read in 40 tries");
+    return std::string();
+  };
+  const std::string as_a = "0x0000\n0x0007\n0x0004\n0x0000\n0x0009\n", as_b = "0x0000\n0x0006\n0x0003\n0x0000\n0x0006\n";
+  int ok = 0, as_it_was = 0, unverified = 0;
+  std::string before = as_b;
+  for (int i = 0; i < 8; ++i) {
+    const char* f = i % 2 ? "b.toml" : "a.toml";
+    Run r = on({"apply", st.dir.file(f)});
+    std::string now = truth();
+    INFO("run " << i << ": exit " << r.rc << ": " << r.err);
+    if (r.rc == 0 || r.rc == 10) {
+      ++ok;
+      CHECK(now == (i % 2 ? as_b : as_a));
+    } else if (r.err.find("the station is as it was") != std::string::npos) {
+      ++as_it_was;
+      CHECK(r.err.find("rollback failed") == std::string::npos);
+      CHECK_THAT(r.err, Catch::Contains("verified by reading"));
+      CHECK(now == before);  // the claim is true
+    } else {
+      CHECK(one_line_error(r));
+      if (r.rc == 9) {
+        ++unverified;
+        CHECK_THAT(r.err, Catch::Contains("could not verify"));
+      } else {
+        // Failed before anything was written (a lost reply while planning): nothing changed.
+        CHECK(now == before);
+      }
+      CHECK(now.substr(0, 7) == "0x0000\n");  // never left unlocked
+    }
+    before = now;
+  }
+  INFO(ok << " applied, " << as_it_was << " rolled back and verified, " << unverified << " unverified");
+  CHECK(ok > 0);
+  CHECK(srv.stop() == 0);
 }

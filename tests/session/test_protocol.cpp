@@ -178,19 +178,22 @@ TEST_CASE("session accepts an ack with bit 6 set (status equal to the control by
 TEST_CASE("stale ack: the session forces a visible change before trusting an ack", "[protocol][session]") {
   ScriptedLink link;
   link.regs[8] = 3022;
-  // A previous tool left R8 requested; the status still shows its ack with an old value.
-  link.out[0] = 0x88;
-  link.seen_ctrl = 0x88;
-  link.in[0] = 0x88;
+  link.regs[31] = 0;
+  // A previous tool left R31 requested; the status still shows its ack with an old value. (The
+  // session treats the register-mode control byte as a dead session's and first checks R31.)
+  link.out[0] = 0x9F;
+  link.seen_ctrl = 0x9F;
+  link.in[0] = 0x9F;
   link.in[2] = 0x34;
   link.in[3] = 0x12;
   TerminalImage t = scripted_terminal();
   RegisterSession s(link, t, 0);
-  CHECK(s.read(8) == 3022);
-  // Another register was addressed in between, so the terminal saw a new request for R8.
+  CHECK(s.read(31) == 0);  // not the stale 0x1234
+  // Another register was addressed before R31, so the terminal saw a new request for R31.
   REQUIRE(link.requests.size() >= 2);
-  CHECK(link.requests[link.requests.size() - 2] == 0x89);
-  CHECK(link.requests.back() == 0x88);
+  CHECK(link.requests[0] == 0x88);
+  CHECK(link.requests[1] == 0x9F);
+  CHECK(s.read(8) == 3022);
 }
 
 TEST_CASE("bounded wait: a silent terminal times out with terminal, register and last status", "[protocol][session]") {

@@ -16,6 +16,7 @@ enum class Exit : int {
   verify = 6,        // a write read back a different value
   file = 7,          // a file (state, station, catalog) is unreadable, corrupt or unwritable
   interrupted = 8,   // SIGINT/SIGTERM; the terminal was restored
+  unverified = 9,    // a change failed and its rollback could not verify every register: state unknown
   changed = 10,      // apply: the station was changed (success)
   internal = 70,     // a bug
 };

@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/interrupt.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
@@ -23,6 +24,9 @@ struct SessionOptions {
   // Diagnostics the user must see (stderr): a crashed session's leftovers finished, a forced write.
   std::function<void(const std::string&)> notice;
   bool skip_unlock = false;                       // test hook (KSCFG_TEST_NO_UNLOCK): write without code word
+  // Test hook (KSCFG_TEST_KILL_AFTER=R31): the process kills itself (SIGKILL) right after the
+  // terminal acknowledged a write of this register, leaving the terminal as a crash would.
+  std::optional<unsigned> kill_after_write;
 };
 
 struct WriteResult {
@@ -30,6 +34,34 @@ struct WriteResult {
   std::uint16_t before = 0;
   std::uint16_t after = 0;
   bool changed = false;
+};
+
+// What a rollback found by reading the terminal (DESIGN.md section 6: roll back from what the
+// terminal holds, claim "as it was" only after reading it).
+struct RollbackResult {
+  std::vector<std::pair<unsigned, std::uint16_t>> verified;  // registers read back with their old value
+  std::vector<unsigned> rewritten;                           // registers that had to be written back
+  std::vector<std::string> unverified;  // "R33 (reads 0x0002, was 0x0001)", "R32 (not readable: ...)"
+  bool locked = false;                  // R31 read 0 at the end
+  bool ok() const { return unverified.empty() && locked; }
+  // "the terminal is as it was: verified by reading 2 registers (R32 0x0006, R33 0x0003) and R31 = 0"
+  // or "could not verify R33 (...)". `what` names the terminal.
+  std::string text(const std::string& what) const;
+};
+
+// A change that failed: the cause, and what the rollback verified. The exit code is the cause's
+// when the rollback verified every register, else Exit::unverified.
+class ChangeFailed : public Error {
+ public:
+  ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who);
+  const std::string& cause() const { return cause_; }
+  Exit cause_code() const { return cause_code_; }
+  const RollbackResult& rollback() const { return rb_; }
+
+ private:
+  Exit cause_code_;
+  std::string cause_;
+  RollbackResult rb_;
 };
 
 class RegisterSession {
@@ -56,9 +88,11 @@ class RegisterSession {
   // Throws Error(refused) for ROM/unimplemented registers, Error(verify) on mismatch.
   WriteResult write(unsigned reg, std::uint16_t value, std::uint16_t mask = 0xFFFF);
 
-  // Several registers as one change: all succeed, or every register already written is restored
-  // and the error is rethrown with what was rolled back. Command registers are refused
-  // (Error(usage)): they are run by command().
+  // Several registers as one change: all succeed, or the change is rolled back from what the
+  // terminal holds (every register of the change read; those that differ from before written back
+  // and read again) and ChangeFailed says what was verified. A write whose answer is lost (link
+  // error) has an unknown outcome: the register is read before the write is repeated or given up.
+  // Command registers are refused (Error(usage)): they are run by command().
   std::vector<WriteResult> write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes);
   struct MaskedChange {
     unsigned reg;
@@ -75,6 +109,9 @@ class RegisterSession {
 
   void unlock();  // R31 = 0x1235, verified
   void lock();    // R31 = 0, verified
+  // Puts the registers of `changes` back to their `before` values from what the terminal holds:
+  // reads each, writes back those that differ, reads all again, relocks. Never throws.
+  RollbackResult roll_back(const std::vector<WriteResult>& changes);
   // Sends one raw register request and waits for the ack; returns the value bytes of the answer.
   std::uint16_t transact(bool write, unsigned reg, std::uint16_t value);
 
@@ -88,6 +125,14 @@ class RegisterSession {
 
  private:
   void check_writable(unsigned reg) const;
+  // Link errors (a lost request or reply) are tried again, a bounded number of times.
+  std::uint16_t read_retry(unsigned reg);
+  // Writes and, when the answer is lost, reads the register to learn whether the write landed
+  // before writing again (bounded).
+  void write_checked(unsigned reg, std::uint16_t value);
+  void forget();  // after a failed exchange: the status byte and any read ahead are unknown
+  void finish_leftover();  // a crashed session's register mode / code word (DESIGN.md section 6)
+  void note(const std::string& s) const;
   void relock_write();
   void verify_locked();
   void put(std::uint8_t ctrl, std::optional<std::uint16_t> value);
@@ -122,6 +167,11 @@ class RegisterSession {
   bool unlocked_ = false;
   bool maybe_unlocked_ = false;
   bool closed_ = false;
+  // The control byte found at the start had REG set: left by a session that died. It is never
+  // restored; finish_leftover() relocks and says so.
+  std::optional<std::uint8_t> leftover_;
+  bool leftover_done_ = false;
+  bool unlock_checked_ = false;  // the first unlock() looked whether R31 was already unlocked
   std::optional<std::uint8_t> last_status_;  // status after our last acknowledged request
   // On a link that pipelines, a read writes the request for the next register in the exchange
   // that fetches its own answer (FC23); reading that register next costs one exchange.
