@@ -27,15 +27,18 @@ class Set : public Command {
            "write; registers whose value does not change are not rewritten. The code word is set once, the "
            "registers are written, the code word is cleared and every register is read back. If any write "
            "or read-back fails, every register already written is restored and the exit status says why. "
-           "Baud rates outside the presets are reached through the divisor form where the terminal has one "
-           "(KL6001: 4 MHz / (16 x (HB + 1))) and refused when the nearest rate is off by more than the "
-           "terminal's bit-distortion limit. A change that would leave a terminal without its register window "
+           "A baud rate must be one of the terminal's rates (\\fBkscfg show\\fR lists them); a near miss such as "
+           "1920 is refused with the rate it probably meant (\\(lqdid you mean 19200?\\(rq). Another rate needs "
+           "\\fB\\-\\-divisor\\fR: it is reached through the divisor form where the terminal has one "
+           "(KL6001: 4 MHz / (16 x (HB + 1))), only up to the terminal's documented maximum (KL6001: 19200), "
+           "and refused when the nearest rate is off by more than the terminal's bit-distortion limit. A change that would leave a terminal without its register window "
            "at the coupler's next start (e.g. \\fBdata\\-bytes 1\\fR on a KL6001 in the standard format, "
            "\\fBalternative\\-format on\\fR on a coupler without complete evaluation) is refused with "
            "status 5 before anything is written; \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR).";
   }
   std::vector<std::string> examples() const override {
-    return {"set baud 19200", "set frame 8E1 baud 4800", "set rts-cts off", "-t 2 set fold 2 counter-mode on"};
+    return {"set baud 19200", "set frame 8E1 baud 4800", "set baud 12500 --divisor", "set rts-cts off",
+            "-t 2 set fold 2 counter-mode on"};
   }
   std::vector<std::string> completions() const override {
     auto v = param_name_completions();
@@ -46,6 +49,8 @@ class Set : public Command {
   void add_cli(CLI::App& sub) override {
     sub.add_option("PAIRS", words_, "NAME VALUE pairs")->required()->option_text("NAME VALUE");
     sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
+    sub.add_flag("--divisor", divisor_,
+                 "Allow a baud rate outside the terminal's list (divisor form, up to its documented maximum)");
   }
   int run(Context& ctx) override {
     if (words_.size() % 2)
@@ -55,12 +60,12 @@ class Set : public Command {
     unsigned pos = ctx.terminal_position();
     const TerminalType& type = *ctx.layout().terminal(pos).type;
     unsigned chan = ctx.options().channel - 1;
-    check_params(type, pairs, ctx.catalog(), chan);
+    check_params(type, pairs, ctx.catalog(), chan, divisor_);
     (void)register_terminal(ctx.layout(), pos, chan);
     guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(),
-                  planned_params(type, pos, chan, pairs, ctx.catalog()), force_);
+                  planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
     auto s = ctx.session();
-    SetResult r = set_params(*s, pairs, ctx.catalog());
+    SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
     s->close();
     if (ctx.json()) {
       nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
@@ -84,6 +89,7 @@ class Set : public Command {
  private:
   std::vector<std::string> words_;
   bool force_ = false;
+  bool divisor_ = false;
 };
 
 }  // namespace

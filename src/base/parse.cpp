@@ -100,7 +100,7 @@ std::uint16_t parse_value(std::string_view text) {
 std::string hex4(std::uint16_t v) { return fmt::format("0x{:04X}", v); }
 std::string format_value(std::uint16_t v) { return fmt::format("0x{:04X} {}", v, v); }
 
-static std::size_t distance(std::string_view a, std::string_view b) {
+std::size_t edit_distance(std::string_view a, std::string_view b) {
   std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
   for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
   for (std::size_t i = 1; i <= a.size(); ++i) {
@@ -119,10 +119,15 @@ std::vector<std::string> closest(std::string_view name, const std::vector<std::s
                                  std::size_t n) {
   std::vector<std::pair<std::size_t, std::string>> scored;
   for (const auto& c : candidates) {
-    auto d = distance(name, c);
+    auto d = edit_distance(name, c);
     // Prefix matches count as close ("KL60" -> KL6001).
     if (c.size() >= name.size() && !name.empty() &&
         std::equal(name.begin(), name.end(), c.begin(),
+                   [](char x, char y) { return std::tolower((unsigned char)x) == std::tolower((unsigned char)y); }))
+      d = std::min<std::size_t>(d, 1);
+    // A known name with more after it counts too ("baudrate" -> baud, "frame-format" -> frame).
+    if (c.size() >= 3 && name.size() > c.size() &&
+        std::equal(c.begin(), c.end(), name.begin(),
                    [](char x, char y) { return std::tolower((unsigned char)x) == std::tolower((unsigned char)y); }))
       d = std::min<std::size_t>(d, 1);
     if (d <= std::max<std::size_t>(2, name.size() / 3)) scored.emplace_back(d, c);

@@ -24,6 +24,27 @@ std::string join(const std::vector<std::string>& v, std::string_view sep) {
   return out;
 }
 
+// The presets a mistyped rate probably meant: one digit off ("1920", "96000", "4900"), or within
+// 5 % of it; "19200" or "9600 or 19200", empty when none is near.
+std::string near_presets(const ParamDef& p, const std::string& text, std::uint64_t rate) {
+  std::vector<std::pair<double, std::string>> scored;
+  for (const auto& e : p.values) {
+    std::uint64_t v = 0;
+    try {
+      v = parse_uint(e.name, 10'000'000, p.name);
+    } catch (const Error&) {
+      continue;
+    }
+    double rel = v ? std::fabs(static_cast<double>(rate) - static_cast<double>(v)) / static_cast<double>(v) : 1e9;
+    bool typo = edit_distance(text, e.name) <= 1;
+    if (typo || rel <= 0.05) scored.emplace_back(typo ? rel - 10.0 : rel, e.name);
+  }
+  std::sort(scored.begin(), scored.end());
+  std::string out;
+  for (std::size_t i = 0; i < scored.size() && i < 2; ++i) out += (i ? " or " : "") + scored[i].second;
+  return out;
+}
+
 }  // namespace
 
 double divisor_rate(const Divisor& d, std::uint16_t reg) {
@@ -45,7 +66,7 @@ std::vector<std::string> param_choices(const ParamDef& p) {
   return {};
 }
 
-std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint16_t current) {
+std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint16_t current, bool divisor) {
   switch (p.kind) {
     case ParamDef::Kind::boolean: {
       auto t = lower(text);
@@ -64,22 +85,43 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
       for (const auto& e : p.values)
         if (lower(e.name) == lower(text)) return p.with_field(current, e.code);
       if (p.divisor) {
-        // A rate outside the presets: try the divisor form rate = clock / (prescale * (HB + 1)).
+        // A rate outside the presets: only with the explicit opt-in (a typo such as 1920 for 19200
+        // must not become 1923 baud), within the manual's maximum, by the divisor form
+        // rate = clock / (prescale * (HB + 1)).
+        const Divisor& d = *p.divisor;
         std::uint64_t rate = 0;
         try {
           rate = parse_uint(text, 10'000'000, p.name);
         } catch (const Error&) {
-          throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use one of {} or another rate "
-                                               "reachable by the divisor",
-                                               text, p.name, join(param_choices(p), ", ")));
+          auto dym = did_you_mean(text, param_choices(p));
+          throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use one of {}{}", text, p.name,
+                                               join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
         }
-        const Divisor& d = *p.divisor;
+        std::string upto = d.max ? fmt::format(" up to {}", d.max) : std::string();
+        if (d.max && rate > d.max) {
+          auto dym = near_presets(p, text, rate);
+          throw Error(Exit::usage,
+                      fmt::format("{} {} is above the terminal's documented maximum of {} {}{}", p.name, text, d.max,
+                                  p.unit.empty() ? "baud" : p.unit, dym.empty() ? "" : "; did you mean " + dym + "?"),
+                      fmt::format("rates: {}, or another{} by the divisor form (--divisor)", join(param_choices(p), ", "), upto));
+        }
+        if (!divisor) {
+          auto dym = near_presets(p, text, rate);
+          throw Error(Exit::usage,
+                      fmt::format("{} {} is not one of the terminal's rates ({}){}", p.name, text,
+                                  join(param_choices(p), ", "), dym.empty() ? "" : "; did you mean " + dym + "?"),
+                      fmt::format("another rate{} needs the divisor form, asked for explicitly: 'kscfg set {} RATE "
+                                  "--divisor', or the raw register R{} in a station file",
+                                  upto, p.name, p.reg));
+        }
         double base = static_cast<double>(d.clock) / d.prescale;
         auto rate_of = [&](long hb) { return base / static_cast<double>(hb + 1); };
+        // The maximum holds for the rate on the line too, within the bit-distortion limit.
+        double limit = d.max ? d.max * (1.0 + d.tolerance_pct / 100.0) : base;
         long hb = rate ? std::lround(base / static_cast<double>(rate)) - 1 : -1;
         if (rate && hb >= 0 && hb <= 255) {
           double err = std::fabs(rate_of(hb) - static_cast<double>(rate)) / static_cast<double>(rate) * 100.0;
-          if (err <= d.tolerance_pct)
+          if (err <= d.tolerance_pct && rate_of(hb) <= limit)
             return static_cast<std::uint16_t>((static_cast<unsigned>(hb) << 8) | d.low);
         }
         // Nearest achievable rates either side.
@@ -87,7 +129,7 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
         if (rate) {
           double exact = base / static_cast<double>(rate) - 1;
           for (long h : {static_cast<long>(std::floor(exact)), static_cast<long>(std::ceil(exact))}) {
-            if (h < 0 || h > 255) continue;
+            if (h < 0 || h > 255 || rate_of(h) > limit) continue;
             auto s = fmt::format("{:.0f} (divisor {})", rate_of(h), h);
             if (std::find(near.begin(), near.end(), s) == near.end()) near.push_back(s);
           }
@@ -99,8 +141,9 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
                                 p.name, text, d.clock, d.prescale, d.tolerance_pct,
                                 near.empty() ? "none" : join(near, ", "), join(param_choices(p), ", ")));
       }
-      throw Error(Exit::usage,
-                  fmt::format("invalid value '{}' for {}: use one of {}", text, p.name, join(param_choices(p), ", ")));
+      auto dym = did_you_mean(text, param_choices(p));
+      throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use one of {}{}", text, p.name,
+                                           join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
     }
   }
   return current;

@@ -214,11 +214,11 @@ void guard_lockout(Link& link, const StationLayout& current, const Catalog& cata
 
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,
                                          const std::vector<std::pair<std::string, std::string>>& pairs,
-                                         const Catalog& catalog) {
+                                         const Catalog& catalog, bool divisor) {
   std::vector<PlannedWrite> out;
   for (const auto& [name, value] : pairs) {
     const ParamDef& p = find_param(type, name, catalog, channel);
-    out.push_back({position, channel, p.reg, encode_param(p, value, 0), p.mask});
+    out.push_back({position, channel, p.reg, encode_param(p, value, 0, divisor), p.mask});
   }
   return out;
 }

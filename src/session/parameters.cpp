@@ -60,17 +60,22 @@ std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const 
 }
 
 void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,
-                  const Catalog& catalog, unsigned channel) {
+                  const Catalog& catalog, unsigned channel, bool divisor) {
+  bool any_divisor = false;
   for (const auto& [n, v] : pairs) {
     const ParamDef& p = find_param(type, n, catalog, channel);
-    (void)encode_param(p, v, type.regs[p.reg].def);
+    any_divisor = any_divisor || p.divisor;
+    (void)encode_param(p, v, type.regs[p.reg].def, divisor);
   }
+  if (divisor && !any_divisor)
+    throw Error(Exit::usage, fmt::format("--divisor: none of these parameters of {} has a divisor form", type.type),
+                "only baud rates of terminals such as the KL6001 do");
 }
 
 SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
-                     const Catalog& catalog) {
+                     const Catalog& catalog, bool divisor) {
   const TerminalType& type = *s.terminal().type;
-  check_params(type, pairs, catalog, s.channel());  // nothing is read or written with a bad value
+  check_params(type, pairs, catalog, s.channel(), divisor);  // nothing is read or written with a bad value
   std::vector<unsigned> order;
   std::map<unsigned, std::uint16_t> cur, next;
   SetResult r;
@@ -82,7 +87,7 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
       order.push_back(p.reg);
     }
     std::string from = decode_param(p, next[p.reg]);
-    next[p.reg] = encode_param(p, v, next[p.reg]);
+    next[p.reg] = encode_param(p, v, next[p.reg], divisor);
     r.params.push_back({&p, from, decode_param(p, next[p.reg])});
   }
   std::vector<std::pair<unsigned, std::uint16_t>> changes;

@@ -49,6 +49,12 @@ TEST_CASE("typed value printing", "[parse]") {
 TEST_CASE("did you mean", "[parse]") {
   CHECK(did_you_mean("KL6010", {"KL6001", "KL5101", "KL1104"}) == "did you mean KL6001?");
   CHECK(did_you_mean("zzzzzz", {"KL6001"}).empty());
+  // A known name with more after it (kscfg-station(5) promises this one).
+  CHECK(did_you_mean("baudrate", {"baud", "frame", "rts-cts"}) == "did you mean baud?");
+  CHECK(did_you_mean("frame-format", {"baud", "frame"}) == "did you mean frame?");
+  CHECK(did_you_mean("bx", {"baud"}).empty());  // too short to be a prefix hint
+  CHECK(edit_distance("1920", "19200") == 1);
+  CHECK(edit_distance("Baud", "baud") == 0);
 }
 
 TEST_CASE("port URIs", "[parse]") {

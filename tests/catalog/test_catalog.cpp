@@ -181,25 +181,61 @@ TEST_CASE("KL6001 R32 divisor form: rate = 4 MHz / (16 * (HB + 1)), low byte 0xF
   CHECK(p.divisor->clock == 4000000u);
   CHECK(p.divisor->prescale == 16u);
   CHECK(p.divisor->low == 0xFF);
-  // 4e6 / 16 = 250000; 250000 / 31250 = 8 -> HB = 7 -> 0x07FF.
-  CHECK(encode_param(p, "31250", 0x0006) == 0x07FF);
-  CHECK(decode_param(p, 0x07FF) == "31250");
+  // 4e6 / 16 = 250000; 250000 / 12500 = 20 -> HB = 19 -> 0x13FF. Only when asked for (divisor = true).
+  CHECK(encode_param(p, "12500", 0x0006, true) == 0x13FF);
+  CHECK(decode_param(p, 0x13FF) == "12500");
+  CHECK(encode_param(p, "2000", 0x0006, true) == 0x7CFF);
+  CHECK(encode_param(p, "19000", 0x0006, true) == 0x0CFF);  // 19231 on the line: 1.2 %, within the limit
   CHECK(divisor_rate(*p.divisor, 0x07FF) == Approx(31250.0));
-  // HB = 0 -> 250000; HB = 1 -> 125000; HB = 3 -> 62500.
-  CHECK(encode_param(p, "250000", 0) == 0x00FF);
-  CHECK(encode_param(p, "125000", 0) == 0x01FF);
-  CHECK(encode_param(p, "62500", 0) == 0x03FF);
+  // A terminal someone else set beyond the maximum still reads as what it is.
+  CHECK(decode_param(p, 0x07FF) == "31250");
   CHECK(decode_param(p, 0x00FF) == "250000");
-  CHECK(decode_param(p, 0x03FF) == "62500");
   // Low byte not 0xFF: not the divisor form.
   CHECK(divisor_rate(*p.divisor, 0x07FE) == 0.0);
 
-  // 38400: 250000 / 38400 = 6.51 -> HB 5 gives 41667 (+8.5 %), HB 6 gives 35714 (-7.0 %);
-  // both beyond the 3 % bit distortion of the technical data.
-  std::string msg = error_of([&] { encode_param(p, "38400", 0x0006); }, Exit::usage);
+  // 18500: HB 12 gives 19231 (+3.9 %), HB 13 gives 17857 (-3.5 %); both beyond the 3 % bit
+  // distortion of the technical data.
+  std::string msg = error_of([&] { encode_param(p, "18500", 0x0006, true); }, Exit::usage);
   CHECK_THAT(msg, Catch::Contains("nearest"));
-  CHECK_THAT(msg, Catch::Contains("41667"));
-  CHECK_THAT(msg, Catch::Contains("35714"));
+  CHECK_THAT(msg, Catch::Contains("19231 (divisor 12)"));
+  CHECK_THAT(msg, Catch::Contains("17857 (divisor 13)"));
+}
+
+TEST_CASE("KL6001 baud: a rate outside the list needs the opt-in, stays within the maximum, near misses named",
+          "[catalog][baud]") {
+  const ParamDef& p = param("KL6001", "baud");
+  // Issue 10: 'set baud 1920' (a typo for 19200) silently became 1923 baud through the divisor.
+  std::string typo = error_of([&] { encode_param(p, "1920", 0x0006); }, Exit::usage);
+  CHECK_THAT(typo, Catch::Contains("baud 1920 is not one of the terminal's rates (1200, 2400, 4800, 9600, 19200); "
+                                   "did you mean 19200?"));
+  CHECK_THAT(error_of([&] { encode_param(p, "96000", 0x0006); }, Exit::usage), Catch::Contains("did you mean 9600?"));
+  CHECK_THAT(error_of([&] { encode_param(p, "19000", 0x0006); }, Exit::usage),
+             Catch::Contains("did you mean 19200?"));  // within 5 %
+  std::string far = error_of([&] { encode_param(p, "14400", 0x0006); }, Exit::usage);
+  CHECK(far.find("did you mean") == std::string::npos);
+  // The opt-in is in the hint.
+  CHECK(encode_param(p, "14400", 0x0006, true) == 0x10FF);  // 14706 on the line (2.1 %)
+  try {
+    encode_param(p, "14400", 0x0006);
+    FAIL("accepted without the opt-in");
+  } catch (const Error& e) {
+    CHECK_THAT(e.hint(), Catch::Contains("--divisor"));
+    CHECK_THAT(e.hint(), Catch::Contains("up to 19200"));
+  }
+  // The manual's maximum (max. 19200 Baud), with or without the opt-in.
+  for (bool divisor : {false, true}) {
+    std::string over = error_of([&] { encode_param(p, "250000", 0x0006, divisor); }, Exit::usage);
+    CHECK_THAT(over, Catch::Contains("baud 250000 is above the terminal's documented maximum of 19200 baud"));
+    CHECK_THAT(error_of([&] { encode_param(p, "31250", 0x0006, divisor); }, Exit::usage),
+               Catch::Contains("documented maximum"));
+    CHECK_THAT(error_of([&] { encode_param(p, "192000", 0x0006, divisor); }, Exit::usage),
+               Catch::Contains("did you mean 19200?"));
+  }
+  // The presets need no opt-in, and the opt-in does not change them.
+  CHECK(encode_param(p, "19200", 0x0006) == 0x0007);
+  CHECK(encode_param(p, "19200", 0x0006, true) == 0x0007);
+  // Not a number: the names, with the closest.
+  CHECK_THAT(error_of([&] { encode_param(p, "fast", 0x0006); }, Exit::usage), Catch::Contains("use one of 1200"));
 }
 
 TEST_CASE("KL6001 R33 frame codes (bits 2..0, bit 3 = 2 stop bits)", "[catalog]") {

@@ -31,19 +31,20 @@ TEST_CASE("set baud 19200 then get baud prints 19200 and R32 reads 0x0007", "[pa
   CHECK(again.err.find(": write R") == std::string::npos);
 }
 
-TEST_CASE("set baud 38400 on a KL6001 fails with the divisor explanation and changes nothing", "[params][cli]") {
+TEST_CASE("set baud 18500 --divisor on a KL6001 fails with the divisor explanation and changes nothing",
+          "[params][cli]") {
   Emu emu;
-  Run r = emu({"-v", "set", "baud", "38400"});
+  Run r = emu({"-v", "set", "baud", "18500", "--divisor"});
   CHECK(r.rc == 2);
   CHECK_THAT(r.err, Catch::Contains("divisor"));
-  CHECK_THAT(r.err, Catch::Contains("35714"));
-  CHECK_THAT(r.err, Catch::Contains("41667"));
+  CHECK_THAT(r.err, Catch::Contains("19231"));
+  CHECK_THAT(r.err, Catch::Contains("17857"));
   CHECK(r.err.find("ctrl 0x") == std::string::npos);  // nothing was even read
   CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
-  // A rate the divisor reaches within 3 %: 31250 = 4 MHz / (16 x 8).
-  REQUIRE(emu({"set", "baud", "31250"}).rc == 0);
-  CHECK(emu({"read", "--raw", "R32"}).out == "0x07FF\n");
-  CHECK(emu({"get", "baud"}).out == "31250\n");
+  // A rate the divisor reaches within 3 %, asked for: 12500 = 4 MHz / (16 x 20).
+  REQUIRE(emu({"set", "baud", "12500", "--divisor"}).rc == 0);
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x13FF\n");
+  CHECK(emu({"get", "baud"}).out == "12500\n");
 }
 
 TEST_CASE("set frame 8E1 baud 4800 with a failure on the second write leaves R32 and R33", "[params][cli]") {

@@ -391,7 +391,7 @@ def c_set_frame(ctx):
 @case("set-baud-divisor", "seed KL6001: baud = 4 MHz / (16 * (HB + 1)) with 0xFF in the low byte; "
       "2000 baud -> HB = 124 -> R32 = 0x7CFF")
 def c_set_divisor(ctx):
-    ctx.expect_rc(0, "set", "baud", "2000", station=True)
+    ctx.expect_rc(0, "set", "baud", "2000", "--divisor", station=True)
     check(ctx.reg(1, 32) == 0x7CFF, "peer R32 = 0x%04X" % ctx.reg(1, 32))
 
 

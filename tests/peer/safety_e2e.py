@@ -7,7 +7,8 @@ Uses e2e.py's harness (a fresh bk_coupler.py per case, its state through --dump-
 its own cases: a crashed session's leftovers (a client killed right after `write R31 0x1235`)
 are finished by the next command; writes that would cut kscfg off from a terminal are refused
 and, forced, take effect at the peer's power cycle (SIGHUP) exactly as kscfg said; a command
-register is run and verified by its effect.
+register is run and verified by its effect; a baud rate off the terminal's list is refused with the rate
+it probably meant unless asked for with --divisor, and never above the manual's maximum.
 """
 
 import os
@@ -139,6 +140,20 @@ def c_r7(ctx):
     # A second command is a command again, not "unchanged".
     out, _ = ctx.expect_rc(0, "-t", "3", "write", "R7", "0x7000", station=ctx.station)
     check("unchanged" not in out, "the second command was skipped: %r" % out)
+
+
+@case("baud-near-miss", "issue 10 item 6; seed KL6001 technical data: 'max. 19200 Baud'; the rates of R32 bits 0-2 "
+      "are 1200..19200: 1920 is refused with 'did you mean 19200?', 250000 is above the maximum even with "
+      "--divisor, 14400 --divisor is HB = 16 -> R32 = 0x10FF", passes=("tcp",))
+def c_baud(ctx):
+    for args, says in ((("set", "baud", "1920"), "did you mean 19200?"),
+                       (("set", "baud", "250000", "--divisor"), "documented maximum of 19200"),
+                       (("set", "baudrate", "9600"), "did you mean baud?")):
+        rc, _, err = ctx.kscfg("-t", "1", *args, station=ctx.station)
+        check(rc == 2 and says in err, "%s: exit %s %r" % (" ".join(args), rc, err.strip()[:300]))
+        check(ctx.reg(1, 32) == 0x0006, "R32 = 0x%04X after a refused %s" % (ctx.reg(1, 32), " ".join(args)))
+    ctx.expect_rc(0, "-t", "1", "set", "baud", "14400", "--divisor", station=ctx.station)
+    check(ctx.reg(1, 32) == 0x10FF, "R32 = 0x%04X after set baud 14400 --divisor" % ctx.reg(1, 32))
 
 
 if __name__ == "__main__":

@@ -29,7 +29,10 @@ std::uint16_t parse_value(std::string_view text);
 std::string format_value(std::uint16_t v);
 std::string hex4(std::uint16_t v);
 
-// Closest names for "did you mean" hints (Levenshtein distance), at most `n`.
+// Levenshtein distance, case-insensitive.
+std::size_t edit_distance(std::string_view a, std::string_view b);
+
+// Closest names for "did you mean" hints (Levenshtein distance, or one is a prefix of the other), at most `n`.
 std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates,
                                  std::size_t n = 3);
 std::string did_you_mean(std::string_view name, const std::vector<std::string>& candidates);

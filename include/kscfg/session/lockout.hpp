@@ -65,6 +65,6 @@ void guard_lockout(Link& link, const StationLayout& current, const Catalog& cata
 // Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,
                                          const std::vector<std::pair<std::string, std::string>>& pairs,
-                                         const Catalog& catalog);
+                                         const Catalog& catalog, bool divisor = false);
 
 }  // namespace kscfg

@@ -40,13 +40,15 @@ struct SetResult {
 
 // Sets NAME VALUE pairs as one change: every value is validated before anything is written,
 // parameters sharing a register are combined, unchanged registers are not rewritten, and a
-// failure rolls back every register already written (RegisterSession::write_all).
+// failure rolls back every register already written (RegisterSession::write_all). `divisor`: a
+// rate outside the presets may be set by the divisor form (encode_param).
 SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
-                     const Catalog& catalog);
+                     const Catalog& catalog, bool divisor = false);
 
-// Validation only (no I/O): throws Error(usage) for an unknown parameter or a bad value.
+// Validation only (no I/O): throws Error(usage) for an unknown parameter or a bad value, and for
+// `divisor` when none of the parameters has a divisor form.
 void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,
-                  const Catalog& catalog, unsigned channel = 0);
+                  const Catalog& catalog, unsigned channel = 0, bool divisor = false);
 
 struct ResetPlan {
   bool r7 = false;                                         // R7 = 0x7000 (documented by the manual)
