@@ -1,19 +1,49 @@
 // kscfg apply FILE: make the station match a station file; idempotent, verified, rolled back on failure.
 #include <fmt/format.h>
 
+#include <cstdlib>
+#include <filesystem>
 #include <iostream>
 
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/link/modbus_client.hpp"
+#include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/lockout.hpp"
 #include "../progress.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
 
+namespace {
+
+// The coupler's identification registers (0x1000..), when the link is a Modbus coupler that
+// answers them; "" otherwise (a backup records it, it never fails for it).
+std::string coupler_identification(Context& ctx) {
+  auto* m = dynamic_cast<ModbusLink*>(&ctx.link());
+  if (!m) return {};
+  try {
+    auto regs = m->client().read(mbmap::kIdent, mbmap::kIdentRegisters);
+    return mbmap::decode_ident(std::span<const std::uint16_t>(regs.data(), mbmap::kIdentRegisters));
+  } catch (const Error&) {
+    return {};
+  }
+}
+
+// How many automatic backups of a port to keep: --keep-backups, else KSCFG_BACKUP_KEEP, else 20.
+unsigned backup_keep(std::optional<unsigned> keep) {
+  if (keep) return *keep;
+  if (const char* e = std::getenv("KSCFG_BACKUP_KEEP"); e && *e)
+    return static_cast<unsigned>(parse_uint(e, 1'000'000, "KSCFG_BACKUP_KEEP"));
+  return 20;
+}
+
+}  // namespace
+
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
-              const std::string& what) {
+              const std::string& what, std::optional<unsigned> keep) {
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
@@ -32,15 +62,32 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
   guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
-  std::string path = backup.empty() ? default_apply_backup_path() : backup;
+  BackupInfo info;
+  info.coupler = layout.coupler;
+  nlohmann::json lj = ctx.link_json();
+  info.port = lj["port"].get<std::string>();
+  if (!lj["unit"].is_null()) info.unit = lj["unit"].get<unsigned>();
+  info.identification = coupler_identification(ctx);
+  std::error_code ec;
+  info.applied = file == "-" ? std::string("- (stdin)") : std::filesystem::absolute(file, ec).string();
+  if (!ctx.options().station.empty()) info.station = std::filesystem::absolute(ctx.options().station, ec).string();
+  info.version = KSCFG_VERSION;
+  info.automatic = backup.empty();
+  info.keep = backup_keep(keep);
+  std::string path = backup.empty() ? default_apply_backup_path(info.port) : backup;
   ApplyResult r;
   {
     ProgressBar bar(ctx, what + ": writing", 0);
-    r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback());
+    r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback(), info);
   }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
+  std::cerr << "kscfg: undo with: " << r.undo << '\n';
+  if (ctx.options().verbose)
+    for (const auto& old : r.rotated) ctx.trace("removed old backup " + old);
   if (ctx.json()) {
-    print_json(provision_json(ctx, plan, false, r.backup_path));
+    nlohmann::json j = provision_json(ctx, plan, false, r.backup_path);
+    j["undo"] = r.undo;
+    print_json(j);
   } else {
     std::cout << plan_text(plan);
   }
@@ -58,7 +105,12 @@ class Apply : public ApplyCommand {
            "matches and refuses, naming the mismatch, before anything is written. Then it reads what the "
            "file configures and writes only what differs, each terminal as one verified change. Before the "
            "first write it saves the touched registers' current values to a station file (path on stderr, "
-           "\\fB\\-\\-backup\\fR to choose it) that \\fBkscfg restore\\fR puts back. If any write fails, every "
+           "\\fB\\-\\-backup\\fR to choose it) that \\fBkscfg restore\\fR puts back; it records the port, the "
+           "Modbus unit, the coupler and its identification, the applied file, the time and kscfg's version, "
+           "and ends with the command that undoes the change (\\fIkscfg \\-\\-port PORT restore FILE\\fR, also "
+           "printed on stderr and in \\fB\\-\\-json\\fR as \\fBbackup\\fR and \\fBundo\\fR). Automatic backups "
+           "are kept per port under \\fI$XDG_STATE_HOME/kscfg/backups/PORT/\\fR; the newest 20 are kept "
+           "(\\fB\\-\\-keep\\-backups\\fR \\fIN\\fR or \\fBKSCFG_BACKUP_KEEP\\fR; 0 keeps all). If any write fails, every "
            "register this run wrote is restored and the exit status says why. Running apply twice changes "
            "nothing the second time. Exit status: 0 no change needed, 10 changed, other: failure (nothing "
            "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "

@@ -4,10 +4,12 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <ctime>
 #include <filesystem>
 #include <map>
+#include <string_view>
 #include <set>
 
 #include "kscfg/base/error.hpp"
@@ -186,16 +188,84 @@ std::vector<PlannedWrite> planned_writes(const Plan& plan) {
   return out;
 }
 
-std::string default_apply_backup_path() {
+namespace {
+
+// A folder name from a port: its letters, digits, '.', '-' and '_', other runs as one '_'.
+std::string port_folder(const std::string& port) {
+  std::string out;
+  for (char c : port) {
+    bool keep = std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '_';
+    if (keep) out += c;
+    else if (!out.empty() && out.back() != '_') out += '_';
+  }
+  while (!out.empty() && (out.back() == '_' || out.back() == '.')) out.pop_back();
+  while (!out.empty() && out.front() == '.') out.erase(out.begin());
+  if (out.empty()) out = "port";
+  if (out.size() > 80) out = fmt::format("{}-{:08x}", out.substr(0, 70), std::hash<std::string>{}(port) & 0xFFFFFFFFu);
+  return out;
+}
+
+// One line of a TOML comment: no control characters.
+std::string comment_text(std::string s) {
+  for (auto& c : s)
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7F) c = '?';
+  return s;
+}
+
+}  // namespace
+
+std::string shell_word(const std::string& s) {
+  bool plain = !s.empty() && std::all_of(s.begin(), s.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || std::string_view("@%+=:,./-_").find(c) != std::string_view::npos;
+  });
+  if (plain) return s;
+  std::string out = "'";
+  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return out + "'";
+}
+
+std::string default_apply_backup_path(const std::string& port) {
   auto state = std::filesystem::path(state_dir());
-  std::time_t now = std::time(nullptr);
+  auto since = std::chrono::system_clock::now().time_since_epoch();
+  std::time_t now = static_cast<std::time_t>(std::chrono::duration_cast<std::chrono::seconds>(since).count());
+  auto usec = std::chrono::duration_cast<std::chrono::microseconds>(since).count() % 1000000;
   char stamp[32];
-  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&now));
-  return (state / "backups" / fmt::format("apply-{}-{}.toml", stamp, ::getpid())).string();
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm);
+  return (state / "backups" / port_folder(port) /
+          fmt::format("apply-{}.{:06d}Z-{}.toml", stamp, static_cast<long>(usec), ::getpid()))
+      .string();
+}
+
+std::vector<std::string> rotate_backups(const std::string& dir, unsigned keep, const std::string& keep_path) {
+  std::vector<std::string> removed;
+  if (keep == 0) return removed;
+  std::error_code ec;
+  std::vector<std::filesystem::path> found;
+  for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const auto name = it->path().filename().string();
+    if (name.rfind("apply-", 0) == 0 && name.size() > 5 && name.ends_with(".toml") && it->is_regular_file(ec))
+      found.push_back(it->path());
+  }
+  if (found.size() <= keep) return removed;
+  // The names sort by time (UTC stamp, then process id); the newest stay.
+  std::sort(found.begin(), found.end());
+  std::size_t excess = found.size() - keep;
+  for (const auto& p : found) {
+    if (excess == 0) break;
+    if (std::filesystem::equivalent(p, keep_path, ec)) continue;
+    if (std::filesystem::remove(p, ec)) {
+      removed.push_back(p.string());
+      --excess;
+    }
+  }
+  return removed;
 }
 
 ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
-                       const std::string& coupler, const std::string& backup_path, const Progress& progress) {
+                       const std::string& coupler, const std::string& backup_path, const Progress& progress,
+                       const BackupInfo& info) {
   ApplyResult res;
   res.plan = plan;
   if (!plan.changes()) return res;
@@ -218,9 +288,31 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
   std::error_code ec;
   auto dir = std::filesystem::path(backup_path).parent_path();
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  write_file_atomic(backup_path, "# kscfg apply: the registers it touched, before the change. Undo with:\n"
-                                 "#   kscfg restore " + backup_path + "\n" + station_to_toml(undo));
+  // Everything needed to tell this backup from others and to use it as printed.
+  std::string cmd = "kscfg";
+  if (!info.port.empty()) cmd += " --port " + shell_word(info.port);
+  if (!info.station.empty()) cmd += " --station " + shell_word(info.station);
+  res.undo = cmd + " restore " + shell_word(backup_path);
+  std::time_t now = std::time(nullptr);
+  char when[40];
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  std::string head = "# kscfg apply: the registers it touched, before the change.\n";
+  if (!info.port.empty())
+    head += comment_text(fmt::format("# port: {}{}", info.port, info.unit ? fmt::format(" (unit {})", *info.unit) : "")) +
+            "\n";
+  head += comment_text(fmt::format("# coupler: {}{}", coupler,
+                                   info.identification.empty() ? "" : ", identification '" + info.identification + "'")) +
+          "\n";
+  if (!info.applied.empty()) head += comment_text("# applied: " + info.applied) + "\n";
+  if (!info.station.empty()) head += comment_text("# station: " + info.station) + "\n";
+  head += fmt::format("# time: {}\n", when);
+  if (!info.version.empty()) head += comment_text("# kscfg version: " + info.version) + "\n";
+  head += "# Undo with:\n#   " + comment_text(res.undo) + "\n";
+  write_file_atomic(backup_path, head + station_to_toml(undo));
   res.backup_path = backup_path;
+  if (info.automatic && !dir.empty()) res.rotated = rotate_backups(dir.string(), info.keep, backup_path);
 
   std::vector<const ChannelPlan*> done;
   const ChannelPlan* current = nullptr;
@@ -287,7 +379,7 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
       for (const auto& u : unverified) list += (list.empty() ? "" : "; ") + u;
       throw Error(Exit::unverified, fmt::format("{}; rollback failed: could not verify {}", msg, list),
                   "those registers may hold the new values: read them with 'kscfg dump' when the terminal answers "
-                  "again; 'kscfg restore " + backup_path + "' puts every touched register back");
+                  "again; '" + res.undo + "' puts every touched register back");
     }
     if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
     throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),

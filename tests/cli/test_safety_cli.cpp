@@ -453,3 +453,119 @@ TEST_CASE("station files: an unknown parameter gets the name it probably meant, 
   CHECK(bk.out.find("baud = 14706") == std::string::npos);
 }
 
+// ---------------------------------------------------------------------------------------------
+// Issue 10 item 9: backups you can use.
+
+namespace {
+
+std::string seven_terminals(const std::string& kl6001) {
+  return "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n" + kl6001 +
+         "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
+         "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+}
+
+// The undo line as printed ("kscfg --port P restore F"), run without KSCFG_PORT.
+Run run_as_printed(const std::string& undo, std::map<std::string, std::string> env) {
+  REQUIRE(undo.find('\'') == std::string::npos);  // plain words in these tests
+  std::vector<std::string> words;
+  for (std::size_t p = 0; p <= undo.size();) {
+    auto q = std::min(undo.find(' ', p), undo.size());
+    words.push_back(undo.substr(p, q - p));
+    p = q + 1;
+  }
+  REQUIRE(words.at(0) == "kscfg");
+  words.erase(words.begin());
+  return run_kscfg(words, env);
+}
+
+std::vector<std::string> files_in(const std::string& dir) {
+  std::vector<std::string> v;
+  std::error_code ec;
+  for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+    v.push_back(it->path().filename().string());
+  std::sort(v.begin(), v.end());
+  return v;
+}
+
+}  // namespace
+
+TEST_CASE("apply's backup records the run, its undo line works as printed, backups rotate per port",
+          "[safety][backup]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  std::string before = st.snapshot();
+  write_text(st.dir.file("want.toml"), seven_terminals("baud = 19200\n"));
+  write_text(st.dir.file("back.toml"), seven_terminals("baud = 9600\n"));
+  Run a = st({"--json", "apply", st.dir.file("want.toml")});
+  REQUIRE(a.rc == 10);
+  auto j = nlohmann::json::parse(a.out);
+  std::string path = j["backup"], undo = j["undo"];
+  INFO(a.err);
+  std::string folder = std::filesystem::path(path).parent_path().string();
+  CHECK(std::filesystem::path(folder).parent_path() == std::filesystem::path(st.dir.file("xdg")) / "kscfg" / "backups");
+  CHECK(std::filesystem::path(folder).filename().string().rfind("emu_", 0) == 0);  // one folder per port
+  CHECK(undo == "kscfg --port emu:" + st.state + " restore " + path);
+  CHECK_THAT(a.err, Catch::Contains("kscfg: undo with: " + undo + "\n"));
+  std::string text = read_text(path);
+  CHECK_THAT(text, Catch::Contains("# port: emu:" + st.state + "\n"));
+  CHECK_THAT(text, Catch::Contains("# coupler: BK9000\n"));
+  CHECK_THAT(text, Catch::Contains("# applied: " + st.dir.file("want.toml") + "\n"));
+  CHECK_THAT(text, Catch::Contains("# time: 20"));
+  CHECK_THAT(text, Catch::Contains("# kscfg version: "));
+  CHECK_THAT(text, Catch::Contains("# Undo with:\n#   " + undo + "\n"));
+  // As printed, without KSCFG_PORT: back on the same port.
+  Run u = run_as_printed(undo, {{"XDG_STATE_HOME", st.dir.file("xdg")}});
+  CHECK(u.rc == 10);
+  CHECK(st.snapshot() == before);
+
+  // Rotation: KSCFG_BACKUP_KEEP=2 keeps this port's two newest.
+  auto env = st.env;
+  env["KSCFG_BACKUP_KEEP"] = "2";
+  std::string last;
+  for (int i = 0; i < 4; ++i) {
+    Run r = run_kscfg({"--json", "apply", st.dir.file(i % 2 ? "back.toml" : "want.toml")}, env);
+    REQUIRE(r.rc == 10);
+    last = nlohmann::json::parse(r.out)["backup"];
+  }
+  auto kept = files_in(folder);
+  INFO(kept.size() << " backups kept");
+  REQUIRE(kept.size() == 2);
+  CHECK(kept.back() == std::filesystem::path(last).filename().string());
+  // --keep-backups 0 keeps all; a path given with --backup is never rotated.
+  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("want.toml")}, env).rc == 10);
+  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("back.toml")}, env).rc == 10);
+  CHECK(files_in(folder).size() == 4);
+  REQUIRE(run_kscfg({"apply", "--keep-backups", "1", "--backup", st.dir.file("mine.toml"), st.dir.file("want.toml")},
+                    env).rc == 10);
+  CHECK(files_in(folder).size() == 4);
+}
+
+TEST_CASE("kscfg serve: apply's backup names the Modbus port, unit and coupler, and the undo line restores there",
+          "[safety][backup][serve]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0"}, st.dir.file("serve.err"));
+  std::map<std::string, std::string> env{{"XDG_STATE_HOME", st.dir.file("xdg")}};
+  write_text(st.dir.file("want.toml"), seven_terminals("baud = 19200\n"));
+  // The station described (a scan cannot tell the digital terminals apart): the undo line keeps it.
+  const std::string desc = st.dir.file("station.toml");
+  write_text(desc, seven_terminals(""));
+  Run a = run_kscfg({"--port", srv.uri, "--station", desc, "--json", "apply", st.dir.file("want.toml")}, env);
+  REQUIRE(a.rc == 10);
+  auto j = nlohmann::json::parse(a.out);
+  std::string path = j["backup"], undo = j["undo"];
+  INFO(a.err << read_text(path));
+  CHECK(undo == "kscfg --port " + srv.uri + " --station " + desc + " restore " + path);
+  CHECK(std::filesystem::path(path).parent_path().filename().string().rfind("tcp_127.0.0.1_", 0) == 0);
+  std::string text = read_text(path);
+  CHECK_THAT(text, Catch::Contains("# port: " + srv.uri + " (unit "));
+  CHECK_THAT(text, Catch::Contains("# coupler: BK9000, identification 'BK9000"));
+  CHECK_THAT(text, Catch::Contains("# station: " + desc + "\n"));
+  CHECK(run_kscfg({"--port", srv.uri, "--station", desc, "read", "--raw", "-t", "1", "R32"}, env).out == "0x0007\n");
+  // The emulator behind KSCFG_PORT must not be the one restored: give it a different port.
+  env["KSCFG_PORT"] = "emu:" + st.dir.file("other.json");
+  Run u = run_as_printed(undo, env);
+  CHECK(u.rc == 10);
+  CHECK(run_kscfg({"--port", srv.uri, "--station", desc, "read", "--raw", "-t", "1", "R32"}, env).out == "0x0006\n");
+  CHECK(srv.stop() == 0);
+}

@@ -2,6 +2,7 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -51,21 +52,48 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
 struct ApplyResult {
   Plan plan;
   std::string backup_path;  // the touched registers before the change ("" when nothing changed)
+  std::string undo;         // the command that puts them back: kscfg --port PORT restore PATH
+  std::vector<std::string> rotated;  // older automatic backups removed (BackupInfo::keep)
   bool changed = false;
+};
+
+// What apply's backup records about the run that made it, so that it can be told apart from
+// others and used as printed (issue 10 item 9).
+struct BackupInfo {
+  std::string coupler;               // the coupler type (also the backup's `coupler` key)
+  std::string port;                  // the link as --port takes it (tcp://10.0.0.5:502, emu:/path)
+  std::optional<unsigned> unit;      // Modbus unit id
+  std::string identification;        // the coupler's identification registers, when read
+  std::string applied;               // the station file that was applied
+  std::string station;               // --station FILE of the run ("" when the coupler was scanned)
+  std::string version;               // kscfg's version
+  // Automatic backups (default_apply_backup_path): how many of this port's to keep; older ones
+  // are removed after a new one is written. 0: keep all; ignored for a path the user chose.
+  unsigned keep = 0;
+  bool automatic = false;
 };
 
 // The register writes `plan` makes (for guard_lockout).
 std::vector<PlannedWrite> planned_writes(const Plan& plan);
 
 // Carries out `plan`: first saves the touched registers' current values as a station file at
-// `backup_path` (atomically), then writes terminal by terminal, each write verified. If anything
-// fails, every register written by this run is restored (in reverse order) and the error is
-// rethrown saying what was rolled back.
+// `backup_path` (atomically; its comments record `info`: port, unit, coupler, applied file, time,
+// version and the undo command), then writes terminal by terminal, each write verified. If
+// anything fails, every terminal touched is rolled back from what it holds (read back) and the
+// error says what was verified.
 // `progress` is told of each terminal's change before it is written (registers done, total).
 ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
-                       const std::string& coupler, const std::string& backup_path, const Progress& progress = {});
+                       const std::string& coupler, const std::string& backup_path, const Progress& progress = {},
+                       const BackupInfo& info = {});
 
-// $XDG_STATE_HOME/kscfg/backups/apply-YYYYmmdd-HHMMSS-PID.toml
-std::string default_apply_backup_path();
+// $XDG_STATE_HOME/kscfg/backups/PORT/apply-YYYYmmdd-HHMMSS.uuuuuuZ-PID.toml: one folder per port
+// (its name made of the port's letters, digits, '.', '-' and '_'), UTC time stamps that sort in order.
+std::string default_apply_backup_path(const std::string& port = "emu");
+
+// Removes the oldest apply-*.toml in `dir` beyond `keep` (never `keep_path`); returns what it removed.
+std::vector<std::string> rotate_backups(const std::string& dir, unsigned keep, const std::string& keep_path);
+
+// `s` quoted for a POSIX shell when it needs it.
+std::string shell_word(const std::string& s);
 
 }  // namespace kscfg
