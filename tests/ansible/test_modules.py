@@ -96,7 +96,7 @@ def main():
         check(not x['changed'] and x['rc'] == 0 and x['backup'] is None, 'inline again: ok, nothing written')
 
         x = res['bad_param']
-        check(x['failed'] and x['rc'] == 2 and x['msg'] == "station.toml:5:12: KL6001 has no parameter 'baudrate'" and
+        check(x['failed'] and x['rc'] == 2 and x['msg'] == "station.toml:5:12: KL6001 has no parameter 'baudrate'; did you mean baud?" and
               'baudrate = 19200' in x.get('station_toml', '') and x['unchanged'] is None,
               'unknown parameter: kscfg\'s message, exit 2, the station file it wrote: %s' % x['msg'])
         x = res['missing']
