@@ -52,7 +52,7 @@ TEST_CASE("read R8 prints 6001 for the KL6001", "[cli]") {
   CHECK(doc["registers"][0]["values"]["baud"] == 9600);  // typed as in a station file
 }
 
-TEST_CASE("write then a fresh read --raw shows the value; emu reset restores defaults", "[cli]") {
+TEST_CASE("write then a fresh read --raw shows the value, emu reset restores defaults", "[cli]") {
   Emu emu;
   Run w = emu({"write", "R32", "0x0007"});
   REQUIRE(w.rc == 0);
@@ -186,7 +186,7 @@ TEST_CASE("two concurrent writers leave a valid state file", "[cli]") {
   CHECK_THAT(r.out, Catch::StartsWith("0x0000\n"));
 }
 
-TEST_CASE("emu:mem keeps nothing; KSCFG_PORT is the default port", "[cli]") {
+TEST_CASE("emu:mem keeps nothing, KSCFG_PORT is the default port", "[cli]") {
   Run w = run_kscfg({"--port", "emu:mem", "write", "R32", "7"});
   CHECK(w.rc == 0);
   CHECK(run_kscfg({"--port", "emu:mem", "read", "--raw", "R32"}).out == "0x0006\n");

@@ -379,7 +379,7 @@ TEST_CASE("data force: --yes, never in register mode, previous values restored",
   CHECK(reg.err.find("register mode") != std::string::npos);
 }
 
-TEST_CASE("data force on the KL5101: CNT_SET through the control byte; an analog output by value",
+TEST_CASE("data force on the KL5101: CNT_SET through the control byte, an analog output by value",
           "[data][cli][force]") {
   Emu emu;
   Run f = emu({"-t", "2", "--json", "data", "force", "D0=0x10", "D1=0x27", "CT/ST=0x04", "--yes", "--once"});

@@ -110,7 +110,7 @@ TEST_CASE("a full stdout is exit 7 with one error line: backup, read, dump --jso
   CHECK_THAT(j.err, Catch::StartsWith("{\"error\":\"cannot write to stdout: No space left on device\",\"exit\":7"));
 }
 
-TEST_CASE("a reader that quits ends kscfg quietly; a closed stdout is an error", "[streams][cli]") {
+TEST_CASE("a reader that quits ends kscfg quietly, a closed stdout is an error", "[streams][cli]") {
   Emu emu;
   Raw gone = run_with_stdout(emu, {"dump"}, false);
   CHECK(WIFSIGNALED(gone.status));
@@ -174,7 +174,7 @@ TEST_CASE("'-' is stdin or stdout for FILE arguments", "[streams][cli]") {
   CHECK(one_line_error(bk));
 }
 
-TEST_CASE("file errors carry the OS reason; a directory is 'is a directory'", "[streams][cli]") {
+TEST_CASE("file errors carry the OS reason, a directory is 'is a directory'", "[streams][cli]") {
   Emu emu;
   TempDir d;
   for (const std::vector<std::string>& args :

@@ -154,7 +154,7 @@ TEST_CASE("KL5101: the gate input suppresses counting", "[encoder][seed]") {
   CHECK(e.counter() == 24);
 }
 
-TEST_CASE("KL5101: CNT_SET sets the counter on its rising edge; CNTSET_ACC acknowledges", "[encoder][seed]") {
+TEST_CASE("KL5101: CNT_SET sets the counter on its rising edge, CNTSET_ACC acknowledges", "[encoder][seed]") {
   Enc e;
   e.step(3);
   e.value(5000);
@@ -208,7 +208,7 @@ TEST_CASE("KL5101: EN_LATC latches the counter at the first C pulse after the bi
   CHECK(e.latch() == 1640);
 }
 
-TEST_CASE("KL5101: LATC_VAL cannot be removed while C is high; a pulse is then missed", "[encoder][seed]") {
+TEST_CASE("KL5101: LATC_VAL cannot be removed while C is high, a pulse is then missed", "[encoder][seed]") {
   Enc e("fold = \"1\"");
   e.m().far.lines = 10;  // C high at positions 0, 10, 20, ... periods (the encoder stands on it)
   e.step(5);

@@ -446,7 +446,7 @@ TEST_CASE("register access between transfers keeps the handshake (standard forma
   CHECK(port.received() == tail);
 }
 
-TEST_CASE("serial state persists in the emulator state; old state files still load", "[serial]") {
+TEST_CASE("serial state persists in the emulator state, old state files still load", "[serial]") {
   Bench b(kl6001(""));
   b.model().set_far_end("none");
   const std::uint8_t bytes[] = {1, 2, 3, 4, 5, 6, 7};

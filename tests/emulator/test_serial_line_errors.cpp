@@ -151,7 +151,7 @@ TEST_CASE("line: receive FIFO overflow -> R6 bits 0 and 4, BUF_F, the rest lost"
   CHECK((k.r6() & (serial::kDiagOverflow | serial::kDiagFull)) == (serial::kDiagOverflow | serial::kDiagFull));
 }
 
-TEST_CASE("line: R6 bits are sticky until init; the errors survive in the state file", "[serial][line]") {
+TEST_CASE("line: R6 bits are sticky until init, the errors survive in the state file", "[serial][line]") {
   Line l;
   l.far("9600", "8E1", text("AAA"));
   CHECK(l.r6() == serial::kDiagFraming);

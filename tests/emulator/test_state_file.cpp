@@ -123,7 +123,7 @@ TEST_CASE("a state whose station does not parse is a corrupt state (Exit::file),
   CHECK_THAT(r.err, Catch::Contains("corrupt"));
 }
 
-TEST_CASE("a run that only reads does not write the state file; a change writes it once", "[state][robust]") {
+TEST_CASE("a run that only reads does not write the state file, a change writes it once", "[state][robust]") {
   Emu emu;
   REQUIRE(emu({"read", "R8"}).rc == 0);
   FileId before = id_of(emu.state);
@@ -140,7 +140,7 @@ TEST_CASE("a run that only reads does not write the state file; a change writes 
   CHECK(emu({"read", "--raw", "R32"}).out == "0x0007\n");
 }
 
-TEST_CASE("a symbolic link to the state file stays a link; the file it points to is replaced", "[state][robust]") {
+TEST_CASE("a symbolic link to the state file stays a link, the file it points to is replaced", "[state][robust]") {
   TempDir d;
   std::filesystem::create_directories(d.file("real"));
   std::string target = d.file("real/state.json"), link = d.file("link.json");

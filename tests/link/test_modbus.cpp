@@ -145,7 +145,7 @@ TEST_CASE("the server speaks the BK9000 register map", "[modbus]") {
   CHECK(c.exchanges() - before == 1);
 }
 
-TEST_CASE("register n carries image bytes 2n (low) and 2n+1 (high); neighbours are kept", "[modbus]") {
+TEST_CASE("register n carries image bytes 2n (low) and 2n+1 (high), neighbours are kept", "[modbus]") {
   Served s;
   {
     auto link = s.link();
