@@ -71,7 +71,7 @@ TEST_CASE("parameters sharing a register are written once", "[params][cli]") {
   CHECK(emu({"read", "--raw", "R34"}).out == "0x000A\n");
 }
 
-TEST_CASE("show marks non-default parameters; json has a changed flag", "[params][cli]") {
+TEST_CASE("show marks non-default parameters, json says at_default", "[params][cli]") {
   Emu emu;
   REQUIRE(emu({"set", "data-bytes", "5"}).rc == 0);
   Run r = emu({"show"});
@@ -83,9 +83,10 @@ TEST_CASE("show marks non-default parameters; json has a changed flag", "[params
   bool seen = false;
   for (const auto& p : j["params"])
     if (p["name"] == "data-bytes") {
-      CHECK(p["changed"] == true);
-      CHECK(p["value"] == "5");
-      CHECK(p["default"] == "3");
+      CHECK(p["at_default"] == false);  // docs/json.md: never 'changed' for this
+      CHECK(p["value"] == 5);           // numbers as numbers
+      CHECK(p["default"] == 3);
+      CHECK_FALSE(p.contains("changed"));
       seen = true;
     }
   CHECK(seen);
@@ -94,7 +95,7 @@ TEST_CASE("show marks non-default parameters; json has a changed flag", "[params
   CHECK_THAT(k.out, Catch::Contains("counter-mode"));
 }
 
-TEST_CASE("reset on a KL6031 uses R7 0x7000; on a KL6001 it writes the catalog defaults", "[params][cli]") {
+TEST_CASE("reset on a KL6031 uses R7 0x7000, on a KL6001 it writes the catalog defaults", "[params][cli]") {
   Emu emu;
   REQUIRE(emu({"-t", "3", "set", "baud", "115200"}).rc == 0);
   CHECK(emu({"-t", "3", "get", "baud"}).out == "115200\n");
@@ -136,7 +137,7 @@ TEST_CASE("decode explains control and status values", "[params][cli]") {
   CHECK(run_kscfg({"--port", "emu:mem", "decode", "status", "0x35", "-T", "KL1104"}).rc == 2);
 }
 
-TEST_CASE("bad parameters: closest names, enum, range, other type; nothing written", "[params][cli]") {
+TEST_CASE("bad parameters: closest names, enum, range, other type, nothing written", "[params][cli]") {
   Emu emu;
   REQUIRE(emu({"emu", "reset"}).rc == 0);
   std::string before = kscfg::test::read_text(emu.state);
