@@ -188,4 +188,17 @@ Server::~Server() {
   if (out_fd >= 0) close(out_fd);
 }
 
+std::size_t widest_line(const std::string& text) {
+  std::size_t w = 0, cur = 0;
+  for (char c : text) {
+    if (c == '\n') {
+      w = std::max(w, cur);
+      cur = 0;
+    } else {
+      ++cur;
+    }
+  }
+  return std::max(w, cur);
+}
+
 }  // namespace kscfg::test

@@ -30,6 +30,9 @@ void write_text(const std::string& path, const std::string& text);
 // The error contract: exactly one line on stderr, starting "kscfg: error: ".
 bool one_line_error(const Run& r);
 
+// The width of the widest line of text (the 80-column checks).
+std::size_t widest_line(const std::string& text);
+
 // An emulator with its own state file; runs kscfg with KSCFG_PORT pointing at it.
 struct Emu {
   TempDir dir;

@@ -9,6 +9,7 @@
 using kscfg::test::one_line_error;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
+using kscfg::test::widest_line;
 
 namespace {
 
@@ -31,19 +32,6 @@ std::vector<std::vector<std::string>> command_paths() {
   };
   walk(&app->cli, {});
   return out;
-}
-
-std::size_t widest_line(const std::string& text) {
-  std::size_t w = 0, cur = 0;
-  for (char c : text) {
-    if (c == '\n') {
-      w = std::max(w, cur);
-      cur = 0;
-    } else {
-      ++cur;
-    }
-  }
-  return std::max(w, cur);
 }
 
 }  // namespace

@@ -13,21 +13,10 @@ using kscfg::test::Emu;
 using kscfg::test::one_line_error;
 using kscfg::test::Run;
 using nlohmann::json;
+using kscfg::test::widest_line;
 
 namespace {
 
-std::size_t widest_line(const std::string& text) {
-  std::size_t w = 0, cur = 0;
-  for (char c : text) {
-    if (c == '\n') {
-      w = std::max(w, cur);
-      cur = 0;
-    } else {
-      ++cur;
-    }
-  }
-  return std::max(w, cur);
-}
 
 }  // namespace
 
