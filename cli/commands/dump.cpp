@@ -41,9 +41,8 @@ class Dump : public Command {
     const TerminalType& type = *s->terminal().type;
     std::vector<unsigned> all(48);
     for (unsigned r = 0; r < 48; ++r) all[r] = r;
-    std::vector<std::uint16_t> v = s->read_many(
+    std::vector<std::uint16_t> v = s->read_then_close(
         all, [&](std::size_t r) { bar.update(done + r, fmt::format("terminal {} R{}", pos, r)); });
-    s->close();
     bar.update(done + 48);
     bar.finish();
     unsigned ch = ctx.options().channel - 1;

@@ -57,8 +57,7 @@ class Read : public Command {
         throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
                                                type.type));
     std::vector<std::uint16_t> vals;
-    vals = s->read_many(regs);
-    s->close();
+    vals = s->read_then_close(regs);
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();

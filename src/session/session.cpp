@@ -172,6 +172,9 @@ using std::chrono::microseconds;
 constexpr microseconds kLearnFirst{500};
 constexpr microseconds kStep{250};
 constexpr unsigned kLearnSamples = 3;
+// A read-ahead (or a restore with the last poll) that came too early raises the wait by a quarter;
+// after this many in a run, no more speculation on that terminal.
+constexpr unsigned kMaxMisses = 2;
 
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
 
@@ -195,6 +198,19 @@ RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
   shadow_[w_.ctrl - out_lo_] = ctrl;
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
+  return status_of(in);
+}
+
+std::optional<RegisterSession::Status> RegisterSession::poll_restoring() {
+  // Only the control byte may differ from what the session found: the data bytes of a write, a
+  // leftover register mode or an unlock are close()'s business.
+  if (leftover_ || maybe_unlocked_ || unlocked_) return std::nullopt;
+  for (std::size_t b = out_lo_; b <= out_hi_; ++b)
+    if (b != w_.ctrl && shadow_[b - out_lo_] != saved_out_[b - saved_at_]) return std::nullopt;
+  std::uint8_t& ctrl = shadow_[w_.ctrl - out_lo_];
+  ctrl = saved_out_[w_.ctrl - saved_at_];
+  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
+  link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&ctrl, 1), in_lo_, in);
   return status_of(in);
 }
 
@@ -263,7 +279,10 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
   // The first poll: once the terminal's latency is known, when it has answered; it may carry the
   // request for the next register (read-ahead) unless a read-ahead came too early before.
   bool known = timing_ && timing_->wait.count() > 0;
-  bool ahead_ok = next && known && !timing_->missed && *next != reg;
+  bool speculate = known && timing_->misses < kMaxMisses;
+  bool ahead_ok = next && speculate && *next != reg;
+  bool restore_ok = !write && !next && restore_with_ == reg && speculate && link_.pipelines();
+  if (restore_with_ == reg) restore_with_.reset();
   if (timing_) sleep_until(sent + (known ? timing_->wait : kLearnFirst));
   microseconds step = known ? std::max(kStep, timing_->wait / 8) : kStep;
   std::optional<unsigned> ahead;  // written ahead, not yet answered
@@ -272,14 +291,25 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
   Status s{};
   for (unsigned poll = 1;; ++poll) {
     bool wrote_ahead = poll == 1 && ahead_ok;
+    bool restored = false;
     auto t = Clock::now();
-    s = wrote_ahead ? poll_ahead(*next) : poll_once();
+    if (wrote_ahead) {
+      s = poll_ahead(*next);
+    } else if (poll == 1 && restore_ok) {
+      auto r = poll_restoring();
+      restored = r.has_value();
+      s = restored ? *r : poll_once();
+    } else {
+      s = poll_once();
+    }
     if (wrote_ahead) {
       ahead = next;
       ahead_sent = t;
     }
     if (proto::is_ack(s.status, reg)) {
-      last_status_ = s.status;
+      // After a restore the status byte goes back to process data: look again before a next request.
+      if (restored) last_status_.reset();
+      else last_status_ = s.status;
       if (ahead) {
         pending_ = ahead;
         sent_ = ahead_sent;
@@ -299,21 +329,30 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
         }
       }
       if (opt_.trace)
-        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{})", who(),
+        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(),
                                write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
                                s.status, s.value, poll, poll == 1 ? "" : "s",
                                timing_ ? fmt::format(", {} us after the request", us(t - sent).count()) : "",
-                               pending_ ? fmt::format(", R{} requested ahead", *pending_) : ""));
+                               pending_ ? fmt::format(", R{} requested ahead", *pending_) : "",
+                               restored ? ", control byte restored with the poll" : ""));
       return s.value;
     }
     if (poll == 1 && known) {
-      // The terminal is slower than we thought. A request written ahead replaced ours before it
-      // was answered, so how much slower is unknown: a quarter more.
+      // The terminal is slower than we thought. A request written ahead (or the restore) replaced
+      // ours before it was answered, so how much slower is unknown: a quarter more.
       timing_->missed = true;
-      if (wrote_ahead) {
+      ++timing_->misses;
+      if (wrote_ahead || restored) {
         microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
         timing_->wait = std::min(timing_->wait + timing_->wait / 4, std::max(cap, timing_->wait));
       }
+    }
+    if (restored) {
+      // The control byte is back to what the session found: the request is gone. Ask again.
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(), reg));
+      last_status_ = s.status;
+      return request(write, reg, value, std::nullopt);
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.
@@ -355,8 +394,21 @@ std::uint16_t RegisterSession::read_one(unsigned reg, std::optional<unsigned> ne
 
 std::uint16_t RegisterSession::read(unsigned reg) { return read_one(reg, std::nullopt); }
 
+std::vector<std::uint16_t> RegisterSession::read_then_close(const std::vector<unsigned>& regs,
+                                                            const std::function<void(std::size_t)>& progress) {
+  std::vector<std::uint16_t> out = read_many(regs, progress, true);
+  close();
+  return out;
+}
+
 std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
                                                       const std::function<void(std::size_t)>& progress) {
+  return read_many(regs, progress, false);
+}
+
+std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
+                                                      const std::function<void(std::size_t)>& progress,
+                                                      bool restore_last) {
   std::vector<std::uint16_t> out(regs.size());
   // ROM registers read before cost nothing; the others are fetched in order, each request going
   // out with the poll for the one before.
@@ -371,7 +423,9 @@ std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned
     std::optional<unsigned> next;
     if (k + 1 < todo.size()) next = regs[todo[k + 1]];
     if (progress) progress(todo[k]);
+    if (restore_last && !next) restore_with_ = regs[todo[k]];
     out[todo[k]] = read_one(regs[todo[k]], next);
+    restore_with_.reset();
   }
   return out;
 }

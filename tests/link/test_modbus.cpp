@@ -2,6 +2,7 @@
 // clobbered neighbour bytes, exchanges per register, exceptions by name, strict URIs.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <thread>
 
@@ -213,6 +214,48 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
   std::uint8_t ct[1];
   link->read_outputs(L.terminals[0].channels[0].window->ctrl, ct);
   CHECK((ct[0] & 0x80) == 0);
+}
+
+TEST_CASE("read_then_close puts the control byte back with the last poll, or asks again when that was early",
+          "[modbus]") {
+  Served s;
+  auto link = s.link();
+  const StationLayout& L = *link->layout();
+  auto* m = dynamic_cast<ModbusLink*>(link.get());
+  REQUIRE(m);
+  std::size_t ctrl = L.terminals[0].channels[0].window->ctrl;
+  auto control_byte = [&] {
+    std::uint8_t ct[1];
+    link->read_outputs(ctrl, ct);
+    return ct[0];
+  };
+  std::vector<std::string> trace;
+  SessionOptions so;
+  so.trace = [&](const std::string& t) { trace.push_back(t); };
+  auto traced = [&](const std::string& what) {
+    return std::any_of(trace.begin(), trace.end(), [&](const std::string& t) { return t.find(what) != t.npos; });
+  };
+  SECTION("the terminal has answered when the poll goes out: two exchanges after the session's start") {
+    // Far longer than the server's 1 ms K-bus cycle, so the answer is there even on a loaded machine.
+    m->set_ack_wait(1, std::chrono::milliseconds(200));
+    RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    std::size_t before = link->exchanges();
+    auto v = ses.read_then_close({10});  // a register the scan did not read: no stale acknowledge
+    CHECK(v.at(0) == s.station.channel(1, 0).read_register(10));
+    CHECK(traced("control byte restored with the poll"));
+    CHECK(link->exchanges() - before == 2);  // FC23 request, FC23 restore + answer; close() writes nothing
+    CHECK(m->ack_timings().at(1).misses == 0);
+  }
+  SECTION("the poll came too early: the restore replaced the request, which is asked again") {
+    m->set_ack_wait(1, std::chrono::microseconds(1));
+    RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    auto v = ses.read_then_close({32, 8});
+    CHECK(v.at(0) == s.station.channel(1, 0).read_register(32));
+    CHECK(v.at(1) == 6001);
+    CHECK(m->ack_timings().at(1).misses >= 1);
+  }
+  // Either way the terminal is back in process-data mode, as the session found it.
+  CHECK((control_byte() & 0x80) == 0);
 }
 
 TEST_CASE("writes through the Modbus link are verified and relocked", "[modbus]") {

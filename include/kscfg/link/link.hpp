@@ -36,7 +36,8 @@ class Link {
                                         // (a loaded machine) raises `wait` to twice this at most
     unsigned samples = 0;               // acknowledges timed while learning (this run)
     std::chrono::microseconds longest{0};  // longest latency timed while learning
-    bool missed = false;                // a poll at `wait` came too early (this run); no more read-ahead
+    bool missed = false;                // a poll at `wait` came too early (this run)
+    unsigned misses = 0;                // how often (this run); after two, no more read-ahead
     unsigned acks = 0;                  // acknowledges seen this run
   };
   virtual AckTiming* ack_timing(unsigned position) {

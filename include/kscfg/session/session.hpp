@@ -77,11 +77,17 @@ class RegisterSession {
   // Registers in this order. On a link that pipelines (Modbus FC23), once the terminal's
   // acknowledge latency is known, the request for the next register of the list goes out in the
   // exchange that fetches the answer to the one before (read-ahead): about one exchange per
-  // register. Never past the last register of the list; after the first read-ahead that came too
-  // early for the terminal, none more in this session.
+  // register. Never past the last register of the list; after two read-aheads that came too
+  // early for the terminal (each raises the wait by a quarter), none more in this run.
   // `progress(i)` is called before the i-th register is fetched.
   std::vector<std::uint16_t> read_many(const std::vector<unsigned>& regs,
                                        const std::function<void(std::size_t)>& progress = {});
+  // read_many(), then close(). On a link that pipelines, once the latency is known, the poll that
+  // fetches the last answer also puts the control byte back (FC23: the restore goes out with the
+  // read, which sees the image from before): one exchange fewer. A read has no effect on the
+  // terminal, so a restore that came too early costs only asking again.
+  std::vector<std::uint16_t> read_then_close(const std::vector<unsigned>& regs,
+                                             const std::function<void(std::size_t)>& progress = {});
 
   // Unlock (protected registers) -> compare -> write -> relock -> read back. Unchanged values are
   // not rewritten. With a mask only the bits set in it change: new = (old & ~mask) | (value & mask).
@@ -145,12 +151,17 @@ class RegisterSession {
   // Writes the request for `next` and reads the image in one exchange (pipelining links): the
   // read shows the image from before the terminal saw the new request.
   Status poll_ahead(unsigned next);
+  // Writes the control byte found at the start back and reads the image in one exchange, when
+  // that byte is the only one this session changed; nullopt otherwise (nothing sent).
+  std::optional<Status> poll_restoring();
   // Polls until the terminal acknowledges the request for `reg` already in the control byte
   // (sent at sent_). With `next`, the first poll requests that register ahead (read-ahead).
   std::uint16_t wait_ack(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next);
   // Waits, on a link that pipelines, until `due` (the acknowledge latency after sent_).
   void sleep_until(std::chrono::steady_clock::time_point due) const;
   std::uint16_t read_one(unsigned reg, std::optional<unsigned> next);
+  std::vector<std::uint16_t> read_many(const std::vector<unsigned>& regs,
+                                       const std::function<void(std::size_t)>& progress, bool restore_last);
   // One register request and its acknowledge; with `next`, read-ahead as in read_many().
   std::uint16_t request(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next);
 
@@ -176,6 +187,8 @@ class RegisterSession {
   // On a link that pipelines, a read writes the request for the next register in the exchange
   // that fetches its own answer (FC23); reading that register next costs one exchange.
   std::optional<unsigned> pending_;
+  // read_then_close(): the first poll for this register's answer also restores the control byte.
+  std::optional<unsigned> restore_with_;
   std::chrono::steady_clock::time_point sent_{};  // when the exchange with the current request left
   Link::AckTiming* timing_ = nullptr;  // the terminal's acknowledge latency (pipelining links)
   std::map<unsigned, std::uint16_t> rom_;  // ROM registers read in this session: they cannot change
