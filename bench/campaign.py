@@ -125,8 +125,8 @@ def register(state, pos, ch, reg):
 def leftovers(state):
     """(unlocked channels, channels in register mode) in a state."""
     outputs = bytes.fromhex(state["outputs"])
-    unlocked = sum(1 for c in state["channels"] if c["registers"][31] == 0x1235)
-    reg_mode = sum(1 for off in CONTROL.values() if off < len(outputs) and outputs[off] & 0x80)
+    unlocked = [f"{c.get('position', '?')}" for c in state["channels"] if c["registers"][31] == 0x1235]
+    reg_mode = [f"{t[0]}.{t[1]}" for t, off in CONTROL.items() if off < len(outputs) and outputs[off] & 0x80]
     return unlocked, reg_mode
 
 
@@ -151,10 +151,10 @@ def check_leftovers(t, state, what):
     u, r = leftovers(state)
     if u:
         t.add("left unlocked")
-        t.note("unlocked after " + what)
+        t.note(f"unlocked (terminal {', '.join(u)}) after " + what)
     if r:
         t.add("left in register mode")
-        t.note("register mode after " + what)
+        t.note(f"register mode (terminal {', '.join(r)}) after " + what)
 
 
 # ----------------------------------------------------------------------------------------------
