@@ -31,6 +31,8 @@ Link& Context::link() {
     lo.cache_dir = default_cache_dir();
     lo.rescan = opt_.rescan;
     lo.notice = session_options().notice;
+    journal_ = std::make_shared<SessionJournal>();
+    lo.journal = journal_;
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
@@ -217,6 +219,7 @@ SessionOptions Context::session_options() const {
   so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
+  so.journal = journal_;
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) so.kill_after_write = parse_register(e);
   return so;

@@ -95,6 +95,7 @@ class Context {
   void check_cached_terminals();
 
   GlobalOptions opt_;
+  std::shared_ptr<SessionJournal> journal_;  // before link_: sessions left open note it at exit
   std::unique_ptr<Link> link_;
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into

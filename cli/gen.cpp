@@ -294,7 +294,15 @@ std::string generate_manpage(const App& a) {
        ".TP\n.B KSCFG_TEST_KILL_AFTER\nTest hook: a register such as R31; kscfg kills itself (SIGKILL) right after "
        "the terminal acknowledged a write of it, leaving the terminal as a crashed session would.\n";
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
-       "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR.\n";
+       "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR.\n"
+       ".TP\n.I ~/.cache/kscfg/scans/PORT.json\nWhat a scan of a Modbus coupler found, with the terminals' "
+       "acknowledge latencies (\\fB$XDG_CACHE_HOME\\fR); see \\fBscan\\fR.\n"
+       ".TP\n.I ~/.cache/kscfg/sessions/PORT.PID\\-TIME.sessions\nThe terminals a running kscfg has in register mode "
+       "on a Modbus port, locked while it runs. If it dies (kill \\-9, a crash), the next kscfg on that port finds the "
+       "journal unlocked and finishes what it names: each terminal still in register mode is relocked and put back to "
+       "the process-data bytes the dead session found, with a note on stderr. A kscfg on another computer keeps its "
+       "journal there: what it leaves is finished by the next session on that terminal, or by the coupler's "
+       "watchdog.\n";
   m << ".SH SEE ALSO\n.BR kscfg\\-station (5),\n.BR kscfg\\-catalog (5)\n";
   return m.str();
 }

@@ -1,8 +1,11 @@
 #include "kscfg/discovery/open.hpp"
 
 #include <algorithm>
+#include <filesystem>
+#include <optional>
 
 #include "kscfg/discovery/scan.hpp"
+#include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
@@ -31,7 +34,29 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
   so.notice = opt.notice;  // e.g. a dead session's register mode, finished by the scan's session
+  if (opt.journal && !opt.cache_dir.empty()) {
+    opt.journal->open((std::filesystem::path(opt.cache_dir) / "sessions").string(),
+                      port_key(link->client().target()));
+    so.journal = opt.journal;
+  }
   discover_by_scan(*link, catalog, so, d);
+  if (so.journal) {
+    // Before anything else touches the station: what kscfg processes that died left in register
+    // mode, wherever on the station it is. A window outside the image the coupler reports now
+    // belongs to another station: dropped untouched.
+    std::optional<std::size_t> out_bytes, in_bytes;
+    ModbusLink& mb = *link;
+    auto fits = [&](const SessionJournal::Entry& e) {
+      if (!out_bytes) {
+        auto len = read_image_lengths(mb.client());  // complex out, complex in, digital out, digital in (bits)
+        out_bytes = (len[0] + len[2] + 7) / 8;
+        in_bytes = (len[1] + len[3] + 7) / 8;
+      }
+      const RegisterWindow& w = e.window;
+      return std::max({w.ctrl, w.out_lo, w.out_hi}) < *out_bytes && std::max({w.status, w.in_lo, w.in_hi}) < *in_bytes;
+    };
+    finish_dead_sessions(*link, catalog, so, fits);
+  }
   return link;
 }
 

@@ -40,10 +40,13 @@ std::string default_cache_dir() {
   return (base / "kscfg").string();
 }
 
+std::string port_key(const ModbusTarget& t) {
+  return t.tcp ? fmt::format("tcp-{}-{}-unit{}", safe(t.host), t.port, t.unit)
+               : fmt::format("rtu-{}-unit{}", safe(t.device), t.unit);
+}
+
 ScanCache::ScanCache(std::string dir, const ModbusTarget& t) : dir_(std::move(dir)) {
-  std::string key = t.tcp ? fmt::format("tcp-{}-{}-unit{}", safe(t.host), t.port, t.unit)
-                          : fmt::format("rtu-{}-unit{}", safe(t.device), t.unit);
-  path_ = (fs::path(dir_) / "scans" / (key + ".json")).string();
+  path_ = (fs::path(dir_) / "scans" / (port_key(t) + ".json")).string();
 }
 
 ScanCache::~ScanCache() { unlock(); }

@@ -96,9 +96,106 @@ void RegisterSession::finish_leftover() {
     if (e.code() == Exit::interrupted) throw;
     r31 = fmt::format("R31 could not be checked ({}); relocking at the end", e.what());
   }
-  note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
-                   "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
-                   who(), *leftover_, r31, *leftover_));
+  if (dead_pid_)
+    note(fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
+                     "without finishing its session; {}; its process-data bytes go back to what that session found "
+                     "(control byte 0x{:02X})",
+                     who(), *leftover_, dead_pid_, r31, saved_out_[w_.ctrl - saved_at_]));
+  else
+    note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
+                     "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
+                     who(), *leftover_, r31, *leftover_));
+}
+
+void RegisterSession::journal_enter() {
+  if (journaled_ || !opt_.journal) return;
+  journaled_ = true;
+  SessionJournal::Entry e;
+  e.position = term_->position;
+  e.channel = channel_;
+  e.type = term_->type->type;
+  e.window = w_;
+  e.saved_at = saved_at_;
+  e.saved = saved_out_;
+  opt_.journal->enter(e);
+}
+
+bool RegisterSession::finish_dead(const SessionJournal::Entry& e, long pid) {
+  if (!leftover_) {
+    close();
+    return false;
+  }
+  // The bytes that session found, where they are this session's to restore; never REG.
+  for (std::size_t i = 0; i < e.saved.size(); ++i) {
+    std::size_t b = e.saved_at + i;
+    if (b >= saved_at_ && b < saved_at_ + saved_out_.size()) saved_out_[b - saved_at_] = e.saved[i];
+  }
+  if (saved_out_[w_.ctrl - saved_at_] & proto::kReg) {
+    saved_out_[w_.ctrl - saved_at_] = 0;
+    saved_out_[w_.out_lo - saved_at_] = 0;
+    saved_out_[w_.out_hi - saved_at_] = 0;
+  }
+  dead_pid_ = pid;
+  try {
+    finish_leftover();
+  } catch (...) {
+    close();
+    throw;
+  }
+  close();
+  return true;
+}
+
+void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
+  if (!so.journal || !so.journal->enabled()) return;
+  for (auto& d : so.journal->claim_dead()) {
+    bool done = true;
+    try {
+      for (const auto& e : d.open) {
+        // A session of a scan that had not identified the terminal yet ("?") is finished as one of
+        // an unknown type: only R31 and the control byte are touched.
+        const TerminalType* type = catalog.find(e.type);
+        TerminalType unknown;
+        if (!type || !type->has_registers || e.channel >= type->channels) {
+          unknown.type = "type unknown";
+          unknown.has_registers = true;
+          unknown.channels = e.channel + 1;
+          type = &unknown;
+        }
+        const RegisterWindow& w = e.window;
+        try {
+          if (fits && !fits(e)) continue;
+          // Only a terminal that shows register mode now, in its control byte and in the status byte
+          // that answers it: otherwise it was finished already, or the station is not the one the
+          // journal describes, and nothing is touched.
+          std::uint8_t ctrl = 0, status = 0;
+          link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
+          link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
+          if (!(ctrl & proto::kReg) || !(status & proto::kReg)) continue;
+          TerminalImage t;
+          t.position = e.position;
+          t.type = type;
+          t.complex = true;
+          t.channels.resize(e.channel + 1);
+          t.channels[e.channel].window = w;
+          RegisterSession s(link, t, e.channel, so);
+          s.finish_dead(e, d.pid);
+        } catch (const Error& err) {
+          if (err.code() == Exit::interrupted) throw;
+          // A line that failed may work next time; anything else (an address the coupler does not
+          // have: not this station) will not.
+          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
+          if (so.trace) so.trace(fmt::format("finishing terminal {} left by kscfg process {}: {}", e.position, d.pid,
+                                             err.what()));
+        }
+      }
+    } catch (...) {
+      SessionJournal::release(d, false);
+      throw;
+    }
+    SessionJournal::release(d, done);
+  }
 }
 
 void RegisterSession::forget() {
@@ -150,6 +247,7 @@ std::string RegisterSession::who() const {
 }
 
 void RegisterSession::put(std::uint8_t ctrl, std::optional<std::uint16_t> value) {
+  journal_enter();
   // Data bytes and control byte travel in one write: the data is never behind the control byte.
   shadow_[w_.ctrl - out_lo_] = ctrl;
   if (value) {
@@ -194,6 +292,7 @@ RegisterSession::Status RegisterSession::poll_once() {
 }
 
 RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
+  journal_enter();
   std::uint8_t ctrl = proto::control_byte(false, next);
   shadow_[w_.ctrl - out_lo_] = ctrl;
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
@@ -675,14 +774,23 @@ void RegisterSession::close() noexcept {
       lo = std::min(lo, b);
       hi = std::max(hi, b);
     }
+  bool restored = lo > hi;
   for (int attempt = 0; lo <= hi && attempt < 3; ++attempt) {
     try {
       link_.write_outputs(lo, std::span<const std::uint8_t>(&saved_out_[lo - saved_at_], hi - lo + 1));
+      restored = true;
       break;
     } catch (const Error& e) {
       if (e.code() != Exit::link) break;
     } catch (...) {
       break;
+    }
+  }
+  // Back in process-data mode: nothing for the next kscfg to finish. Otherwise the entry stays.
+  if (restored && journaled_) {
+    try {
+      opt_.journal->leave(term_->position, channel_);
+    } catch (...) {
     }
   }
   if (was_interrupted) g_interrupted = true;

@@ -247,10 +247,13 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
 namespace {
 
 // Output word 0x0800 of a Modbus coupler: image bytes 0 (low) and 1 (high).
-std::uint8_t output_byte0(const std::string& uri) {
+std::uint8_t output_byte(const std::string& uri, std::size_t offset) {
   kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri), uri), {});
-  return static_cast<std::uint8_t>(c.read(kscfg::mbmap::kOutputImage, 1).at(0) & 0xFF);
+  std::uint16_t w = c.read(static_cast<std::uint16_t>(kscfg::mbmap::kOutputImage + offset / 2), 1).at(0);
+  return static_cast<std::uint8_t>(offset % 2 ? w >> 8 : w & 0xFF);
 }
+
+std::uint8_t output_byte0(const std::string& uri) { return output_byte(uri, 0); }
 
 }  // namespace
 
@@ -299,7 +302,10 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
     env["XDG_STATE_HOME"] = st.dir.file("xdg");
     return run_kscfg(args, env);
   };
-  Run killed = on({"write", "R31", "0x1235"}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
+  // A kscfg on another computer (its journal is not in this one's cache): the next session on the
+  // terminal is what finds its leftovers.
+  Run killed = on({"write", "R31", "0x1235"},
+                  {{"KSCFG_TEST_KILL_AFTER", "R31"}, {"XDG_CACHE_HOME", st.dir.file("another-computer")}});
   REQUIRE(killed.rc == -9);
   REQUIRE(output_byte0(srv.uri) == 0xDF);  // the dead session's register request is still there
   Run wr = on({"write", "R32", "7"});
@@ -317,6 +323,39 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
   CHECK(w2.rc == 0);
   CHECK_THAT(w2.err, Catch::Contains("was already unlocked (R31 = 0x1235) when this session began"));
   CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
+}
+
+TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is finished by the next command on "
+          "any terminal",
+          "[safety][recovery][serve][journal]") {
+  Station st;
+  REQUIRE(st({"emu", "reset"}).rc == 0);
+  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, st.dir.file("serve.err"));
+  auto on = [&](std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
+    args.insert(args.begin(), {"--port", srv.uri});
+    env["XDG_STATE_HOME"] = st.dir.file("xdg");
+    env["XDG_CACHE_HOME"] = st.dir.file("cache");
+    return run_kscfg(args, env);
+  };
+  // Terminal 3 (KL6031, control byte at output offset 16) left unlocked and in register mode.
+  Run killed = on({"-t", "3", "write", "R31", "0x1235"}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
+  REQUIRE(killed.rc == -9);
+  REQUIRE(output_byte(srv.uri, 16) == 0xDF);
+  // The next command works on terminal 1 and never looks at terminal 3's control byte; the dead
+  // process's journal tells it where to look.
+  Run rd = on({"-t", "1", "read", "--raw", "R8"});
+  CHECK(rd.rc == 0);
+  CHECK(rd.out == "0x1771\n");
+  CHECK_THAT(rd.err, Catch::Contains("kscfg: note: terminal 3 (KL6031) was left in register mode (control byte 0xDF) "
+                                     "by kscfg process "));
+  CHECK_THAT(rd.err, Catch::Contains("it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"));
+  CHECK(output_byte(srv.uri, 16) == 0x00);
+  // Nothing left: the next session on terminal 3 finds it locked and says nothing.
+  Run r31 = on({"-t", "3", "read", "--raw", "R31"});
+  CHECK(r31.out == "0x0000\n");
+  CHECK(r31.err.empty());
+  std::error_code ec;
+  CHECK(std::filesystem::is_empty(st.dir.file("cache") + "/kscfg/sessions", ec));
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -33,15 +33,17 @@ def out_ctrl(ctx, pos=1):
     return bytes.fromhex(st["out_image"])[lay["out_off"] + lay["ctl"]]
 
 
-def kill_after_code_word(ctx, station):
-    """kscfg killed (SIGKILL) right after the terminal acknowledged `write R31 0x1235`."""
-    cmd = [ctx.suite.kscfg, "--port", ctx.port, "--station", station, "-t", "1", "write", "R31", "0x1235"]
-    env = dict(os.environ, KSCFG_TEST_KILL_AFTER="R31", XDG_STATE_HOME=ctx.path("xdg"))
+def kill_after_code_word(ctx, station, pos=1, cache="xdg-cache"):
+    """kscfg killed (SIGKILL) right after terminal `pos` acknowledged `write R31 0x1235`. With another
+    `cache` than the next commands' it stands for a kscfg on another computer (its journal is not here)."""
+    cmd = [ctx.suite.kscfg, "--port", ctx.port, "--station", station, "-t", str(pos), "write", "R31", "0x1235"]
+    env = dict(os.environ, KSCFG_TEST_KILL_AFTER="R31", XDG_STATE_HOME=ctx.path("xdg"),
+               XDG_CACHE_HOME=ctx.path(cache))
     env.pop("KSCFG_PORT", None)
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env)
     ctx.log.append(("KSCFG_TEST_KILL_AFTER=R31 kscfg ... write R31 0x1235", p.returncode, p.stdout, p.stderr))
     check(p.returncode == -9, "kscfg was not killed after the code word (exit %s)" % p.returncode)
-    check(ctx.unlocked(1), "the peer's KL6001 is not unlocked after the killed write")
+    check(ctx.unlocked(pos), "the peer's terminal %d is not unlocked after the killed write" % pos)
 
 
 def finish_and_check(ctx, station, says):
@@ -57,12 +59,29 @@ def finish_and_check(ctx, station, says):
 
 
 @case("crash-leftover-register-mode", "DESIGN.md section 6: a control byte with REG set found at the start of a "
-      "session belongs to a session that died: finish it (relock, control byte back to process-data mode), say "
+      "session belongs to a session that died (here one of a kscfg on another computer, whose journal is not here): finish it (relock, control byte back to process-data mode), say "
       "so, never restore REG; seed: R31 reads 0 when locked", peer_extra=["--watchdog-ms", "0"])
 def c_crash_reg(ctx):
-    kill_after_code_word(ctx, ctx.station)
+    kill_after_code_word(ctx, ctx.station, cache="another-computer")
     check(out_ctrl(ctx) == 0xDF, "the killed session left control byte 0x%02X, not 0xDF" % out_ctrl(ctx))
     finish_and_check(ctx, ctx.station, "was in register mode (control byte 0xDF)")
+
+
+@case("crash-leftover-other-terminal", "DESIGN.md section 6: a kscfg that dies in register mode on one terminal "
+      "is finished by the next kscfg on the port, whichever terminal that one works on (the dead process's "
+      "journal names it); the next session on it finds nothing left", peer_extra=["--watchdog-ms", "0"])
+def c_crash_other(ctx):
+    kill_after_code_word(ctx, ctx.station, pos=3)
+    check(out_ctrl(ctx, 3) & 0x80, "the killed session left control byte 0x%02X on terminal 3" % out_ctrl(ctx, 3))
+    out, err = ctx.expect_rc(0, "-t", "1", "read", "--raw", "R8", station=ctx.station)
+    check(raw_value(out) == 6001, "R8 of terminal 1 reads %s" % out.strip())
+    check("terminal 3 (KL6031) was left in register mode" in err and "locked again" in err,
+          "the read did not say what it finished: %r" % err.strip()[:300])
+    check(not ctx.unlocked(3), "the peer's KL6031 is still unlocked")
+    check(not out_ctrl(ctx, 3) & 0x80, "terminal 3's control byte is still in register mode (0x%02X)" % out_ctrl(ctx, 3))
+    out, err = ctx.expect_rc(0, "-t", "3", "read", "--raw", "R31", station=ctx.station)
+    check(raw_value(out) == 0 and "register mode" not in err and "unlocked" not in err,
+          "terminal 3 afterwards: %s %r" % (out.strip(), err.strip()[:200]))
 
 
 @case("crash-leftover-after-watchdog", "BK9000/BK7300: the watchdog sets the outputs to 0 when it expires, so "

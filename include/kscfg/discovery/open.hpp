@@ -7,6 +7,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/journal.hpp"
 
 namespace kscfg {
 
@@ -16,6 +17,10 @@ struct LinkOptions {
   std::string cache_dir;  // Modbus: keep scans here between runs (scan_cache.hpp); empty: no cache
   bool rescan = false;    // Modbus: scan even when the cache holds a valid scan
   std::function<void(const std::string&)> notice;  // what the scan's sessions must tell the user (SessionOptions)
+  // Modbus with a cache directory: opened on CACHE/sessions for this port; the sessions this
+  // process leaves open if it dies are noted there, and those that dead kscfg processes left on
+  // this port are finished as the link opens (journal.hpp).
+  std::shared_ptr<SessionJournal> journal;
 };
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);

@@ -18,6 +18,9 @@ namespace kscfg {
 // $XDG_CACHE_HOME/kscfg (or ~/.cache/kscfg, /tmp/kscfg-cache).
 std::string default_cache_dir();
 
+// A file name for a port and unit: "tcp-HOST-PORT-unitN" or "rtu-DEVICE-unitN".
+std::string port_key(const ModbusTarget& target);
+
 struct CachedScan {
   std::optional<ScanResult> scan;  // none when only latencies are known (commands with --station)
   std::map<unsigned, std::chrono::microseconds> ack_wait;  // by terminal position

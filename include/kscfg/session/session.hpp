@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
@@ -15,6 +16,7 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/journal.hpp"
 
 namespace kscfg {
 
@@ -27,6 +29,9 @@ struct SessionOptions {
   // Test hook (KSCFG_TEST_KILL_AFTER=R31): the process kills itself (SIGKILL) right after the
   // terminal acknowledged a write of this register, leaving the terminal as a crash would.
   std::optional<unsigned> kill_after_write;
+  // Where this process notes the terminals it has in register mode, so that the next kscfg can
+  // finish them if it dies (journal.hpp). Null: nothing is noted.
+  std::shared_ptr<SessionJournal> journal;
 };
 
 struct WriteResult {
@@ -124,6 +129,11 @@ class RegisterSession {
   // Restores the process-data bytes and relocks if this session unlocked. Never throws.
   void close() noexcept;
 
+  // Finishes what kscfg process `pid` left on this terminal when it died (its journal entry `e`):
+  // if the control byte is in register mode, relocks, says so and puts back the process-data bytes
+  // that session found. Then closes. Returns whether there was anything to finish.
+  bool finish_dead(const SessionJournal::Entry& e, long pid);
+
   const TerminalImage& terminal() const { return *term_; }
   std::chrono::milliseconds timeout() const { return opt_.timeout; }
   unsigned channel() const { return channel_; }
@@ -139,6 +149,7 @@ class RegisterSession {
   void forget();  // after a failed exchange: the status byte and any read ahead are unknown
   void finish_leftover();  // a crashed session's register mode / code word (DESIGN.md section 6)
   void note(const std::string& s) const;
+  void journal_enter();  // before the first register-mode byte goes out
   void relock_write();
   void verify_locked();
   void put(std::uint8_t ctrl, std::optional<std::uint16_t> value);
@@ -182,6 +193,8 @@ class RegisterSession {
   // restored; finish_leftover() relocks and says so.
   std::optional<std::uint8_t> leftover_;
   bool leftover_done_ = false;
+  long dead_pid_ = 0;       // the leftover is that of this kscfg process (its journal said so)
+  bool journaled_ = false;  // entered in opt_.journal, not yet left
   bool unlock_checked_ = false;  // the first unlock() looked whether R31 was already unlocked
   std::optional<std::uint8_t> last_status_;  // status after our last acknowledged request
   // On a link that pipelines, a read writes the request for the next register in the exchange
@@ -193,6 +206,15 @@ class RegisterSession {
   Link::AckTiming* timing_ = nullptr;  // the terminal's acknowledge latency (pipelining links)
   std::map<unsigned, std::uint16_t> rom_;  // ROM registers read in this session: they cannot change
 };
+
+// Finishes the sessions that kscfg processes on this link's port left open when they died
+// (journal.hpp): each terminal of a dead journal that is still in register mode (REG in its control
+// and its status byte) is relocked and put back to process data, with a note. A journal is dropped
+// once dealt with; one whose terminal did not answer stays for the next run. `fits` (when given)
+// says whether an entry's window lies inside the image the coupler has now; one that does not is
+// not this station's and is dropped untouched. Never throws but Error(interrupted).
+void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+                          const std::function<bool(const SessionJournal::Entry&)>& fits = {});
 
 // Resolves position/channel to a terminal image with a register window; throws a clear
 // Error(usage/refused) for a bad position, a terminal without registers or an unmapped CT/ST byte.

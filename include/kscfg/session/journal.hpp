@@ -1,0 +1,80 @@
+// Which terminals a kscfg process has in register mode, kept where the next kscfg on the same port
+// finds them (DESIGN.md section 6, issue 11 item 3).
+//
+// A session that dies (kill -9, a crash) leaves its terminal in register mode. The next session on
+// that terminal sees REG in the control byte and finishes it; but a command on another terminal
+// never looks there. So each process appends to its own journal, before the first register-mode
+// byte goes out to a terminal, what that terminal's process-data bytes were, and after they are
+// back, that they are. The file is locked (flock) for as long as the process lives: a journal
+// whose lock can be taken belongs to a process that is gone, and its open entries are terminals it
+// left in register mode. A live kscfg's sessions are never touched; a kscfg on another computer
+// keeps its own journal there, so only a coupler's watchdog clears what it leaves.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+class SessionJournal {
+ public:
+  // One terminal channel that a session put in register mode.
+  struct Entry {
+    unsigned position = 0;  // 1-based plug position
+    unsigned channel = 0;   // 0-based
+    std::string type;       // catalog type name, e.g. "KL6001"
+    RegisterWindow window;  // where its control/status and value bytes are in the image
+    std::size_t saved_at = 0;            // output image offset of saved[0]
+    std::vector<std::uint8_t> saved;     // the process-data output bytes found when the session began
+  };
+  // The journal of a process that is gone, locked by the caller until release().
+  struct Dead {
+    std::string path;
+    long pid = 0;
+    std::vector<Entry> open;  // entries never closed: terminals it may have left in register mode
+    int fd = -1;
+  };
+
+  SessionJournal() = default;  // records nothing until open()
+  ~SessionJournal();
+  SessionJournal(const SessionJournal&) = delete;
+  SessionJournal& operator=(const SessionJournal&) = delete;
+
+  // Journals for one port live in `dir` as KEY.PID-TIME.sessions. Nothing is written before enter().
+  void open(std::string dir, std::string key);
+  bool enabled() const { return !prefix_.empty(); }
+
+  // Before the first register-mode byte goes to a terminal channel / after its process-data bytes
+  // are back. A journal that cannot be written is given up quietly (the session itself goes on:
+  // kscfg works without it, as without a cache); `why()` then says what failed.
+  void enter(const Entry& e);
+  void leave(unsigned position, unsigned channel);
+  const std::string& why() const { return why_; }
+
+  // The journals of this port whose processes are gone, each locked until release(). Journals of
+  // live processes (their lock is held) are not returned.
+  std::vector<Dead> claim_dead();
+  // Unlocks a claimed journal; `finished`: every open entry was dealt with, the file goes.
+  static void release(Dead& d, bool finished);
+
+  // One line of the file, and back (tests; an unreadable line gives false).
+  static std::string format_entry(const Entry& e);
+  static bool parse_entry(const std::string& line, Entry& e);
+
+ private:
+  bool create();
+  void append(const std::string& line);
+  void give_up(const std::string& why);
+
+  std::string dir_;
+  std::string prefix_;  // dir/KEY
+  std::string path_;    // dir/KEY.PID-TIME.sessions once created
+  int fd_ = -1;
+  unsigned open_ = 0;   // entries entered and not left
+  std::string why_;
+};
+
+}  // namespace kscfg

@@ -1,0 +1,216 @@
+#include "kscfg/session/journal.hpp"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <charconv>
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <sstream>
+
+namespace kscfg {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::size_t kMaxJournal = 1 << 20;  // a journal holds a few lines; more is not ours
+constexpr std::size_t kMaxSaved = 512;        // an image is at most 512 bytes
+
+bool number(std::string_view s, std::size_t& v) {
+  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  return ec == std::errc() && p == s.data() + s.size() && !s.empty();
+}
+
+std::vector<std::string_view> words(std::string_view s, std::size_t n) {
+  // The first n-1 space-separated words, then the rest of the line as the last one.
+  std::vector<std::string_view> w;
+  while (w.size() + 1 < n) {
+    auto sp = s.find(' ');
+    if (sp == std::string_view::npos) break;
+    w.push_back(s.substr(0, sp));
+    s.remove_prefix(sp + 1);
+  }
+  w.push_back(s);
+  return w;
+}
+
+int hex(char c) {
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+
+}  // namespace
+
+std::string SessionJournal::format_entry(const Entry& e) {
+  std::string bytes;
+  for (auto b : e.saved) bytes += fmt::format("{:02x}", b);
+  const RegisterWindow& w = e.window;
+  return fmt::format("{} {} {} {} {} {} {} {} {} {} {}", e.position, e.channel, w.ctrl, w.status, w.out_lo, w.out_hi,
+                     w.in_lo, w.in_hi, e.saved_at, bytes, e.type);
+}
+
+bool SessionJournal::parse_entry(const std::string& line, Entry& e) {
+  auto w = words(line, 11);
+  if (w.size() != 11 || w[10].empty()) return false;
+  std::size_t v[9];
+  for (int i = 0; i < 9; ++i)
+    if (!number(w[i], v[i])) return false;
+  if (w[9].size() % 2 || w[9].size() / 2 > kMaxSaved || v[0] == 0 || v[0] > 1024 || v[1] > 256) return false;
+  e = Entry{};
+  e.position = static_cast<unsigned>(v[0]);
+  e.channel = static_cast<unsigned>(v[1]);
+  e.window = RegisterWindow{v[2], v[3], v[4], v[5], v[6], v[7]};
+  e.saved_at = v[8];
+  for (std::size_t i = 0; i < w[9].size(); i += 2) {
+    int hi = hex(w[9][i]), lo = hex(w[9][i + 1]);
+    if (hi < 0 || lo < 0) return false;
+    e.saved.push_back(static_cast<std::uint8_t>(hi << 4 | lo));
+  }
+  e.type = std::string(w[10]);
+  return true;
+}
+
+SessionJournal::~SessionJournal() {
+  if (fd_ < 0) return;
+  // Every session closed cleanly: nothing for anyone to finish. Otherwise the file stays, and the
+  // next kscfg on this port finishes what is open (the lock goes with the descriptor).
+  if (open_ == 0) ::unlink(path_.c_str());
+  ::close(fd_);
+}
+
+void SessionJournal::open(std::string dir, std::string key) {
+  dir_ = std::move(dir);
+  prefix_ = (fs::path(dir_) / key).string();
+}
+
+void SessionJournal::give_up(const std::string& why) {
+  why_ = why;
+  if (fd_ >= 0) {
+    if (open_ == 0) ::unlink(path_.c_str());
+    ::close(fd_);
+    fd_ = -1;
+  }
+  prefix_.clear();
+}
+
+bool SessionJournal::create() {
+  std::error_code ec;
+  fs::create_directories(dir_, ec);
+  // Created under another name and locked before it gets its own: a journal under the name the
+  // others look for is always locked by a live process, or its process is gone.
+  // PID-TIME: a dead process's journal that happens to have our pid is not replaced.
+  std::string id = fmt::format("{}-{}", ::getpid(), std::chrono::system_clock::now().time_since_epoch().count());
+  std::string tmp = prefix_ + "." + id + ".new";
+  path_ = prefix_ + "." + id + ".sessions";
+  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0600);
+  if (fd < 0) {
+    give_up(fmt::format("cannot create {}: {}", tmp, std::strerror(errno)));
+    return false;
+  }
+  if (::flock(fd, LOCK_EX | LOCK_NB) != 0 || ::rename(tmp.c_str(), path_.c_str()) != 0) {
+    int err = errno;
+    ::unlink(tmp.c_str());
+    ::close(fd);
+    give_up(fmt::format("cannot set up {}: {}", path_, std::strerror(err)));
+    return false;
+  }
+  fd_ = fd;
+  return true;
+}
+
+void SessionJournal::append(const std::string& line) {
+  if (!enabled() || (fd_ < 0 && !create())) return;
+  // One write(2) per line: a kill -9 lands before or after it, never inside.
+  ssize_t n = ::write(fd_, line.data(), line.size());
+  if (n != static_cast<ssize_t>(line.size()))
+    give_up(fmt::format("cannot write {}: {}", path_, n < 0 ? std::strerror(errno) : "short write"));
+}
+
+void SessionJournal::enter(const Entry& e) {
+  if (!enabled()) return;
+  append("+ " + format_entry(e) + "\n");
+  if (enabled()) ++open_;
+}
+
+void SessionJournal::leave(unsigned position, unsigned channel) {
+  if (!enabled() || fd_ < 0) return;
+  append(fmt::format("- {} {}\n", position, channel));
+  if (enabled() && open_ > 0) --open_;
+}
+
+std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
+  std::vector<Dead> dead;
+  if (!enabled()) return dead;
+  std::string base = fs::path(prefix_).filename().string() + ".";
+  std::error_code ec;
+  fs::directory_iterator it(dir_, ec);
+  if (ec) return dead;  // no journals yet
+  for (; it != fs::directory_iterator(); it.increment(ec)) {
+    if (ec) break;
+    std::string name = it->path().filename().string();
+    if (name.rfind(base, 0) != 0) continue;
+    std::string rest = name.substr(base.size());
+    std::string path = it->path().string();
+    if (rest.size() > 4 && rest.ends_with(".new")) {
+      // Left by a process killed while it created its journal (nothing was entered yet).
+      auto age = fs::file_time_type::clock::now() - fs::last_write_time(it->path(), ec);
+      if (!ec && age > std::chrono::minutes(1)) ::unlink(path.c_str());
+      continue;
+    }
+    if (!rest.ends_with(".sessions") || path == path_) continue;
+    std::size_t pid = 0;
+    std::string_view id = std::string_view(rest).substr(0, rest.size() - 9);
+    if (!number(id.substr(0, id.find('-')), pid)) continue;
+    int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0) continue;
+    struct stat a{}, b{};
+    // Locked: its process lives. Unlinked or replaced since we opened it: someone else finished it.
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0 || ::fstat(fd, &a) != 0 || a.st_nlink == 0 ||
+        ::stat(path.c_str(), &b) != 0 || a.st_ino != b.st_ino || a.st_dev != b.st_dev ||
+        !S_ISREG(a.st_mode) || static_cast<std::size_t>(a.st_size) > kMaxJournal) {
+      ::close(fd);
+      continue;
+    }
+    std::string text;
+    char buf[4096];
+    for (ssize_t n; (n = ::read(fd, buf, sizeof buf)) > 0 && text.size() < kMaxJournal;) text.append(buf, n);
+    std::map<std::pair<unsigned, unsigned>, Entry> open;
+    std::istringstream in(text);
+    for (std::string line; std::getline(in, line);) {
+      if (line.size() > 2 && line.compare(0, 2, "+ ") == 0) {
+        Entry e;
+        if (parse_entry(line.substr(2), e)) open[{e.position, e.channel}] = std::move(e);
+      } else if (line.size() > 2 && line.compare(0, 2, "- ") == 0) {
+        auto w = words(line.substr(2), 2);
+        std::size_t p = 0, c = 0;
+        if (w.size() == 2 && number(w[0], p) && number(w[1], c))
+          open.erase({static_cast<unsigned>(p), static_cast<unsigned>(c)});
+      }
+    }
+    Dead d;
+    d.path = path;
+    d.pid = static_cast<long>(pid);
+    d.fd = fd;
+    for (auto& [k, e] : open) d.open.push_back(std::move(e));
+    dead.push_back(std::move(d));
+  }
+  return dead;
+}
+
+void SessionJournal::release(Dead& d, bool finished) {
+  if (d.fd < 0) return;
+  if (finished) ::unlink(d.path.c_str());
+  ::close(d.fd);
+  d.fd = -1;
+}
+
+}  // namespace kscfg

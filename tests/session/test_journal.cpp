@@ -1,0 +1,190 @@
+// Issue 11 item 3 across terminals: what a kscfg process that died left in register mode is found
+// through its journal and finished by the next kscfg on the port, whichever terminal that one uses;
+// a live process's sessions are never touched. The dead process is a real one (fork, _exit without
+// cleanup, as after kill -9); the station is the emulator.
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <filesystem>
+
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/session/journal.hpp"
+#include "kscfg/session/session.hpp"
+#include "support.hpp"
+
+using namespace kscfg;
+using kscfg::test::TempDir;
+namespace fs = std::filesystem;
+
+namespace {
+
+const Catalog& cat() { return Catalog::standard(); }
+
+std::size_t files_in(const std::string& dir) {
+  std::error_code ec;
+  std::size_t n = 0;
+  for (fs::directory_iterator it(dir, ec); !ec && it != fs::directory_iterator(); it.increment(ec)) ++n;
+  return n;
+}
+
+// A process that enters `entries` in its journal and dies without leaving them (no destructors run).
+void die_with(const std::string& dir, const std::vector<SessionJournal::Entry>& entries, bool leave_first = false) {
+  pid_t pid = ::fork();
+  REQUIRE(pid >= 0);
+  if (pid == 0) {
+    auto* j = new SessionJournal;  // never destroyed: the process dies as after kill -9
+    j->open(dir, "tcp-127.0.0.1-502-unit1");
+    for (const auto& e : entries) j->enter(e);
+    if (leave_first && !entries.empty()) j->leave(entries.front().position, entries.front().channel);
+    ::_exit(j->why().empty() ? 0 : 3);
+  }
+  int status = 0;
+  REQUIRE(::waitpid(pid, &status, 0) == pid);
+  REQUIRE(WIFEXITED(status));
+  REQUIRE(WEXITSTATUS(status) == 0);
+}
+
+SessionJournal::Entry entry_for(const StationLayout& L, unsigned pos, std::vector<std::uint8_t> saved) {
+  const TerminalImage& t = L.terminal(pos);
+  SessionJournal::Entry e;
+  e.position = pos;
+  e.channel = 0;
+  e.type = t.type->type;
+  e.window = *t.channels[0].window;
+  e.saved_at = e.window.ctrl;
+  e.saved = std::move(saved);
+  return e;
+}
+
+// Terminal `pos` as a process killed right after `write R31 0x1235` leaves it.
+void unlocked_in_register_mode(EmulatedStation& st, unsigned pos) {
+  const RegisterWindow& w = *st.layout().terminal(pos).channels[0].window;
+  st.outputs()[w.ctrl] = 0xDF;  // REG, W, R31
+  st.outputs()[w.out_lo] = 0x35;
+  st.outputs()[w.out_hi] = 0x12;
+  for (int i = 0; i < 4; ++i) st.cycle();
+  REQUIRE(st.channel(pos, 0).unlocked());
+}
+
+}  // namespace
+
+TEST_CASE("session journal: an entry is one line and reads back the same, broken lines are not entries",
+          "[session][journal]") {
+  SessionJournal::Entry e;
+  e.position = 3;
+  e.channel = 1;
+  e.type = "CX-KL6xx1";
+  e.window = RegisterWindow{16, 17, 18, 19, 20, 21};
+  e.saved_at = 16;
+  e.saved = {0x00, 0x41, 0xFF};
+  std::string line = SessionJournal::format_entry(e);
+  CHECK(line == "3 1 16 17 18 19 20 21 16 0041ff CX-KL6xx1");
+  SessionJournal::Entry back;
+  REQUIRE(SessionJournal::parse_entry(line, back));
+  CHECK(back.position == 3);
+  CHECK(back.channel == 1);
+  CHECK(back.type == "CX-KL6xx1");
+  CHECK(back.window.in_hi == 21);
+  CHECK(back.saved == e.saved);
+  for (const char* bad : {"", "3 1 16 17 18 19 20 21 16 0041ff", "3 1 16 17 18 19 20 21 16 0041f KL6001",
+                          "0 0 16 17 18 19 20 21 16 00 KL6001", "3 1 16 17 18 19 20 21x 16 00 KL6001",
+                          "3 1 16 17 18 19 20 21 16 zz KL6001", "3 1 -16 17 18 19 20 21 16 00 KL6001"})
+    CHECK_FALSE(SessionJournal::parse_entry(bad, back));
+}
+
+TEST_CASE("session journal: a dead process's open entries are claimed, a live one's never",
+          "[session][journal]") {
+  TempDir tmp;
+  std::string dir = tmp.file("sessions");
+  EmulatedStation st(default_station(), cat());
+  auto e1 = entry_for(st.layout(), 1, {0x00, 0x00, 0x00});
+  auto e3 = entry_for(st.layout(), 3, {0x00, 0x00, 0x00});
+  die_with(dir, {e1, e3}, /*leave_first=*/true);  // terminal 1 was left cleanly, terminal 3 not
+
+  SessionJournal live;
+  live.open(dir, "tcp-127.0.0.1-502-unit1");
+  live.enter(e1);  // this process is in register mode on terminal 1 now
+  REQUIRE(live.why().empty());
+
+  SessionJournal other;  // another kscfg on the same port
+  other.open(dir, "tcp-127.0.0.1-502-unit1");
+  SessionJournal elsewhere;  // and one on another port
+  elsewhere.open(dir, "tcp-127.0.0.1-503-unit1");
+  CHECK(elsewhere.claim_dead().empty());
+  auto dead = other.claim_dead();
+  REQUIRE(dead.size() == 1);  // the live journal is locked
+  REQUIRE(dead[0].open.size() == 1);
+  CHECK(dead[0].open[0].position == 3);
+  CHECK(dead[0].pid > 0);
+  // Claimed (locked) by `other`: a third kscfg does not get it at the same time.
+  SessionJournal third;
+  third.open(dir, "tcp-127.0.0.1-502-unit1");
+  CHECK(third.claim_dead().empty());
+  SessionJournal::release(dead[0], true);
+  CHECK(files_in(dir) == 1);  // the live one
+
+  live.leave(1, 0);
+}
+
+TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the next kscfg on the port, "
+          "whichever terminal that one uses",
+          "[session][journal][recovery]") {
+  TempDir tmp;
+  std::string dir = tmp.file("sessions");
+  EmulatedStation st(default_station(), cat());
+  EmulatorLink link(st);
+  const RegisterWindow& w3 = *st.layout().terminal(3).channels[0].window;
+  // The dead session found terminal 3 (KL6031) with control byte 0x00 and data bytes 0x41 0x42.
+  unlocked_in_register_mode(st, 3);
+  std::vector<std::uint8_t> found(std::max(w3.out_lo, w3.out_hi) - w3.ctrl + 1, 0x00);
+  found[w3.out_lo - w3.ctrl] = 0x41;
+  found[w3.out_hi - w3.ctrl] = 0x42;
+  die_with(dir, {entry_for(st.layout(), 3, found)});
+  std::vector<std::string> notes;
+  SessionOptions so;
+  so.timeout = std::chrono::milliseconds(2000);
+  so.notice = [&](const std::string& s) { notes.push_back(s); };
+  so.journal = std::make_shared<SessionJournal>();
+  so.journal->open(dir, "tcp-127.0.0.1-502-unit1");
+  finish_dead_sessions(link, cat(), so);
+  REQUIRE(notes.size() == 1);
+  CHECK_THAT(notes[0], Catch::Contains("terminal 3 (KL6031) was left in register mode (control byte 0xDF) by kscfg "
+                                       "process "));
+  CHECK_THAT(notes[0], Catch::Contains("it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"));
+  CHECK(st.outputs()[w3.ctrl] == 0x00);
+  CHECK(st.outputs()[w3.out_lo] == 0x41);  // what the dead session found, not 0
+  CHECK(st.outputs()[w3.out_hi] == 0x42);
+  for (int i = 0; i < 4; ++i) st.cycle();
+  CHECK_FALSE(st.channel(3, 0).unlocked());
+  // Done: the dead journal is gone, and this process's own (recovery) entry was left again.
+  CHECK(so.journal->claim_dead().empty());
+  notes.clear();
+  finish_dead_sessions(link, cat(), so);
+  CHECK(notes.empty());
+  so.journal.reset();
+  CHECK(files_in(dir) == 0);
+}
+
+TEST_CASE("a dead kscfg's journal entry whose terminal is not in register mode, or outside the image, is dropped "
+          "without touching the station",
+          "[session][journal][recovery]") {
+  TempDir tmp;
+  std::string dir = tmp.file("sessions");
+  EmulatedStation st(default_station(), cat());
+  EmulatorLink link(st);
+  st.channel(3, 0).write_register(31, 0x1235);  // unlocked, but in process-data mode
+  die_with(dir, {entry_for(st.layout(), 3, {0x00, 0x41, 0x42}), entry_for(st.layout(), 1, {0x00, 0x00, 0x00})});
+  unlocked_in_register_mode(st, 1);  // terminal 1 is in register mode, but the window does not "fit"
+  auto with_reg = st.outputs();
+  std::vector<std::string> notes;
+  SessionOptions so;
+  so.notice = [&](const std::string& s) { notes.push_back(s); };
+  so.journal = std::make_shared<SessionJournal>();
+  so.journal->open(dir, "tcp-127.0.0.1-502-unit1");
+  finish_dead_sessions(link, cat(), so, [](const SessionJournal::Entry& e) { return e.position != 1; });
+  CHECK(notes.empty());
+  CHECK(st.outputs() == with_reg);
+  CHECK(st.channel(3, 0).unlocked());  // not this recovery's business: the next session on it says so
+  CHECK(files_in(dir) == 0);
+}
