@@ -356,6 +356,7 @@ void ModbusClient::connect() {
 template <class F>
 void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, bool* refused) {
   unsigned timeouts = 0, others = 0;
+  bool busy = false;  // an attempt was answered "busy" (exception 6)
   for (;;) {
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
     if (!ctx_) connect();
@@ -388,9 +389,24 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
                                 what, attempts),
                     target_.tcp ? "check that the coupler is running and the unit id (?unit=N)"
                                 : "check the unit id (?unit=N), baud rate, parity and wiring");
+      if (busy && target_.tcp)
+        // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
+        // and closes the connection, so the attempts after it end in a reset.
+        throw Error(Exit::link,
+                    e == EMBXSBUSY
+                        ? fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts)
+                        : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {})", target_.where(),
+                                      errtext(e), what, attempts),
+                    "another master holds the coupler, or a server's connection limit is reached "
+                    "(kscfg serve --max-connections); try again later");
       throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
-                  e == EMBXSBUSY ? "another master is writing the outputs" : "check the line and its termination");
+                  e == EMBXSBUSY ? "another master is writing the outputs"
+                  : !target_.tcp ? "check the line and its termination"
+                  : is_broken(e) ? "the coupler closed the connection: check that it is running and that no other "
+                                   "master holds it"
+                                 : "the replies are not Modbus TCP: check that the port is the coupler's (502)");
     }
+    if (e == EMBXSBUSY) busy = true;
     (timeout ? timeouts : others)++;
     ++retried_;
     // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and

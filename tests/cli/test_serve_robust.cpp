@@ -208,6 +208,23 @@ TEST_CASE("serve survives more than 1024 connections and refuses those over its 
   CHECK(saved_r32(st.state) == 7);
 }
 
+TEST_CASE("a client refused at serve's connection limit is told so, not sent to check the line", "[serve][robust]") {
+  Station st;
+  Server srv(st.state, {"--tcp", "127.0.0.1:0", "--max-connections", "1"}, st.dir.file("serve.err"));
+  Raw hold(srv.uri);  // the one connection served, and busy (not idle for 5 s: never evicted here)
+  hold.send(mbap(kReadIdent));
+  Bytes b = hold.recv(std::chrono::milliseconds(5000), nullptr, 9);
+  REQUIRE(b.size() >= 9);
+  REQUIRE(b[7] == 3);
+  Run r = on(srv.uri, {"read", "R8"});
+  INFO(r.err);
+  CHECK(r.rc == 3);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("busy (Modbus exception 6)"));
+  CHECK_THAT(r.err, Catch::Contains("connection limit is reached (kscfg serve --max-connections)"));
+  CHECK_THAT(r.err, !Catch::Contains("termination"));
+}
+
 TEST_CASE("a slow client loses its own connection and never blocks the others", "[serve][robust]") {
   Station st;
   Server srv(st.state, {"--tcp", "127.0.0.1:0"}, st.dir.file("serve.err"));
