@@ -182,7 +182,7 @@ class Info : public Command {
   bool rescanned_ = false;
 
   int one(Context& ctx, unsigned pos) {
-    const TerminalImage& t = ctx.layout().terminal(pos);
+    const TerminalImage& t = ctx.layout_upto(pos).terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
     if (!t.type->has_registers) {
       if (ctx.json()) print_json(j);

@@ -15,6 +15,7 @@ then "N passed, M failed"; the exit status is 1 when any case failed.
 import argparse
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -602,6 +603,17 @@ def c_cache_replaced(ctx):
     out, _ = ctx.expect_rc(0, "--json", "info")
     got = [(t.get("type"), t.get("r8")) for t in json.loads(out)["terminals"]]
     check(got[3] == ("KL3062", 3062), "info lists %r" % got)
+
+
+@case("walk-no-further-than-needed", "issue 12: a command on terminal N walks the complex area as far as "
+      "terminal N and no further (each step reads the R8 of the terminal whose control byte comes next)",
+      passes=("tcp",))
+def c_walk_upto(ctx):
+    for args, last in ((["-t", "1", "info"], 1), (["-t", "2", "read", "R8"], 2), (["-t", "1", "dump"], 1)):
+        _, err = ctx.expect_rc(0, "-v", "--rescan", *args)
+        touched = sorted({int(m) for m in re.findall(r"^kscfg: terminal (\d+) ", err, re.M)})
+        check(touched and max(touched) == last,
+              "%s talked to terminals %r, want 1..%d" % (" ".join(args), touched, last))
 
 
 INIT_TYPES = ["KL6001", "KL1104", "KL5101", "KL9100", "KL3022", "KL2134", "KL9010"]
