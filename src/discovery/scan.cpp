@@ -395,14 +395,14 @@ class ScanDiscovery : public StationDiscovery {
       // after run: bench_modbus saw 2.6 ms grow to 78 ms per register): a latency learned in this
       // run is kept as learned; one that held a whole run without an early poll, 3 % shorter (it
       // comes down to what the terminal needs); one that a poll came too early for (the terminal
-      // did not answer yet: not a slow poll), a quarter longer at most. A run too short to learn
+      // did not answer yet: not a slow poll), an eighth longer at most. A run too short to learn
       // (a single read) keeps the longest it timed and a quarter, so the next run polls once.
       for (const auto& [pos, t] : link_.ack_timings()) {
         if (t.base.count() <= 0) {
           if (t.samples > 0 && t.longest.count() > 0) c.ack_wait[pos] = t.longest + t.longest / 4;
           continue;
         }
-        if (t.missed) c.ack_wait[pos] = std::min(t.wait, t.base + t.base / 4);
+        if (t.missed) c.ack_wait[pos] = std::min(t.wait, t.base + t.base / 8);
         else c.ack_wait[pos] = t.samples || t.acks < 8 ? t.base : t.base * 97 / 100;
       }
       bool changed = dirty_ || c.ack_wait != saved_wait_;

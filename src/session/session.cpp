@@ -270,9 +270,9 @@ using std::chrono::microseconds;
 constexpr microseconds kLearnFirst{500};
 constexpr microseconds kStep{250};
 constexpr unsigned kLearnSamples = 3;
-// A read-ahead (or a restore with the last poll) that came too early raises the wait by a quarter;
+// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
 // after this many in a run, no more speculation on that terminal.
-constexpr unsigned kMaxMisses = 2;
+constexpr unsigned kMaxMisses = 3;
 
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
 
@@ -436,18 +436,22 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
                                restored ? ", control byte restored with the poll" : ""));
       return s.value;
     }
+    // The terminal is slower than we thought. When its answer shows on a later poll, the wait
+    // becomes what it took (above; the polls after an early one come every kStep); when the
+    // request written ahead (or the restore) replaced ours first, how much slower is unknown:
+    // an eighth more (the terminal's latency is quantised by its bus cycle: the edge is near).
+    auto raise_unknown = [&] {
+      microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
+      timing_->wait = std::min(timing_->wait + timing_->wait / 8, std::max(cap, timing_->wait));
+    };
     if (poll == 1 && known) {
-      // The terminal is slower than we thought. A request written ahead (or the restore) replaced
-      // ours before it was answered, so how much slower is unknown: a quarter more.
       timing_->missed = true;
       ++timing_->misses;
-      if (wrote_ahead || restored) {
-        microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-        timing_->wait = std::min(timing_->wait + timing_->wait / 4, std::max(cap, timing_->wait));
-      }
+      step = kStep;
     }
     if (restored) {
       // The control byte is back to what the session found: the request is gone. Ask again.
+      if (known) raise_unknown();
       if (opt_.trace)
         opt_.trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(), reg));
       last_status_ = s.status;
@@ -455,6 +459,7 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.
+      if (known) raise_unknown();
       if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
       last_status_ = s.status;
       return request(write, reg, value, std::nullopt);

@@ -82,8 +82,8 @@ class RegisterSession {
   // Registers in this order. On a link that pipelines (Modbus FC23), once the terminal's
   // acknowledge latency is known, the request for the next register of the list goes out in the
   // exchange that fetches the answer to the one before (read-ahead): about one exchange per
-  // register. Never past the last register of the list; after two read-aheads that came too
-  // early for the terminal (each raises the wait by a quarter), none more in this run.
+  // register. Never past the last register of the list; after three read-aheads that came too
+  // early for the terminal (each raises the wait by an eighth), none more in this run.
   // `progress(i)` is called before the i-th register is fetched.
   std::vector<std::uint16_t> read_many(const std::vector<unsigned>& regs,
                                        const std::function<void(std::size_t)>& progress = {});
