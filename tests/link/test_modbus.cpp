@@ -1,6 +1,7 @@
 // The Modbus link against an in-process `kscfg serve` server: register map, byte order, no
 // clobbered neighbour bytes, exchanges per register, exceptions by name, strict URIs.
 #include <catch2/catch.hpp>
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <atomic>
@@ -183,15 +184,23 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
   REQUIRE(L.terminals.size() == 4);
   CHECK(L.terminals[0].type->type == "KL6001");
   CHECK(L.terminals[2].type->type == "KL6031");
-  RegisterSession ses(*link, register_terminal(L, 1, 0), 0);
+  std::vector<std::string> trace;
+  SessionOptions so;
+  so.trace = [&](const std::string& t) { trace.push_back(t); };
+  RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
   CHECK(ses.read(8) == 6001);
   // Scattered reads: request, then the answer; never a request for a register not asked for.
+  // (How many polls an answer takes depends on the load: bench/bench_modbus counts exchanges.)
   for (unsigned r : {32u, 9u, 34u, 12u, 33u}) {
-    std::size_t before = link->exchanges();
+    trace.clear();
     std::uint16_t v = ses.read(r);
     CHECK(v == s.station.channel(1, 0).read_register(r));
     INFO("R" << r);
-    CHECK(link->exchanges() - before <= 12);
+    for (const auto& t : trace) {
+      INFO(t);
+      CHECK(t.find("requested ahead") == std::string::npos);
+      CHECK(t.find(fmt::format("R{} ", r)) != std::string::npos);
+    }
   }
   // A ROM register read before in this session costs nothing.
   std::size_t before = link->exchanges();
