@@ -119,41 +119,9 @@ std::string read_input(const std::string& path, const std::string& what) {
   if (path == "-") {
     if (stdin_taken) throw Error(Exit::usage, fmt::format("the {} cannot be '-' too: stdin is read once", what));
     stdin_taken = true;
+    return read_input_fd(STDIN_FILENO, what, input_name(path));
   }
-  int fd = path == "-" ? STDIN_FILENO : ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  auto fail = [&](int e) {
-    return Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, input_name(path), std::strerror(e)));
-  };
-  if (fd < 0) throw fail(errno);
-  struct stat st {};
-  if (::fstat(fd, &st) == 0 && S_ISDIR(st.st_mode)) {
-    if (fd != STDIN_FILENO) ::close(fd);
-    throw fail(EISDIR);
-  }
-  // Bounded as every input file (base/files.hpp): `apply /dev/zero` or an endless pipe stops at
-  // the limit instead of reading until memory runs out.
-  auto too_large = [&] {
-    if (fd != STDIN_FILENO) ::close(fd);
-    return Error(Exit::file, fmt::format("cannot read {} '{}': more than the {} KiB such a file may have", what,
-                                         input_name(path), kMaxInputFileBytes / 1024));
-  };
-  if (S_ISREG(st.st_mode) && static_cast<std::uintmax_t>(st.st_size) > kMaxInputFileBytes) throw too_large();
-  std::string text;
-  char buf[65536];
-  for (;;) {
-    ssize_t n = ::read(fd, buf, sizeof buf);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      int e = errno;
-      if (fd != STDIN_FILENO) ::close(fd);
-      throw fail(e);
-    }
-    if (n == 0) break;
-    text.append(buf, static_cast<std::size_t>(n));
-    if (text.size() > kMaxInputFileBytes) throw too_large();
-  }
-  if (fd != STDIN_FILENO) ::close(fd);
-  return text;
+  return read_input_file(path, what);  // bounded as every input file (base/files.hpp)
 }
 
 void write_output(const std::string& path, const std::string& text) {

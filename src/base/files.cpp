@@ -95,22 +95,15 @@ void write_file_atomic(const std::string& path, const std::string& content) {
   remove_stale_temporaries(target);
 }
 
-std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
+std::string read_input_fd(int fd, std::string_view what, std::string_view name, std::size_t max_bytes) {
   auto fail = [&](const std::string& why) {
-    return Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, path, why));
+    return Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, name, why));
   };
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw fail(std::strerror(errno));
   struct stat st {};
   if (::fstat(fd, &st) == 0) {
-    if (S_ISDIR(st.st_mode)) {
-      ::close(fd);
-      throw fail("it is a directory");
-    }
-    if (S_ISREG(st.st_mode) && static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
-      ::close(fd);
+    if (S_ISDIR(st.st_mode)) throw fail(std::strerror(EISDIR));
+    if (S_ISREG(st.st_mode) && static_cast<std::uintmax_t>(st.st_size) > max_bytes)
       throw fail(fmt::format("{} bytes, more than the {} KiB such a file may have", st.st_size, max_bytes / 1024));
-    }
   }
   std::string text;
   char buf[65536];
@@ -118,19 +111,26 @@ std::string read_input_file(const std::string& path, std::string_view what, std:
     ssize_t n = ::read(fd, buf, sizeof buf);
     if (n < 0) {
       if (errno == EINTR) continue;
-      int e = errno;
-      ::close(fd);
-      throw fail(std::strerror(e));
+      throw fail(std::strerror(errno));
     }
     if (n == 0) break;
     text.append(buf, static_cast<std::size_t>(n));
-    if (text.size() > max_bytes) {
-      ::close(fd);
-      throw fail(fmt::format("more than the {} KiB such a file may have", max_bytes / 1024));
-    }
+    if (text.size() > max_bytes) throw fail(fmt::format("more than the {} KiB such a file may have", max_bytes / 1024));
   }
-  ::close(fd);
   return text;
+}
+
+std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, path, std::strerror(errno)));
+  try {
+    std::string text = read_input_fd(fd, what, path, max_bytes);
+    ::close(fd);
+    return text;
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
 }
 
 int lock_file(const std::string& path, double timeout_s) {

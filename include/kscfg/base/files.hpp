@@ -28,6 +28,9 @@ constexpr std::size_t kMaxInputFileBytes = 4u << 20;  // 4 MiB: a station file i
 // read, is a directory, or holds more than `max_bytes`.
 std::string read_input_file(const std::string& path, std::string_view what,
                             std::size_t max_bytes = kMaxInputFileBytes);
+// The same from an open descriptor (stdin for '-'), left open; `name` is what errors call it.
+std::string read_input_fd(int fd, std::string_view what, std::string_view name,
+                          std::size_t max_bytes = kMaxInputFileBytes);
 
 // Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds.
 // Returns the descriptor; closing it releases the lock. Throws Error(Exit::file).
