@@ -134,7 +134,7 @@ class Data : public Command {
   }
   std::vector<std::string> completions() const override { return {"force"}; }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("ARGS", args_, "Nothing (the live view), or: force NAME=VALUE...")->option_text("[force NAME=VALUE...]");
+    sub.add_option("ARGS", args_, "Nothing (the live view), or: force NAME=VALUE...")->option_text("force NAME=VALUE...");
     sub.add_flag("--once", once_, "One sample, then exit");
     sub.add_option("--count", count_, "N samples, then exit")->option_text("N");
     sub.add_option("--interval", interval_, "Time between samples in ms (default 500)")->option_text("MS");
