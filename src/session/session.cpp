@@ -117,7 +117,12 @@ void RegisterSession::journal_enter() {
   e.window = w_;
   e.saved_at = saved_at_;
   e.saved = saved_out_;
+  bool was = opt_.journal->enabled();
   opt_.journal->enter(e);
+  if (was && !opt_.journal->enabled() && opt_.trace)
+    opt_.trace(fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
+                           "finds what it left",
+                           opt_.journal->why(), who()));
 }
 
 bool RegisterSession::finish_dead(const SessionJournal::Entry& e, long pid) {
