@@ -291,17 +291,27 @@ TEST_CASE("emulator: a terminal left in register mode and unlocked is finished b
   CHECK(after["channels"][0]["registers"][32] == 7);
 }
 
+// kscfg serve on the station (watchdog off: it would clear the outputs; the peer cases cover that
+// path) and kscfg commands against it, each with `env` added.
+struct Served {
+  Station& st;
+  kscfg::test::Server srv;
+  explicit Served(Station& s)
+      : st(s), srv(s.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, s.dir.file("serve.err")) {}
+  Run operator()(std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
+    args.insert(args.begin(), {"--port", srv.uri});
+    env["XDG_STATE_HOME"] = st.dir.file("xdg");
+    if (!env.count("XDG_CACHE_HOME")) env["XDG_CACHE_HOME"] = st.dir.file("cache");
+    return run_kscfg(args, env);
+  }
+};
+
 TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves nothing behind the next command",
           "[safety][recovery][serve]") {
   Station st;
   REQUIRE(st({"emu", "reset"}).rc == 0);
-  // Watchdog off: it would clear the outputs (see the peer case for that path).
-  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, st.dir.file("serve.err"));
-  auto on = [&](std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
-    args.insert(args.begin(), {"--port", srv.uri});
-    env["XDG_STATE_HOME"] = st.dir.file("xdg");
-    return run_kscfg(args, env);
-  };
+  Served on(st);
+  auto& srv = on.srv;
   // A kscfg on another computer (its journal is not in this one's cache): the next session on the
   // terminal is what finds its leftovers.
   Run killed = on({"write", "R31", "0x1235"},
@@ -330,13 +340,8 @@ TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is 
           "[safety][recovery][serve][journal]") {
   Station st;
   REQUIRE(st({"emu", "reset"}).rc == 0);
-  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, st.dir.file("serve.err"));
-  auto on = [&](std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
-    args.insert(args.begin(), {"--port", srv.uri});
-    env["XDG_STATE_HOME"] = st.dir.file("xdg");
-    env["XDG_CACHE_HOME"] = st.dir.file("cache");
-    return run_kscfg(args, env);
-  };
+  Served on(st);
+  auto& srv = on.srv;
   // Terminal 3 (KL6031, control byte at output offset 16) left unlocked and in register mode.
   Run killed = on({"-t", "3", "write", "R31", "0x1235"}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
   REQUIRE(killed.rc == -9);

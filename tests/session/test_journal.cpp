@@ -67,6 +67,16 @@ void unlocked_in_register_mode(EmulatedStation& st, unsigned pos) {
   REQUIRE(st.channel(pos, 0).unlocked());
 }
 
+// The options of the next kscfg on the port: its notes go to `notes`, its journal is in `dir`.
+SessionOptions next_kscfg(const std::string& dir, std::vector<std::string>& notes) {
+  SessionOptions so;
+  so.timeout = std::chrono::milliseconds(2000);
+  so.notice = [&notes](const std::string& s) { notes.push_back(s); };
+  so.journal = std::make_shared<SessionJournal>();
+  so.journal->open(dir, "tcp-127.0.0.1-502-unit1");
+  return so;
+}
+
 }  // namespace
 
 TEST_CASE("session journal: an entry is one line and reads back the same, broken lines are not entries",
@@ -142,11 +152,7 @@ TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the
   found[w3.out_hi - w3.ctrl] = 0x42;
   die_with(dir, {entry_for(st.layout(), 3, found)});
   std::vector<std::string> notes;
-  SessionOptions so;
-  so.timeout = std::chrono::milliseconds(2000);
-  so.notice = [&](const std::string& s) { notes.push_back(s); };
-  so.journal = std::make_shared<SessionJournal>();
-  so.journal->open(dir, "tcp-127.0.0.1-502-unit1");
+  SessionOptions so = next_kscfg(dir, notes);
   finish_dead_sessions(link, cat(), so);
   REQUIRE(notes.size() == 1);
   CHECK_THAT(notes[0], Catch::Contains("terminal 3 (KL6031) was left in register mode (control byte 0xDF) by kscfg "
@@ -178,10 +184,7 @@ TEST_CASE("a dead kscfg's journal entry whose terminal is not in register mode, 
   unlocked_in_register_mode(st, 1);  // terminal 1 is in register mode, but the window does not "fit"
   auto with_reg = st.outputs();
   std::vector<std::string> notes;
-  SessionOptions so;
-  so.notice = [&](const std::string& s) { notes.push_back(s); };
-  so.journal = std::make_shared<SessionJournal>();
-  so.journal->open(dir, "tcp-127.0.0.1-502-unit1");
+  SessionOptions so = next_kscfg(dir, notes);
   finish_dead_sessions(link, cat(), so, [](const SessionJournal::Entry& e) { return e.position != 1; });
   CHECK(notes.empty());
   CHECK(st.outputs() == with_reg);
