@@ -190,7 +190,9 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
         Entry e;
         if (parse_entry(line.substr(2), e)) open[{e.position, e.channel}] = std::move(e);
       } else if (line.size() > 2 && line.compare(0, 2, "- ") == 0) {
-        auto w = words(line.substr(2), 2);
+        // The views point into `line`: never into a temporary (a use after scope that aborted
+        // kscfg in CI, and was silent elsewhere).
+        auto w = words(std::string_view(line).substr(2), 2);
         std::size_t p = 0, c = 0;
         if (w.size() == 2 && number(w[0], p) && number(w[1], c))
           open.erase({static_cast<unsigned>(p), static_cast<unsigned>(c)});
