@@ -54,8 +54,32 @@ std::array<std::uint16_t, proto::kRegisterCount> TerminalType::defaults() const 
 
 Catalog Catalog::builtin() {
   Catalog c;
-  for (const auto& f : builtin_catalog_files()) c.add_text(std::string("built-in:") + f.name, f.text);
+  for (const auto& f : builtin_catalog_files()) {
+    std::string_view stem = f.name;
+    if (auto slash = stem.find_last_of('/'); slash != std::string_view::npos) stem.remove_prefix(slash + 1);
+    stem = stem.substr(0, stem.rfind(".toml"));
+    c.pending_[std::string(stem)] = &f;
+  }
   return c;
+}
+
+const TerminalType* Catalog::parse_pending(std::map<std::string, const EmbeddedFile*>::iterator it) const {
+  // Called with the mutex held. The entry goes from pending_ to types_ (or throws, and stays).
+  std::string origin = std::string("built-in:") + it->second->name;
+  auto t = parse_description(origin, it->second->text);
+  if (t->type != it->first)
+    throw Error(Exit::file, fmt::format("{}: describes type '{}', but a built-in file is named after its type ({})",
+                                        origin, t->type, it->first));
+  pending_.erase(it);
+  auto& slot = types_[t->type];
+  slot = std::move(t);
+  return slot.get();
+}
+
+const std::map<std::string, std::shared_ptr<const TerminalType>>& Catalog::types() const {
+  std::lock_guard<std::mutex> lock(*mu_);
+  while (!pending_.empty()) parse_pending(pending_.begin());
+  return types_;
 }
 
 static std::filesystem::path g_user_dir;
@@ -82,18 +106,22 @@ const Catalog& Catalog::standard() {
 const TerminalType* Catalog::find(std::string_view type) const {
   std::string up(type);
   for (auto& ch : up) ch = static_cast<char>(std::toupper(static_cast<unsigned char>(ch)));
-  auto it = types_.find(up);
-  if (it != types_.end()) return it->second.get();
-  it = types_.find(std::string(type));
-  if (it != types_.end()) return it->second.get();
-  // Names with lower-case letters (CX-KL6xx1) match in any case too.
-  for (const auto& [k, t] : types_) {
-    if (k.size() != up.size()) continue;
-    bool same = true;
-    for (std::size_t i = 0; i < k.size() && same; ++i)
-      same = std::toupper(static_cast<unsigned char>(k[i])) == static_cast<unsigned char>(up[i]);
-    if (same) return t.get();
+  std::lock_guard<std::mutex> lock(*mu_);
+  for (const std::string& k : {up, std::string(type)}) {
+    if (auto it = types_.find(k); it != types_.end()) return it->second.get();
+    if (auto it = pending_.find(k); it != pending_.end()) return parse_pending(it);
   }
+  // Names with lower-case letters (CX-KL6xx1) match in any case too.
+  auto same = [&](const std::string& k) {
+    if (k.size() != up.size()) return false;
+    for (std::size_t i = 0; i < k.size(); ++i)
+      if (std::toupper(static_cast<unsigned char>(k[i])) != static_cast<unsigned char>(up[i])) return false;
+    return true;
+  };
+  for (const auto& [k, t] : types_)
+    if (same(k)) return t.get();
+  for (auto it = pending_.begin(); it != pending_.end(); ++it)
+    if (same(it->first)) return parse_pending(it);
   return nullptr;
 }
 
@@ -105,14 +133,17 @@ const TerminalType& Catalog::get(std::string_view type) const {
 }
 
 const TerminalType* Catalog::find_by_number(std::uint16_t number) const {
-  for (const auto& [k, t] : types_)
+  for (const auto& [k, t] : types())
     if (t->has_registers && t->r8 == number) return t.get();
   return nullptr;
 }
 
 std::vector<std::string> Catalog::names() const {
+  std::lock_guard<std::mutex> lock(*mu_);
   std::vector<std::string> out;
   for (const auto& [k, t] : types_) out.push_back(k);
+  for (const auto& [k, f] : pending_) out.push_back(k);
+  std::sort(out.begin(), out.end());
   return out;
 }
 

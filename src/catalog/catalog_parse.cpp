@@ -447,7 +447,7 @@ static void parse_decode(const Ctx& c, const toml::table& root, TerminalType& t)
   }
 }
 
-void Catalog::add_text(std::string_view origin, std::string_view text) {
+std::shared_ptr<const TerminalType> parse_description(std::string_view origin, std::string_view text) {
   Ctx c{std::string(origin)};
   toml::table root = parse_toml(text, origin);
   auto t = parse_type(c, root);
@@ -457,6 +457,13 @@ void Catalog::add_text(std::string_view origin, std::string_view text) {
   parse_decode(c, root, *t);
   for (const auto& p : t->params)
     if (!t->has_registers) c.fail(root, "param", fmt::format("'{}': parameters need registers = true", p.name));
+  return t;
+}
+
+void Catalog::add_text(std::string_view origin, std::string_view text) {
+  auto t = parse_description(origin, text);
+  std::lock_guard<std::mutex> lock(*mu_);
+  pending_.erase(t->type);  // a user's description of a built-in type replaces it
   types_[t->type] = std::move(t);
 }
 

@@ -582,6 +582,58 @@ TEST_CASE("catalog: every built-in file parses and is consistent", "[catalog]") 
   }
 }
 
+TEST_CASE("catalog: a built-in type asked for by name before the rest are parsed is the one its file describes",
+          "[catalog][lazy]") {
+  // The built-in descriptions are parsed on first use (Catalog::find), all of them by types().
+  const Catalog& all = cat();
+  const auto& every = all.types();
+  CHECK(Catalog::builtin().names().size() == every.size());
+  std::vector<std::string> keys;
+  for (const auto& [k, t] : every) keys.push_back(k);
+  CHECK(Catalog::builtin().names() == keys);
+  for (const auto& [name, full] : every) {
+    INFO(name);
+    Catalog fresh = Catalog::builtin();  // nothing parsed yet
+    const TerminalType* t = fresh.find(name);
+    REQUIRE(t != nullptr);
+    CHECK(t->type == name);
+    CHECK(t->r8 == full->r8);
+    CHECK(t->title == full->title);
+    CHECK(t->params.size() == full->params.size());
+    CHECK(fresh.find(name) == t);  // parsed once
+    CHECK(fresh.types().size() == every.size());
+    CHECK(fresh.find(name) == t);  // still the same object after the rest were parsed
+  }
+  // In any case, as before.
+  CHECK(Catalog::builtin().find("cx-kl6xx1") != nullptr);
+  CHECK(Catalog::builtin().find("kl6001") != nullptr);
+  CHECK(Catalog::builtin().find("KL9999") == nullptr);
+  // find_by_number parses what it needs to answer.
+  Catalog by_number = Catalog::builtin();
+  REQUIRE(by_number.find_by_number(5101) != nullptr);
+  CHECK(by_number.find_by_number(5101)->type == "KL5101");
+}
+
+TEST_CASE("catalog: a user description of a built-in type replaces it, parsed or not", "[catalog][lazy]") {
+  std::string text;
+  for (const auto& f : builtin_catalog_files())
+    if (std::string(f.name).find("KL6001.toml") != std::string::npos) text = f.text;
+  REQUIRE_FALSE(text.empty());
+  auto pos = text.find("title = \"");
+  REQUIRE(pos != std::string::npos);
+  std::string mine = text.substr(0, pos) + "title = \"mine\"\n" + text.substr(text.find('\n', pos) + 1);
+  for (bool parsed_first : {false, true}) {
+    INFO("built-in parsed first: " << parsed_first);
+    Catalog c = Catalog::builtin();
+    if (parsed_first) REQUIRE(c.find("KL6001") != nullptr);
+    c.add_text("user:KL6001-mine.toml", mine);
+    REQUIRE(c.find("KL6001") != nullptr);
+    CHECK(c.find("KL6001")->title == "mine");
+    CHECK(c.types().at("KL6001")->title == "mine");
+    CHECK(c.types().size() == builtin_catalog_files().size());
+  }
+}
+
 TEST_CASE("catalog: built-in defaults decode to named values", "[catalog]") {
   for (const auto& [key, t] : cat().types()) {
     for (const auto& p : t->params) {

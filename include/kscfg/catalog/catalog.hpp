@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -181,11 +182,24 @@ class Catalog {
   // Finds the type whose R8 equals `number` (first match).
   const TerminalType* find_by_number(std::uint16_t number) const;
   std::vector<std::string> names() const;
-  const std::map<std::string, std::shared_ptr<const TerminalType>>& types() const { return types_; }
+  // Every type, parsed (the built-in ones that were not asked for yet are parsed now).
+  const std::map<std::string, std::shared_ptr<const TerminalType>>& types() const;
 
  private:
-  std::map<std::string, std::shared_ptr<const TerminalType>> types_;
+  // The built-in descriptions are parsed when a type is first asked for (by name), or all at once
+  // by types() and find_by_number(): a command on one terminal parses the few types its station
+  // holds, not all 160 (parsing them all was three quarters of a `kscfg read` on the emulator).
+  // A built-in file is named after its type (TYPE.toml, checked when it is parsed and by a test).
+  // Lookups may come from serve's threads: the lazy part is behind a mutex.
+  const TerminalType* parse_pending(std::map<std::string, const EmbeddedFile*>::iterator it) const;
+  mutable std::map<std::string, std::shared_ptr<const TerminalType>> types_;
+  mutable std::map<std::string, const EmbeddedFile*> pending_;  // not parsed yet, by type name
+  std::shared_ptr<std::mutex> mu_ = std::make_shared<std::mutex>();
 };
+
+// Parses one description (`origin` names it in errors); throws Error(Exit::file) naming file,
+// line and field.
+std::shared_ptr<const TerminalType> parse_description(std::string_view origin, std::string_view text);
 
 // Loads KSCFG_CATALOG/--catalog dirs into the standard catalog; call before first use.
 void set_user_catalog_dir(const std::filesystem::path& dir);
