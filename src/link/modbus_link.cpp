@@ -124,6 +124,81 @@ void ModbusLink::write_outputs_read_inputs(std::size_t out_offset, std::span<con
   }
 }
 
+void ModbusLink::transfer(std::span<const ImageTransfer> t) {
+  // Bytes a request carries beyond the image bytes, request and reply together (FC23 over RTU:
+  // 13 + 5 bytes of framing and CRC, 3.5 character times of silence each way): a gap in the image
+  // shorter than this is cheaper to carry than a request of its own. Over TCP a request costs a
+  // round trip: every transfer that fits goes in one.
+  const std::size_t bridge = client_.target().tcp ? SIZE_MAX : 24;
+  std::vector<std::size_t> order(t.size());
+  for (std::size_t i = 0; i < t.size(); ++i) order[i] = i;
+  auto lo_of = [&](std::size_t i) {
+    return std::min(t[i].out.empty() ? SIZE_MAX : t[i].out_offset, t[i].in.empty() ? SIZE_MAX : t[i].in_offset);
+  };
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return lo_of(a) < lo_of(b); });
+  struct Span {
+    std::size_t lo = SIZE_MAX, hi = 0;  // bytes [lo, hi)
+    void add(std::size_t off, std::size_t n) {
+      lo = std::min(lo, off);
+      hi = std::max(hi, off + n);
+    }
+    bool empty() const { return lo >= hi; }
+    std::size_t words() const { return empty() ? 0 : (hi + 1) / 2 - lo / 2; }
+  };
+  for (std::size_t g = 0; g < order.size();) {
+    Span w, r;
+    std::size_t end = g;
+    for (; end < order.size(); ++end) {
+      const ImageTransfer& x = t[order[end]];
+      Span w2 = w, r2 = r;
+      if (!x.out.empty()) w2.add(x.out_offset, x.out.size());
+      if (!x.in.empty()) r2.add(x.in_offset, x.in.size());
+      if (end > g) {
+        if (w2.words() > mbmap::kMaxWriteRead || r2.words() > mbmap::kMaxRead) break;
+        std::size_t grown = 2 * (w2.words() - w.words() + r2.words() - r.words());
+        std::size_t own = 2 * ((x.out.empty() ? 0 : (x.out_offset + x.out.size() + 1) / 2 - x.out_offset / 2) +
+                               (x.in.empty() ? 0 : (x.in_offset + x.in.size() + 1) / 2 - x.in_offset / 2));
+        if (bridge != SIZE_MAX && grown > own + bridge) break;
+      }
+      w = w2;
+      r = r2;
+    }
+    std::vector<std::uint8_t> out;
+    if (!w.empty()) {
+      // The bytes between the spans keep what the coupler holds (read first when unknown).
+      out.resize(w.hi - w.lo);
+      std::vector<bool> ours(w.hi - w.lo, false);
+      for (std::size_t k = g; k < end; ++k) {
+        const ImageTransfer& x = t[order[k]];
+        for (std::size_t i = 0; i < x.out.size(); ++i) ours[x.out_offset + i - w.lo] = true;
+      }
+      std::vector<std::size_t> need;
+      for (std::size_t b = w.lo; b < w.hi; ++b)
+        if (!ours[b - w.lo] && out_cache_[b] < 0) need.push_back(b);
+      if (!need.empty()) {
+        std::size_t a = need.front() / 2, z = need.back() / 2;
+        remember_outputs(a, client_.read(static_cast<std::uint16_t>(mbmap::kOutputImage + a),
+                                         static_cast<unsigned>(z - a + 1)));
+      }
+      for (std::size_t b = w.lo; b < w.hi; ++b) out[b - w.lo] = static_cast<std::uint8_t>(std::max(0, out_cache_[b]));
+      for (std::size_t k = g; k < end; ++k) {
+        const ImageTransfer& x = t[order[k]];
+        std::copy(x.out.begin(), x.out.end(), out.begin() + static_cast<std::ptrdiff_t>(x.out_offset - w.lo));
+      }
+    }
+    std::vector<std::uint8_t> in(r.empty() ? 0 : r.hi - r.lo);
+    if (!w.empty() && !r.empty()) write_outputs_read_inputs(w.lo, out, r.lo, in);
+    else if (!w.empty()) write_outputs(w.lo, out);
+    else if (!r.empty()) read_inputs(r.lo, in);
+    for (std::size_t k = g; k < end; ++k) {
+      const ImageTransfer& x = t[order[k]];
+      if (!x.in.empty())
+        std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - r.lo), x.in.size(), x.in.begin());
+    }
+    g = end;
+  }
+}
+
 void ModbusLink::pause(unsigned poll_number) {
   // Early polls come quickly; a terminal that needs long gets polled less often.
   unsigned us = client_.options().poll_us * (poll_number > 20 ? 4 : 1);

@@ -13,6 +13,15 @@
 
 namespace kscfg {
 
+// One terminal channel's part of an image exchange (Link::transfer): output bytes to write and
+// input bytes to read; either may be empty.
+struct ImageTransfer {
+  std::size_t out_offset = 0;
+  std::span<const std::uint8_t> out;
+  std::size_t in_offset = 0;
+  std::span<std::uint8_t> in;
+};
+
 class Link {
  public:
   virtual ~Link() = default;
@@ -54,6 +63,14 @@ class Link {
     write_outputs(out_offset, src);
     read_inputs(in_offset, dst);
   }
+
+  // Writes the output bytes of every transfer, then reads the input bytes of every transfer, in as
+  // few exchanges as the link allows: the station engine advances the handshakes of many terminals
+  // at once with it. A Modbus link puts them in one FC23 when they fit its limits (121 registers
+  // written, 125 read), bytes between the spans written keeping what the coupler holds; on a link
+  // that pipelines, the reads see the image as it was before the terminals saw the writes.
+  // Default: each output span written, then one read covering every input span.
+  virtual void transfer(std::span<const ImageTransfer> t);
 
   // True when layout() would have to discover the station by asking the device (Modbus scan);
   // a station file given by the user is then preferred.
