@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <iostream>
 
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/session.hpp"

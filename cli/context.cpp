@@ -4,11 +4,13 @@
 
 #include <algorithm>
 #include <cctype>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/discovery/match.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/open.hpp"
@@ -37,6 +39,14 @@ Link& Context::link() {
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
   return *link_;
+}
+
+Engine& Context::engine() {
+  if (!engine_) {
+    access_ = std::make_unique<HandshakeAccess>(link(), handshake_options(session_options()));
+    engine_ = std::make_unique<Engine>(*access_);
+  }
+  return *engine_;
 }
 
 void Context::set_layout(StationLayout L, bool complete) {
@@ -124,7 +134,7 @@ bool Context::check_terminal(const TerminalImage& t, bool keep) {
     ch = 0;
     if (t.channels.empty() || !t.channels[0].window) return true;
   }
-  auto s = std::make_unique<RegisterSession>(link(), t, ch, session_options());
+  auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
   std::uint16_t r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
   checked_r8_[t.position] = r8;
   if (r8 != t.type->r8) {
@@ -221,7 +231,13 @@ SessionOptions Context::session_options() const {
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
-  if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) so.kill_after_write = parse_register(e);
+  so.cancel = &g_interrupted;
+  if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) {
+    unsigned kill_after = parse_register(e);
+    so.after_write = [kill_after](unsigned reg) {
+      if (reg == kill_after) ::raise(SIGKILL);  // test hook: die as a crash would, right after the write
+    };
+  }
   return so;
 }
 
@@ -245,7 +261,7 @@ std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
                 fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8, was),
                 "the station changed; the kept scan was dropped: run the command again");
   }
-  return std::make_unique<RegisterSession>(link(), t, ch, session_options());
+  return std::make_unique<RegisterSession>(engine(), t, ch, session_options());
 }
 
 nlohmann::json Context::link_json() {

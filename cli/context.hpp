@@ -42,6 +42,9 @@ class Context {
 
   // The link named by --port (opened on first use).
   Link& link();
+  // The station engine over the link's register access (whole-station work runs on it, and every
+  // session() shares it).
+  Engine& engine();
   bool link_open() const { return link_ != nullptr; }
   // The whole station as laid out by the coupler: from the link, or from --station (checked
   // against the image lengths a Modbus coupler reports).
@@ -97,6 +100,8 @@ class Context {
   GlobalOptions opt_;
   std::shared_ptr<SessionJournal> journal_;  // before link_: sessions left open note it at exit
   std::unique_ptr<Link> link_;
+  std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
+  std::unique_ptr<Engine> engine_;
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
   bool layout_complete_ = false;

@@ -51,7 +51,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   Plan plan;
   {
     ProgressBar bar(ctx, what + ": reading", 0);  // on a terminal only (progress.hpp)
-    plan = make_plan(ctx.link(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
+    plan = make_plan(ctx.engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
   }
   if (dry_run || !plan.changes()) {
     if (ctx.json()) {
@@ -61,7 +61,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     }
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
-  guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
+  guard_lockout(ctx.engine(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
   BackupInfo info;
   info.coupler = layout.coupler;
   nlohmann::json lj = ctx.link_json();
@@ -78,7 +78,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   ApplyResult r;
   {
     ProgressBar bar(ctx, what + ": writing", 0);
-    r = apply_plan(ctx.link(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback(), info);
+    r = apply_plan(ctx.engine(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback(), info);
   }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   std::cerr << "kscfg: undo with: " << r.undo << '\n';

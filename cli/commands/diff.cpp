@@ -65,7 +65,7 @@ class Diff : public Command {
     Plan plan;
     {
       ProgressBar bar(ctx, "diff: reading", 0);  // on a terminal only (progress.hpp)
-      plan = make_plan(ctx.link(), ctx.layout_for(want), want, ctx.catalog(), ctx.session_options(), bar.callback());
+      plan = make_plan(ctx.engine(), ctx.layout_for(want), want, ctx.catalog(), ctx.session_options(), bar.callback());
     }
     if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);

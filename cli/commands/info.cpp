@@ -75,7 +75,7 @@ class Info : public Command {
                        {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
       std::string r8 = "-", ver = "-";
       if (t.type->has_registers && !t.channels.empty() && t.channels[0].window) {
-        RegisterSession s(ctx.link(), t, 0, ctx.session_options());
+        RegisterSession s(ctx.engine(), t, 0, ctx.session_options());
         std::uint16_t v8, v9;
         if (auto known = ctx.known_r8(t.position)) {
           v8 = *known;  // this run's scan read it

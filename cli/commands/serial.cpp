@@ -20,6 +20,7 @@
 #include "../output.hpp"
 #include "../progress.hpp"
 #include "../serial_map.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
@@ -60,7 +61,7 @@ Diagnostics read_diagnostics(Context& ctx, const SerialPort& port) {
   const TerminalImage& t = port.terminal();
   unsigned ch = ctx.options().channel - 1;
   if (ch >= t.channels.size() || !t.channels[ch].window) return d;
-  RegisterSession s(ctx.link(), t, ch, ctx.session_options());
+  RegisterSession s(ctx.engine(), t, ch, ctx.session_options());
   auto v = s.read_many({0, 1, 6});
   d.r0 = v[0];
   d.r1 = v[1];
@@ -320,7 +321,7 @@ std::string line_text(Context& ctx, const TerminalImage& t, unsigned ch) {
       if (p.name == name && (!p.channel || *p.channel == ch)) return &p;
     return nullptr;
   };
-  RegisterSession s(ctx.link(), t, ch, ctx.session_options());
+  RegisterSession s(ctx.engine(), t, ch, ctx.session_options());
   std::map<unsigned, std::uint16_t> regs;
   auto value = [&](const char* name) -> std::string {
     const ParamDef* p = param(name);

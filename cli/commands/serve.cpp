@@ -5,6 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/modbus_server.hpp"

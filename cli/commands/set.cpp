@@ -62,7 +62,7 @@ class Set : public Command {
     unsigned chan = ctx.options().channel - 1;
     check_params(type, pairs, ctx.catalog(), chan, divisor_);
     (void)register_terminal(ctx.layout(), pos, chan);
-    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(),
+    guard_lockout(ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(),
                   planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
     auto s = ctx.session();
     SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);

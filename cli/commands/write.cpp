@@ -67,7 +67,7 @@ class Write : public Command {
     } else {
       planned.push_back({pos, chan, reg, value, mask});
     }
-    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
+    guard_lockout(ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
     auto s = ctx.session();
     const TerminalType& type = *s->terminal().type;
     if (type.regs[reg].command) {

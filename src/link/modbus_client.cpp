@@ -358,7 +358,8 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
   unsigned timeouts = 0, others = 0;
   bool busy = false;  // an attempt was answered "busy" (exception 6)
   for (;;) {
-    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+    // Interrupted: no more attempts (the first one is made: it may put a terminal back).
+    if (g_interrupted && timeouts + others > 0) throw Error(Exit::interrupted, "interrupted");
     if (!ctx_) connect();
     ++exchanges_;
     errno = 0;

@@ -14,7 +14,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/session/station_work.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -33,36 +33,51 @@ bool backed_up(const TerminalType& t, unsigned r) {
 
 }  // namespace
 
-StationSpec backup_station(Link& link, const StationLayout& layout, const SessionOptions& so,
+StationSpec backup_station(Engine& engine, const StationLayout& layout, const SessionOptions& so,
                            const Progress& progress) {
+  // One task per channel, all at once: R8 and R9 (the first channel), then every SEEROM register
+  // that is configuration, in one run of reads each (docs/design.md, "Station engine").
+  std::vector<ChannelReads> jobs;
+  for (const auto& t : layout.terminals) {
+    if (!t.type->has_registers) continue;
+    for (unsigned ch = 0; ch < t.type->channels; ++ch) {
+      ChannelReads j;
+      j.position = t.position;
+      j.channel = ch;
+      if (ch == 0) j.regs = {8, 9};
+      for (unsigned r = 17; r < 48; ++r)
+        if (backed_up(*t.type, r)) j.regs.push_back(r);
+      jobs.push_back(std::move(j));
+    }
+  }
+  StationProgress tick;
+  if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
+  read_channels(engine, layout, jobs, so, tick);
+  for (const auto& j : jobs)
+    if (j.error) std::rethrow_exception(j.error);
+
   StationSpec spec;
   spec.coupler = layout.coupler;
-  unsigned total = static_cast<unsigned>(layout.terminals.size()), done = 0;
+  std::size_t next = 0;
   for (const auto& t : layout.terminals) {
     TerminalSpec ts;
     std::string comment;
     ts.type = t.type->type;
-    if (progress) progress(done, total, fmt::format("terminal {} ({})", t.position, ts.type));
     if (t.type->has_registers) {
       for (unsigned ch = 0; ch < t.type->channels; ++ch) {
-        const TerminalImage& ti = register_terminal(layout, t.position, ch);
-        RegisterSession s(link, ti, ch, so);
-        ChannelSpec cs;
+        const ChannelReads& j = jobs.at(next++);
+        std::size_t k = 0;
         if (ch == 0) {
-          auto v89 = s.read_many({8, 9});
-          std::uint16_t r8 = v89[0], r9 = v89[1];
+          std::uint16_t r8 = j.values[0], r9 = j.values[1];
+          k = 2;
           if (r8 != t.type->r8)
             throw Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station says {}",
                                                    t.position, r8, t.type->type));
           comment = fmt::format("position {}: R8 {}, version {}", t.position, r8, proto::version_text(r9));
         }
         std::map<unsigned, std::uint16_t> regs;
-        std::vector<unsigned> which;
-        for (unsigned r = 17; r < 48; ++r)
-          if (backed_up(*t.type, r)) which.push_back(r);
-        auto values = s.read_many(which);
-        for (std::size_t i = 0; i < which.size(); ++i) regs[which[i]] = values[i];
-        s.close();
+        for (; k < j.regs.size(); ++k) regs[j.regs[k]] = j.values[k];
+        ChannelSpec cs;
         for (const auto& p : t.type->params) {
           if (p.channel && *p.channel != ch) continue;
           if (!regs.count(p.reg)) continue;
@@ -83,13 +98,12 @@ StationSpec backup_station(Link& link, const StationLayout& layout, const Sessio
     }
     spec.terminals.push_back(std::move(ts));
     spec.comments.push_back(comment);
-    ++done;
   }
-  if (progress) progress(done, total, "done");
+  if (progress) progress(1, 1, "done");
   return spec;
 }
 
-Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
+Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
                const SessionOptions& so, const Progress& progress) {
   auto where = [&](int line) { return line ? fmt::format("{}:{}: ", desired.origin, line) : desired.origin + ": "; };
   // 1. Composition: same types at the same positions, before anything else.
@@ -125,58 +139,62 @@ Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desir
                                                                             : "read-only"));
       }
   }
-  // 3. Read what the file configures and compare.
-  unsigned reads = 0, total_reads = 0;
-  for (const auto& want : desired.terminals) {
-    const TerminalType& type = catalog.get(want.type);
-    for (const auto& cs : want.channels) {
-      std::set<unsigned> regs;
-      for (const auto& [r, v] : cs.registers) regs.insert(r);
-      for (const auto& p : cs.params) regs.insert(type.param(p.name)->reg);
-      total_reads += static_cast<unsigned>(regs.size());
-    }
-  }
-  Plan plan;
+  // 3. Read what the file configures, every channel at once, and compare.
+  struct Want {
+    std::size_t terminal;
+    unsigned channel;
+  };
+  std::vector<Want> wants;
+  std::vector<ChannelReads> jobs;
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
-    const TerminalImage& have = layout.terminals[i];
-    const TerminalType& type = *have.type;
+    const TerminalType& type = *layout.terminals[i].type;
     for (unsigned ch = 0; ch < want.channels.size(); ++ch) {
       const ChannelSpec& cs = want.channels[ch];
       if (cs.params.empty() && cs.registers.empty()) continue;
-      ChannelPlan cp;
-      cp.position = have.position;
-      cp.channel = ch;
-      cp.type = type.type;
-      const TerminalImage& ti = register_terminal(layout, have.position, ch);
-      RegisterSession s(link, ti, ch, so);
-      std::map<unsigned, std::uint16_t> cur;
-      std::vector<unsigned> order;
+      ChannelReads j;
+      j.position = layout.terminals[i].position;
+      j.channel = ch;
       auto need = [&](unsigned r) {
-        if (!cur.count(r)) {
-          if (progress) progress(reads++, total_reads, fmt::format("terminal {}", have.position));
-          cur[r] = s.read(r);
-          order.push_back(r);
-        }
+        if (std::find(j.regs.begin(), j.regs.end(), r) == j.regs.end()) j.regs.push_back(r);
       };
       for (const auto& [r, v] : cs.registers) need(r);
       for (const auto& p : cs.params) need(type.param(p.name)->reg);
-      s.close();
-      std::map<unsigned, std::uint16_t> next = cur;
-      for (const auto& [r, v] : cs.registers) next[r] = v;
-      for (const auto& p : cs.params) {
-        const ParamDef* pd = type.param(p.name);
-        next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
-      }
-      for (const auto& p : cs.params) {
-        const ParamDef* pd = type.param(p.name);
-        std::string from = decode_param(*pd, cur[pd->reg]), to = decode_param(*pd, next[pd->reg]);
-        if (from != to) cp.params.push_back({p.name, from, to});
-      }
-      for (unsigned r : order)
-        if (cur[r] != next[r]) cp.registers.push_back({r, cur[r], next[r]});
-      plan.channels.push_back(std::move(cp));
+      jobs.push_back(std::move(j));
+      wants.push_back({i, ch});
     }
+  }
+  StationProgress tick;
+  if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
+  read_channels(engine, layout, jobs, so, tick);
+  for (const auto& j : jobs)
+    if (j.error) std::rethrow_exception(j.error);
+  Plan plan;
+  for (std::size_t n = 0; n < jobs.size(); ++n) {
+    const auto& want = desired.terminals[wants[n].terminal];
+    const TerminalImage& have = layout.terminals[wants[n].terminal];
+    const TerminalType& type = *have.type;
+    const ChannelSpec& cs = want.channels[wants[n].channel];
+    ChannelPlan cp;
+    cp.position = have.position;
+    cp.channel = wants[n].channel;
+    cp.type = type.type;
+    std::map<unsigned, std::uint16_t> cur;
+    for (std::size_t k = 0; k < jobs[n].regs.size(); ++k) cur[jobs[n].regs[k]] = jobs[n].values[k];
+    std::map<unsigned, std::uint16_t> next = cur;
+    for (const auto& [r, v] : cs.registers) next[r] = v;
+    for (const auto& p : cs.params) {
+      const ParamDef* pd = type.param(p.name);
+      next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
+    }
+    for (const auto& p : cs.params) {
+      const ParamDef* pd = type.param(p.name);
+      std::string from = decode_param(*pd, cur[pd->reg]), to = decode_param(*pd, next[pd->reg]);
+      if (from != to) cp.params.push_back({p.name, from, to});
+    }
+    for (unsigned r : jobs[n].regs)
+      if (cur[r] != next[r]) cp.registers.push_back({r, cur[r], next[r]});
+    plan.channels.push_back(std::move(cp));
   }
   return plan;
 }
@@ -263,15 +281,12 @@ std::vector<std::string> rotate_backups(const std::string& dir, unsigned keep, c
   return removed;
 }
 
-ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
+ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
                        const std::string& coupler, const std::string& backup_path, const Progress& progress,
                        const BackupInfo& info) {
   ApplyResult res;
   res.plan = plan;
   if (!plan.changes()) return res;
-  unsigned written = 0, total_writes = 0;
-  for (const auto& cp : plan.channels) total_writes += static_cast<unsigned>(cp.registers.size());
-
   // Safety first: the touched registers as they are now, as a station file `restore` can apply.
   StationSpec undo;
   undo.coupler = coupler;
@@ -314,80 +329,91 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
   res.backup_path = backup_path;
   if (info.automatic && !dir.empty()) res.rotated = rotate_backups(dir.string(), info.keep, backup_path);
 
-  std::vector<const ChannelPlan*> done;
-  const ChannelPlan* current = nullptr;
-  try {
-    for (const auto& cp : plan.channels) {
-      if (progress && !cp.registers.empty()) progress(written, total_writes, fmt::format("terminal {}", cp.position));
-      written += static_cast<unsigned>(cp.registers.size());
-      if (cp.registers.empty()) continue;
-      current = &cp;
-      const TerminalImage& ti = register_terminal(layout, cp.position, cp.channel);
-      RegisterSession s(link, ti, cp.channel, so);
-      std::vector<std::pair<unsigned, std::uint16_t>> changes;
-      for (const auto& rc : cp.registers) changes.emplace_back(rc.reg, rc.to);
-      s.write_all(changes);  // verified; on failure rolled back from what the terminal holds
-      s.close();
-      done.push_back(&cp);
-      current = nullptr;
+  // Every terminal's change at once; each is all or nothing on its own (ChangeFailed says how far
+  // its rollback got). If one fails, the others are rolled back too, from what they hold.
+  std::vector<ChannelChange> jobs;
+  std::vector<const ChannelPlan*> of;
+  for (const auto& cp : plan.channels) {
+    if (cp.registers.empty()) continue;
+    ChannelChange j;
+    j.position = cp.position;
+    j.channel = cp.channel;
+    for (const auto& rc : cp.registers) j.changes.push_back({rc.reg, rc.to, 0xFFFF});
+    jobs.push_back(std::move(j));
+    of.push_back(&cp);
+  }
+  StationProgress tick;
+  if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
+  write_channels(engine, layout, jobs, so, tick);
+  if (std::none_of(jobs.begin(), jobs.end(), [](const ChannelChange& j) { return j.error != nullptr; })) {
+    res.changed = true;
+    return res;
+  }
+
+  std::string cause;
+  Exit code = Exit::internal;
+  std::size_t verified = 0;
+  std::vector<unsigned> rolled;
+  std::vector<std::string> unverified;
+  auto who = [](const ChannelPlan& cp) {
+    return fmt::format("terminal {} ({}){}", cp.position, cp.type,
+                       cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
+  };
+  auto account = [&](const ChannelPlan& cp, const RollbackResult& rb) {
+    verified += rb.verified.size();
+    if (std::find(rolled.begin(), rolled.end(), cp.position) == rolled.end()) rolled.push_back(cp.position);
+    if (rb.ok()) return;
+    std::string list;
+    for (const auto& u : rb.unverified) list += (list.empty() ? "" : ", ") + u;
+    unverified.push_back(fmt::format("{}: {}", who(cp), list));
+  };
+  std::vector<ChannelRollback> back;
+  std::vector<const ChannelPlan*> back_of;
+  for (std::size_t n = 0; n < jobs.size(); ++n) {
+    if (!jobs[n].error) {
+      // Done: roll it back, from what it holds.
+      ChannelRollback rb;
+      rb.position = jobs[n].position;
+      rb.channel = jobs[n].channel;
+      for (const auto& rc : of[n]->registers) rb.changes.push_back({rc.reg, rc.from, rc.to, true});
+      back.push_back(std::move(rb));
+      back_of.push_back(of[n]);
+      continue;
     }
-  } catch (const Error& e) {
-    // Roll back from what the terminals hold, and claim "as it was" only for what was read.
-    std::string cause = e.what();
-    Exit code = e.code();
-    std::size_t verified = 0;
-    std::vector<unsigned> rolled;
-    std::vector<std::string> unverified;
-    auto who = [](const ChannelPlan& cp) {
-      return fmt::format("terminal {} ({}){}", cp.position, cp.type,
-                         cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
-    };
-    auto account = [&](const ChannelPlan& cp, const RollbackResult& rb) {
-      verified += rb.verified.size();
-      rolled.push_back(cp.position);
-      if (rb.ok()) return;
-      std::string list;
-      for (const auto& u : rb.unverified) list += (list.empty() ? "" : ", ") + u;
-      unverified.push_back(fmt::format("{}: {}", who(cp), list));
-    };
-    if (const auto* cf = dynamic_cast<const ChangeFailed*>(&e); cf && current) {
-      cause = cf->cause();
-      code = cf->cause_code();
-      account(*current, cf->rollback());
-    }
-    bool was_interrupted = g_interrupted.exchange(false);
-    for (auto it = done.rbegin(); it != done.rend(); ++it) {
-      const ChannelPlan& cp = **it;
-      try {
-        RegisterSession s(link, register_terminal(layout, cp.position, cp.channel), cp.channel, so);
-        std::vector<WriteResult> back;
-        for (const auto& rc : cp.registers) back.push_back({rc.reg, rc.from, rc.to, true});
-        RollbackResult rb = s.roll_back(back);
-        s.close();
-        account(cp, rb);
-      } catch (const Error& e2) {
-        rolled.push_back(cp.position);
-        unverified.push_back(fmt::format("{}: {}", who(cp), e2.what()));
+    try {
+      std::rethrow_exception(jobs[n].error);
+    } catch (const ChangeFailed& cf) {
+      if (cause.empty()) {
+        cause = cf.cause();
+        code = cf.cause_code();
+      }
+      account(*of[n], cf.rollback());
+    } catch (const Error& e) {
+      // Failed before anything was written on this channel (its compare read).
+      if (cause.empty()) {
+        cause = e.what();
+        code = e.code();
       }
     }
-    if (was_interrupted) g_interrupted = true;
-    std::string terms;
-    for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
-    std::string msg = fmt::format("apply failed: {}", cause);
-    if (!unverified.empty()) {
-      std::string list;
-      for (const auto& u : unverified) list += (list.empty() ? "" : "; ") + u;
-      throw Error(Exit::unverified, fmt::format("{}; rollback failed: could not verify {}", msg, list),
-                  "those registers may hold the new values: read them with 'kscfg dump' when the terminal answers "
-                  "again; '" + res.undo + "' puts every touched register back");
-    }
-    if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
-    throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),
-                fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", verified,
-                            verified == 1 ? "" : "s", backup_path));
   }
-  res.changed = true;
-  return res;
+  roll_back_channels(engine, layout, back, so);
+  for (std::size_t n = 0; n < back.size(); ++n) account(*back_of[n], back[n].result);
+  std::sort(rolled.begin(), rolled.end());
+  std::string terms;
+  for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
+  std::string msg = fmt::format("apply failed: {}", cause);
+  if (!unverified.empty()) {
+    std::string list;
+    for (const auto& u : unverified) list += (list.empty() ? "" : "; ") + u;
+    throw Error(Exit::unverified, fmt::format("{}; rollback failed: could not verify {}", msg, list),
+                "those registers may hold the new values: read them with 'kscfg dump' when the terminal answers "
+                "again; '" + res.undo + "' puts every touched register back");
+  }
+  if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
+  throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),
+              fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", verified,
+                          verified == 1 ? "" : "s", backup_path));
 }
+
 
 }  // namespace kscfg

@@ -9,6 +9,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/session/parameters.hpp"
+#include "kscfg/session/station_work.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg {
@@ -113,7 +114,7 @@ std::string LockoutReport::recovery() const {
       ce ? "; or switch complete evaluation on in the fieldbus master's configuration" : "");
 }
 
-LockoutReport check_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
+LockoutReport check_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes) {
   LockoutReport rep;
   // Only registers that decide an image can change the layout.
@@ -128,19 +129,27 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
 
   // The registers that decide each channel's image as the terminals hold them now (they may differ
   // from the layout in use: the coupler reads them at its start).
+  // Every terminal's at once (docs/design.md, "Station engine").
   std::map<std::pair<unsigned, unsigned>, Regs> now;
+  std::vector<ChannelReads> jobs;
   for (const auto& t : current.terminals) {
     if (!t.type->has_registers || !t.complex) continue;
     auto mregs = mapping_registers(*t.type);
     for (unsigned ch = 0; ch < t.type->channels; ++ch) {
-      Regs regs = registers_for(*t.type, t, ch);
+      now[{t.position, ch}] = registers_for(*t.type, t, ch);
       if (!mregs.empty() && ch < t.channels.size() && t.channels[ch].window) {
-        RegisterSession s(link, t, ch, so);
-        for (unsigned r : mregs) regs[r] = s.read(r);
-        s.close();
+        ChannelReads j;
+        j.position = t.position;
+        j.channel = ch;
+        j.regs = mregs;
+        jobs.push_back(std::move(j));
       }
-      now[{t.position, ch}] = regs;
     }
+  }
+  read_channels(engine, current, jobs, so);
+  for (const auto& j : jobs) {
+    if (j.error) std::rethrow_exception(j.error);
+    for (std::size_t k = 0; k < j.regs.size(); ++k) now[{j.position, j.channel}][j.regs[k]] = j.values[k];
   }
   auto next = now;
   for (const auto& w : writes) {
@@ -200,9 +209,9 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
   return rep;
 }
 
-void guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+void guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
                    const std::vector<PlannedWrite>& writes, bool force) {
-  LockoutReport rep = check_lockout(link, current, catalog, so, writes);
+  LockoutReport rep = check_lockout(engine, current, catalog, so, writes);
   if (!rep.locks_out()) return;
   if (!force)
     throw Error(Exit::refused, fmt::format("refused: {}", rep.consequence()),

@@ -5,6 +5,7 @@
 #include <algorithm>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/session/session.hpp"
 
 namespace kscfg {

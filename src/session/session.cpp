@@ -2,153 +2,86 @@
 
 #include <fmt/format.h>
 
-#include <algorithm>
-#include <csignal>
-#include <set>
-#include <thread>
-
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/parse.hpp"
+#include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
 
-const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel) {
-  const TerminalImage& t = layout.terminal(position);
-  if (!t.type->has_registers)
-    throw Error(Exit::usage, fmt::format("terminal {} ({}, {}) has no registers", position, t.type->type,
-                                         t.type->title),
-                "choose an intelligent terminal with -t; 'kscfg info' lists the station");
-  if (channel >= t.type->channels)
-    throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
-                                         t.type->type, t.type->channels, channel + 1));
-  if (channel >= t.channels.size() || !t.channels[channel].window) {
-    std::string why = channel < t.channels.size() && !t.channels[channel].no_window.empty()
-                          ? t.channels[channel].no_window
-                          : fmt::format("its {} image is not mapped", t.format);
-    bool ce = why.find("complete evaluation") != std::string::npos;
-    throw Error(Exit::refused,
-                fmt::format("terminal {} ({}){} has no register window: {}", position, t.type->type,
-                            t.type->channels > 1 ? fmt::format(" channel {}", channel + 1) : "", why),
-                ce ? "switch complete evaluation on in the coupler (fieldbus master configuration or KS2000) and tell "
-                     "kscfg ([mapping] complete-evaluation = true in --station); or change the terminal's format "
-                     "through the coupler's configuration interface (KS2000)"
-                   : "the process image gives no way back: change the terminal's mapping registers through the "
-                     "coupler's configuration interface (KS2000)");
-  }
-  return t;
+HandshakeOptions handshake_options(const SessionOptions& so) {
+  HandshakeOptions h;
+  h.timeout = so.timeout;
+  h.trace = so.trace;
+  h.journal = so.journal;
+  h.cancel = so.cancel;
+  h.after_write = so.after_write;
+  return h;
 }
+
+namespace {
+
+Engine& own_engine(std::unique_ptr<HandshakeAccess>& access, std::unique_ptr<Engine>& engine, Link& link,
+                   const SessionOptions& so) {
+  access = std::make_unique<HandshakeAccess>(link, handshake_options(so));
+  engine = std::make_unique<Engine>(*access);
+  return *engine;
+}
+
+}  // namespace
 
 RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsigned channel, SessionOptions opt)
-    : link_(link), term_(&terminal), channel_(channel), opt_(std::move(opt)) {
-  if (channel >= terminal.channels.size() || !terminal.channels[channel].window)
-    throw Error(Exit::refused, fmt::format("{}: no register window", who()));
-  w_ = *terminal.channels[channel].window;
-  out_lo_ = std::min({w_.ctrl, w_.out_lo, w_.out_hi});
-  out_hi_ = std::max({w_.ctrl, w_.out_lo, w_.out_hi});
-  in_lo_ = std::min({w_.status, w_.in_lo, w_.in_hi});
-  in_hi_ = std::max({w_.status, w_.in_lo, w_.in_hi});
-  // Save every output byte of the channel: the process-data control byte and data bytes.
-  const auto& ch = terminal.channels[channel];
-  std::size_t lo = out_lo_, hi = out_hi_;
-  for (const auto& b : ch.out) {
-    lo = std::min(lo, b.offset);
-    hi = std::max(hi, b.offset);
-  }
-  saved_at_ = lo;
-  saved_out_.resize(hi - lo + 1);
-  link_.read_outputs(saved_at_, saved_out_);
-  shadow_.assign(saved_out_.begin() + static_cast<std::ptrdiff_t>(out_lo_ - lo),
-                 saved_out_.begin() + static_cast<std::ptrdiff_t>(out_hi_ - lo + 1));
-  if (link_.pipelines()) timing_ = link_.ack_timing(terminal.position);
-  // A control byte in register mode is not process data: a session died here (DESIGN.md section
-  // 6). Restoring it would repeat the dead session's request (e.g. the code word) after ours, so the
-  // bytes to restore are the idle process-data ones: control byte 0, register value bytes 0.
-  std::uint8_t& found = saved_out_[w_.ctrl - saved_at_];
-  if (found & proto::kReg) {
-    leftover_ = found;
-    found = 0;
-    saved_out_[w_.out_lo - saved_at_] = 0;
-    saved_out_[w_.out_hi - saved_at_] = 0;
-    maybe_unlocked_ = true;  // relock at the end whatever happens
-  }
+    : engine_(own_engine(own_access_, own_engine_, link, opt)),
+      ch_(std::make_unique<Channel>(engine_, terminal, channel, std::move(opt))) {}
+
+RegisterSession::RegisterSession(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt)
+    : engine_(engine), ch_(std::make_unique<Channel>(engine_, terminal, channel, std::move(opt))) {}
+
+RegisterSession::~RegisterSession() { close(); }
+
+std::uint16_t RegisterSession::read(unsigned reg) { return engine_.wait(ch_->read(reg)); }
+
+std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
+                                                      const std::function<void(std::size_t)>& progress) {
+  return engine_.wait(ch_->read_many(regs, false, progress));
 }
 
-void RegisterSession::note(const std::string& s) const {
-  if (opt_.notice) opt_.notice(s);
-  if (opt_.trace) opt_.trace(s);
+std::vector<std::uint16_t> RegisterSession::read_then_close(const std::vector<unsigned>& regs,
+                                                            const std::function<void(std::size_t)>& progress) {
+  return engine_.wait(ch_->read_many(regs, true, progress));
 }
 
-void RegisterSession::finish_leftover() {
-  leftover_done_ = true;
-  std::string r31;
+WriteResult RegisterSession::write(unsigned reg, std::uint16_t value, std::uint16_t mask) {
+  return write_masked({{reg, value, mask}}).front();
+}
+
+std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes) {
+  std::vector<MaskedChange> all;
+  for (const auto& [reg, v] : changes) all.push_back({reg, v, 0xFFFF});
+  return write_masked(all);
+}
+
+std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
+  return engine_.wait(ch_->write_masked(changes));
+}
+
+void RegisterSession::command(unsigned reg, std::uint16_t value) { engine_.wait(ch_->command(reg, value)); }
+void RegisterSession::unlock() { engine_.wait(ch_->unlock()); }
+void RegisterSession::lock() { engine_.wait(ch_->lock()); }
+
+RollbackResult RegisterSession::roll_back(const std::vector<WriteResult>& changes) {
+  return engine_.wait(ch_->roll_back(changes));
+}
+
+std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
+  return engine_.wait(ch_->transact(write, reg, value));
+}
+
+void RegisterSession::close() noexcept {
+  if (!ch_ || ch_->closed()) return;
   try {
-    std::uint16_t v = read_retry(proto::kCodeWordRegister);
-    if (v == proto::kCodeWord) {
-      write_checked(proto::kCodeWordRegister, 0);
-      std::uint16_t after = read_retry(proto::kCodeWordRegister);
-      r31 = after == 0 ? "it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"
-                       : fmt::format("it was unlocked (R31 = 0x1235) and still reads R31 = 0x{:04X}", after);
-      if (after == 0) unlocked_ = false;
-    } else {
-      r31 = fmt::format("R31 reads 0x{:04X} (locked)", v);
-    }
-  } catch (const Error& e) {
-    if (e.code() == Exit::interrupted) throw;
-    r31 = fmt::format("R31 could not be checked ({}); relocking at the end", e.what());
-  }
-  if (dead_pid_)
-    note(fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
-                     "without finishing its session; {}; its process-data bytes go back to what that session found "
-                     "(control byte 0x{:02X})",
-                     who(), *leftover_, dead_pid_, r31, saved_out_[w_.ctrl - saved_at_]));
-  else
-    note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
-                     "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
-                     who(), *leftover_, r31, *leftover_));
-}
-
-void RegisterSession::journal_enter() {
-  if (journaled_ || !opt_.journal) return;
-  journaled_ = true;
-  SessionJournal::Entry e;
-  e.position = term_->position;
-  e.channel = channel_;
-  e.type = term_->type->type;
-  e.window = w_;
-  e.saved_at = saved_at_;
-  e.saved = saved_out_;
-  bool was = opt_.journal->enabled();
-  opt_.journal->enter(e);
-  if (was && !opt_.journal->enabled() && opt_.trace)
-    opt_.trace(fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
-                           "finds what it left",
-                           opt_.journal->why(), who()));
-}
-
-bool RegisterSession::finish_dead(const SessionJournal::Entry& e, long pid) {
-  if (!leftover_) {
-    close();
-    return false;
-  }
-  // The bytes that session found, where they are this session's to restore; never REG.
-  for (std::size_t i = 0; i < e.saved.size(); ++i) {
-    std::size_t b = e.saved_at + i;
-    if (b >= saved_at_ && b < saved_at_ + saved_out_.size()) saved_out_[b - saved_at_] = e.saved[i];
-  }
-  if (saved_out_[w_.ctrl - saved_at_] & proto::kReg) {
-    saved_out_[w_.ctrl - saved_at_] = 0;
-    saved_out_[w_.out_lo - saved_at_] = 0;
-    saved_out_[w_.out_hi - saved_at_] = 0;
-  }
-  dead_pid_ = pid;
-  try {
-    finish_leftover();
+    engine_.wait(ch_->close());
   } catch (...) {
-    close();
-    throw;
+    engine_.access().close_now(ch_->key());
   }
-  close();
-  return true;
 }
 
 void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
@@ -184,8 +117,11 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
           t.complex = true;
           t.channels.resize(e.channel + 1);
           t.channels[e.channel].window = w;
-          RegisterSession s(link, t, e.channel, so);
-          s.finish_dead(e, d.pid);
+          HandshakeAccess access(link, handshake_options(so));
+          Engine engine(access);
+          Channel ch(engine, t, e.channel, so);
+          access.adopt_dead(ch.key(), e, d.pid);
+          engine.wait(ch.finish_dead());
         } catch (const Error& err) {
           if (err.code() == Exit::interrupted) throw;
           // A line that failed may work next time; anything else (an address the coupler does not
@@ -201,611 +137,6 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     }
     SessionJournal::release(d, done);
   }
-}
-
-void RegisterSession::forget() {
-  last_status_.reset();
-  pending_.reset();
-}
-
-std::uint16_t RegisterSession::read_retry(unsigned reg) {
-  for (int attempt = 0;; ++attempt) {
-    try {
-      return read(reg);
-    } catch (const Error& e) {
-      if (e.code() != Exit::link || attempt >= 2) throw;
-      forget();
-      if (opt_.trace) opt_.trace(fmt::format("{}: reading R{} again after: {}", who(), reg, e.what()));
-    }
-  }
-}
-
-void RegisterSession::write_checked(unsigned reg, std::uint16_t value) {
-  for (int attempt = 0;; ++attempt) {
-    try {
-      transact(true, reg, value);
-      return;
-    } catch (const Error& e) {
-      // A link error after the request went out: the write may have landed. Read before deciding.
-      if (e.code() != Exit::link || attempt >= 2) throw;
-      forget();
-      std::uint16_t now = 0;
-      try {
-        now = read_retry(reg);
-      } catch (const Error&) {
-        throw e;
-      }
-      if (opt_.trace)
-        opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), reg, e.what(),
-                               now, now == value ? "the write landed" : "writing again"));
-      if (now == value) return;
-    }
-  }
-}
-
-RegisterSession::~RegisterSession() { close(); }
-
-std::string RegisterSession::who() const {
-  std::string s = fmt::format("terminal {} ({})", term_->position, term_->type->type);
-  if (term_->type->channels > 1) s += fmt::format(" channel {}", channel_ + 1);
-  return s;
-}
-
-void RegisterSession::put(std::uint8_t ctrl, std::optional<std::uint16_t> value) {
-  journal_enter();
-  // Data bytes and control byte travel in one write: the data is never behind the control byte.
-  shadow_[w_.ctrl - out_lo_] = ctrl;
-  if (value) {
-    shadow_[w_.out_lo - out_lo_] = static_cast<std::uint8_t>(*value & 0xFF);
-    shadow_[w_.out_hi - out_lo_] = static_cast<std::uint8_t>(*value >> 8);
-    link_.write_outputs(out_lo_, shadow_);
-  } else {
-    link_.write_outputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1));
-  }
-}
-
-namespace {
-
-using Clock = std::chrono::steady_clock;
-using std::chrono::microseconds;
-
-// Read-ahead timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is
-// known, the first poll goes out this long after the request and the next ones every kStep; the
-// latency is then the longest of kLearnSamples acknowledges.
-constexpr microseconds kLearnFirst{500};
-constexpr microseconds kStep{250};
-constexpr unsigned kLearnSamples = 3;
-// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
-// after this many in a run, no more speculation on that terminal.
-constexpr unsigned kMaxMisses = 3;
-
-microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
-
-}  // namespace
-
-RegisterSession::Status RegisterSession::status_of(const std::vector<std::uint8_t>& in) const {
-  Status s;
-  s.status = in[w_.status - in_lo_];
-  s.value = static_cast<std::uint16_t>(in[w_.in_lo - in_lo_] | (in[w_.in_hi - in_lo_] << 8));
-  return s;
-}
-
-RegisterSession::Status RegisterSession::poll_once() {
-  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
-  link_.read_inputs(in_lo_, in);
-  return status_of(in);
-}
-
-RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
-  journal_enter();
-  std::uint8_t ctrl = proto::control_byte(false, next);
-  shadow_[w_.ctrl - out_lo_] = ctrl;
-  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
-  link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
-  return status_of(in);
-}
-
-std::optional<RegisterSession::Status> RegisterSession::poll_restoring() {
-  // Only the control byte may differ from what the session found: the data bytes of a write, a
-  // leftover register mode or an unlock are close()'s business.
-  if (leftover_ || maybe_unlocked_ || unlocked_) return std::nullopt;
-  for (std::size_t b = out_lo_; b <= out_hi_; ++b)
-    if (b != w_.ctrl && shadow_[b - out_lo_] != saved_out_[b - saved_at_]) return std::nullopt;
-  std::uint8_t& ctrl = shadow_[w_.ctrl - out_lo_];
-  ctrl = saved_out_[w_.ctrl - saved_at_];
-  std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
-  link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&ctrl, 1), in_lo_, in);
-  return status_of(in);
-}
-
-void RegisterSession::sleep_until(Clock::time_point due) const {
-  if (timing_ && Clock::now() < due) std::this_thread::sleep_until(due);
-}
-
-std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
-  return request(write, reg, value, std::nullopt);
-}
-
-std::uint16_t RegisterSession::request(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
-  if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
-  if (leftover_ && !leftover_done_) finish_leftover();
-  if (pending_) {
-    // A read request written ahead may still be answered. Its ack cannot be told from the ack of
-    // a write to the same register, so let it finish first; any other register's ack differs.
-    unsigned p = *pending_;
-    pending_.reset();
-    if (write && p == reg) {
-      try {
-        wait_ack(false, p, 0, std::nullopt);
-      } catch (const Error& e) {
-        if (e.code() != Exit::timeout) throw;
-        last_status_.reset();
-      }
-    }
-  }
-  std::uint8_t ctrl = proto::control_byte(write, reg);
-  // DESIGN.md decision 2: if the status already shows this ack (left by an earlier request to the
-  // same address), a new answer could not be told from the old one. Address another register
-  // first and wait for its ack, so the ack we wait for is a visible change.
-  // The status is known after our own last transaction; only the first one needs a look. On a
-  // link that pipelines, a read's first look goes with its request: FC23 writes the request and
-  // reads the status as it was before the terminal saw it.
-  std::uint8_t before;
-  if (last_status_) {
-    before = *last_status_;
-  } else if (!write && timing_) {
-    sent_ = Clock::now();
-    before = poll_ahead(reg).status;
-    if (!proto::is_ack(before, reg)) return wait_ack(false, reg, 0, next);
-  } else {
-    before = poll_once().status;
-  }
-  if (proto::is_ack(before, reg)) {
-    if (opt_.trace) opt_.trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(),
-                                           before, reg, reg == 8 ? 9 : 8));
-    // Status shows ack(reg), so the ack of the other register is a visible change.
-    unsigned other = reg == 8 ? 9 : 8;
-    sent_ = Clock::now();
-    put(proto::control_byte(false, other), std::nullopt);
-    wait_ack(false, other, 0, std::nullopt);
-  }
-  last_status_.reset();
-  sent_ = Clock::now();
-  put(ctrl, write ? std::optional<std::uint16_t>(value) : std::nullopt);
-  std::uint16_t answer = wait_ack(write, reg, value, write ? std::nullopt : next);
-  if (write && opt_.kill_after_write && *opt_.kill_after_write == reg) ::raise(SIGKILL);  // test hook
-  return answer;
-}
-
-std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t value, std::optional<unsigned> next) {
-  std::uint8_t ctrl = proto::control_byte(write, reg);
-  const Clock::time_point sent = sent_;
-  // The first poll: once the terminal's latency is known, when it has answered; it may carry the
-  // request for the next register (read-ahead) unless a read-ahead came too early before.
-  bool known = timing_ && timing_->wait.count() > 0;
-  bool speculate = known && timing_->misses < kMaxMisses;
-  bool ahead_ok = next && speculate && *next != reg;
-  bool restore_ok = !write && !next && restore_with_ == reg && speculate && link_.pipelines();
-  if (restore_with_ == reg) restore_with_.reset();
-  if (timing_) sleep_until(sent + (known ? timing_->wait : kLearnFirst));
-  microseconds step = known ? std::max(kStep, timing_->wait / 8) : kStep;
-  std::optional<unsigned> ahead;  // written ahead, not yet answered
-  Clock::time_point ahead_sent{};
-  auto start = Clock::now();
-  Status s{};
-  for (unsigned poll = 1;; ++poll) {
-    bool wrote_ahead = poll == 1 && ahead_ok;
-    bool restored = false;
-    auto t = Clock::now();
-    if (wrote_ahead) {
-      s = poll_ahead(*next);
-    } else if (poll == 1 && restore_ok) {
-      auto r = poll_restoring();
-      restored = r.has_value();
-      s = restored ? *r : poll_once();
-    } else {
-      s = poll_once();
-    }
-    if (wrote_ahead) {
-      ahead = next;
-      ahead_sent = t;
-    }
-    if (proto::is_ack(s.status, reg)) {
-      // After a restore the status byte goes back to process data: look again before a next request.
-      if (restored) last_status_.reset();
-      else last_status_ = s.status;
-      if (ahead) {
-        pending_ = ahead;
-        sent_ = ahead_sent;
-      }
-      if (timing_) {
-        ++timing_->acks;
-        microseconds took = us(t - sent);
-        if (!known) {
-          // Learning: time a few acknowledges, then trust the longest.
-          timing_->longest = std::max(timing_->longest, took);
-          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->base = timing_->longest;
-        } else if (poll > 1) {
-          // It needed longer than we thought. Bounded by twice what the run started with: on a
-          // loaded machine one slow answer after another must not ratchet the wait up.
-          microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-          timing_->wait = std::max(timing_->wait, std::min(took, cap));
-        }
-      }
-      if (opt_.trace)
-        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(),
-                               write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
-                               s.status, s.value, poll, poll == 1 ? "" : "s",
-                               timing_ ? fmt::format(", {} us after the request", us(t - sent).count()) : "",
-                               pending_ ? fmt::format(", R{} requested ahead", *pending_) : "",
-                               restored ? ", control byte restored with the poll" : ""));
-      return s.value;
-    }
-    // The terminal is slower than we thought. When its answer shows on a later poll, the wait
-    // becomes what it took (above; the polls after an early one come every kStep); when the
-    // request written ahead (or the restore) replaced ours first, how much slower is unknown:
-    // an eighth more (the terminal's latency is quantised by its bus cycle: the edge is near).
-    auto raise_unknown = [&] {
-      microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-      timing_->wait = std::min(timing_->wait + timing_->wait / 8, std::max(cap, timing_->wait));
-    };
-    if (poll == 1 && known) {
-      timing_->missed = true;
-      ++timing_->misses;
-      step = kStep;
-    }
-    if (restored) {
-      // The control byte is back to what the session found: the request is gone. Ask again.
-      if (known) raise_unknown();
-      if (opt_.trace)
-        opt_.trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(), reg));
-      last_status_ = s.status;
-      return request(write, reg, value, std::nullopt);
-    }
-    if (ahead && proto::is_ack(s.status, *ahead)) {
-      // The terminal took the request written ahead before answering ours: ask again.
-      if (known) raise_unknown();
-      if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
-      last_status_ = s.status;
-      return request(write, reg, value, std::nullopt);
-    }
-    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
-    if (Clock::now() - start > opt_.timeout) {
-      if (auto why = link_.explain_no_ack()) throw *why;  // e.g. the coupler's watchdog
-      throw Error(Exit::timeout,
-                  fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})",
-                              who(), write ? "writing" : "reading", reg, opt_.timeout.count(), ctrl, s.status),
-                  "check the terminal and the link, or raise --timeout");
-    }
-    // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the
-    // time since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
-    if (timing_ && poll < 64) sleep_until(t + std::max(step, us(t - sent) / 8));
-    else link_.pause(poll);
-  }
-}
-
-std::uint16_t RegisterSession::read_one(unsigned reg, std::optional<unsigned> next) {
-  if (reg >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", reg));
-  bool rom = term_->type->regs[reg].storage == proto::Storage::rom;
-  if (rom) {
-    if (auto it = rom_.find(reg); it != rom_.end()) return it->second;
-  }
-  std::uint16_t v;
-  if (pending_ && *pending_ == reg) {
-    // Requested ahead by the previous read: only its answer is missing.
-    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
-    pending_.reset();
-    v = wait_ack(false, reg, 0, next);
-  } else {
-    v = request(false, reg, 0, next);
-  }
-  if (rom) rom_[reg] = v;
-  return v;
-}
-
-std::uint16_t RegisterSession::read(unsigned reg) { return read_one(reg, std::nullopt); }
-
-std::vector<std::uint16_t> RegisterSession::read_then_close(const std::vector<unsigned>& regs,
-                                                            const std::function<void(std::size_t)>& progress) {
-  std::vector<std::uint16_t> out = read_many(regs, progress, true);
-  close();
-  return out;
-}
-
-std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
-                                                      const std::function<void(std::size_t)>& progress) {
-  return read_many(regs, progress, false);
-}
-
-std::vector<std::uint16_t> RegisterSession::read_many(const std::vector<unsigned>& regs,
-                                                      const std::function<void(std::size_t)>& progress,
-                                                      bool restore_last) {
-  std::vector<std::uint16_t> out(regs.size());
-  // ROM registers read before cost nothing; the others are fetched in order, each request going
-  // out with the poll for the one before.
-  std::vector<std::size_t> todo;
-  for (std::size_t i = 0; i < regs.size(); ++i) {
-    if (regs[i] >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", regs[i]));
-    auto it = rom_.find(regs[i]);
-    if (it != rom_.end() && term_->type->regs[regs[i]].storage == proto::Storage::rom) out[i] = it->second;
-    else todo.push_back(i);
-  }
-  for (std::size_t k = 0; k < todo.size(); ++k) {
-    std::optional<unsigned> next;
-    if (k + 1 < todo.size()) next = regs[todo[k + 1]];
-    if (progress) progress(todo[k]);
-    if (restore_last && !next) restore_with_ = regs[todo[k]];
-    out[todo[k]] = read_one(regs[todo[k]], next);
-    restore_with_.reset();
-  }
-  return out;
-}
-
-void RegisterSession::check_writable(unsigned reg) const {
-  if (reg >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", reg));
-  if (!proto::is_implemented(reg))
-    throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", reg,
-                                           term_->type->type));
-  const RegisterDef& d = term_->type->regs[reg];
-  if (!d.writable)
-    throw Error(Exit::refused, fmt::format("R{} ({}) of {} is read-only ({})", reg,
-                                           d.desc.empty() ? d.name : d.desc, term_->type->type,
-                                           proto::storage_name(d.storage)));
-}
-
-void RegisterSession::unlock() {
-  if (opt_.skip_unlock) return;
-  if (!unlock_checked_) {
-    // Unlocked before this session touched it: another session's leftover (or 'kscfg unlock').
-    unlock_checked_ = true;
-    if (!leftover_ && read_retry(proto::kCodeWordRegister) == proto::kCodeWord)
-      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
-                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
-                       who()));
-  }
-  maybe_unlocked_ = true;
-  write_checked(proto::kCodeWordRegister, proto::kCodeWord);
-  unlocked_ = true;
-}
-
-void RegisterSession::lock() {
-  relock_write();
-  verify_locked();
-}
-
-void RegisterSession::relock_write() {
-  write_checked(proto::kCodeWordRegister, 0);
-  unlocked_ = false;
-}
-
-void RegisterSession::verify_locked() {
-  std::uint16_t v = read_retry(proto::kCodeWordRegister);
-  if (v != 0)
-    throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), v));
-  maybe_unlocked_ = false;
-}
-
-WriteResult RegisterSession::write(unsigned reg, std::uint16_t value, std::uint16_t mask) {
-  return write_masked({{reg, value, mask}}).front();
-}
-
-std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<unsigned, std::uint16_t>>& changes) {
-  std::vector<MaskedChange> all;
-  for (const auto& [reg, v] : changes) all.push_back({reg, v, 0xFFFF});
-  return write_masked(all);
-}
-
-std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
-  for (const auto& c : changes) {
-    check_writable(c.reg);
-    if (term_->type->regs[c.reg].command)
-      throw Error(Exit::usage,
-                  fmt::format("R{} of {} is a command register: writing it runs a command, it holds no setting",
-                              c.reg, term_->type->type),
-                  fmt::format("run the command with 'kscfg write R{} VALUE'", c.reg));
-  }
-  // Compare first (DESIGN.md decision 6): only registers whose value differs are written. The
-  // read is also the "read" of read-modify-write: bits outside the mask keep their value.
-  std::vector<WriteResult> results;
-  for (const auto& c : changes) {
-    WriteResult w;
-    w.reg = c.reg;
-    w.before = read(c.reg);
-    w.after = static_cast<std::uint16_t>((w.before & ~c.mask) | (c.value & c.mask));
-    w.changed = w.before != w.after;
-    results.push_back(w);
-  }
-  bool any_protected = false, any = false;
-  for (const auto& w : results) {
-    if (!w.changed) continue;
-    any = true;
-    any_protected = any_protected || proto::is_protected(w.reg) || term_->type->regs[w.reg].code_word;
-  }
-  if (!any) return results;
-
-  std::vector<WriteResult> change;
-  for (const auto& w : results)
-    if (w.changed) change.push_back(w);
-  try {
-    if (any_protected) unlock();
-    for (const auto& w : change) write_checked(w.reg, w.after);
-    // Relock before reading back, so no read-back waits on a stale ack of the same register.
-    if (any_protected) relock_write();
-    for (const auto& w : change) {
-      std::uint16_t back = read_retry(w.reg);
-      if (back != w.after)
-        throw Error(Exit::verify,
-                    fmt::format("{}: R{} reads back 0x{:04X} after writing 0x{:04X}", who(), w.reg, back, w.after),
-                    "the terminal did not take the value (write protection, or a value it rejects)");
-    }
-    if (any_protected) verify_locked();
-  } catch (const Error& e) {
-    // Whatever failed, what the terminal holds now decides: read every register of the change,
-    // write back those that moved, read them again (also after Ctrl-C: the change is all or nothing).
-    bool was_interrupted = g_interrupted.exchange(false);
-    RollbackResult rb = roll_back(change);
-    if (was_interrupted) g_interrupted = true;
-    throw ChangeFailed(e.code(), e.what(), std::move(rb), who());
-  }
-  return results;
-}
-
-RollbackResult RegisterSession::roll_back(const std::vector<WriteResult>& changes) {
-  RollbackResult rb;
-  std::set<unsigned> unreadable;
-  std::vector<const WriteResult*> moved;
-  auto unreadable_text = [&](unsigned reg, const Error& e) {
-    unreadable.insert(reg);
-    rb.unverified.push_back(fmt::format("R{} (could not be read: {})", reg, e.what()));
-  };
-  for (const auto& w : changes) {
-    try {
-      if (read_retry(w.reg) != w.before) moved.push_back(&w);
-    } catch (const Error& e) {
-      unreadable_text(w.reg, e);
-    }
-  }
-  std::string write_error;
-  if (!moved.empty()) {
-    bool prot = std::any_of(moved.begin(), moved.end(), [&](const WriteResult* w) {
-      return proto::is_protected(w->reg) || term_->type->regs[w->reg].code_word;
-    });
-    try {
-      if (prot) {
-        maybe_unlocked_ = true;
-        write_checked(proto::kCodeWordRegister, proto::kCodeWord);
-        unlocked_ = true;
-      }
-      for (const auto* w : moved) {
-        write_checked(w->reg, w->before);
-        rb.rewritten.push_back(w->reg);
-      }
-    } catch (const Error& e) {
-      write_error = e.what();
-    }
-  }
-  for (const auto& w : changes) {
-    if (unreadable.count(w.reg)) continue;
-    try {
-      std::uint16_t now = read_retry(w.reg);
-      if (now == w.before) rb.verified.emplace_back(w.reg, now);
-      else
-        rb.unverified.push_back(fmt::format("R{} (reads 0x{:04X}, was 0x{:04X}{})", w.reg, now, w.before,
-                                            write_error.empty() ? "" : "; writing it back failed: " + write_error));
-    } catch (const Error& e) {
-      unreadable_text(w.reg, e);
-    }
-  }
-  // Never leave it unlocked: R31 must read 0.
-  try {
-    std::uint16_t v = read_retry(proto::kCodeWordRegister);
-    if (v != 0) {
-      write_checked(proto::kCodeWordRegister, 0);
-      v = read_retry(proto::kCodeWordRegister);
-    }
-    rb.locked = v == 0;
-    if (rb.locked) maybe_unlocked_ = unlocked_ = false;
-    else rb.unverified.push_back(fmt::format("R31 (reads 0x{:04X}: still unlocked)", v));
-  } catch (const Error& e) {
-    rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", e.what()));
-  }
-  return rb;
-}
-
-std::string RollbackResult::text(const std::string& what) const {
-  std::string seen;
-  for (const auto& [r, v] : verified) seen += fmt::format("{}R{} 0x{:04X}", seen.empty() ? "" : ", ", r, v);
-  if (ok())
-    return fmt::format("{} is as it was: verified by reading {} register{} ({}) and R31 = 0x0000", what,
-                       verified.size(), verified.size() == 1 ? "" : "s", seen);
-  std::string bad;
-  for (const auto& u : unverified) bad += (bad.empty() ? "" : ", ") + u;
-  return fmt::format("could not verify {}: {}{}", what, bad, seen.empty() ? "" : "; read back as before: " + seen);
-}
-
-ChangeFailed::ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who)
-    : Error(rb.ok() ? cause_code : Exit::unverified,
-            rb.ok() ? fmt::format("{}; rolled back: {}", cause, rb.text(who))
-                    : fmt::format("{}; rollback failed: {}", cause, rb.text(who)),
-            rb.ok() ? std::string() : "these registers may hold the new values: read them with 'kscfg dump' when the "
-                                      "terminal answers again"),
-      cause_code_(cause_code),
-      cause_(std::move(cause)),
-      rb_(std::move(rb)) {}
-
-void RegisterSession::command(unsigned reg, std::uint16_t value) {
-  check_writable(reg);
-  const RegisterDef& d = term_->type->regs[reg];
-  if (!d.command)
-    throw Error(Exit::usage, fmt::format("R{} of {} is not a command register", reg, term_->type->type));
-  bool code_word = d.code_word || proto::is_protected(reg);
-  if (code_word) unlock();
-  transact(true, reg, value);
-  if (code_word) lock();
-}
-
-void RegisterSession::close() noexcept {
-  if (closed_) return;
-  closed_ = true;
-  bool was_interrupted = g_interrupted.exchange(false);
-  if (leftover_ && !leftover_done_) {
-    try {
-      finish_leftover();
-    } catch (...) {
-    }
-  }
-  // Never leave a terminal unlocked: relock if this session may have unlocked it.
-  // A link failure (a lossy line) is tried again; a terminal that does not answer is not.
-  if (maybe_unlocked_ || unlocked_) {
-    std::string failed;
-    for (int attempt = 0; attempt < 3; ++attempt) {
-      try {
-        transact(true, proto::kCodeWordRegister, 0);
-        failed.clear();
-        break;
-      } catch (const Error& e) {
-        failed = e.what();
-        if (e.code() != Exit::link) break;
-        forget();
-      } catch (...) {
-        failed = "unknown error";
-        break;
-      }
-    }
-    if (!failed.empty())
-      try {
-        note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
-      } catch (...) {
-      }
-  }
-  // Never leave it in register mode: put back the process-data bytes this session changed (the
-  // control byte, and the data bytes of a write); the channel's other bytes were never touched.
-  std::size_t lo = out_hi_ + 1, hi = 0;
-  for (std::size_t b = out_lo_; b <= out_hi_; ++b)
-    if (shadow_[b - out_lo_] != saved_out_[b - saved_at_]) {
-      lo = std::min(lo, b);
-      hi = std::max(hi, b);
-    }
-  bool restored = lo > hi;
-  for (int attempt = 0; lo <= hi && attempt < 3; ++attempt) {
-    try {
-      link_.write_outputs(lo, std::span<const std::uint8_t>(&saved_out_[lo - saved_at_], hi - lo + 1));
-      restored = true;
-      break;
-    } catch (const Error& e) {
-      if (e.code() != Exit::link) break;
-    } catch (...) {
-      break;
-    }
-  }
-  // Back in process-data mode: nothing for the next kscfg to finish. Otherwise the entry stays.
-  if (restored && journaled_) {
-    try {
-      opt_.journal->leave(term_->position, channel_);
-    } catch (...) {
-    }
-  }
-  if (was_interrupted) g_interrupted = true;
 }
 
 }  // namespace kscfg

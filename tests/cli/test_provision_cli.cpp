@@ -144,7 +144,7 @@ type = "KL9010"
   Run a = st({"apply", st.file("want.toml")});
   CHECK(a.rc == 6);
   CHECK(one_line_error(a));
-  CHECK_THAT(a.err, Catch::Contains("rolled back terminal(s) 3, 2, 1 (the station is as it was: verified by reading "
+  CHECK_THAT(a.err, Catch::Contains("rolled back terminal(s) 1, 2, 3 (the station is as it was: verified by reading "
                                     "4 registers; the backup is "));
   REQUIRE(st({"emu", "fault", "--clear"}).rc == 0);
   CHECK(st({"backup"}).out == before);

@@ -97,11 +97,13 @@ TEST_CASE("every type and channel: backup, diff, factory reset, restore give bac
     SessionOptions so;
     so.timeout = std::chrono::milliseconds(5000);
     // backup -> text -> parsed: the file, not the in-memory spec, is what gets restored.
-    StationSpec backup = backup_station(link, layout, so);
+    HandshakeAccess access(link, handshake_options(so));
+    Engine engine(access);
+    StationSpec backup = backup_station(engine, layout, so);
     std::string text = station_to_toml(backup);
     StationSpec parsed = parse_station(text, "backup.toml", cat());
     CAPTURE(text);
-    Plan same = make_plan(link, layout, parsed, cat(), so);
+    Plan same = make_plan(engine, layout, parsed, cat(), so);
     CHECK_FALSE(same.changes());
 
     for (unsigned ch = 0; ch < type.channels; ++ch) {
@@ -109,8 +111,8 @@ TEST_CASE("every type and channel: backup, diff, factory reset, restore give bac
       factory_reset(s, reset_plan(type));
       s.close();
     }
-    Plan back = make_plan(link, layout, parsed, cat(), so);
-    apply_plan(link, layout, back, so, spec.coupler, dir.file(type.type + "-undo.toml"));
+    Plan back = make_plan(engine, layout, parsed, cat(), so);
+    apply_plan(engine, layout, back, so, spec.coupler, dir.file(type.type + "-undo.toml"));
 
     for (unsigned ch = 0; ch < type.channels; ++ch) {
       INFO("channel " << ch + 1);
@@ -122,7 +124,7 @@ TEST_CASE("every type and channel: backup, diff, factory reset, restore give bac
       }
       ++channels;
     }
-    CHECK(make_plan(link, layout, parsed, cat(), so).changes() == false);
+    CHECK(make_plan(engine, layout, parsed, cat(), so).changes() == false);
     ++types;
   }
   INFO(types << " types, " << channels << " channels, " << skipped << " without a register window");

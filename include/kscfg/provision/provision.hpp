@@ -10,6 +10,7 @@
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/lockout.hpp"
+#include "kscfg/session/engine.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"
 
@@ -17,10 +18,13 @@ namespace kscfg {
 
 using Progress = std::function<void(unsigned done, unsigned total, const std::string& what)>;
 
+// Every function here works on a whole station at once: each terminal channel's register work is a
+// task on `engine` (session/engine.hpp), all of them advancing in the same exchanges.
+
 // Reads every terminal with registers: R9 (as a comment), every SEEROM register R17..R47 and the
 // named parameters, into a station file. The hardware version R16 is identity, not configuration,
 // and is left out.
-StationSpec backup_station(Link& link, const StationLayout& layout, const SessionOptions& so,
+StationSpec backup_station(Engine& engine, const StationLayout& layout, const SessionOptions& so,
                            const Progress& progress = {});
 
 struct RegisterChange {
@@ -46,7 +50,7 @@ struct Plan {
 // positions, and (Error(Exit::usage)) a register in the file that cannot be written, naming the
 // file line; then reads the station and returns what differs. Nothing is written.
 // `progress` is told of each register read (done, total, "terminal N").
-Plan make_plan(Link& link, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
+Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
                const SessionOptions& so, const Progress& progress = {});
 
 struct ApplyResult {
@@ -78,11 +82,11 @@ std::vector<PlannedWrite> planned_writes(const Plan& plan);
 
 // Carries out `plan`: first saves the touched registers' current values as a station file at
 // `backup_path` (atomically; its comments record `info`: port, unit, coupler, applied file, time,
-// version and the undo command), then writes terminal by terminal, each write verified. If
-// anything fails, every terminal touched is rolled back from what it holds (read back) and the
+// version and the undo command), then writes every terminal's change at once, each write verified.
+// If anything fails, every terminal touched is rolled back from what it holds (read back) and the
 // error says what was verified.
 // `progress` is told of each terminal's change before it is written (registers done, total).
-ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
+ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
                        const std::string& coupler, const std::string& backup_path, const Progress& progress = {},
                        const BackupInfo& info = {});
 

@@ -11,6 +11,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/engine.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/layout.hpp"
 
@@ -54,12 +55,12 @@ struct LockoutReport {
 // `current`. Reads the image-deciding registers (KL6001 R34/R35, KL6031 R34/R35, ...) of every
 // terminal it can reach, but only when a planned write touches one of them; otherwise nothing is
 // read and `checked` is false.
-LockoutReport check_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
+LockoutReport check_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes);
 
 // check_lockout, then: a lock-out is Error(Exit::refused) naming the consequence and the setting
 // that causes it; with `force` the write may go ahead and so.notice is told what recovery needs.
-void guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+void guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
                    const std::vector<PlannedWrite>& writes, bool force);
 
 // Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).

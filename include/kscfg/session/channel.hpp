@@ -1,0 +1,185 @@
+// The safety rules of register communication with one terminal channel, written once above the
+// register-access seam (access.hpp) and run by the station engine (engine.hpp): docs/design.md
+// sections 2 and 6.
+//
+// - Protected registers (R16..R30, R32..R47, and those the catalog marks) are written between the
+//   code word (R31 = 0x1235) and the relock (R31 = 0), and the relock is verified (R31 reads 0).
+// - Compare before writing: a register that already holds the value is not rewritten (EEPROM care).
+// - Every write is verified by reading it back; a mismatch is Error(verify).
+// - A write whose answer is lost (a link error) has an unknown outcome: the register is read
+//   before the write is repeated or given up.
+// - A change of several registers is all or nothing: on any failure (also an interrupt) it is rolled
+//   back from what the terminal holds (every register of the change read, those that moved written
+//   back and read again, R31 read 0), and ChangeFailed says what was verified.
+// - A terminal found in register mode, or unlocked, was left by a session that did not finish: it
+//   is finished (relocked), said so, and never put back into register mode.
+// - Command registers (R7 = 0x7000) are commands: never skipped as unchanged, never read back.
+//
+// Every operation is a Task: co_await it inside another task, or run it with Engine::wait(). The
+// work on a channel ends with close() (relock if needed, process-data bytes back); a Channel
+// destroyed without it puts the bytes back at once (close_now) but cannot relock.
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/task.hpp"
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/session/access.hpp"
+#include "kscfg/session/engine.hpp"
+#include "kscfg/session/journal.hpp"
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+struct SessionOptions {
+  std::chrono::milliseconds timeout{1000};        // per acknowledge
+  std::function<void(const std::string&)> trace;  // -v: every exchange
+  // Diagnostics the user must see (stderr): a crashed session's leftovers finished, a forced write.
+  std::function<void(const std::string&)> notice;
+  // Set (the CLI passes its SIGINT/SIGTERM flag): a run ends with Error(interrupted), after a change
+  // in progress was rolled back and every terminal put back. Null: never cancelled.
+  const std::atomic<bool>* cancel = nullptr;
+  // Where this process notes the terminals it has in register mode, so that the next kscfg can
+  // finish them if it dies (journal.hpp). Null: nothing is noted.
+  std::shared_ptr<SessionJournal> journal;
+  // Test hooks, set only by the build made for tests (cli/main/test_hooks.cpp): write without the
+  // code word; called after a write of a register was acknowledged.
+  bool skip_unlock = false;
+  std::function<void(unsigned reg)> after_write;
+};
+
+struct WriteResult {
+  unsigned reg = 0;
+  std::uint16_t before = 0;
+  std::uint16_t after = 0;
+  bool changed = false;
+};
+
+// What a rollback found by reading the terminal (docs/design.md section 6: roll back from what the
+// terminal holds, claim "as it was" only after reading it).
+struct RollbackResult {
+  std::vector<std::pair<unsigned, std::uint16_t>> verified;  // registers read back with their old value
+  std::vector<unsigned> rewritten;                           // registers that had to be written back
+  std::vector<std::string> unverified;  // "R33 (reads 0x0002, was 0x0001)", "R32 (not readable: ...)"
+  bool locked = false;                  // R31 read 0 at the end
+  bool ok() const { return unverified.empty() && locked; }
+  // "the terminal is as it was: verified by reading 2 registers (R32 0x0006, R33 0x0003) and R31 = 0"
+  // or "could not verify R33 (...)". `what` names the terminal.
+  std::string text(const std::string& what) const;
+};
+
+// A change that failed: the cause, and what the rollback verified. The exit code is the cause's
+// when the rollback verified every register, else Exit::unverified.
+class ChangeFailed : public Error {
+ public:
+  ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who);
+  const std::string& cause() const { return cause_; }
+  Exit cause_code() const { return cause_code_; }
+  const RollbackResult& rollback() const { return rb_; }
+
+ private:
+  Exit cause_code_;
+  std::string cause_;
+  RollbackResult rb_;
+};
+
+// The terminal at a position reports another type (R8) than the layout says: the station changed
+// (a terminal swapped for another of the same image size). Nothing was written.
+class TypeChanged : public Error {
+ public:
+  TypeChanged(unsigned position, std::uint16_t r8, const std::string& was);
+  unsigned position() const { return position_; }
+  std::uint16_t r8() const { return r8_; }
+
+ private:
+  unsigned position_;
+  std::uint16_t r8_;
+};
+
+struct MaskedChange {
+  unsigned reg;
+  std::uint16_t value;
+  std::uint16_t mask;
+};
+
+class Channel {
+ public:
+  // Opens the channel on the engine's access; nothing is exchanged until the first operation.
+  // Throws Error(refused) when the channel has no register window.
+  Channel(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt = {});
+  ~Channel();
+  Channel(const Channel&) = delete;
+  Channel& operator=(const Channel&) = delete;
+
+  // The first operation checks the terminal's type: R8 is read ahead with its first read (or on its
+  // own before a first write) and a different value is TypeChanged.
+  void expect_type(std::uint16_t r8) { expect_r8_ = r8; }
+
+  // Registers in this order (ROM registers read before cost nothing). On a link that pipelines,
+  // the request for the next one goes out with the poll for the one before. `then_close`: the
+  // channel's work ends here (the handshake may put the control byte back with the last poll).
+  // `progress(i)` is told when the answer for regs[i] arrived.
+  Task<std::vector<std::uint16_t>> read_many(std::vector<unsigned> regs, bool then_close = false,
+                                             std::function<void(std::size_t)> progress = {});
+  Task<std::uint16_t> read(unsigned reg);
+  // Unlock (protected registers) -> compare -> write -> relock -> read back, as one change.
+  Task<std::vector<WriteResult>> write_masked(std::vector<MaskedChange> changes);
+  Task<void> command(unsigned reg, std::uint16_t value);
+  Task<void> unlock();  // R31 = 0x1235, verified
+  Task<void> lock();    // R31 = 0, verified
+  // Puts `changes` back to their `before` values from what the terminal holds. Never throws.
+  Task<RollbackResult> roll_back(std::vector<WriteResult> changes);
+  // One raw register request; returns the value bytes of the answer.
+  Task<std::uint16_t> transact(bool write, unsigned reg, std::uint16_t value);
+  // Relocks if this work may have unlocked, then puts the process-data bytes back. Never throws.
+  Task<void> close();
+  // Finishes what kscfg process `pid` left on this terminal (its journal entry), then closes.
+  // Returns whether the terminal was still in register mode.
+  Task<bool> finish_dead();
+
+  const TerminalImage& terminal() const { return term_; }
+  unsigned channel() const { return key_.channel; }
+  ChannelKey key() const { return key_; }
+  std::chrono::milliseconds timeout() const { return opt_.timeout; }
+  const SessionOptions& options() const { return opt_; }
+  std::string who() const;  // "terminal 1 (KL6001)"
+  bool closed() const { return closed_; }
+
+ private:
+  void check_writable(unsigned reg) const;
+  void note(const std::string& s) const;
+  Task<void> exec(Program& p);  // runs p on this channel; throws its error
+  Task<void> begin();           // the channel ready; a leftover finished
+  Task<void> finish_leftover();
+  Task<void> write_checked(unsigned reg, std::uint16_t value);
+  Task<void> relock_write();
+  bool closable_with_read() const;
+
+  Engine& engine_;
+  TerminalImage term_;
+  ChannelKey key_;
+  SessionOptions opt_;
+  bool opened_ = false, closed_ = false;
+  std::optional<std::uint8_t> leftover_;  // the control byte found with REG set
+  bool leftover_done_ = false;
+  long dead_pid_ = 0;
+  bool unlocked_ = false, maybe_unlocked_ = false, unlock_checked_ = false;
+  unsigned shield_ = 0;  // > 0: clean-up, runs after cancellation too
+  std::optional<std::uint16_t> expect_r8_;
+  std::map<unsigned, std::uint16_t> rom_;  // ROM registers read: they cannot change
+};
+
+// Resolves position/channel to a terminal image with a register window; throws a clear
+// Error(usage/refused) for a bad position, a terminal without registers or an unmapped CT/ST byte.
+const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel);
+
+}  // namespace kscfg

@@ -1,0 +1,136 @@
+// HandshakeAccess: register access through the coupler's process image (docs/design.md section 2
+// and "Station engine"), the first implementation of the register-access seam (access.hpp).
+//
+// A terminal channel in register mode is driven through its control byte (REG, W/NR, address)
+// and answers in its status byte, with the register value in the data bytes beside them. Every
+// terminal has its own control byte in the one output image, so the handshakes of all channels
+// with work pending advance in the same exchange: each advance() writes the control (and value)
+// bytes of every channel with a new request and reads the status and value bytes of every channel
+// whose answer is due, in one Link::transfer (one Modbus FC23; one K-bus cycle on the emulator).
+// Each channel advances on its own acknowledge, with its own timeout.
+//
+// Per channel it keeps the rules of the handshake (docs/design.md section 2):
+// - decision 1: an acknowledge is REG and the same address, bit 6 either way;
+// - decision 2: a status that already acknowledges the register asked for cannot be told from a new
+//   answer: another register (R8 or R9) is asked first, so the acknowledge waited for is a change;
+// - decision 4: every wait is bounded by the timeout and names terminal, register and last status;
+// - decision 5: value bytes travel with (never after) the control byte, and the process-data bytes
+//   found when the work began are put back when it ends (also after errors and on interrupt);
+// - a control byte found in register mode is a dead session's leftover (section 6): never restored.
+// On a link that pipelines (Modbus), once a terminal's acknowledge latency is known the request for
+// the next register of a run of reads goes out in the exchange that fetches the answer before it
+// (read-ahead), and the exchange that fetches the last answer can also put the control byte back.
+// Before the first register-mode byte of a channel goes out, the channel is noted in the session
+// journal; once its process-data bytes are back, the note is closed (journal.hpp).
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "kscfg/link/link.hpp"
+#include "kscfg/session/access.hpp"
+#include "kscfg/session/journal.hpp"
+
+namespace kscfg {
+
+struct HandshakeOptions {
+  std::chrono::milliseconds timeout{1000};        // per acknowledge
+  std::function<void(const std::string&)> trace;  // -v: every acknowledge
+  std::shared_ptr<SessionJournal> journal;        // null: nothing is noted
+  // Set (SIGINT/SIGTERM): programs that are not shielded fail with Error(interrupted), and waits
+  // end early. Null: never cancelled.
+  const std::atomic<bool>* cancel = nullptr;
+  // Test hook (a build for tests only): called after a write of a register was acknowledged.
+  std::function<void(unsigned reg)> after_write;
+};
+
+class HandshakeAccess final : public RegisterAccess {
+ public:
+  HandshakeAccess(Link& link, HandshakeOptions opt);
+  ~HandshakeAccess() override;
+  HandshakeAccess(const HandshakeAccess&) = delete;
+  HandshakeAccess& operator=(const HandshakeAccess&) = delete;
+
+  std::string describe() const override { return link_.describe(); }
+  void open(const TerminalImage& t, unsigned channel) override;
+  ChannelFound found(ChannelKey key) const override;
+  void submit(Program& p) override;
+  std::vector<Program*> advance() override;
+  bool busy() const override;
+  void close_now(ChannelKey key) noexcept override;
+  void close_all() noexcept override;
+  std::optional<Error> explain_no_ack() override { return link_.explain_no_ack(); }
+  std::size_t exchanges() const override { return link_.exchanges(); }
+
+  // Journal entries of a dead process: the channel's process-data bytes as that session found them
+  // (restored instead of the idle bytes a leftover gets), and the process named in notes.
+  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid);
+
+  const HandshakeOptions& options() const { return opt_; }
+
+ private:
+  using Clock = std::chrono::steady_clock;
+  struct Request {
+    bool write = false;
+    unsigned reg = 0;
+    std::uint16_t value = 0;
+    bool probe = false;          // the other register of decision 2, not an op of the program
+    Clock::time_point sent{};    // the exchange that put it in the control byte
+    Clock::time_point since{};   // when the op was first asked for (its timeout runs from here)
+    unsigned polls = 0;
+  };
+  enum class Act { none, look, send, poll, close };
+  struct Chan {
+    ChannelKey key;
+    TerminalImage image;
+    RegisterWindow w;
+    std::size_t out_lo = 0, out_hi = 0, in_lo = 0, in_hi = 0;
+    std::size_t saved_at = 0;
+    std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
+    std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
+    bool ready = false, closed = false, journaled = false;
+    unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
+    ChannelFound found;
+    std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
+    std::optional<std::uint8_t> last_status;  // known status after our last acknowledged request
+    Program* prog = nullptr;
+    std::optional<Request> req;    // in the control byte, waiting for its acknowledge
+    std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
+    Link::AckTiming* timing = nullptr;
+    Clock::time_point last_poll{};
+    // This exchange.
+    Act act = Act::none;
+    bool with_ahead = false, with_restore = false, look_with_send = false;
+    bool probe_next = false;  // the request being sent is decision 2's other register
+    std::vector<std::uint8_t> in;
+    std::size_t out_at = 0, out_n = 0;
+  };
+
+  std::string who(const Chan& c) const;
+  void note_trace(const std::string& s) const {
+    if (opt_.trace) opt_.trace(s);
+  }
+  bool cancelled() const { return opt_.cancel && opt_.cancel->load(); }
+  void save(std::vector<Chan*>& chans);
+  // What channel c does in the next exchange (c.act), or when it next has something to do (due).
+  void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
+  void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
+  void finish(Chan& c, std::vector<Program*>& done);
+  void fail(Chan& c, Error e, std::vector<Program*>& done);
+  void put_request(Chan& c, bool write, unsigned reg, std::uint16_t value);
+  void put_restore(Chan& c, bool ctrl_only);
+  void journal_enter(Chan& c);
+  void closed_now(Chan& c);
+  void sleep_until(Clock::time_point t) const;
+
+  Link& link_;
+  HandshakeOptions opt_;
+  std::map<ChannelKey, Chan> chans_;
+};
+
+}  // namespace kscfg

@@ -1,0 +1,510 @@
+#include "kscfg/session/channel.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <set>
+
+#include "kscfg/protocol/codec.hpp"
+
+namespace kscfg {
+
+const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel) {
+  const TerminalImage& t = layout.terminal(position);
+  if (!t.type->has_registers)
+    throw Error(Exit::usage, fmt::format("terminal {} ({}, {}) has no registers", position, t.type->type,
+                                         t.type->title),
+                "choose an intelligent terminal with -t; 'kscfg info' lists the station");
+  if (channel >= t.type->channels)
+    throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
+                                         t.type->type, t.type->channels, channel + 1));
+  if (channel >= t.channels.size() || !t.channels[channel].window) {
+    std::string why = channel < t.channels.size() && !t.channels[channel].no_window.empty()
+                          ? t.channels[channel].no_window
+                          : fmt::format("its {} image is not mapped", t.format);
+    bool ce = why.find("complete evaluation") != std::string::npos;
+    throw Error(Exit::refused,
+                fmt::format("terminal {} ({}){} has no register window: {}", position, t.type->type,
+                            t.type->channels > 1 ? fmt::format(" channel {}", channel + 1) : "", why),
+                ce ? "switch complete evaluation on in the coupler (fieldbus master configuration or KS2000) and tell "
+                     "kscfg ([mapping] complete-evaluation = true in --station); or change the terminal's format "
+                     "through the coupler's configuration interface (KS2000)"
+                   : "the process image gives no way back: change the terminal's mapping registers through the "
+                     "coupler's configuration interface (KS2000)");
+  }
+  return t;
+}
+
+TypeChanged::TypeChanged(unsigned position, std::uint16_t r8, const std::string& was)
+    : Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station's layout says {}", position, r8, was),
+            "the station changed: scan it again (kscfg --rescan ...)"),
+      position_(position),
+      r8_(r8) {}
+
+Channel::Channel(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt)
+    : engine_(engine), term_(terminal), key_{terminal.position, channel}, opt_(std::move(opt)) {
+  engine_.access().open(term_, channel);
+}
+
+Channel::~Channel() {
+  if (closed_) return;
+  if (maybe_unlocked_ || unlocked_)
+    note(fmt::format("warning: {} may still be unlocked: its work ended without relocking it", who()));
+  engine_.access().close_now(key_);
+}
+
+std::string Channel::who() const {
+  std::string s = fmt::format("terminal {} ({})", term_.position, term_.type->type);
+  if (term_.type->channels > 1) s += fmt::format(" channel {}", key_.channel + 1);
+  return s;
+}
+
+void Channel::note(const std::string& s) const {
+  if (opt_.notice) opt_.notice(s);
+  if (opt_.trace) opt_.trace(s);
+}
+
+Task<void> Channel::exec(Program& p) {
+  if (closed_) {
+    // Work after close(): the channel is opened again (its bytes saved anew).
+    engine_.access().open(term_, key_.channel);
+    closed_ = false;
+    opened_ = false;
+  }
+  p.key = key_;
+  p.shielded = shield_ > 0;
+  co_await engine_.run(p);
+  if (p.closed) closed_ = true;
+  if (p.error) throw *p.error;
+}
+
+Task<void> Channel::begin() {
+  if (opened_ && !closed_) co_return;
+  Program p;  // no requests: ready once the process-data bytes are saved
+  co_await exec(p);
+  opened_ = true;
+  ChannelFound f = engine_.access().found(key_);
+  if (f.leftover && !leftover_) {
+    leftover_ = f.leftover;
+    dead_pid_ = f.dead_pid;
+    maybe_unlocked_ = true;  // relock at the end whatever happens
+    co_await finish_leftover();
+  }
+}
+
+Task<void> Channel::finish_leftover() {
+  leftover_done_ = true;
+  std::string r31;
+  std::optional<Error> failed;
+  try {
+    std::uint16_t v = co_await read(proto::kCodeWordRegister);
+    if (v == proto::kCodeWord) {
+      co_await write_checked(proto::kCodeWordRegister, 0);
+      std::uint16_t after = co_await read(proto::kCodeWordRegister);
+      r31 = after == 0 ? "it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"
+                       : fmt::format("it was unlocked (R31 = 0x1235) and still reads R31 = 0x{:04X}", after);
+      if (after == 0) unlocked_ = false;
+    } else {
+      r31 = fmt::format("R31 reads 0x{:04X} (locked)", v);
+    }
+  } catch (const Error& e) {
+    if (e.code() == Exit::interrupted) throw;
+    failed = e;
+  }
+  if (failed) r31 = fmt::format("R31 could not be checked ({}); relocking at the end", failed->what());
+  if (dead_pid_)
+    note(fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
+                     "without finishing its session; {}; its process-data bytes go back to what that session found",
+                     who(), *leftover_, dead_pid_, r31));
+  else
+    note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
+                     "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
+                     who(), *leftover_, r31, *leftover_));
+}
+
+Task<bool> Channel::finish_dead() {
+  co_await begin();
+  bool was = leftover_.has_value();
+  co_await close();
+  co_return was;
+}
+
+bool Channel::closable_with_read() const {
+  return !unlocked_ && !maybe_unlocked_ && (!leftover_ || leftover_done_);
+}
+
+Task<std::vector<std::uint16_t>> Channel::read_many(std::vector<unsigned> regs, bool then_close,
+                                                    std::function<void(std::size_t)> progress) {
+  for (unsigned r : regs)
+    if (r >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", r));
+  co_await begin();
+  std::vector<std::uint16_t> out(regs.size());
+  // ROM registers read before cost nothing; the others are fetched in order.
+  std::vector<unsigned> want;
+  std::vector<std::size_t> where;
+  bool check_type = expect_r8_ && !rom_.count(8);
+  if (check_type && std::find(regs.begin(), regs.end(), 8u) == regs.end()) {
+    want.push_back(8);  // the type check, read ahead with the first read
+    where.push_back(SIZE_MAX);
+  }
+  for (std::size_t i = 0; i < regs.size(); ++i) {
+    auto it = rom_.find(regs[i]);
+    if (it != rom_.end()) {
+      out[i] = it->second;
+      continue;
+    }
+    want.push_back(regs[i]);
+    where.push_back(i);
+  }
+  std::vector<std::uint16_t> got;
+  for (int attempt = 0; got.size() < want.size() || (then_close && !closed_);) {
+    Program p;
+    for (std::size_t k = got.size(); k < want.size(); ++k) p.ops.push_back({false, want[k], 0});
+    p.close_after = then_close && closable_with_read();
+    if (progress) {
+      std::size_t base = got.size();
+      p.progress = [&, base](std::size_t n) {
+        if (where[base + n - 1] != SIZE_MAX) progress(where[base + n - 1]);
+      };
+    }
+    std::optional<Error> lost;
+    try {
+      co_await exec(p);
+    } catch (const Error& e) {
+      if (e.code() != Exit::link || attempt >= 2) throw;
+      lost = e;
+    }
+    got.insert(got.end(), p.values.begin(), p.values.end());
+    if (!lost) break;
+    ++attempt;
+    if (opt_.trace) opt_.trace(fmt::format("{}: reading again after: {}", who(), lost->what()));
+  }
+  for (std::size_t k = 0; k < want.size(); ++k) {
+    if (term_.type->regs[want[k]].storage == proto::Storage::rom) rom_[want[k]] = got[k];
+    if (where[k] != SIZE_MAX) out[where[k]] = got[k];
+  }
+  if (check_type) {
+    std::uint16_t r8 = got[static_cast<std::size_t>(std::find(want.begin(), want.end(), 8u) - want.begin())];
+    expect_r8_.reset();
+    if (r8 != term_.type->r8) {
+      co_await close();
+      throw TypeChanged(term_.position, r8, term_.type->type);
+    }
+  }
+  if (then_close && !closed_) co_await close();
+  co_return out;
+}
+
+Task<std::uint16_t> Channel::read(unsigned reg) {
+  std::vector<unsigned> regs(1, reg);
+  std::vector<std::uint16_t> v = co_await read_many(std::move(regs));
+  co_return v[0];
+}
+
+Task<std::uint16_t> Channel::transact(bool write, unsigned reg, std::uint16_t value) {
+  co_await begin();
+  Program p;
+  p.ops.push_back({write, reg, value});
+  co_await exec(p);
+  co_return p.values.at(0);
+}
+
+Task<void> Channel::write_checked(unsigned reg, std::uint16_t value) {
+  for (int attempt = 0;; ++attempt) {
+    std::optional<Error> lost;
+    try {
+      co_await transact(true, reg, value);
+      co_return;
+    } catch (const Error& e) {
+      // A link error after the request went out: the write may have landed. Read before deciding.
+      if (e.code() != Exit::link || attempt >= 2) throw;
+      lost = e;
+    }
+    std::optional<std::uint16_t> now;
+    try {
+      now = co_await read(reg);
+    } catch (const Error&) {
+    }
+    if (!now) throw *lost;
+    if (opt_.trace)
+      opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), reg, lost->what(),
+                             *now, *now == value ? "the write landed" : "writing again"));
+    if (*now == value) co_return;
+  }
+}
+
+void Channel::check_writable(unsigned reg) const {
+  if (reg >= proto::kRegisterCount) throw Error(Exit::usage, fmt::format("invalid register R{}", reg));
+  if (!proto::is_implemented(reg))
+    throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", reg,
+                                           term_.type->type));
+  const RegisterDef& d = term_.type->regs[reg];
+  if (!d.writable)
+    throw Error(Exit::refused, fmt::format("R{} ({}) of {} is read-only ({})", reg,
+                                           d.desc.empty() ? d.name : d.desc, term_.type->type,
+                                           proto::storage_name(d.storage)));
+}
+
+Task<void> Channel::unlock() {
+  if (opt_.skip_unlock) co_return;
+  co_await begin();
+  if (!unlock_checked_) {
+    // Unlocked before this work touched it: another session's leftover (or 'kscfg unlock').
+    unlock_checked_ = true;
+    std::uint16_t r31 = 0;
+    if (!leftover_) r31 = co_await read(proto::kCodeWordRegister);
+    if (r31 == proto::kCodeWord)
+      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
+                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
+                       who()));
+  }
+  maybe_unlocked_ = true;
+  co_await write_checked(proto::kCodeWordRegister, proto::kCodeWord);
+  unlocked_ = true;
+}
+
+Task<void> Channel::relock_write() {
+  co_await write_checked(proto::kCodeWordRegister, 0);
+  unlocked_ = false;
+}
+
+Task<void> Channel::lock() {
+  co_await relock_write();
+  std::uint16_t v = co_await read(proto::kCodeWordRegister);
+  if (v != 0) throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), v));
+  maybe_unlocked_ = false;
+}
+
+Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> changes) {
+  bool protected_candidate = false;
+  for (const auto& c : changes) {
+    check_writable(c.reg);
+    if (term_.type->regs[c.reg].command)
+      throw Error(Exit::usage,
+                  fmt::format("R{} of {} is a command register: writing it runs a command, it holds no setting",
+                              c.reg, term_.type->type),
+                  fmt::format("run the command with 'kscfg write R{} VALUE'", c.reg));
+    protected_candidate = protected_candidate || proto::is_protected(c.reg) || term_.type->regs[c.reg].code_word;
+  }
+  co_await begin();
+  // Compare first (decision 6): only registers whose value differs are written. The read is also
+  // the "read" of read-modify-write. R31 goes first (was it left unlocked?), so that the status
+  // never already acknowledges R31 when the code word is written.
+  std::vector<unsigned> regs;
+  bool check_r31 = protected_candidate && !unlock_checked_ && !leftover_ && !opt_.skip_unlock;
+  if (check_r31) regs.push_back(proto::kCodeWordRegister);
+  for (const auto& c : changes) regs.push_back(c.reg);
+  std::vector<std::uint16_t> now = co_await read_many(regs);
+  if (check_r31) {
+    unlock_checked_ = true;
+    if (now[0] == proto::kCodeWord)
+      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
+                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
+                       who()));
+  }
+  std::vector<WriteResult> results;
+  for (std::size_t i = 0; i < changes.size(); ++i) {
+    const auto& c = changes[i];
+    WriteResult w;
+    w.reg = c.reg;
+    w.before = now[i + (check_r31 ? 1 : 0)];
+    w.after = static_cast<std::uint16_t>((w.before & ~c.mask) | (c.value & c.mask));
+    w.changed = w.before != w.after;
+    results.push_back(w);
+  }
+  std::vector<WriteResult> change;
+  bool any_protected = false;
+  for (const auto& w : results)
+    if (w.changed) {
+      change.push_back(w);
+      any_protected = any_protected || proto::is_protected(w.reg) || term_.type->regs[w.reg].code_word;
+    }
+  if (change.empty()) co_return results;
+
+  std::optional<Error> failure;
+  try {
+    if (any_protected) co_await unlock();
+    for (const auto& w : change) co_await write_checked(w.reg, w.after);
+    // Relock before reading back, so that no read-back waits on a stale ack of the same register.
+    if (any_protected && !opt_.skip_unlock) co_await relock_write();
+    std::vector<unsigned> back;
+    for (const auto& w : change) back.push_back(w.reg);
+    bool r31 = any_protected && !opt_.skip_unlock;
+    if (r31) back.push_back(proto::kCodeWordRegister);
+    std::vector<std::uint16_t> got = co_await read_many(back);
+    for (std::size_t i = 0; i < change.size(); ++i)
+      if (got[i] != change[i].after)
+        throw Error(Exit::verify,
+                    fmt::format("{}: R{} reads back 0x{:04X} after writing 0x{:04X}", who(), change[i].reg, got[i],
+                                change[i].after),
+                    "the terminal did not take the value (write protection, or a value it rejects)");
+    if (r31) {
+      if (got.back() != 0)
+        throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), got.back()));
+      maybe_unlocked_ = false;
+    }
+  } catch (const Error& e) {
+    failure = e;
+  }
+  if (failure) {
+    // Whatever failed, what the terminal holds now decides: read every register of the change,
+    // write back those that moved, read them again (also after Ctrl-C: all or nothing).
+    ++shield_;
+    RollbackResult rb = co_await roll_back(change);
+    --shield_;
+    throw ChangeFailed(failure->code(), failure->what(), std::move(rb), who());
+  }
+  co_return results;
+}
+
+Task<RollbackResult> Channel::roll_back(std::vector<WriteResult> changes) {
+  ++shield_;
+  RollbackResult rb;
+  std::set<unsigned> unreadable;
+  std::vector<const WriteResult*> moved;
+  auto unreadable_text = [&](unsigned reg, const std::string& why) {
+    unreadable.insert(reg);
+    rb.unverified.push_back(fmt::format("R{} (could not be read: {})", reg, why));
+  };
+  for (const auto& w : changes) {
+    std::optional<std::string> why;
+    try {
+      std::uint16_t now = co_await read(w.reg);
+      if (now != w.before) moved.push_back(&w);
+    } catch (const Error& e) {
+      why = e.what();
+    }
+    if (why) unreadable_text(w.reg, *why);
+  }
+  std::string write_error;
+  if (!moved.empty()) {
+    bool prot = std::any_of(moved.begin(), moved.end(), [&](const WriteResult* w) {
+      return proto::is_protected(w->reg) || term_.type->regs[w->reg].code_word;
+    });
+    try {
+      if (prot) {
+        maybe_unlocked_ = true;
+        co_await write_checked(proto::kCodeWordRegister, proto::kCodeWord);
+        unlocked_ = true;
+      }
+      for (const auto* w : moved) {
+        co_await write_checked(w->reg, w->before);
+        rb.rewritten.push_back(w->reg);
+      }
+    } catch (const Error& e) {
+      write_error = e.what();
+    }
+  }
+  for (const auto& w : changes) {
+    if (unreadable.count(w.reg)) continue;
+    std::optional<std::string> why;
+    try {
+      std::uint16_t now = co_await read(w.reg);
+      if (now == w.before) rb.verified.emplace_back(w.reg, now);
+      else
+        rb.unverified.push_back(fmt::format("R{} (reads 0x{:04X}, was 0x{:04X}{})", w.reg, now, w.before,
+                                            write_error.empty() ? "" : "; writing it back failed: " + write_error));
+    } catch (const Error& e) {
+      why = e.what();
+    }
+    if (why) unreadable_text(w.reg, *why);
+  }
+  // Never leave it unlocked: R31 must read 0.
+  std::optional<std::string> why;
+  try {
+    std::uint16_t v = co_await read(proto::kCodeWordRegister);
+    if (v != 0) {
+      co_await write_checked(proto::kCodeWordRegister, 0);
+      v = co_await read(proto::kCodeWordRegister);
+    }
+    rb.locked = v == 0;
+    if (rb.locked) maybe_unlocked_ = unlocked_ = false;
+    else rb.unverified.push_back(fmt::format("R31 (reads 0x{:04X}: still unlocked)", v));
+  } catch (const Error& e) {
+    why = e.what();
+  }
+  if (why) rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", *why));
+  --shield_;
+  co_return rb;
+}
+
+std::string RollbackResult::text(const std::string& what) const {
+  std::string seen;
+  for (const auto& [r, v] : verified) seen += fmt::format("{}R{} 0x{:04X}", seen.empty() ? "" : ", ", r, v);
+  if (ok())
+    return fmt::format("{} is as it was: verified by reading {} register{} ({}) and R31 = 0x0000", what,
+                       verified.size(), verified.size() == 1 ? "" : "s", seen);
+  std::string bad;
+  for (const auto& u : unverified) bad += (bad.empty() ? "" : ", ") + u;
+  return fmt::format("could not verify {}: {}{}", what, bad, seen.empty() ? "" : "; read back as before: " + seen);
+}
+
+ChangeFailed::ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who)
+    : Error(rb.ok() ? cause_code : Exit::unverified,
+            rb.ok() ? fmt::format("{}; rolled back: {}", cause, rb.text(who))
+                    : fmt::format("{}; rollback failed: {}", cause, rb.text(who)),
+            rb.ok() ? std::string() : "these registers may hold the new values: read them with 'kscfg dump' when the "
+                                      "terminal answers again"),
+      cause_code_(cause_code),
+      cause_(std::move(cause)),
+      rb_(std::move(rb)) {}
+
+Task<void> Channel::command(unsigned reg, std::uint16_t value) {
+  check_writable(reg);
+  const RegisterDef& d = term_.type->regs[reg];
+  if (!d.command) throw Error(Exit::usage, fmt::format("R{} of {} is not a command register", reg, term_.type->type));
+  bool code_word = d.code_word || proto::is_protected(reg);
+  if (code_word) co_await unlock();
+  co_await transact(true, reg, value);
+  if (code_word) co_await lock();
+}
+
+Task<void> Channel::close() {
+  if (closed_) co_return;
+  if (!opened_) {
+    // Nothing was exchanged: nothing to put back.
+    engine_.access().close_now(key_);
+    closed_ = true;
+    co_return;
+  }
+  ++shield_;
+  if (leftover_ && !leftover_done_) {
+    try {
+      co_await finish_leftover();
+    } catch (...) {
+    }
+  }
+  // Never leave a terminal unlocked: relock if this work may have unlocked it. A link failure (a
+  // lossy line) is tried again; a terminal that does not answer is not.
+  if (maybe_unlocked_ || unlocked_) {
+    std::string failed;
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      try {
+        co_await transact(true, proto::kCodeWordRegister, 0);
+        failed.clear();
+        unlocked_ = maybe_unlocked_ = false;
+        break;
+      } catch (const Error& e) {
+        failed = e.what();
+        if (e.code() != Exit::link) break;
+      }
+    }
+    if (!failed.empty()) note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+  }
+  // Never leave it in register mode: put back the process-data bytes this work changed.
+  if (!closed_) {
+    Program p;
+    p.close_after = true;
+    bool ok = true;
+    try {
+      co_await exec(p);
+    } catch (...) {
+      ok = false;
+    }
+    if (!ok) engine_.access().close_now(key_);
+  }
+  closed_ = true;
+  --shield_;
+}
+
+}  // namespace kscfg

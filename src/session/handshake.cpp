@@ -1,0 +1,578 @@
+#include "kscfg/session/handshake.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <thread>
+
+#include "kscfg/protocol/codec.hpp"
+
+namespace kscfg {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::microseconds;
+
+// Timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is known, the
+// first poll goes out this long after the request and the next ones every kStep (or an eighth of
+// the time since the request, whichever is longer); the latency is then the longest of
+// kLearnSamples acknowledges.
+constexpr microseconds kLearnFirst{500};
+constexpr microseconds kStep{250};
+constexpr unsigned kLearnSamples = 3;
+// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
+// after this many in a run, no more speculation on that terminal.
+constexpr unsigned kMaxMisses = 3;
+// Bytes read for the save of several channels in one request: a Modbus read carries 125 registers.
+constexpr std::size_t kSaveSpan = 240;
+
+microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
+
+}  // namespace
+
+HandshakeAccess::HandshakeAccess(Link& link, HandshakeOptions opt) : link_(link), opt_(std::move(opt)) {}
+
+HandshakeAccess::~HandshakeAccess() { close_all(); }
+
+std::string HandshakeAccess::who(const Chan& c) const {
+  std::string s = fmt::format("terminal {} ({})", c.key.position, c.image.type->type);
+  if (c.image.type->channels > 1) s += fmt::format(" channel {}", c.key.channel + 1);
+  return s;
+}
+
+void HandshakeAccess::open(const TerminalImage& t, unsigned channel) {
+  ChannelKey key{t.position, channel};
+  if (auto it = chans_.find(key); it != chans_.end() && !it->second.closed) {
+    ++it->second.users;
+    return;
+  }
+  if (channel >= t.channels.size() || !t.channels[channel].window)
+    throw Error(Exit::refused, fmt::format("terminal {} ({}): no register window", t.position, t.type->type));
+  Chan c;
+  c.key = key;
+  c.image = t;
+  c.w = *t.channels[channel].window;
+  c.out_lo = std::min({c.w.ctrl, c.w.out_lo, c.w.out_hi});
+  c.out_hi = std::max({c.w.ctrl, c.w.out_lo, c.w.out_hi});
+  c.in_lo = std::min({c.w.status, c.w.in_lo, c.w.in_hi});
+  c.in_hi = std::max({c.w.status, c.w.in_lo, c.w.in_hi});
+  // Every output byte of the channel is saved: the process-data control byte and data bytes.
+  std::size_t lo = c.out_lo, hi = c.out_hi;
+  for (const auto& b : t.channels[channel].out) {
+    lo = std::min(lo, b.offset);
+    hi = std::max(hi, b.offset);
+  }
+  c.saved_at = lo;
+  c.saved.assign(hi - lo + 1, 0);
+  if (link_.pipelines()) c.timing = link_.ack_timing(t.position);
+  chans_.insert_or_assign(key, std::move(c));
+}
+
+ChannelFound HandshakeAccess::found(ChannelKey key) const {
+  auto it = chans_.find(key);
+  return it == chans_.end() ? ChannelFound{} : it->second.found;
+}
+
+void HandshakeAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) {
+  Chan& c = chans_.at(key);
+  c.found.dead_pid = pid;
+  c.dead_entry = e;
+}
+
+void HandshakeAccess::submit(Program& p) {
+  auto it = chans_.find(p.key);
+  if (it == chans_.end() || it->second.closed)
+    throw Error(Exit::internal, fmt::format("register access: terminal {} channel {} is not open", p.key.position,
+                                            p.key.channel + 1));
+  if (it->second.prog) throw Error(Exit::internal, "register access: a channel runs one program at a time");
+  p.values.clear();
+  p.error.reset();
+  p.closed = false;
+  it->second.prog = &p;
+}
+
+bool HandshakeAccess::busy() const {
+  return std::any_of(chans_.begin(), chans_.end(), [](const auto& kv) { return kv.second.prog != nullptr; });
+}
+
+void HandshakeAccess::finish(Chan& c, std::vector<Program*>& done) {
+  done.push_back(c.prog);
+  c.prog = nullptr;
+}
+
+void HandshakeAccess::fail(Chan& c, Error e, std::vector<Program*>& done) {
+  // The control byte holds a request whose answer is unknown: the next request looks first.
+  c.req.reset();
+  c.ahead.reset();
+  c.last_status.reset();
+  if (!c.prog) return;
+  c.prog->error = std::move(e);
+  finish(c, done);
+}
+
+void HandshakeAccess::journal_enter(Chan& c) {
+  if (c.journaled || !opt_.journal) return;
+  c.journaled = true;
+  SessionJournal::Entry e;
+  e.position = c.key.position;
+  e.channel = c.key.channel;
+  e.type = c.image.type->type;
+  e.window = c.w;
+  e.saved_at = c.saved_at;
+  e.saved = c.saved;
+  bool was = opt_.journal->enabled();
+  opt_.journal->enter(e);
+  if (was && !opt_.journal->enabled())
+    note_trace(fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
+                           "finds what it left",
+                           opt_.journal->why(), who(c)));
+}
+
+void HandshakeAccess::put_request(Chan& c, bool write, unsigned reg, std::uint16_t value) {
+  journal_enter(c);
+  // Value bytes and control byte travel in one write: the value is never behind the control byte.
+  c.shadow[c.w.ctrl - c.out_lo] = proto::control_byte(write, reg);
+  if (write) {
+    c.shadow[c.w.out_lo - c.out_lo] = static_cast<std::uint8_t>(value & 0xFF);
+    c.shadow[c.w.out_hi - c.out_lo] = static_cast<std::uint8_t>(value >> 8);
+    c.out_at = c.out_lo;
+    c.out_n = c.shadow.size();
+  } else {
+    c.out_at = c.w.ctrl;
+    c.out_n = 1;
+  }
+}
+
+void HandshakeAccess::put_restore(Chan& c, bool ctrl_only) {
+  auto saved = [&](std::size_t b) { return c.saved[b - c.saved_at]; };
+  if (ctrl_only) {
+    c.shadow[c.w.ctrl - c.out_lo] = saved(c.w.ctrl);
+    c.out_at = c.w.ctrl;
+    c.out_n = 1;
+    return;
+  }
+  // Only the bytes this work changed (the control byte, and the value bytes of a write): the
+  // channel's other bytes were never touched.
+  std::size_t lo = c.out_hi + 1, hi = 0;
+  for (std::size_t b = c.out_lo; b <= c.out_hi; ++b)
+    if (c.shadow[b - c.out_lo] != saved(b)) {
+      lo = std::min(lo, b);
+      hi = std::max(hi, b);
+    }
+  c.out_n = 0;
+  if (lo > hi) return;
+  for (std::size_t b = lo; b <= hi; ++b) c.shadow[b - c.out_lo] = saved(b);
+  c.out_at = lo;
+  c.out_n = hi - lo + 1;
+}
+
+void HandshakeAccess::closed_now(Chan& c) {
+  c.closed = true;
+  c.req.reset();
+  c.ahead.reset();
+  // Back in process-data mode: nothing for the next kscfg to finish.
+  if (c.journaled && opt_.journal) {
+    try {
+      opt_.journal->leave(c.key.position, c.key.channel);
+    } catch (...) {
+    }
+  }
+  c.journaled = false;
+}
+
+void HandshakeAccess::sleep_until(Clock::time_point t) const {
+  // In short steps, so that SIGINT/SIGTERM end a wait within a few milliseconds.
+  for (auto now = Clock::now(); now < t && !cancelled(); now = Clock::now())
+    std::this_thread::sleep_for(std::min<Clock::duration>(t - now, std::chrono::milliseconds(5)));
+}
+
+void HandshakeAccess::save(std::vector<Chan*>& chans) {
+  std::sort(chans.begin(), chans.end(), [](const Chan* a, const Chan* b) { return a->saved_at < b->saved_at; });
+  for (std::size_t i = 0; i < chans.size();) {
+    // One read for the channels that fit in one request.
+    std::size_t lo = chans[i]->saved_at, hi = lo + chans[i]->saved.size(), j = i + 1;
+    while (j < chans.size() && std::max(hi, chans[j]->saved_at + chans[j]->saved.size()) - lo <= kSaveSpan) {
+      hi = std::max(hi, chans[j]->saved_at + chans[j]->saved.size());
+      ++j;
+    }
+    std::vector<std::uint8_t> buf(hi - lo);
+    link_.read_outputs(lo, buf);
+    for (; i < j; ++i) {
+      Chan& c = *chans[i];
+      std::copy_n(buf.begin() + static_cast<std::ptrdiff_t>(c.saved_at - lo), c.saved.size(), c.saved.begin());
+      auto at = [&](std::size_t b) -> std::uint8_t& { return c.saved[b - c.saved_at]; };
+      c.shadow.assign(c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_lo - c.saved_at),
+                      c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_hi - c.saved_at + 1));
+      // A control byte in register mode is not process data: a session died here (docs/design.md
+      // section 6). Restoring it would repeat that session's request (the code word, say) after
+      // ours, so what goes back are the idle process-data bytes, or those the dead session found
+      // when its journal says so.
+      if (at(c.w.ctrl) & proto::kReg) {
+        c.found.leftover = at(c.w.ctrl);
+        if (c.dead_entry) {
+          const auto& e = *c.dead_entry;
+          for (std::size_t k = 0; k < e.saved.size(); ++k) {
+            std::size_t b = e.saved_at + k;
+            if (b >= c.saved_at && b < c.saved_at + c.saved.size()) at(b) = e.saved[k];
+          }
+        }
+        if (at(c.w.ctrl) & proto::kReg) {
+          at(c.w.ctrl) = 0;
+          at(c.w.out_lo) = 0;
+          at(c.w.out_hi) = 0;
+        }
+      }
+      c.ready = true;
+    }
+  }
+}
+
+std::vector<Program*> HandshakeAccess::advance() {
+  std::vector<Program*> done;
+  if (cancelled()) {
+    for (auto& [k, c] : chans_)
+      if (c.prog && !c.prog->shielded) fail(c, Error(Exit::interrupted, "interrupted"), done);
+    if (!done.empty()) return done;
+  }
+  // Channels whose work begins: their process-data bytes saved, in one request where they fit.
+  std::vector<Chan*> fresh;
+  for (auto& [k, c] : chans_)
+    if (c.prog && !c.ready) fresh.push_back(&c);
+  if (!fresh.empty()) {
+    try {
+      save(fresh);
+    } catch (const Error& e) {
+      for (Chan* c : fresh)
+        if (!c->ready) fail(*c, e, done);
+      return done;
+    }
+    for (Chan* c : fresh)
+      if (c->prog && c->prog->ops.empty() && !c->prog->close_after) finish(*c, done);
+    return done;
+  }
+
+  auto now = Clock::now();
+  auto due = Clock::time_point::max();
+  std::vector<Chan*> act;
+  for (auto& [k, c] : chans_) {
+    c.act = Act::none;
+    if (!c.prog) continue;
+    Program& p = *c.prog;
+    if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) {
+      finish(c, done);
+      continue;
+    }
+    if (p.values.size() == p.ops.size() && p.close_after && c.users > 1) {  // others still work on it
+      --c.users;
+      p.closed = true;
+      finish(c, done);
+      continue;
+    }
+    plan(c, now, due);
+    if (c.act == Act::close && c.out_n == 0) {  // nothing to put back
+      closed_now(c);
+      p.closed = true;
+      finish(c, done);
+      continue;
+    }
+    if (c.act != Act::none) act.push_back(&c);
+  }
+  if (act.empty()) {
+    if (done.empty() && due != Clock::time_point::max()) sleep_until(due);
+    return done;
+  }
+  std::vector<ImageTransfer> xs;
+  xs.reserve(act.size());
+  for (Chan* c : act) {
+    ImageTransfer x;
+    if (c->out_n) {
+      x.out_offset = c->out_at;
+      x.out = std::span<const std::uint8_t>(&c->shadow[c->out_at - c->out_lo], c->out_n);
+    }
+    if (c->act != Act::close && (c->act != Act::send || c->look_with_send)) {
+      c->in.assign(c->in_hi - c->in_lo + 1, 0);
+      x.in_offset = c->in_lo;
+      x.in = c->in;
+    }
+    xs.push_back(x);
+  }
+  auto t = Clock::now();
+  try {
+    link_.transfer(xs);
+  } catch (const Error& e) {
+    // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
+    // rules above the seam decide whether to ask again (a write's answer lost: read first).
+    for (Chan* c : act) {
+      if (c->act == Act::close) continue;  // tried again by the next advance()
+      fail(*c, e, done);
+    }
+    return done;
+  }
+  for (Chan* c : act) result(*c, t, done);
+  return done;
+}
+
+void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& due) {
+  Program& p = *c.prog;
+  c.with_ahead = c.with_restore = c.look_with_send = false;
+  c.out_n = 0;
+  std::size_t k = p.values.size();
+  if (k == p.ops.size()) {
+    c.act = Act::close;
+    put_restore(c, false);
+    return;
+  }
+  const RegisterOp& op = p.ops[k];
+  if (!c.req) {
+    if (!c.last_status) {
+      // The status is unknown: look before trusting an acknowledge (decision 2). On a link that
+      // pipelines, a read's look goes with its request: the read part shows the status as it was.
+      if (!op.write && link_.pipelines()) {
+        put_request(c, false, op.reg, 0);
+        c.look_with_send = true;
+        c.act = Act::send;
+      } else {
+        c.act = Act::look;
+      }
+      return;
+    }
+    if (proto::is_ack(*c.last_status, op.reg)) {
+      // The status already acknowledges this register: ask for another one first, so that the
+      // acknowledge waited for is a visible change.
+      unsigned other = op.reg == 8 ? 9 : 8;
+      note_trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(c), *c.last_status, op.reg,
+                             other));
+      put_request(c, false, other, 0);
+      c.act = Act::send;
+      c.probe_next = true;
+      return;
+    }
+    put_request(c, op.write, op.reg, op.value);
+    c.act = Act::send;
+    return;
+  }
+  // A request is in the control byte: poll once its answer is due.
+  const Request& r = *c.req;
+  bool timed = link_.pipelines() && c.timing;
+  bool known = timed && c.timing->wait.count() > 0;
+  Clock::time_point when = now;
+  if (!timed) {
+    // The emulator runs a K-bus cycle on every read: poll at once; a terminal that does not
+    // answer is not worth spinning on.
+    if (r.polls > 64) when = c.last_poll + microseconds(200);
+  } else if (r.polls == 0) {
+    when = r.sent + (known ? c.timing->wait : kLearnFirst);
+  } else {
+    // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the
+    // time since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
+    microseconds step = known ? std::max(kStep, c.timing->wait / 8) : kStep;
+    when = c.last_poll + std::max(step, us(c.last_poll - r.sent) / 8);
+  }
+  if (now < when) {
+    due = std::min(due, when);
+    return;
+  }
+  c.act = Act::poll;
+  bool speculate = known && c.timing->misses < kMaxMisses;
+  if (r.polls == 0 && !r.write && !r.probe && speculate && !c.ahead) {
+    if (k + 1 < p.ops.size() && !p.ops[k + 1].write && p.ops[k + 1].reg != r.reg) {
+      put_request(c, false, p.ops[k + 1].reg, 0);  // read-ahead
+      c.with_ahead = true;
+    } else if (k + 1 == p.ops.size() && p.close_after && !c.found.leftover && c.users == 1) {
+      // The control byte goes back with the poll for the last answer when it is the only byte
+      // this work changed (a read changes nothing on the terminal: if it came too early, ask again).
+      bool only_ctrl = true;
+      for (std::size_t b = c.out_lo; b <= c.out_hi; ++b)
+        if (b != c.w.ctrl && c.shadow[b - c.out_lo] != c.saved[b - c.saved_at]) only_ctrl = false;
+      if (only_ctrl) {
+        put_restore(c, true);
+        c.with_restore = true;
+      }
+    }
+  }
+}
+
+void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
+  auto status = [&] { return c.in[c.w.status - c.in_lo]; };
+  auto value = [&] {
+    return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8));
+  };
+  Program& p = *c.prog;
+  switch (c.act) {
+    case Act::none:
+      return;
+    case Act::look:
+      c.last_status = status();
+      return;
+    case Act::close:
+      closed_now(c);
+      p.closed = true;
+      finish(c, done);
+      return;
+    case Act::send: {
+      std::uint8_t ctrl = c.shadow[c.w.ctrl - c.out_lo];
+      unsigned reg = ctrl & proto::kAddrMask;
+      bool probe = c.probe_next;
+      c.probe_next = false;
+      if (c.look_with_send && proto::is_ack(status(), reg)) {
+        // The status acknowledged this register before the request went out: no new answer can be
+        // told from it. The next plan asks for another register first.
+        c.last_status = status();
+        return;
+      }
+      const RegisterOp& op = p.ops[p.values.size()];
+      Request r;
+      r.write = !probe && op.write;
+      r.reg = reg;
+      r.value = r.write ? op.value : 0;
+      r.probe = probe;
+      r.sent = r.since = t;
+      c.req = r;
+      c.last_status.reset();
+      return;
+    }
+    case Act::poll:
+      break;
+  }
+  c.last_poll = t;
+  Request& r = *c.req;
+  ++r.polls;
+  std::uint8_t st = status();
+  bool known = c.timing && c.timing->wait.count() > 0;
+  if (proto::is_ack(st, r.reg)) {
+    if (!r.probe) {
+      if (c.timing) {
+        auto& T = *c.timing;
+        ++T.acks;
+        microseconds took = us(t - r.sent);
+        if (!known) {
+          // Learning: time a few acknowledges, then trust the longest.
+          T.longest = std::max(T.longest, took);
+          if (++T.samples >= kLearnSamples) T.wait = T.base = T.longest;
+        } else if (r.polls > 1) {
+          // It needed longer than thought, bounded by twice what the run started with.
+          microseconds cap = 2 * (T.base.count() > 0 ? T.base : T.wait);
+          T.wait = std::max(T.wait, std::min(took, cap));
+        }
+      }
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
+                               r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
+                               r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls,
+                               r.polls == 1 ? "" : "s",
+                               c.timing ? fmt::format(", {} us after the request", us(t - r.sent).count()) : "",
+                               c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
+                               c.with_restore ? ", control byte restored with the poll" : ""));
+      p.values.push_back(value());
+      if (r.write && opt_.after_write) opt_.after_write(r.reg);
+      if (p.progress) p.progress(p.values.size());
+    }
+    if (c.with_restore) {
+      c.last_status.reset();  // back in process data: look again before a next request
+      closed_now(c);
+      p.closed = true;
+    } else {
+      c.last_status = st;
+    }
+    if (c.with_ahead) {
+      Request a;
+      a.reg = p.ops[p.values.size()].reg;
+      a.sent = a.since = t;
+      c.req = a;
+    } else if (c.ahead) {
+      c.req = *c.ahead;
+      c.ahead.reset();
+    } else {
+      c.req.reset();
+    }
+    if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) finish(c, done);
+    return;
+  }
+  // Not answered yet. A read-ahead or restore that came too early: the terminal is slower than
+  // thought; how much is unknown, so an eighth more (its latency is quantised by its bus cycle).
+  if (r.polls == 1 && known && (c.with_ahead || c.with_restore)) {
+    auto& T = *c.timing;
+    T.missed = true;
+    ++T.misses;
+    microseconds cap = 2 * (T.base.count() > 0 ? T.base : T.wait);
+    T.wait = std::min(T.wait + T.wait / 8, std::max(cap, T.wait));
+  }
+  if (c.with_restore) {
+    // The control byte is back to what was found: the request is gone. Ask again.
+    note_trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(c), r.reg));
+    c.last_status = st;
+    c.req.reset();
+    return;
+  }
+  if (c.with_ahead) {
+    Request a;
+    a.reg = p.ops[p.values.size() + 1].reg;
+    a.sent = a.since = t;
+    c.ahead = a;
+  }
+  if (c.ahead && proto::is_ack(st, c.ahead->reg)) {
+    // The terminal took the request written ahead before answering ours: ask again.
+    note_trace(fmt::format("{}: R{} answered before R{}; asking again", who(c), c.ahead->reg, r.reg));
+    c.last_status = st;
+    c.req.reset();
+    c.ahead.reset();
+    return;
+  }
+  if (t - r.since > opt_.timeout) {
+    std::uint8_t ctrl = proto::control_byte(r.write, r.reg);
+    if (auto why = explain_no_ack()) {
+      fail(c, *why, done);
+      return;
+    }
+    fail(c,
+         Error(Exit::timeout,
+               fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})", who(c),
+                           r.write ? "writing" : "reading", r.reg, opt_.timeout.count(), ctrl, st),
+               "check the terminal and the link, or raise --timeout"),
+         done);
+  }
+}
+
+void HandshakeAccess::close_now(ChannelKey key) noexcept {
+  auto it = chans_.find(key);
+  if (it == chans_.end()) return;
+  Chan& c = it->second;
+  if (c.users > 1 && !c.closed) {
+    --c.users;
+    return;
+  }
+  c.prog = nullptr;
+  if (c.closed || !c.ready) {
+    c.closed = true;
+    return;
+  }
+  put_restore(c, false);
+  bool restored = c.out_n == 0;
+  for (int attempt = 0; !restored && attempt < 3; ++attempt) {
+    try {
+      link_.write_outputs(c.out_at, std::span<const std::uint8_t>(&c.shadow[c.out_at - c.out_lo], c.out_n));
+      restored = true;
+    } catch (const Error& e) {
+      if (e.code() != Exit::link) break;
+    } catch (...) {
+      break;
+    }
+  }
+  if (restored) {
+    closed_now(c);
+  } else {
+    // The journal entry stays: the next kscfg on this port finishes the terminal.
+    c.closed = true;
+    c.journaled = false;
+  }
+}
+
+void HandshakeAccess::close_all() noexcept {
+  for (auto& [k, c] : chans_) {
+    c.users = 1;
+    close_now(k);
+  }
+}
+
+}  // namespace kscfg
