@@ -7,7 +7,9 @@
 //    configured baud rate (10 bits per character, 3.5 characters of silence between frames, one
 //    half-duplex line as on RS485);
 //  * `kscfg serve` (the emulator's own Modbus server) over TCP;
-//  * the embedded emulator (`kscfg --port emu:PATH read R8`).
+//  * the embedded emulator (`kscfg --port emu:PATH read R8`);
+//  * stations of 1..16 terminals behind both servers, TCP and RTU: backup, apply and a cold info
+//    against the 1-terminal station (station_sweep.cpp; `--only station`).
 //
 // The relays count the Modbus requests (exchanges) and time the traffic on the line, so the
 // figures do not depend on what kscfg reports about itself, and the same benchmark measures any
@@ -29,11 +31,13 @@
 // --lenient-gaps starts the peers with their diagnostic flag (a read spanning undocumented
 // addresses gives zeros instead of exception 2): older kscfg builds read 0x1000..0x1013 at once.
 #include "harness.hpp"
+#include "station_sweep.hpp"
 
 namespace {
 
 using namespace bench;
 
+// The cases of issue 12's table, on one TCP peer and one pty peer.
 void reference(const Options& o, const std::string& station, std::vector<Row>& rows, double cycle_ms,
                unsigned dmin, unsigned dmax) {
   const unsigned n = o.runs;
@@ -211,6 +215,13 @@ int main(int argc, char** argv) {
     emulator(o, rows);
     print_rows(rows);
     rows.clear();
+  }
+  if (o.only == "station" || (o.only.empty() && !o.quick) || o.only.find(" RTU") != std::string::npos ||
+      o.only.find(" TCP") != std::string::npos) {
+    fmt::print("\n## Station size: 1..16 KL6001, whole-station commands (ratios to the 1-terminal station)\n\n");
+    print_rows({});
+    std::vector<Row> st;
+    station_sweep(o, st);  // prints its rows as it goes
   }
   if (!o.quick && (o.only.empty() || o.only.find("TCP peer") != std::string::npos || o.only == "sweep")) {
     fmt::print("\n## Sweep: K-bus cycle x ack latency (TCP, `dump` of 48 registers and one `read R8`)\n\n");

@@ -1,0 +1,143 @@
+// The station-size sweep (issue 22): stations of 1, 2, 4, 8 and 16 KL6001 behind `kscfg serve` and
+// behind the pymodbus peer, over Modbus TCP and RTU, each case a whole kscfg process:
+//  * backup of the station (--station FILE);
+//  * apply of one parameter on every terminal (the baud rate, 19200 and 9600 in turn, so that every
+//    run changes every terminal);
+//  * info with a cold scan cache (TCP: over RTU the BK7300's image has no complete evaluation, so
+//    terminals cannot be identified and a station file is needed).
+// Every row gives the requests the relay counted, the process time and, against the 1-terminal
+// station of the same server, the ratios of both; over RTU also the line time against the wire
+// floor of the frames exchanged.
+#include "station_sweep.hpp"
+
+namespace bench {
+
+namespace {
+
+struct Server {
+  std::string name;  // "serve TCP", "peer RTU", ...
+  bool tcp = true;
+  bool peer = false;
+};
+
+// N KL6001 and an end terminal; over RTU (BK7300, no complete evaluation) each KL6001 in the
+// standard format, which keeps its control/status byte (the peer is preset to it).
+std::string station_text(unsigned n, bool tcp, const std::string& extra = "") {
+  std::string s = fmt::format("coupler = \"{}\"\n", tcp ? "BK9000" : "BK7300");
+  for (unsigned i = 0; i < n; ++i) {
+    s += "[[terminal]]\ntype = \"KL6001\"\n";
+    if (!tcp) s += "alternative-format = false\n";
+    s += extra;
+  }
+  return s + "[[terminal]]\ntype = \"KL9010\"\n";
+}
+
+std::string write_file(const Options& o, const std::string& name, const std::string& text) {
+  fs::path p = o.tmp / name;
+  FILE* f = std::fopen(p.c_str(), "w");
+  if (!f) die("cannot write " + p.string());
+  std::fputs(text.c_str(), f);
+  std::fclose(f);
+  return p.string();
+}
+
+std::unique_ptr<Child> start(const Options& o, const Server& sv, unsigned n, const std::string& station) {
+  if (sv.peer) {
+    std::vector<std::string> a = peer_argv(o, sv.tcp, 2.0, 1, 2);
+    std::string types;
+    for (unsigned i = 0; i < n; ++i) types += "KL6001,";
+    a.insert(a.end(), {"--station", types + "KL9010"});
+    if (!sv.tcp) {
+      a.insert(a.end(), {"--coupler", "BK7300"});
+      for (unsigned i = 1; i <= n; ++i) a.insert(a.end(), {"--preset", fmt::format("{}:R34=0x0001", i)});
+    }
+    return spawn(a);
+  }
+  std::string state = (o.tmp / fmt::format("serve-{}-{}.json", sv.tcp ? "tcp" : "rtu", n)).string();
+  RunResult r = run_kscfg(o, {"--port", "emu:" + state, "emu", "reset", "--station", station}, o.tmp / "cache-x");
+  if (r.rc != 0) die("emu reset: " + r.err);
+  std::vector<std::string> a{o.kscfg, "--port", "emu:" + state, "serve", "--watchdog-ms", "0"};
+  if (sv.tcp) a.insert(a.end(), {"--tcp", "127.0.0.1:0"});
+  else a.push_back("--pty");
+  return spawn(a);
+}
+
+std::unique_ptr<Relay> relay_for(const Options& o, const Server& sv, const Child& c) {
+  const std::string& line = c.first_line;
+  if (sv.tcp) return std::make_unique<TcpRelay>(std::stoi(line.substr(line.rfind(':') + 1)));
+  return std::make_unique<PtyRelay>(line.substr(4, line.find('?') - 4), o.baud);
+}
+
+// apply A, apply B, apply A, ...: every run changes the baud rate of every terminal (exit 10).
+Stats apply_turns(const Options& o, Relay& relay, const std::string& station, const std::string& a,
+                  const std::string& b, const std::string& tag) {
+  fs::path cache = o.tmp / ("cache-" + tag);
+  std::vector<std::string> base{"--port", relay.endpoint(), "--station", station, "apply"};
+  auto args = [&](const std::string& f) {
+    auto v = base;
+    v.push_back(f);
+    return v;
+  };
+  run_kscfg(o, args(a), cache);  // the first run, not counted
+  std::vector<double> ms, ex, line, floor;
+  Stats st;
+  for (unsigned i = 0; i < o.runs; ++i) {
+    relay.reset();
+    RunResult r = run_kscfg(o, args(i % 2 ? a : b), cache);
+    Traffic t = relay.take();
+    if (r.rc != 10) {
+      ++st.failed;
+      st.error = fmt::format("exit {}: {}", r.rc, r.err.substr(0, r.err.find('\n')));
+      continue;
+    }
+    ms.push_back(r.ms);
+    ex.push_back(static_cast<double>(t.requests));
+    line.push_back(t.line_s() * 1000);
+    floor.push_back(t.floor_s * 1000);
+  }
+  st.ms = median(ms);
+  st.exchanges = median(ex);
+  st.line_ms = median(line);
+  st.floor_ms = median(floor);
+  return st;
+}
+
+std::string ratio_note(const Stats& s, const Stats* one, bool rtu) {
+  std::string note;
+  if (one && one->ms > 0 && one->exchanges > 0)
+    note = fmt::format("{:.2f} x time, {:.2f} x requests of 1 terminal", s.ms / one->ms, s.exchanges / one->exchanges);
+  if (rtu && s.floor_ms > 0)
+    note += fmt::format("{}line {:.2f} x wire floor", note.empty() ? "" : "; ", s.line_ms / s.floor_ms);
+  return note;
+}
+
+}  // namespace
+
+void station_sweep(const Options& o, std::vector<Row>& rows) {
+  std::vector<Server> servers{{"serve TCP", true, false}, {"peer TCP", true, true}, {"serve RTU", false, false},
+                              {"peer RTU", false, true}};
+  for (const auto& sv : servers) {
+    if (!o.only.empty() && o.only != "station" && sv.name.find(o.only) == std::string::npos) continue;
+    std::map<std::string, Stats> one;  // the 1-terminal figures of this server, by case
+    for (unsigned n : {1u, 2u, 4u, 8u, 16u}) {
+      std::string tag = fmt::format("st-{}-{}-{}", sv.peer ? "peer" : "serve", sv.tcp ? "tcp" : "rtu", n);
+      std::string station = write_file(o, tag + ".toml", station_text(n, sv.tcp));
+      std::string fa = write_file(o, tag + "-a.toml", station_text(n, sv.tcp, "baud = 19200\n"));
+      std::string fb = write_file(o, tag + "-b.toml", station_text(n, sv.tcp, "baud = 9600\n"));
+      auto server = start(o, sv, n, station);
+      auto relay = relay_for(o, sv, *server);
+      std::string link = fmt::format("{}, {} x KL6001", sv.name, n);
+      auto row = [&](const std::string& what, const Stats& s) {
+        if (n == 1) one[what] = s;
+        rows.push_back({link, what, s, 0, 0, ratio_note(s, n == 1 ? nullptr : &one[what], !sv.tcp)});
+        print_rows({rows.end() - 1, rows.end()}, false);
+      };
+      row("backup", measure(o, *relay, {"--station", station, "backup"}, Cache::warm, tag + "-backup", o.runs));
+      row("apply, baud on every terminal", apply_turns(o, *relay, station, fa, fb, tag + "-apply"));
+      if (sv.tcp) row("info, cold scan cache", measure(o, *relay, {"info"}, Cache::cold, tag + "-info", o.runs));
+      stop(*server);
+    }
+  }
+}
+
+}  // namespace bench

@@ -1,0 +1,13 @@
+// The station-size sweep of bench_modbus (station_sweep.cpp).
+#pragma once
+#include <vector>
+
+#include "harness.hpp"
+
+namespace bench {
+
+// Stations of 1..16 KL6001 behind kscfg serve and the pymodbus peer, TCP and RTU: backup, apply of
+// one parameter per terminal, cold info; rows with the ratios to the 1-terminal station.
+void station_sweep(const Options& o, std::vector<Row>& rows);
+
+}  // namespace bench
