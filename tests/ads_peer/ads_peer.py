@@ -18,9 +18,13 @@ What it is built from:
 
 Each connection is served by a thread of its own, requests one after the other; every register
 access takes --latency-ms (a coupler's K-bus register handshake), so a client's time for N
-registers can be compared with N times the per-access latency.
+registers can be compared with N times the per-access latency. With --overlap the peer works on
+every request of a connection at once and answers each when it is done, each register access
+taking between half and one and a half times the latency: replies come out of order, matched
+only by their invoke ids.
 """
 import argparse
+import random
 import socket
 import struct
 import sys
@@ -71,7 +75,8 @@ def default_station():
 
 
 class Peer:
-    def __init__(self, latency_ms=0.0, idle_s=10.0, netid=None, routes=()):
+    def __init__(self, latency_ms=0.0, idle_s=10.0, netid=None, routes=(), overlap=False):
+        self.overlap = overlap
         self.station = default_station()
         self.numbered = [t for t in self.station if not t.passive]
         self.latency = latency_ms / 1000.0
@@ -133,6 +138,7 @@ class Peer:
         me = socket.inet_aton(conn.getsockname()[0]) + b"\x01\x01"
         conn.settimeout(0.1)
         buf = b""
+        send_lock = threading.Lock()
         last = time.monotonic()
         try:
             while not self.stop.is_set():
@@ -153,12 +159,28 @@ class Peer:
                     if len(buf) < 6 + length:
                         break
                     frame, buf = buf[6:6 + length], buf[6 + length:]
+                    if self.overlap:
+                        threading.Thread(target=self.answer_later, args=(conn, send_lock, frame, me),
+                                         daemon=True).start()
+                        continue
                     reply = self.handle(frame, me)
                     if reply:
                         conn.sendall(reply)
                 last = time.monotonic()
         finally:
             conn.close()
+
+    def answer_later(self, conn, send_lock, frame, me):
+        reply = self.handle(frame, me)
+        if reply:
+            with send_lock:
+                try:
+                    conn.sendall(reply)
+                except OSError:
+                    pass
+
+    def delay(self):
+        time.sleep(self.latency * (0.5 + random.random()) if self.overlap else self.latency)
 
     def handle(self, frame, me):
         tnet, tport, snet, sport, cmd, flags, dlen, err, invoke = AMS_HDR.unpack_from(frame)
@@ -211,7 +233,7 @@ class Peer:
                     return ADS_SIZE, b""
                 img = self.inputs if group == 0xF020 else self.outputs
                 return 0, bytes(img[offset:offset + n])
-        time.sleep(self.latency)
+        self.delay()
         with self.lock:
             if group == 0:
                 table, reg = offset >> 16, offset & 0xFFFF
@@ -246,7 +268,7 @@ class Peer:
                 self.outputs[offset:offset + len(value)] = value
                 self.image_writes.append((offset, bytes(value)))
                 return 0
-        time.sleep(self.latency)
+        self.delay()
         with self.lock:
             if group == 0:
                 return ADS_DENIED
@@ -272,8 +294,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--latency-ms", type=float, default=0.0)
     ap.add_argument("--idle-s", type=float, default=10.0)
+    ap.add_argument("--overlap", action="store_true", help="work on a connection's requests at once, answer out of order")
     a = ap.parse_args()
-    peer = Peer(a.latency_ms, a.idle_s).start()
+    peer = Peer(a.latency_ms, a.idle_s, overlap=a.overlap).start()
     print(f"ads://127.0.0.1:{peer.port}", flush=True)
     try:
         while True:
