@@ -28,7 +28,7 @@ class Coupler : public Command {
            "gateway, the Modbus TCP watchdog and port, how long an idle ADS connection lives). A register the "
            "coupler does not serve is shown as \\fBnot served\\fR. Each line names the register and the public "
            "page that documents it; with \\fB\\-\\-json\\fR: \\fBport\\fR, \\fBprotocol\\fR and \\fBsettings\\fR "
-           "(each \\fBname\\fR, \\fBvalue\\fR, \\fBraw\\fR, \\fBregister\\fR, \\fBsource\\fR). The emulator "
+           "(each \\fBname\\fR, \\fBvalue\\fR, \\fBregister_value\\fR, \\fBaddress\\fR, \\fBsource\\fR). The emulator "
            "(\\fBemu\\fR) is no coupler: serve it with \\fBkscfg serve\\fR and read that.";
   }
   std::vector<std::string> examples() const override {
@@ -43,8 +43,8 @@ class Coupler : public Command {
       for (const auto& x : s.settings)
         list.push_back({{"name", x.name},
                         {"value", x.value},
-                        {"raw", x.raw ? nlohmann::json(*x.raw) : nlohmann::json(nullptr)},
-                        {"register", x.where},
+                        {"register_value", x.raw ? nlohmann::json(*x.raw) : nlohmann::json(nullptr)},
+                        {"address", x.where},
                         {"source", x.source}});
       print_json({{"port", ctx.link().describe()}, {"protocol", s.protocol}, {"settings", list}});
       return 0;

@@ -49,7 +49,8 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
   adsreg::RegisterAccess access(c, timeout_ms);
   CouplerSettings s{"ads", {}};
   auto t9 = access.read_table(adsreg::kTable9, 0, 1);
-  s.settings.push_back({"coupler", fmt::format("{}", t9[0]), t9[0], "ADS port 100, table 9 register 0", kTable9Page});
+  s.settings.push_back({"coupler", fmt::format("type number {} (BK{})", t9[0], t9[0]), t9[0],
+                        "ADS port 100, table 9 register 0", kTable9Page});
   auto t = access.read_table(adsreg::kTable100, 0, 28);
   auto add = [&](const char* name, std::string value, unsigned raw, const std::string& regs) {
     s.settings.push_back({name, std::move(value), raw, "ADS port 100, table 100 register " + regs, kTable100Page});
@@ -69,7 +70,7 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
       t[16], "16");
   add("gateway", ip(t[17], t[18]), (t[17] << 16) | t[18], "17..18");
   add("modbus-watchdog", fmt::format("{} ms", t[24]), t[24], "24");
-  add("modbus-port", fmt::format("{}", t[26]), t[26], "26");
+  add("modbus-port", fmt::format("TCP port {}", t[26]), t[26], "26");
   add("ads-connection-life", fmt::format("{} s", t[27]), t[27], "27");
   return s;
 }

@@ -33,13 +33,18 @@ TEST_CASE("kscfg over ads://: the station from table 9, data over port 300, coup
   r = run_kscfg({"--port", s.uri, "--json", "data", "--once"}, env);
   REQUIRE(r.rc == 0);
   CHECK(r.out.find("\"type\":\"KL5101\"") != std::string::npos);
+  // The serial handshake through the image on port 300.
+  r = run_kscfg({"--port", s.uri, "-t", "1", "--json", "serial", "send", "hi"}, env);
+  CHECK(r.rc == 0);
+  CHECK(r.out.find("\"sent\": 2") != std::string::npos);
   r = run_kscfg({"--port", s.uri, "--json", "coupler"}, env);
   REQUIRE(r.rc == 0);
   auto j = nlohmann::json::parse(r.out);
   CHECK(j.at("protocol") == "ads");
+  CHECK(j.at("settings").at(0).at("value") == "type number 9000 (BK9000)");
   bool watchdog = false;
   for (const auto& x : j.at("settings"))
-    if (x.at("name") == "ads-watchdog") watchdog = x.at("value") == "1000 ms" && x.at("register").get<std::string>().find("table 100") != std::string::npos;
+    if (x.at("name") == "ads-watchdog") watchdog = x.at("value") == "1000 ms" && x.at("address").get<std::string>().find("table 100") != std::string::npos;
   CHECK(watchdog);
   // A register through the image handshake on port 300, written and read back.
   r = run_kscfg({"--port", s.uri, "-t", "1", "write", "R32", "0x0007"}, env);
@@ -84,7 +89,7 @@ TEST_CASE("kscfg over ads://: bad URIs, the emulator, a closed port and serve op
   CHECK(one_line_error(r));
 }
 
-TEST_CASE("kscfg over ads://: the routing table names the NetId to add; data force watches the watchdog") {
+TEST_CASE("kscfg over ads://: the routing table names the NetId to add, and data force watches the watchdog") {
   TempDir d;
   Server s(d.file("emu.json"), {"--ads", "127.0.0.1:0", "--ads-route", "10.1.1.1.1.1"}, d.file("serve.err"));
   auto env = env_for(d);
@@ -102,7 +107,7 @@ TEST_CASE("kscfg over ads://: the routing table names the NetId to add; data for
   CHECK(r.err.find("1000 ms") != std::string::npos);
 }
 
-TEST_CASE("kscfg over ads://: SIGINT ends a wait on the coupler at once; a server killed under a client is an error") {
+TEST_CASE("kscfg over ads://: SIGINT ends a wait on the coupler at once, and a server killed under a client is an error") {
   TempDir d;
   std::string state = d.file("emu.json");
   // The KL6001 answers register requests 1000 K-bus cycles late (100 s at 100 ms a cycle).
