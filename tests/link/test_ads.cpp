@@ -2,6 +2,12 @@
 // port 300 image, errors by name, the idle cut, invoke ids), the settled open questions.
 #include <catch2/catch.hpp>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <atomic>
 #include <thread>
 
@@ -296,4 +302,65 @@ TEST_CASE("ADS image link: port 300 moves bytes of the image, and the watchdog c
   }
   link.read_outputs(last, r);
   CHECK(r[0] == 0);
+}
+
+namespace {
+
+// A raw TCP connection to the server; -1 when connect fails.
+int raw_connect(const std::string& uri) {
+  auto p = parse_port_uri(uri);
+  int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(static_cast<std::uint16_t>(p.port));
+  a.sin_addr.s_addr = htonl(0x7F000001);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+// Reads until the server closes the connection (true) or 5 s pass (false).
+bool closed_by_server(int fd) {
+  auto end = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+  while (std::chrono::steady_clock::now() < end) {
+    pollfd p{fd, POLLIN, 0};
+    if (::poll(&p, 1, 50) > 0) {
+      char b[256];
+      ssize_t n = ::recv(fd, b, sizeof b, 0);
+      if (n <= 0) return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
+TEST_CASE("serve --ads survives its clients: a stream that is not AMS, a frame that never ends, a huge length") {
+  AdsServeOptions o;
+  o.frame_timeout_ms = 200;
+  Served s(o);
+  int http = raw_connect(s.uri);
+  REQUIRE(http >= 0);
+  const char get[] = "GET / HTTP/1.1\r\n\r\n";
+  REQUIRE(::send(http, get, sizeof get - 1, MSG_NOSIGNAL) > 0);
+  CHECK(closed_by_server(http));
+  ::close(http);
+  int slow = raw_connect(s.uri);
+  std::uint8_t half[10] = {0, 0, 44, 0, 0, 0, 127, 0, 0, 1};  // a frame's first 10 bytes, then nothing
+  REQUIRE(::send(slow, half, sizeof half, MSG_NOSIGNAL) > 0);
+  CHECK(closed_by_server(slow));
+  ::close(slow);
+  int huge = raw_connect(s.uri);
+  std::uint8_t big[6] = {0, 0, 0xFF, 0xFF, 0xFF, 0x7F};  // 2 GB announced
+  REQUIRE(::send(huge, big, sizeof big, MSG_NOSIGNAL) > 0);
+  CHECK(closed_by_server(huge));
+  ::close(huge);
+  auto st = s.server->stats();
+  CHECK(st.malformed == 2);
+  CHECK(st.timed_out == 1);
+  // The server still answers.
+  AdsClient c = s.client();
+  CHECK(c.read(adsport::kRegisters, 1, 8, 2, "R8") == std::vector<std::uint8_t>{0x71, 0x17});
 }
