@@ -26,6 +26,7 @@ std::unique_ptr<Command> make_station();
 std::unique_ptr<Command> make_serial();
 std::unique_ptr<Command> make_data();
 std::unique_ptr<Command> make_scan();
+std::unique_ptr<Command> make_coupler();
 std::unique_ptr<Command> make_ports();
 std::unique_ptr<Command> make_serve();
 std::unique_ptr<Command> make_emu();

@@ -13,6 +13,8 @@
 #include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/process_data.hpp"
 
 namespace kscfg::cli {
@@ -125,7 +127,10 @@ class Data : public Command {
            "while the live view runs, until Ctrl\\-C, \\fB\\-\\-hold\\fR \\fIMS\\fR, \\fB\\-\\-once\\fR or "
            "\\fB\\-\\-count\\fR; then the previous values are written back and read back, also after an error. "
            "With \\fB\\-\\-json\\fR the last line is {position, channel, forced: [{name, before, after}], "
-           "restored}. Ctrl\\-C ends \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0).";
+           "restored}. Ctrl\\-C ends \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0). Over "
+           "\\fBads://\\fR the coupler's port\\-300 watchdog switches the outputs to the safe state when no "
+           "telegram came for 1000 ms: \\fBdata force\\fR feeds it with every interval, and refuses an "
+           "\\fB\\-\\-interval\\fR of 1000 ms or more there.";
   }
   std::vector<std::string> examples() const override {
     return {"data", "data --once", "--json data --once", "-t 2 data --count 5 --interval 100",
@@ -153,6 +158,15 @@ class Data : public Command {
     std::size_t count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
     auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
+    // ADS port 300: "If no further telegram arrives within 1000 ms the outputs will be switched to
+    // the safe state" (link/ads_link.hpp). Held values are written every interval: keep it shorter.
+    if (force && interval >= std::chrono::milliseconds(adsimage::kWatchdogMs) &&
+        parse_port_uri(ctx.options().port).scheme == "ads")
+      throw Error(Exit::usage,
+                  fmt::format("--interval {} ms: over ADS the coupler switches the outputs off after {} ms without a "
+                              "telegram, so forced values would drop between two writes",
+                              interval.count(), adsimage::kWatchdogMs),
+                  "give --interval below 1000 (default 500)");
     if (interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
     std::optional<std::chrono::milliseconds> hold;
     if (!hold_.empty()) hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));

@@ -232,6 +232,17 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   json tdiff = run_json(tcp, {"diff", tbk});
   CHECK(tdiff["unit"] == 1);
   CHECK(tdiff["changed"] == false);
+  // kscfg coupler over Modbus: the watchdog registers, 0x1123 not served by serve.
+  covered.insert("coupler");
+  json cp = run_json(tcp, {"coupler"});
+  CHECK(cp["protocol"] == "modbus");
+  REQUIRE(cp["settings"].size() == 4);
+  CHECK(cp["settings"][0]["name"] == "watchdog");
+  CHECK(cp["settings"][0]["register_value"] == 1000);
+  CHECK(cp["settings"][2]["register_value"] == 1);
+  CHECK(cp["settings"][3]["register_value"].is_null());
+  CHECK(cp["settings"][3]["value"] == "not served");
+  CHECK(cp["settings"][0]["source"].get<std::string>().rfind("https://infosys.beckhoff.com/", 0) == 0);
 
   for (const auto& p : command_paths()) {
     INFO(p);
