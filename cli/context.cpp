@@ -43,7 +43,7 @@ Link& Context::link() {
 
 Engine& Context::engine() {
   if (!engine_) {
-    access_ = std::make_unique<HandshakeAccess>(link(), handshake_options(session_options()));
+    access_ = open_register_access(link(), session_options(), [this]() -> const StationLayout& { return layout(); });
     engine_ = std::make_unique<Engine>(*access_);
   }
   return *engine_;

@@ -11,6 +11,8 @@
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
+#include "kscfg/session/ads_access.hpp"
+#include "kscfg/session/session.hpp"
 
 namespace kscfg {
 
@@ -82,6 +84,15 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     finish_dead_sessions(*link, catalog, so, fits);
   }
   return link;
+}
+
+std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
+                                                     std::function<const StationLayout&()> layout) {
+  if (auto* ads = dynamic_cast<AdsImageLink*>(&link)) {
+    auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
+    return std::make_unique<AdsAccess>(ads->client(), number, so.timeout, so.cancel);
+  }
+  return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }
 
 }  // namespace kscfg

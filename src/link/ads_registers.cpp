@@ -76,7 +76,7 @@ AdsClient::Call RegisterAccess::read_call(const Address& a) const {
 
 std::uint16_t RegisterAccess::read(const Address& a) { return read_many(std::span<const Address>(&a, 1)).front(); }
 
-void RegisterAccess::write(const Address& a, std::uint16_t value) {
+AdsClient::Call RegisterAccess::write_call(const Address& a, std::uint16_t value) const {
   AdsClient::Call c;
   c.port = adsport::kRegisters;
   c.command = ams::kWrite;
@@ -85,8 +85,21 @@ void RegisterAccess::write(const Address& a, std::uint16_t value) {
   c.repeatable = false;
   c.timeout_ms = timeout_ms_;
   c.what = fmt::format("writing 0x{:04X} to {}", value, name(a));
+  return c;
+}
+
+std::optional<Error> RegisterAccess::reply_error(const AdsClient::Reply& r, const AdsClient::Call& c, bool read) const {
+  if (r.result != 0) return client_.ads_error(r.result, adsport::kRegisters, c.what);
+  if (read && r.data.size() != 2)
+    return Error(Exit::link, fmt::format("{} answered {} with {} bytes instead of 2", client_.target().where(), c.what,
+                                         r.data.size()));
+  return std::nullopt;
+}
+
+void RegisterAccess::write(const Address& a, std::uint16_t value) {
+  AdsClient::Call c = write_call(a, value);
   auto r = client_.call(c);
-  if (r.result != 0) throw client_.ads_error(r.result, adsport::kRegisters, c.what);
+  if (auto e = reply_error(r, c, false)) throw *e;
 }
 
 std::vector<std::uint16_t> RegisterAccess::read_many(std::span<const Address> addrs) {
@@ -97,12 +110,8 @@ std::vector<std::uint16_t> RegisterAccess::read_many(std::span<const Address> ad
   std::vector<std::uint16_t> out;
   out.reserve(replies.size());
   for (std::size_t i = 0; i < replies.size(); ++i) {
-    const auto& r = replies[i];
-    if (r.result != 0) throw client_.ads_error(r.result, adsport::kRegisters, calls[i].what);
-    if (r.data.size() != 2)
-      throw Error(Exit::link, fmt::format("{} answered {} with {} bytes instead of 2", client_.target().where(),
-                                          calls[i].what, r.data.size()));
-    out.push_back(ams::get16(r.data.data()));
+    if (auto e = reply_error(replies[i], calls[i], true)) throw *e;
+    out.push_back(ams::get16(replies[i].data.data()));
   }
   return out;
 }

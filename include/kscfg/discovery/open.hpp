@@ -7,6 +7,8 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/access.hpp"
+#include "kscfg/session/channel.hpp"
 #include "kscfg/session/journal.hpp"
 
 namespace kscfg {
@@ -24,5 +26,11 @@ struct LinkOptions {
 };
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
+
+// The register access of the port behind `link` (session/access.hpp): direct access over ADS port
+// 100 for an ads:// port, its terminals numbered on port 100 from `layout()` (the station the
+// command uses); the process-image handshake otherwise.
+std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
+                                                     std::function<const StationLayout&()> layout);
 
 }  // namespace kscfg

@@ -14,6 +14,7 @@
 // These are the client calls; the register-access seam (issue 22) puts the safety rules above them.
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -102,9 +103,14 @@ class RegisterAccess {
   std::vector<std::uint16_t> read_table(unsigned table, unsigned first, unsigned count);
 
   AdsClient& client() { return client_; }
+  // The calls themselves, for a caller that sends many at once (AdsClient::transact): a write is
+  // not repeatable (its reply lost: the outcome is unknown, the caller reads back).
+  AdsClient::Call read_call(const Address& a) const;
+  AdsClient::Call write_call(const Address& a, std::uint16_t value) const;
+  // The value of a reply to a read, or the error it carries (ADS result, wrong size).
+  std::optional<Error> reply_error(const AdsClient::Reply& r, const AdsClient::Call& c, bool read) const;
 
  private:
-  AdsClient::Call read_call(const Address& a) const;
   std::string name(const Address& a) const;
   AdsClient& client_;
   unsigned timeout_ms_;

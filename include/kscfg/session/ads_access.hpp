@@ -1,0 +1,54 @@
+// AdsAccess: direct register access over ADS port 100 (docs/design.md section 7), the second
+// implementation of the register-access seam (access.hpp). The coupler reads and writes a
+// terminal's registers itself: no handshake, no byte of the process image touched, so nothing is
+// saved, put back or noted in a session journal, and a PLC that owns the image is never disturbed.
+// The safety rules above the seam (session/channel.hpp) are the same as over the handshake.
+//
+// Every advance() sends the next requests of every channel at once on the one connection (invoke
+// ids): a run of reads all together, a write alone (a channel's writes stay in order, and a read
+// after a write waits for it), and returns what finished.
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "kscfg/link/ads_client.hpp"
+#include "kscfg/link/ads_registers.hpp"
+#include "kscfg/session/access.hpp"
+
+namespace kscfg {
+
+class AdsAccess final : public RegisterAccess {
+ public:
+  // `number(position)`: the terminal's number on port 100 (adsreg::terminal_number; 0: it has
+  // none). `timeout` per request (raised to the manual's minimum for register reads).
+  AdsAccess(AdsClient& client, std::function<unsigned(unsigned position)> number, std::chrono::milliseconds timeout,
+            const std::atomic<bool>* cancel = nullptr);
+
+  std::string describe() const override { return client_.target().uri; }
+  void open(const TerminalImage& t, unsigned channel) override;
+  ChannelFound found(ChannelKey) const override { return {}; }
+  void submit(Program& p) override;
+  std::vector<Program*> advance() override;
+  bool busy() const override;
+  void close_now(ChannelKey key) noexcept override;
+  void close_all() noexcept override;
+  std::size_t exchanges() const override { return client_.exchanges(); }
+
+ private:
+  struct Chan {
+    adsreg::RegisterAccess::Address addr;  // terminal number and channel; the register per request
+    unsigned users = 1;
+    Program* prog = nullptr;
+  };
+  AdsClient& client_;
+  adsreg::RegisterAccess regs_;
+  std::function<unsigned(unsigned)> number_;
+  const std::atomic<bool>* cancel_;
+  std::map<ChannelKey, Chan> chans_;
+};
+
+}  // namespace kscfg

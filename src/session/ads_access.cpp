@@ -1,0 +1,136 @@
+#include "kscfg/session/ads_access.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+
+#include "kscfg/link/ams.hpp"
+
+namespace kscfg {
+
+AdsAccess::AdsAccess(AdsClient& client, std::function<unsigned(unsigned)> number, std::chrono::milliseconds timeout,
+                     const std::atomic<bool>* cancel)
+    : client_(client),
+      regs_(client, static_cast<unsigned>(timeout.count())),
+      number_(std::move(number)),
+      cancel_(cancel) {}
+
+void AdsAccess::open(const TerminalImage& t, unsigned channel) {
+  ChannelKey key{t.position, channel};
+  if (auto it = chans_.find(key); it != chans_.end()) {
+    ++it->second.users;
+    return;
+  }
+  unsigned n = number_(t.position);
+  if (n == 0)
+    throw Error(Exit::refused,
+                fmt::format("terminal {} ({}) has no number on ADS port 100 (a terminal without a process image)",
+                            t.position, t.type->type),
+                "choose a terminal with registers; 'kscfg info' lists the station");
+  Chan c;
+  c.addr.terminal = n;
+  c.addr.channel = channel;
+  chans_.emplace(key, c);
+}
+
+void AdsAccess::submit(Program& p) {
+  auto it = chans_.find(p.key);
+  if (it == chans_.end())
+    throw Error(Exit::internal, fmt::format("register access: terminal {} channel {} is not open", p.key.position,
+                                            p.key.channel + 1));
+  if (it->second.prog) throw Error(Exit::internal, "register access: a channel runs one program at a time");
+  p.values.clear();
+  p.error.reset();
+  p.closed = false;
+  it->second.prog = &p;
+}
+
+bool AdsAccess::busy() const {
+  return std::any_of(chans_.begin(), chans_.end(), [](const auto& kv) { return kv.second.prog != nullptr; });
+}
+
+std::vector<Program*> AdsAccess::advance() {
+  std::vector<Program*> done;
+  auto finish = [&](Chan& c) {
+    done.push_back(c.prog);
+    c.prog = nullptr;
+  };
+  bool cancelled = cancel_ && cancel_->load();
+  // The next requests of every channel: a run of reads together, or one write.
+  struct Sent {
+    Chan* chan;
+    std::size_t op;
+  };
+  std::vector<AdsClient::Call> calls;
+  std::vector<Sent> sent;
+  std::vector<ChannelKey> closing;
+  for (auto& [key, c] : chans_) {
+    if (!c.prog) continue;
+    Program& p = *c.prog;
+    if (cancelled && !p.shielded) {
+      p.error = Error(Exit::interrupted, "interrupted");
+      finish(c);
+      continue;
+    }
+    std::size_t k = p.values.size();
+    if (k == p.ops.size()) {
+      if (p.close_after) {
+        p.closed = true;
+        closing.push_back(key);
+      }
+      finish(c);
+      continue;
+    }
+    for (std::size_t i = k; i < p.ops.size(); ++i) {
+      const RegisterOp& op = p.ops[i];
+      if (op.write && i > k) break;
+      adsreg::RegisterAccess::Address a = c.addr;
+      a.reg = op.reg;
+      calls.push_back(op.write ? regs_.write_call(a, op.value) : regs_.read_call(a));
+      sent.push_back({&c, i});
+      if (op.write) break;
+    }
+  }
+  for (const auto& key : closing) close_now(key);
+  if (calls.empty()) return done;
+  std::vector<AdsClient::Reply> replies;
+  try {
+    replies = client_.transact(calls);
+  } catch (const Error& e) {
+    // Nothing is known of the requests in flight: every program that sent one is told (a write's
+    // register is read back by the rules above the seam before it is written again).
+    for (const auto& s : sent)
+      if (s.chan->prog) {
+        s.chan->prog->error = e;
+        finish(*s.chan);
+      }
+    return done;
+  }
+  for (std::size_t i = 0; i < sent.size(); ++i) {
+    Chan& c = *sent[i].chan;
+    if (!c.prog) continue;  // failed at an earlier request of this exchange
+    Program& p = *c.prog;
+    if (p.values.size() != sent[i].op) continue;  // an earlier answer of this run failed
+    const RegisterOp& op = p.ops[sent[i].op];
+    if (auto err = regs_.reply_error(replies[i], calls[i], !op.write)) {
+      p.error = *err;
+      finish(c);
+      continue;
+    }
+    p.values.push_back(op.write ? op.value : ams::get16(replies[i].data.data()));
+    if (p.progress) p.progress(p.values.size());
+    if (p.values.size() == p.ops.size() && !p.close_after) finish(c);
+  }
+  return done;
+}
+
+void AdsAccess::close_now(ChannelKey key) noexcept {
+  auto it = chans_.find(key);
+  if (it == chans_.end()) return;
+  if (--it->second.users == 0) chans_.erase(it);
+  else it->second.prog = nullptr;
+}
+
+void AdsAccess::close_all() noexcept { chans_.clear(); }
+
+}  // namespace kscfg
