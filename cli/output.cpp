@@ -112,6 +112,12 @@ void check_stdout() {
   std::cout.clear();  // a reader that went away: nothing more to say
 }
 
+void refuse_to_replace(const std::string& path, bool force) {
+  struct stat st {};
+  if (force || path.empty() || path == "-" || ::lstat(path.c_str(), &st) != 0) return;
+  throw Error(Exit::file, fmt::format("'{}' already exists; nothing was written", path), "give --force to replace it");
+}
+
 std::string input_name(const std::string& path) { return path == "-" ? "stdin" : path; }
 
 std::string read_input(const std::string& path, const std::string& what) {

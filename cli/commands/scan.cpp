@@ -71,8 +71,7 @@ class Scan : public Command {
     auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"), mo = on_off(mo_, "--motorola");
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
-    if (!write_.empty() && write_ != "-" && !force_ && std::filesystem::exists(write_))
-      throw Error(Exit::usage, fmt::format("'{}' exists", write_), "add --force to replace it");
+    if (!write_.empty()) refuse_to_replace(write_, force_);
     auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
     if (!link)
       throw Error(Exit::usage, fmt::format("'kscfg scan' reads a Modbus coupler; the port is '{}'", ctx.options().port),

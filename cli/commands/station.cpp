@@ -94,9 +94,7 @@ class StationInit : public Command {
       write_output("-", text);
       return 0;
     }
-    std::error_code ec;
-    if (std::filesystem::exists(file_, ec) && !force_)
-      throw Error(Exit::file, fmt::format("'{}' already exists", file_), "give --force to overwrite it");
+    refuse_to_replace(file_, force_);
     write_file_atomic(file_, text);
     if (ctx.json()) print_json({{"file", file_}, {"coupler", coupler_profile(coupler_).name}});
     else std::cerr << fmt::format("kscfg: wrote {}\n", file_);
