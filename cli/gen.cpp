@@ -272,7 +272,7 @@ std::string generate_manpage(const App& a) {
          "The terminal refuses: read-only (ROM) or unimplemented register, control/status byte not mapped."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
-        {Exit::interrupted, "Interrupted by SIGINT or SIGTERM; the terminal was restored."},
+        {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
         {Exit::unverified,
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
          "that went down): the message names the registers that may hold the new value; read them with "

@@ -103,6 +103,8 @@ void CheckedStdout::check() { check_stdout(); }
 
 bool CheckedStdout::reader_gone() const { return g_buf && g_buf->gone(); }
 
+bool stdout_reader_gone() { return g_buf && g_buf->gone(); }
+
 void check_stdout() {
   std::cout.flush();
   if (g_buf && g_buf->error()) {

@@ -27,6 +27,9 @@ class CheckedStdout {
   std::streambuf* buf_ = nullptr;
 };
 
+// The reader of stdout went away (EPIPE): a command that streams stops and cleans up.
+bool stdout_reader_gone();
+
 // Flushes std::cout and throws Error(Exit::file) if a write to stdout has failed (no-op when the
 // reader has gone away: what follows is discarded).
 void check_stdout();

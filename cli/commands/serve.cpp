@@ -50,7 +50,7 @@ class Serve : public Command {
            "Every change is saved to the state file (atomically) within a fraction of a second, so a write "
            "that was acknowledged survives even a kill \\-9 of the server. Serving on an address that is "
            "not a loopback one (0.0.0.0, *, [::]) prints a warning: the emulator has no authentication. "
-           "SIGINT or SIGTERM stops the server; the emulator state is saved and the exit status is 0.";
+           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0.";
   }
   std::vector<std::string> examples() const override {
     return {"serve --tcp 127.0.0.1:5020", "serve --pty", "--port emu:station.json serve --tcp 0.0.0.0:502",
