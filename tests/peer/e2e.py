@@ -728,7 +728,9 @@ def c_serial_status(ctx):
     doc = json.loads(out)
     check(doc.get("r0_tx_fifo") == 0 and doc.get("r1_rx_fifo") == 0, "R0/R1 %r/%r"
           % (doc.get("r0_tx_fifo"), doc.get("r1_rx_fifo")))
-    check(not any(doc.get(k) for k in ("ta", "rr", "ia", "buf_f")), "handshake bits set: %r" % doc)
+    bits = doc.get("status", {}).get("bits", {})
+    check(set(("TA", "RR", "IA", "BUF_F")) <= set(bits), "status bits missing: %r" % doc)
+    check(not any(bits.get(k) for k in ("TA", "RR", "IA", "BUF_F")), "handshake bits set: %r" % doc)
 
 
 @case("serial-loopback", "seed KL6001 TR/TA, RR/RA, IR/IA handshake; the peer's far end bridges "
