@@ -111,9 +111,9 @@ class Scan : public Command {
       nlohmann::json terms = nlohmann::json::array();
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
+        // Image placement as info and map give it: image {format, complex, inputs, outputs}.
         terms.push_back({{"position", t.position}, {"type", t.type->type}, {"r8", i < r.r8.size() ? r.r8[i] : 0},
-                         {"format", t.format}, {"out_offset", t.out_offset}, {"out_size", t.out_size},
-                         {"in_offset", t.in_offset}, {"in_size", t.in_size}});
+                         {"image", image_json(t)}});
       }
       print_json({{"port", link->describe()},
                   {"identification", r.ident},

@@ -123,8 +123,10 @@ class StationCheck : public Command {
     const CouplerProfile& p = coupler_profile(L.coupler);
     check_image_limits(L, p);
     if (ctx.json()) {
+      // The image sizes with the names of map: inputs and outputs {bytes, complex_bytes, digital_bits, limit}.
+      nlohmann::json m = map_json(L, p);
       print_json({{"file", input_name(file_)}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
-                  {"in_bytes", L.in_bytes}, {"out_bytes", L.out_bytes}});
+                  {"inputs", m["inputs"]}, {"outputs", m["outputs"]}});
       return 0;
     }
     std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", input_name(file_), L.coupler,
