@@ -149,7 +149,9 @@ static int run_command(int argc, char** argv) {
     }
     if (!app->timeout_text.empty()) {
       o.timeout_ms = static_cast<unsigned>(parse_uint(app->timeout_text, 600000, "timeout"));
-      if (o.timeout_ms == 0) throw Error(Exit::usage, "invalid timeout '0'");
+      if (o.timeout_ms == 0)
+        throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
+                    "leave --timeout out for the default of 1000 ms");
     }
     if (!o.catalog.empty()) set_user_catalog_dir(o.catalog);
     (void)Catalog::standard();  // a broken user catalog is reported before anything is touched

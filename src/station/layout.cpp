@@ -11,8 +11,24 @@ namespace kscfg {
 const TerminalImage& StationLayout::terminal(unsigned position) const {
   for (const auto& t : terminals)
     if (t.position == position) return t;
+  if (std::string digital = unidentified_digital(); !digital.empty())
+    throw Error(Exit::usage,
+                fmt::format("no terminal at position {} that kscfg can identify: it knows {} terminal{}, and the "
+                            "coupler reports {} of digital terminals, which cannot be identified over Modbus",
+                            position, terminals.size(), terminals.size() == 1 ? "" : "s", digital),
+                "give --station FILE with the terminals in plug order ('kscfg scan --write FILE' starts one)");
   throw Error(Exit::usage,
               fmt::format("no terminal at position {} (the station has {} terminals)", position, terminals.size()));
+}
+
+std::string StationLayout::unidentified_digital() const {
+  std::size_t in = 0, out = 0;
+  for (const auto& t : terminals)
+    if (!t.complex) in += t.bits_in, out += t.bits_out;
+  std::size_t ui = digital_in_bits > in ? digital_in_bits - in : 0, uo = digital_out_bits > out ? digital_out_bits - out : 0;
+  if (!ui && !uo) return {};
+  if (ui && uo) return fmt::format("{} input and {} output bits", ui, uo);
+  return ui ? fmt::format("{} input bit{}", ui, ui == 1 ? "" : "s") : fmt::format("{} output bit{}", uo, uo == 1 ? "" : "s");
 }
 
 namespace {

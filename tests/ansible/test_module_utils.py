@@ -54,6 +54,16 @@ class Tmp(unittest.TestCase):
         return self.path(name)
 
 
+class StationFileProblemTest(Tmp):
+    # Issue 23 item 14: a directory was "does not exist".
+    def test_the_cause_is_named(self):
+        self.assertEqual(ku.station_file_problem(self.dir.name), 'is a directory, not a station file')
+        self.assertEqual(ku.station_file_problem(self.path('none.toml')), 'does not exist')
+        os.symlink(self.path('gone'), self.path('link.toml'))
+        self.assertIn('symbolic link to nothing', ku.station_file_problem(self.path('link.toml')))
+        self.assertIsNone(ku.station_file_problem(self.write('ok.toml', 'coupler = "BK9000"\n')))
+
+
 class PortTest(unittest.TestCase):
     def test_unit_is_added_to_the_uri(self):
         self.assertEqual(ku.port_with_unit('tcp://10.0.3.11', 3), 'tcp://10.0.3.11?unit=3')

@@ -57,6 +57,9 @@ struct StationLayout {
   std::size_t digital_in_bits = 0, digital_out_bits = 0;
 
   const TerminalImage& terminal(unsigned position) const;  // throws Error(usage)
+  // The digital bits the coupler reports that no terminal of the layout accounts for (a Modbus
+  // scan sees digital terminals only as bit totals): "4 input and 4 output bits"; "" when none.
+  std::string unidentified_digital() const;
 };
 
 using RegisterSource = std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position,

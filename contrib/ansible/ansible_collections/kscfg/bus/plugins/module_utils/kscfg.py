@@ -10,6 +10,7 @@ from __future__ import absolute_import, division, print_function
 __metaclass__ = type
 
 import json
+import os
 import re
 
 # kscfg's exit statuses (kscfg(1), EXIT STATUS).
@@ -49,6 +50,20 @@ def base_args(kscfg, port=None, unit=None, timeout=None, catalog=None):
         args += ['--catalog', catalog]
     args.append('--json')
     return args
+
+
+def station_file_problem(path):
+    """What keeps `path` from being read as a station file ("is a directory", "does not exist",
+    "is not readable"), or None. The cause, not "does not exist" for all of them."""
+    if os.path.isdir(path):
+        return 'is a directory, not a station file'
+    if not os.path.lexists(path):
+        return 'does not exist'
+    if not os.path.exists(path):
+        return 'is a symbolic link to nothing (%s)' % os.readlink(path)
+    if not os.access(path, os.R_OK):
+        return 'is not readable'
+    return None
 
 
 # ---------------------------------------------------------------------------------------------

@@ -242,7 +242,7 @@ import os
 from ansible.module_utils.basic import AnsibleModule
 from ansible_collections.kscfg.bus.plugins.module_utils.kscfg import (
     EXIT_CHANGED, EXIT_DIFFERENCES, EXIT_OK, base_args, normalize_plan, parse_error, plan_diff,
-    port_with_unit, rollback_state, station_toml)
+    port_with_unit, rollback_state, station_file_problem, station_toml)
 
 
 def _verify_backup(module, args, backup):
@@ -299,8 +299,10 @@ def main():
         with open(station, 'w') as f:
             f.write(text)
         result['station_toml'] = text
-    elif not os.path.isfile(station):
-        module.fail_json(msg="station file '%s' does not exist on %s" % (station, os.uname()[1]), **result)
+    else:
+        problem = station_file_problem(station)
+        if problem:
+            module.fail_json(msg="station file '%s' %s on %s" % (station, problem, os.uname()[1]), **result)
 
     if p['layout']:
         args = args[:-1] + ['--station', station, '--json']
