@@ -119,6 +119,24 @@ class StationCheck : public Command {
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec spec = load_station_arg(file_, ctx.catalog());
+    if (spec.partial()) {
+      // Positions only: what is there is checked when it is applied (apply, diff, restore).
+      std::vector<unsigned> positions;
+      std::string list;
+      for (const auto& t : spec.terminals) {
+        positions.push_back(t.position);
+        list += fmt::format("{}{} ({})", list.empty() ? "" : ", ", t.position, t.type);
+      }
+      if (ctx.json()) {
+        print_json({{"file", input_name(file_)}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()},
+                    {"partial", true}, {"positions", positions}});
+        return 0;
+      }
+      std::cout << fmt::format("{}: a partial station file naming {} terminal{} by position: {}; apply, diff and "
+                               "restore check each against the station's type there and leave the others alone\n",
+                               input_name(file_), spec.terminals.size(), spec.terminals.size() == 1 ? "" : "s", list);
+      return 0;
+    }
     StationLayout L = compute_layout(spec, ctx.catalog());
     const CouplerProfile& p = coupler_profile(L.coupler);
     check_image_limits(L, p);

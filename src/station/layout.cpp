@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <map>
 
 #include "kscfg/base/error.hpp"
 
@@ -231,10 +232,47 @@ StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, co
 }
 
 StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog) {
+  if (spec.partial())
+    throw Error(Exit::usage,
+                fmt::format("{} is a partial station file (its terminals name their positions): it does not describe "
+                            "the whole station",
+                            spec.origin.empty() ? "the station file" : spec.origin),
+                "apply, diff and restore take it; as --station or for map give a file with every terminal");
   return compute_layout(spec, catalog, spec.settings(), [&](unsigned pos, unsigned ch) {
     const auto& t = spec.terminals.at(pos - 1);
     return channel_registers(catalog.get(t.type), &t, ch);
   });
+}
+
+StationSpec expand_partial(const StationSpec& file, const StationLayout& station) {
+  if (!file.partial()) return file;
+  std::string origin = file.origin.empty() ? "the station file" : file.origin;
+  StationSpec full;
+  full.coupler = station.coupler;
+  full.complete_evaluation = file.complete_evaluation;
+  full.motorola = file.motorola;
+  full.word_alignment = file.word_alignment;
+  full.origin = file.origin;
+  std::map<unsigned, const TerminalSpec*> named;
+  for (const auto& t : file.terminals) named[t.position] = &t;
+  for (const auto& [pos, t] : named) {
+    const TerminalImage& have = station.terminal(pos);  // Error(usage): no such position
+    if (have.type->type != t->type)
+      throw Error(Exit::refused,
+                  fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line, pos,
+                              t->type, have.type->type),
+                  "nothing was written; 'kscfg info' lists the station's terminals by position");
+  }
+  for (const auto& have : station.terminals) {
+    TerminalSpec ts;
+    ts.type = have.type->type;
+    if (auto it = named.find(have.position); it != named.end()) {
+      ts.channels = it->second->channels;
+      ts.line = it->second->line;
+    }
+    full.terminals.push_back(std::move(ts));
+  }
+  return full;
 }
 
 }  // namespace kscfg
