@@ -33,7 +33,7 @@ options:
       - It lists every terminal the station has, in plug order; over Modbus the complex
         terminals are matched with the coupler's by R8 and order, and digital terminals (which
         cannot be identified over Modbus) by their total bit counts, so a file may list them or not.
-      - Or it is partial, each C([[terminal]]) with its plug position (C(position = N)): only those
+      - Or it is partial, each C([[terminal]]) with its plug position (C(position = N)). Only those
         terminals are configured, each checked against the coupler's type at that position, and
         the others are left alone, so one file serves couplers with different I/O.
       - Mutually exclusive with I(terminals).
