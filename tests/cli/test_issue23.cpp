@@ -83,7 +83,7 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
   CHECK(emu({"-t", "3", "get", "image-size", "extended-image"}).out == "22\non\n");
 }
 
-TEST_CASE("a partial station file names terminals by position; the others are left alone", "[issue23][provision]") {
+TEST_CASE("a partial station file names terminals by position, the others are left alone", "[issue23][provision]") {
   Emu emu;
   REQUIRE(emu({"-t", "4", "-c", "2", "write", "R35", "5"}).rc == 0);
   write_text(emu.dir.file("p.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\n"
@@ -114,7 +114,7 @@ TEST_CASE("a partial station file names terminals by position; the others are le
   CHECK(emu({"--station", emu.dir.file("p.toml"), "info"}).rc == 2);
 }
 
-TEST_CASE("--keep-backups is parsed strictly; only backup files count toward the rotation", "[issue23][provision]") {
+TEST_CASE("apply parses --keep-backups strictly, only backup files count toward the rotation", "[issue23][provision]") {
   Emu emu;
   auto env = emu.env;
   env["XDG_STATE_HOME"] = emu.dir.file("state");
@@ -126,7 +126,8 @@ TEST_CASE("--keep-backups is parsed strictly; only backup files count toward the
   }
   Run ok = run_kscfg({"apply", "--keep-backups", "2", emu.dir.file("b.toml")}, env);
   REQUIRE(ok.rc == 10);
-  std::filesystem::path dir = std::filesystem::path(ok.err.substr(ok.err.find("registers: ") + 11)).parent_path();
+  std::size_t at = ok.err.find("registers: ") + 11;
+  std::filesystem::path dir = std::filesystem::path(ok.err.substr(at, ok.err.find('\n', at) - at)).parent_path();
   // Directories named like backups are not backups: never counted, never removed.
   std::filesystem::create_directory(dir / "apply-00000000-000000.000000Z-1.toml");
   std::filesystem::create_directory(dir / "apply-00000000-000000.000000Z-2.toml");

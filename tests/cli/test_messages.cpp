@@ -118,7 +118,7 @@ TEST_CASE("the man page says each parameter's factory value once", "[messages][d
 
 // Issue 23 item 8: '--station /nonexistent.toml info' on the emulator exited 0 (the file was never
 // read); over Modbus it was 7. Now the emulator reads it too and checks it against its station.
-TEST_CASE("--station with the emulator: the file is read and must describe the station", "[messages][cli][issue23]") {
+TEST_CASE("the emulator reads a --station file and checks it against its station", "[messages][cli][issue23]") {
   kscfg::test::TempDir d;
   Run missing = k({"--station", d.file("nonexistent.toml"), "info"});
   CHECK(missing.rc == 7);
