@@ -275,6 +275,12 @@ class Data : public Command {
                                 ft->position, ft->type->type),
                     "add --yes to force them");
       undo_cmd = undo_command(ctx, *ft, fch, plan);
+      // kill -9 is the one way out kscfg cannot clean up after: say how to do it by hand before
+      // anything is forced (said after, a kill could come between).
+      if (!no_restore_)
+        std::cerr << fmt::format("kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
+                                 "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
+                                 ft->position, ft->type->type, undo_cmd);
       apply_force(link, plan);
       if (no_restore_) {
         if (ctx.json()) {
@@ -288,10 +294,6 @@ class Data : public Command {
         }
         return 0;
       }
-      // kill -9 is the one way out kscfg cannot clean up after: say now how to do it by hand.
-      std::cerr << fmt::format("kscfg: terminal {} ({}): outputs forced; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
-                               "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
-                               ft->position, ft->type->type, undo_cmd);
     }
     int rc = 0;
     // Puts the outputs back, verified. A signal during it does not stop it (a second Ctrl-C must not
