@@ -108,7 +108,10 @@ std::vector<std::pair<std::string, std::string>> with_settings(
   };
   for (const auto& [n, v] : pairs) {
     const ParamDef& p = find_param(type, n, catalog, channel);
-    if (p.kind != ParamDef::Kind::enumeration) continue;
+    // Only values that say what they go with (a rate by divisor has none: --divisor is not asked here).
+    if (p.kind != ParamDef::Kind::enumeration ||
+        std::none_of(p.values.begin(), p.values.end(), [](const EnumValue& e) { return !e.with_param.empty(); }))
+      continue;
     std::uint16_t code = p.field(encode_param(p, v, 0));
     for (const auto& ev : p.values) {
       if (ev.code != code || ev.with_param.empty()) continue;
