@@ -116,7 +116,9 @@ void check_stdout() {
 
 void refuse_to_replace(const std::string& path, bool force) {
   struct stat st {};
-  if (force || path.empty() || path == "-" || ::lstat(path.c_str(), &st) != 0) return;
+  if (path.empty() || path == "-" || ::lstat(path.c_str(), &st) != 0) return;
+  if (S_ISDIR(st.st_mode)) throw Error(Exit::file, fmt::format("cannot write '{}': Is a directory", path));
+  if (force) return;
   throw Error(Exit::file, fmt::format("'{}' already exists; nothing was written", path), "give --force to replace it");
 }
 

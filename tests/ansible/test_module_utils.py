@@ -264,7 +264,7 @@ class ErrorTest(Tmp):
 class FactsTest(Tmp):
     def backup_text(self, state):
         path = self.path('backup.toml')
-        kscfg('--port', state, 'backup', path)
+        kscfg('--port', state, 'backup', '--force', path)  # called twice: the file is there
         with open(path) as f:
             return f.read()
 
@@ -296,7 +296,7 @@ class FactsTest(Tmp):
         self.assertEqual(terms[0]['image']['format'], 'alternative')
         self.assertEqual((terms[4]['r8'], terms[4]['version']), (None, None))
         self.assertEqual(terms[0]['params']['baud'], 19200)
-        self.assertIs(terms[0]['params']['rts-cts'], True)
+        self.assertIs(terms[0]['params']['rts_cts'], True)  # snake_case: Jinja's dot access
         self.assertEqual(terms[0]['params']['frame'], '8N1')
         self.assertEqual(terms[0]['channels'][0]['registers']['R32'], 7)
         kl3022 = terms[3]['channels']
