@@ -22,6 +22,7 @@
 #include "../serial_map.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/session/process_data.hpp"
@@ -223,8 +224,31 @@ class SerialSend : public Command {
   }
   int run(Context& ctx) override {
     std::vector<std::uint8_t> bytes;
-    const bool stream = data_ == "-" && !hex_;  // raw stdin goes out as it is read, never held whole
-    if (data_ == "-" && hex_) {
+    bool stream = false;  // raw stdin beyond kPreload goes out as it is read, never held whole
+    std::size_t preloaded = 0;
+    if (data_ == "-" && !hex_) {
+      // Read ahead up to kPreload: an input that ends there is sent whole (its size known, so the
+      // progress line has an estimate); a longer one (a device, /dev/zero) is streamed after it.
+      constexpr std::size_t kPreload = 64 * 1024;
+      bytes.resize(kPreload);
+      std::size_t n = 0;
+      for (;;) {
+        if (n == kPreload) {
+          stream = true;
+          break;
+        }
+        ssize_t k = ::read(STDIN_FILENO, bytes.data() + n, kPreload - n);
+        if (k < 0 && errno == EINTR) {
+          if (g_interrupted) throw Error(Exit::interrupted, "interrupted before anything was sent");
+          continue;
+        }
+        if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
+        if (k == 0) break;
+        n += static_cast<std::size_t>(k);
+      }
+      bytes.resize(n);
+      if (stream) preloaded = n;
+    } else if (data_ == "-" && hex_) {
       // Hex text is parsed whole: bounded like every input file (4 MiB of text).
       bytes = parse_serial_data(read_input("-", "hex data"), true);
     } else if (!stream) {
@@ -239,8 +263,18 @@ class SerialSend : public Command {
     std::size_t sent = bytes.size();
     if (stream) {
       ByteProgress bar(ctx, *port, "send", 0, [&] { return port->accepted(); });
+      std::size_t handed = 0;  // of the bytes read ahead
+      auto source = [&](std::uint8_t* buf, std::size_t max, int wait_ms) -> long {
+        if (handed < preloaded) {
+          std::size_t k = std::min(max, preloaded - handed);
+          std::copy_n(bytes.begin() + static_cast<std::ptrdiff_t>(handed), k, buf);
+          handed += k;
+          return static_cast<long>(k);
+        }
+        return read_stdin(buf, max, wait_ms);
+      };
       try {
-        sent = port->send_stream(read_stdin, recv_);
+        sent = port->send_stream(source, recv_);
       } catch (const Error& e) {
         // Ctrl-C ends an endless stream (stdin from a device): say how much went out.
         if (e.code() != Exit::interrupted) throw;
