@@ -137,8 +137,8 @@ def main():
         x = res['partial']
         check(x['changed'] and x['rc'] == 10 and [(t['position'], t['changed']) for t in x['terminals']] == [(1, True)],
               'partial: only the KL6001 at position 1 changed: %s' % x.get('msg'))
-        check((read(emu, 1, 32), read(emu, 1, 35), read(emu, 4, 35, 2)) == (6, 4, 5),
-              'partial: KL6001 baud 9600 and data-bytes 4, the KL3022 left alone')
+        check((read(emu, 1, 32), read(emu, 1, 35), read(emu, 4, 35, 2)) == (7, 4, 5),
+              'partial: KL6001 baud 19200 as it was and data-bytes 4, the KL3022 left alone')
         x = res['partial_wrong']
         check(x['failed'] and x['rc'] == 5 and 'position 2' in x['msg'] and 'KL5101' in x['msg'],
               'partial: the type at position 2 is checked: %s' % x['msg'])
