@@ -189,6 +189,7 @@ def main():
         if uri:
             run(['--port', uri + '?unit=1', 'diff', backup], 'provision', rc=(0, 1))
             run(['--port', uri, 'scan'], 'scan')
+            run(['--port', uri, 'coupler'], 'coupler_settings')
             run(['--port', uri, '-t', '1', 'data', '--once'], 'data', lines=True)
     finally:
         srv.terminate()
