@@ -61,7 +61,12 @@ std::unique_ptr<App> build_app() {
   return a;
 }
 
-static void on_signal(int) { g_interrupted = true; }
+// SIGHUP too: a closed SSH session or terminal window ends kscfg like Ctrl-C, with the terminal
+// restored (killed by it, kscfg would leave register mode or forced outputs behind).
+static void on_signal(int sig) {
+  g_signal = sig;
+  g_interrupted = true;
+}
 
 static Command* parsed_command(App& a) {
   Command* found = nullptr;
@@ -145,7 +150,9 @@ static int run_command(int argc, char** argv) {
     }
     if (!app->timeout_text.empty()) {
       o.timeout_ms = static_cast<unsigned>(parse_uint(app->timeout_text, 600000, "timeout"));
-      if (o.timeout_ms == 0) throw Error(Exit::usage, "invalid timeout '0'");
+      if (o.timeout_ms == 0)
+        throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
+                    "leave --timeout out for the default of 1000 ms");
     }
     if (!o.catalog.empty()) set_user_catalog_dir(o.catalog);
     (void)Catalog::standard();  // a broken user catalog is reported before anything is touched
@@ -153,6 +160,7 @@ static int run_command(int argc, char** argv) {
     if (!cmd) throw Error(Exit::usage, "no command given; 'kscfg --help' lists the commands");
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
+    std::signal(SIGHUP, on_signal);
     ctx = std::make_unique<Context>(o);
     rc = cmd->run(*ctx);
     ctx->finish();

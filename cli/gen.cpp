@@ -279,7 +279,7 @@ std::string generate_manpage(const App& a) {
          "The terminal refuses: read-only (ROM) or unimplemented register, control/status byte not mapped."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
-        {Exit::interrupted, "Interrupted by SIGINT or SIGTERM; the terminal was restored."},
+        {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
         {Exit::unverified,
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
          "that went down): the message names the registers that may hold the new value; read them with "
@@ -350,6 +350,8 @@ _kscfg() {
   if ((${#COMPREPLY[@]} == 1)) && [[ ${COMPREPLY[0]} == *[:/] ]]; then
     compopt -o nospace 2>/dev/null
   fi
+  # In kscfg's order (R0 R1 .. R10, 1200 2400 .. 19200), not sorted as text (bash >= 4.4).
+  [[ -z $files && -z $dirs ]] && compopt -o nosort 2>/dev/null
   if declare -F __ltrim_colon_completions >/dev/null 2>&1; then
     __ltrim_colon_completions "$cur"
   fi

@@ -54,6 +54,7 @@ class Reset : public Command {
     (void)register_terminal(ctx.layout(), pos, chan);
     std::vector<PlannedWrite> planned;
     for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF});
+    // Its reads end before the question: no terminal waits in register mode for an answer.
     guard_lockout(ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
     if (!yes_) {
       if (!isatty(STDIN_FILENO))

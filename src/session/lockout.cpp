@@ -158,6 +158,17 @@ LockoutReport check_lockout(Engine& engine, const StationLayout& current, const 
     auto& r = it->second[w.reg];
     r = static_cast<std::uint16_t>((r & ~w.mask) | (w.value & w.mask));
   }
+  // Settings that go together (KL6031 image-size and extended-image): the coupler lays the image
+  // out from one, the terminal's R35 says the other; such a change is refused like a lock-out.
+  for (const auto& key : touched) {
+    auto it = next.find(key);
+    if (it == next.end()) continue;
+    const TerminalImage& t = current.terminal(key.first);
+    for (const auto& c : setting_conflicts(*t.type, it->second, key.second)) {
+      rep.conflicts.push_back(fmt::format("{}: {}", who_of(t, key.second), c.text));
+      rep.conflict_fixes.push_back(fmt::format("{}: {}", who_of(t, key.second), c.fix));
+    }
+  }
   for (const auto& [key, regs] : next) {
     const TerminalImage& t = current.terminal(key.first);
     for (unsigned r : mapping_registers(*t.type)) {
@@ -171,7 +182,7 @@ LockoutReport check_lockout(Engine& engine, const StationLayout& current, const 
 
   StationSpec spec;
   spec.coupler = current.coupler;
-  for (const auto& t : current.terminals) spec.terminals.push_back({t.type->type, 0, {}});
+  for (const auto& t : current.terminals) spec.terminals.push_back({t.type->type, 0, {}, 0});
   auto source = [&](const std::map<std::pair<unsigned, unsigned>, Regs>& m) {
     return [&m, &current](unsigned pos, unsigned ch) {
       auto it = m.find({pos, ch});
@@ -209,16 +220,37 @@ LockoutReport check_lockout(Engine& engine, const StationLayout& current, const 
   return rep;
 }
 
-void guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
-                   const std::vector<PlannedWrite>& writes, bool force) {
+std::string next_start_note(const LockoutReport& rep) {
+  if (rep.causes.empty()) return {};
+  return fmt::format("takes effect at the coupler's next start (power off and on): {}; until then the coupler keeps "
+                     "the process image it has ('kscfg map' shows both)",
+                     by_terminal(rep.causes, [](const ChangedMapping& c) { return c.setting; }));
+}
+
+LockoutReport guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force) {
   LockoutReport rep = check_lockout(engine, current, catalog, so, writes);
-  if (!rep.locks_out()) return;
+  if (!rep.conflicts.empty()) {
+    std::string text, fix;
+    for (const auto& c : rep.conflicts) text += (text.empty() ? "" : "; ") + c;
+    for (const auto& f : rep.conflict_fixes) fix += (fix.empty() ? "" : "; ") + f;
+    if (!force)
+      throw Error(Exit::refused,
+                  fmt::format("refused: {}: the coupler lays the image out from one and the terminal reports the "
+                              "other, so the PLC's image would change unannounced; nothing was written",
+                              text),
+                  "change them together (kscfg set, or both in the station file): " + fix +
+                      ". Give --force to write anyway");
+    if (so.notice) so.notice(fmt::format("warning: --force: writing although {}", text));
+  }
+  if (!rep.locks_out()) return rep;
   if (!force)
     throw Error(Exit::refused, fmt::format("refused: {}", rep.consequence()),
                 "nothing was written; " + rep.recovery() +
                     ". Give --force to write anyway");
   if (so.notice)
     so.notice(fmt::format("warning: --force: writing although {}. {}", rep.consequence(), rep.recovery()));
+  return rep;
 }
 
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,

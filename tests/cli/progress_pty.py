@@ -123,7 +123,7 @@ def main():
             data = bytes((i * 37 + 11) % 256 for i in range(300))
             cases = [
                 # name, args, stdin, progress label, estimate expected
-                ("backup", ["backup", backup], b"", "backup", False),  # per terminal: 4 steps
+                ("backup", ["backup", "--force", backup], b"", "backup", False),  # per terminal: 4 steps; run again
                 ("dump", ["-t", "all", "dump"], b"", "dump", True),
                 # The station engine reads every terminal at once: only replies 30 ms late make a
                 # restore's reading last past 300 ms.

@@ -170,7 +170,7 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(reset["method"] == "defaults");
   CHECK(J("reset", {"-t", "1", "reset", "-y"})["changed"] == false);
   // R7 = 0x7000 (KL6031): "changed" only when a register really changed.
-  REQUIRE(emu({"-t", "3", "write", "R32", "0x0001"}).rc == 0);
+  REQUIRE(emu({"-t", "3", "write", "R32", "0x0007"}).rc == 0);
   json r7 = J("reset", {"-t", "3", "reset", "-y"});
   CHECK(r7["method"] == "r7");
   CHECK(r7["changed"] == true);

@@ -118,6 +118,8 @@ class ModbusClient {
   modbus_t* ctx_ = nullptr;
   int serial_fd_ = -1;
   std::size_t exchanges_ = 0, retried_ = 0;
+  bool connected_once_ = false;  // a connect() succeeded: a later refusal means the coupler went away
+  std::string broke_;            // why the connection was dropped last (a reset, ...), for that message
 };
 
 }  // namespace kscfg
