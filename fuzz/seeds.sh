@@ -18,7 +18,9 @@ done
 n=0
 for s in emu emu:mem emu:/tmp/state.json "tcp://127.0.0.1" "tcp://127.0.0.1:5020?unit=3" "tcp://[::1]:502" \
          "rtu:/dev/ttyUSB0?baud=19200&parity=E&unit=3" "rtu:/dev/pts/3?parity=N" "rtu:/dev/ttyS0?baud=9600&parity=N&data=7&stop=2" \
-         "tcp://" "tcp://127.0.0.1:99999" "tcp://127.0.0.1?unit=300" "rtu:/dev/ttyS0?baud=fast" "udp://127.0.0.1"; do
+         "tcp://" "tcp://127.0.0.1:99999" "tcp://127.0.0.1?unit=300" "rtu:/dev/ttyS0?baud=fast" "udp://127.0.0.1" \
+         "ads://10.0.3.11" "ads://127.0.0.1:48898?netid=10.0.3.11.1.1&source=10.0.3.1.1.1" "ads://tv/tt" \
+         "ads://h?netid=1.2.3"; do
   printf '%s' "$s" > corpus/port_uri/$((n++))
 done
 
