@@ -1,9 +1,18 @@
 // The interrupt flag: set by the CLI's SIGINT/SIGTERM handler; every wait on a device checks it.
 #pragma once
 #include <atomic>
+#include <chrono>
 
 namespace kscfg {
 
 extern std::atomic<bool> g_interrupted;
+
+// Every sleep of kscfg goes through these: they wake at least every kInterruptSlice to look at
+// `cancel`, so a SIGINT or SIGTERM ends any wait within that (issue 21 item 4: within 100 ms).
+// They return false when `cancel` is set (before or during the sleep), true when the time passed.
+constexpr std::chrono::milliseconds kInterruptSlice{5};
+bool sleep_until_or_cancelled(std::chrono::steady_clock::time_point due,
+                              const std::atomic<bool>& cancel = g_interrupted);
+bool sleep_for_or_cancelled(std::chrono::steady_clock::duration d, const std::atomic<bool>& cancel = g_interrupted);
 
 }  // namespace kscfg
