@@ -31,7 +31,6 @@ Link& Context::link() {
     lo.cache_dir = default_cache_dir();
     lo.rescan = opt_.rescan;
     lo.notice = session_options().notice;
-    journal_ = std::make_shared<SessionJournal>();
     lo.journal = journal_;
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));

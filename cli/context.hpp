@@ -95,7 +95,12 @@ class Context {
   void check_cached_terminals();
 
   GlobalOptions opt_;
-  std::shared_ptr<SessionJournal> journal_;  // before link_: sessions left open note it at exit
+  // Before link_: sessions left open note it at exit. It exists from the start, so that every
+  // SessionOptions handed out carries it, also those taken before the link opened it: C++ leaves
+  // the order of a call's arguments open, and f(ctx.link(), ctx.session_options()) took the options
+  // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
+  // (issue 21 item 2). It is opened with the link, before any exchange.
+  std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   std::unique_ptr<Link> link_;
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
