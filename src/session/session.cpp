@@ -9,6 +9,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/ack_latency.hpp"
 
 namespace kscfg {
 
@@ -57,20 +58,10 @@ RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsi
   saved_at_ = lo;
   saved_out_.resize(hi - lo + 1);
   link_.read_outputs(saved_at_, saved_out_);
+  if (saved_out_[w_.ctrl - saved_at_] & proto::kReg) take_leftover();
   shadow_.assign(saved_out_.begin() + static_cast<std::ptrdiff_t>(out_lo_ - lo),
                  saved_out_.begin() + static_cast<std::ptrdiff_t>(out_hi_ - lo + 1));
   if (link_.pipelines()) timing_ = link_.ack_timing(terminal.position);
-  // A control byte in register mode is not process data: a session died here (DESIGN.md section
-  // 6). Restoring it would repeat the dead session's request (e.g. the code word) after ours, so the
-  // bytes to restore are the idle process-data ones: control byte 0, register value bytes 0.
-  std::uint8_t& found = saved_out_[w_.ctrl - saved_at_];
-  if (found & proto::kReg) {
-    leftover_ = found;
-    found = 0;
-    saved_out_[w_.out_lo - saved_at_] = 0;
-    saved_out_[w_.out_hi - saved_at_] = 0;
-    maybe_unlocked_ = true;  // relock at the end whatever happens
-  }
 }
 
 void RegisterSession::forget() {
@@ -122,7 +113,7 @@ std::string RegisterSession::who() const {
 }
 
 void RegisterSession::put(std::uint8_t ctrl, std::optional<std::uint16_t> value) {
-  journal_enter();
+  journal_ctrl(ctrl);
   // Data bytes and control byte travel in one write: the data is never behind the control byte.
   shadow_[w_.ctrl - out_lo_] = ctrl;
   if (value) {
@@ -139,14 +130,11 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::microseconds;
 
-// Read-ahead timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is
-// known, the first poll goes out this long after the request and the next ones every kStep; the
-// latency is then the longest of kLearnSamples acknowledges.
-constexpr microseconds kLearnFirst{500};
+// Read-ahead timing on links that pipeline (Modbus): how long to wait before the first poll is
+// ack_latency.hpp's; the polls after it come every kStep at first.
 constexpr microseconds kStep{250};
-constexpr unsigned kLearnSamples = 3;
-// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
-// after this many in a run, no more speculation on that terminal.
+// After this many read-aheads (or restores with the last poll) that came too early in a run, no
+// more speculation on that terminal.
 constexpr unsigned kMaxMisses = 3;
 
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
@@ -167,8 +155,8 @@ RegisterSession::Status RegisterSession::poll_once() {
 }
 
 RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
-  journal_enter();
   std::uint8_t ctrl = proto::control_byte(false, next);
+  journal_ctrl(ctrl);
   shadow_[w_.ctrl - out_lo_] = ctrl;
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
@@ -183,13 +171,15 @@ std::optional<RegisterSession::Status> RegisterSession::poll_restoring() {
     if (b != w_.ctrl && shadow_[b - out_lo_] != saved_out_[b - saved_at_]) return std::nullopt;
   std::uint8_t& ctrl = shadow_[w_.ctrl - out_lo_];
   ctrl = saved_out_[w_.ctrl - saved_at_];
+  journal_ctrl(ctrl);
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&ctrl, 1), in_lo_, in);
   return status_of(in);
 }
 
 void RegisterSession::sleep_until(Clock::time_point due) const {
-  if (timing_ && Clock::now() < due) std::this_thread::sleep_until(due);
+  // Interruptible (a SIGINT ends it within kInterruptSlice); the caller's loop then sees the flag.
+  if (timing_) sleep_until_or_cancelled(due);
 }
 
 std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
@@ -252,13 +242,15 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
   const Clock::time_point sent = sent_;
   // The first poll: once the terminal's latency is known, when it has answered; it may carry the
   // request for the next register (read-ahead) unless a read-ahead came too early before.
-  bool known = timing_ && timing_->wait.count() > 0;
-  bool speculate = known && timing_->misses < kMaxMisses;
+  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
+  AckPlan plan = timing_ ? ack_plan(*timing_, opt_.timeout) : AckPlan{};
+  bool known = plan.known();
+  bool speculate = known && !plan.probe && timing_->misses < kMaxMisses;
   bool ahead_ok = next && speculate && *next != reg;
   bool restore_ok = !write && !next && restore_with_ == reg && speculate && link_.pipelines();
   if (restore_with_ == reg) restore_with_.reset();
-  if (timing_) sleep_until(sent + (known ? timing_->wait : kLearnFirst));
-  microseconds step = known ? std::max(kStep, timing_->wait / 8) : kStep;
+  if (timing_) sleep_until(sent + plan.first);
+  microseconds step = known ? std::max(kStep, plan.wait / 8) : kStep;
   std::optional<unsigned> ahead;  // written ahead, not yet answered
   Clock::time_point ahead_sent{};
   auto start = Clock::now();
@@ -288,20 +280,7 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
         pending_ = ahead;
         sent_ = ahead_sent;
       }
-      if (timing_) {
-        ++timing_->acks;
-        microseconds took = us(t - sent);
-        if (!known) {
-          // Learning: time a few acknowledges, then trust the longest.
-          timing_->longest = std::max(timing_->longest, took);
-          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->base = timing_->longest;
-        } else if (poll > 1) {
-          // It needed longer than we thought. Bounded by twice what the run started with: on a
-          // loaded machine one slow answer after another must not ratchet the wait up.
-          microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-          timing_->wait = std::max(timing_->wait, std::min(took, cap));
-        }
-      }
+      if (timing_) ack_seen(*timing_, plan, poll, us(t - sent), opt_.timeout);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(),
                                write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
@@ -311,22 +290,17 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
                                restored ? ", control byte restored with the poll" : ""));
       return s.value;
     }
-    // The terminal is slower than we thought. When its answer shows on a later poll, the wait
-    // becomes what it took (above; the polls after an early one come every kStep); when the
-    // request written ahead (or the restore) replaced ours first, how much slower is unknown:
-    // an eighth more (the terminal's latency is quantised by its bus cycle: the edge is near).
-    auto raise_unknown = [&] {
-      microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-      timing_->wait = std::min(timing_->wait + timing_->wait / 8, std::max(cap, timing_->wait));
-    };
+    // The terminal is slower than we thought (ack_latency.hpp). When the request written ahead
+    // (or the restore) replaced ours first, how much slower is unknown: ack_replaced().
     if (poll == 1 && known) {
-      timing_->missed = true;
-      ++timing_->misses;
+      ack_early(*timing_, plan);
       step = kStep;
+      // A probe that came too early: the usual poll at the estimate comes next.
+      if (plan.probe) sleep_until(sent + plan.wait);
     }
     if (restored) {
       // The control byte is back to what the session found: the request is gone. Ask again.
-      if (known) raise_unknown();
+      if (known) ack_replaced(*timing_, opt_.timeout);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(), reg));
       last_status_ = s.status;
@@ -334,7 +308,7 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.
-      if (known) raise_unknown();
+      if (known) ack_replaced(*timing_, opt_.timeout);
       if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
       last_status_ = s.status;
       return request(write, reg, value, std::nullopt);
@@ -585,6 +559,14 @@ void RegisterSession::close() noexcept {
       break;
     }
   }
+  if (!restored)
+    try {
+      note(fmt::format("warning: {} is left in register mode: putting its process-data bytes back failed{}", who(),
+                       journaled_ && opt_.journal && opt_.journal->enabled()
+                           ? "; the next kscfg on this port finishes it (session journal)"
+                           : ""));
+    } catch (...) {
+    }
   // Back in process-data mode: nothing for the next kscfg to finish. Otherwise the entry stays.
   if (restored && journaled_) {
     try {
