@@ -64,7 +64,10 @@ std::unique_ptr<App> build_app() {
   return a;
 }
 
-static void on_signal(int) { g_interrupted = true; }
+static void on_signal(int) {
+  g_interrupts.fetch_add(1);  // a second one ends a rollback too (interrupt.hpp)
+  g_interrupted = true;
+}
 
 static Command* parsed_command(App& a) {
   Command* found = nullptr;

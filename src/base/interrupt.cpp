@@ -6,6 +6,16 @@
 namespace kscfg {
 
 std::atomic<bool> g_interrupted{false};
+std::atomic<unsigned> g_interrupts{0};
+
+bool pause_interrupt() {
+  if (g_interrupts >= 2) return g_interrupted.load();
+  return g_interrupted.exchange(false);
+}
+
+void resume_interrupt(bool was) {
+  if (was) g_interrupted = true;
+}
 
 bool sleep_until_or_cancelled(std::chrono::steady_clock::time_point due, const std::atomic<bool>& cancel) {
   using Clock = std::chrono::steady_clock;

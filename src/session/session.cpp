@@ -486,9 +486,9 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
   } catch (const Error& e) {
     // Whatever failed, what the terminal holds now decides: read every register of the change,
     // write back those that moved, read them again (also after Ctrl-C: the change is all or nothing).
-    bool was_interrupted = g_interrupted.exchange(false);
+    bool was_interrupted = pause_interrupt();
     RollbackResult rb = roll_back(change);
-    if (was_interrupted) g_interrupted = true;
+    resume_interrupt(was_interrupted);
     throw ChangeFailed(e.code(), e.what(), std::move(rb), who());
   }
   return results;
@@ -508,7 +508,7 @@ void RegisterSession::command(unsigned reg, std::uint16_t value) {
 void RegisterSession::close() noexcept {
   if (closed_) return;
   closed_ = true;
-  bool was_interrupted = g_interrupted.exchange(false);
+  bool was_interrupted = pause_interrupt();
   if (leftover_ && !leftover_done_) {
     try {
       finish_leftover();
@@ -574,7 +574,7 @@ void RegisterSession::close() noexcept {
     } catch (...) {
     }
   }
-  if (was_interrupted) g_interrupted = true;
+  resume_interrupt(was_interrupted);
 }
 
 }  // namespace kscfg
