@@ -436,7 +436,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
   bool busy = false;  // an attempt was answered "busy" (exception 6)
   for (;;) {
     if (!dead_.empty())
-      throw Error(Exit::link, fmt::format("{} ({}): not tried", dead_, what),
+      throw Error(Exit::link, dead_,
                   target_.tcp ? "check that the coupler is running and reachable" : "check the line and the coupler");
     if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
     if (!ctx_) connect();
@@ -465,6 +465,9 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
                                target_.where()));
       if (target_.tcp) disconnect();
       else drain_ = true;
+      // An attempt of it had gone unanswered already: that counts towards a dead link.
+      if (timeouts > 0 && ++silent_ >= 2)
+        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
       throw Error(Exit::interrupted, "interrupted");
     }
     bool timeout = e == ETIMEDOUT;
@@ -489,8 +492,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
       std::string attempts = fmt::format("{} attempt{}", timeouts + others + 1, timeouts + others ? "s" : "");
       // No answer at all, attempt after attempt: after the second such request the link is dead.
       if ((timeout || is_broken(e)) && ++silent_ >= 2)
-        dead_ = fmt::format("the link to {} is down: {} requests in a row got no answer within {} ms", target_.where(),
-                            silent_, opt_.response_timeout_ms * (opt_.timeout_retries + 1));
+        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
       if (timeout)
         throw Error(Exit::link,
                     fmt::format("no answer from {} within {} ms ({}, {})", target_.where(), opt_.response_timeout_ms,
