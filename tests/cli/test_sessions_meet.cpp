@@ -199,8 +199,8 @@ TEST_CASE("kill -9 of every command kind in register mode: the next command on a
   CHECK(fs::is_empty(kscfg::test::kscfg_state_dir() + "/sessions", ec));
 }
 
-TEST_CASE("a forged or stale journal is acted on only where it describes the station: its terminal's type, "
-          "register window and control byte",
+TEST_CASE("forged or stale journals: acted on only where an entry describes the station (its terminal's type, "
+          "register window and control byte)",
           "[sessions][journal][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
