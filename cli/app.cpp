@@ -35,7 +35,7 @@ std::unique_ptr<App> build_app() {
   const char* env_port = std::getenv("KSCFG_PORT");
   a->opt.port = env_port && *env_port ? env_port : "emu";
   cli.add_option("-p,--port", a->opt.port,
-                 "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..]")
+                 "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..], ads://HOST[:PORT]")
       ->option_text("URI");
   cli.add_option("-t,--terminal", a->terminal_text,
                  "Terminal(s): plug position (3), type (KL6031), list (1,3), range (2-4) or all; default: the first "
@@ -64,7 +64,10 @@ std::unique_ptr<App> build_app() {
   return a;
 }
 
-static void on_signal(int) {
+// SIGHUP too: a closed SSH session or terminal window ends kscfg like Ctrl-C, with the terminal
+// restored (killed by it, kscfg would leave register mode or forced outputs behind).
+static void on_signal(int sig) {
+  g_signal = sig;
   g_interrupts.fetch_add(1);  // a second one ends a rollback too (interrupt.hpp)
   g_interrupted = true;
 }
@@ -151,7 +154,9 @@ static int run_command(int argc, char** argv) {
     }
     if (!app->timeout_text.empty()) {
       o.timeout_ms = static_cast<unsigned>(parse_uint(app->timeout_text, 600000, "timeout"));
-      if (o.timeout_ms == 0) throw Error(Exit::usage, "invalid timeout '0'");
+      if (o.timeout_ms == 0)
+        throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
+                    "leave --timeout out for the default of 1000 ms");
     }
     if (!app->lock_wait_text.empty()) {
       double s = parse_real(app->lock_wait_text, "lock wait");
@@ -165,6 +170,7 @@ static int run_command(int argc, char** argv) {
     if (!cmd) throw Error(Exit::usage, "no command given; 'kscfg --help' lists the commands");
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
+    std::signal(SIGHUP, on_signal);
     ctx = std::make_unique<Context>(o);
     rc = cmd->run(*ctx);
     ctx->finish();

@@ -25,6 +25,7 @@ std::vector<std::unique_ptr<Command>> make_commands() {
   v.push_back(make_serial());
   v.push_back(make_data());
   v.push_back(make_scan());
+  v.push_back(make_coupler());
   v.push_back(make_ports());
   v.push_back(make_serve());
   v.push_back(make_emu());

@@ -1,10 +1,15 @@
 // Factories of the commands (one file each under commands/).
 #pragma once
 #include <memory>
+#include <nlohmann/json.hpp>
 
 #include "command.hpp"
 
 namespace kscfg::cli {
+// A terminal's place in the process image as info, scan and map give it (docs/json.md): {format,
+// complex, inputs, outputs}, each side {offset, size} (complex) or {byte, bit, bits} (digital), or null.
+nlohmann::json image_json(const TerminalImage& t);
+
 std::unique_ptr<Command> make_info();
 std::unique_ptr<Command> make_read();
 std::unique_ptr<Command> make_write();
@@ -26,6 +31,7 @@ std::unique_ptr<Command> make_station();
 std::unique_ptr<Command> make_serial();
 std::unique_ptr<Command> make_data();
 std::unique_ptr<Command> make_scan();
+std::unique_ptr<Command> make_coupler();
 std::unique_ptr<Command> make_ports();
 std::unique_ptr<Command> make_serve();
 std::unique_ptr<Command> make_emu();

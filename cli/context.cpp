@@ -67,6 +67,15 @@ const StationLayout& Context::layout_upto(unsigned position) {
     return *layout_;
   }
   const StationLayout* found = l.layout_upto(position);
+  if (found && !opt_.station.empty() && !l.discovers_layout()) {
+    // The emulator lays its station out itself; a --station FILE given with it must still be a
+    // readable station file (exit 7 otherwise, as over Modbus) that describes that station.
+    StationLayout described = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
+    check_image_lengths(described,
+                        {static_cast<unsigned>(found->complex_out * 8), static_cast<unsigned>(found->complex_in * 8),
+                         static_cast<unsigned>(found->digital_out_bits), static_cast<unsigned>(found->digital_in_bits)},
+                        input_name(opt_.station));
+  }
   if (found) {
     const auto* mb = dynamic_cast<ModbusLink*>(&l);
     set_layout(*found, !mb || !mb->scan() || mb->scan()->complete);

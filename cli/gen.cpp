@@ -219,7 +219,14 @@ std::string generate_manpage(const App& a) {
        ".TP\n\\fBtcp://\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?unit=\\fR\\fIN\\fR]\nA Modbus TCP coupler "
        "(BK9000 family), port 502 by default.\n"
        ".TP\n\\fBrtu:\\fR\\fIDEVICE\\fR[\\fB?baud=\\fR\\fIN\\fR\\fB&parity=\\fR\\fIN|E|O\\fR\\fB&data=\\fR\\fIN\\fR"
-       "\\fB&stop=\\fR\\fIN\\fR\\fB&unit=\\fR\\fIN\\fR]\nA Modbus RTU coupler (BK7300 family) on a serial port.\n";
+       "\\fB&stop=\\fR\\fIN\\fR\\fB&unit=\\fR\\fIN\\fR]\nA Modbus RTU coupler (BK7300 family) on a serial port.\n"
+       ".TP\n\\fBads://\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?netid=\\fR\\fINETID\\fR\\fB&source=\\fR\\fINETID\\fR]\n"
+       "A coupler or Bus Terminal Controller over ADS (AMS/TCP, port 48898 by default; BK9000 family, BC9000, "
+       "BX9000), with no router: the process image over ADS port 300, the station from the coupler's table 9 "
+       "on port 100. \\fBnetid\\fR is the coupler's AMS NetId (default: its IP address plus .1.1), "
+       "\\fBsource\\fR this computer's (default: the connection's local address plus .1.1); a coupler whose "
+       "AMS routing table is not empty must list it. One connection per run, opened again when the coupler "
+       "has cut it after 10 s idle.\n";
   m << ".SH COMMANDS\n";
   std::vector<const Node*> all;
   collect(root, all);
@@ -273,7 +280,7 @@ std::string generate_manpage(const App& a) {
          "The terminal refuses: read-only (ROM) or unimplemented register, control/status byte not mapped."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
-        {Exit::interrupted, "Interrupted by SIGINT or SIGTERM; the terminal was restored."},
+        {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
         {Exit::unverified,
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
          "that went down): the message names the registers that may hold the new value; read them with "
@@ -360,6 +367,8 @@ _kscfg() {
   if ((${#COMPREPLY[@]} == 1)) && [[ ${COMPREPLY[0]} == *[:/] ]]; then
     compopt -o nospace 2>/dev/null
   fi
+  # In kscfg's order (R0 R1 .. R10, 1200 2400 .. 19200), not sorted as text (bash >= 4.4).
+  [[ -z $files && -z $dirs ]] && compopt -o nosort 2>/dev/null
   if declare -F __ltrim_colon_completions >/dev/null 2>&1; then
     __ltrim_colon_completions "$cur"
   fi

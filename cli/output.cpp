@@ -103,6 +103,8 @@ void CheckedStdout::check() { check_stdout(); }
 
 bool CheckedStdout::reader_gone() const { return g_buf && g_buf->gone(); }
 
+bool stdout_reader_gone() { return g_buf && g_buf->gone(); }
+
 void check_stdout() {
   std::cout.flush();
   if (g_buf && g_buf->error()) {
@@ -110,6 +112,14 @@ void check_stdout() {
     throw Error(Exit::file, fmt::format("cannot write to stdout: {}", std::strerror(e)));
   }
   std::cout.clear();  // a reader that went away: nothing more to say
+}
+
+void refuse_to_replace(const std::string& path, bool force) {
+  struct stat st {};
+  if (path.empty() || path == "-" || ::lstat(path.c_str(), &st) != 0) return;
+  if (S_ISDIR(st.st_mode)) throw Error(Exit::file, fmt::format("cannot write '{}': Is a directory", path));
+  if (force) return;
+  throw Error(Exit::file, fmt::format("'{}' already exists; nothing was written", path), "give --force to replace it");
 }
 
 std::string input_name(const std::string& path) { return path == "-" ? "stdin" : path; }

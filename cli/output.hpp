@@ -27,6 +27,9 @@ class CheckedStdout {
   std::streambuf* buf_ = nullptr;
 };
 
+// The reader of stdout went away (EPIPE): a command that streams stops and cleans up.
+bool stdout_reader_gone();
+
 // Flushes std::cout and throws Error(Exit::file) if a write to stdout has failed (no-op when the
 // reader has gone away: what follows is discarded).
 void check_stdout();
@@ -37,6 +40,11 @@ std::string read_input(const std::string& path, const std::string& what);
 
 // Writes `text` to FILE atomically, or to stdout when FILE is "-" (checked).
 void write_output(const std::string& path, const std::string& text);
+
+// Refuses (Error(Exit::file), nothing written) when FILE exists, as any kind of entry (a file, a
+// directory, a symbolic link even if dangling), unless `force`: commands that write a file the
+// user names never replace one without --force (backup, scan --write, station init).
+void refuse_to_replace(const std::string& path, bool force);
 
 // "stdin" for "-", else the path (for messages and JSON).
 std::string input_name(const std::string& path);

@@ -48,7 +48,8 @@ install(DIRECTORY ${CMAKE_SOURCE_DIR}/contrib/ansible/ansible_collections
 # Documentation: /usr/share/doc/kscfg (copyright in Debian's machine-readable format).
 install(FILES ${CMAKE_SOURCE_DIR}/packaging/copyright DESTINATION ${KSCFG_DOCDIR})
 install(FILES ${GEN}/gz/changelog.gz DESTINATION ${KSCFG_DOCDIR})
-install(FILES ${CMAKE_SOURCE_DIR}/README.md ${CMAKE_SOURCE_DIR}/docs/json.md ${CMAKE_SOURCE_DIR}/catalog/FORMAT.md
+install(FILES ${CMAKE_SOURCE_DIR}/README.md ${CMAKE_SOURCE_DIR}/docs/json.md ${CMAKE_SOURCE_DIR}/docs/design.md
+              ${CMAKE_SOURCE_DIR}/catalog/FORMAT.md
         DESTINATION ${KSCFG_DOCDIR})
 install(DIRECTORY ${CMAKE_SOURCE_DIR}/examples/ DESTINATION ${KSCFG_DOCDIR}/examples)
 

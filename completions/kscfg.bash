@@ -30,6 +30,8 @@ _kscfg() {
   if ((${#COMPREPLY[@]} == 1)) && [[ ${COMPREPLY[0]} == *[:/] ]]; then
     compopt -o nospace 2>/dev/null
   fi
+  # In kscfg's order (R0 R1 .. R10, 1200 2400 .. 19200), not sorted as text (bash >= 4.4).
+  [[ -z $files && -z $dirs ]] && compopt -o nosort 2>/dev/null
   if declare -F __ltrim_colon_completions >/dev/null 2>&1; then
     __ltrim_colon_completions "$cur"
   fi

@@ -9,6 +9,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/params.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/lockout.hpp"
@@ -40,6 +41,32 @@ unsigned backup_keep(std::optional<unsigned> keep) {
   return 20;
 }
 
+// Raw registers of a station file (R32 = 0x00FF) hold what the catalog documents for them, as set
+// and write demand (issue 23 item 6): refused with status 5, unless --force.
+void check_raw_registers(const StationSpec& spec, const Catalog& catalog, bool force) {
+  std::string bad;
+  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
+    const TerminalSpec& ts = spec.terminals[i];
+    const TerminalType* type = catalog.find(ts.type);
+    if (!type) continue;
+    for (unsigned ch = 0; ch < ts.channels.size(); ++ch)
+      for (const auto& [reg, value] : ts.channels[ch].registers) {
+        std::string why = undocumented_value(*type, reg, value, ch);
+        if (why.empty()) continue;
+        auto line = ts.channels[ch].register_lines.find(reg);
+        bad += fmt::format("{}{}{}: terminal {} ({}){}: R{} = 0x{:04X}: {}", bad.empty() ? "" : "; ",
+                           spec.origin.empty() ? "the station file" : spec.origin,
+                           line != ts.channels[ch].register_lines.end() ? fmt::format(":{}", line->second) : "", i + 1,
+                           type->type, type->channels > 1 ? fmt::format(" channel {}", ch + 1) : "", reg, value, why);
+      }
+  }
+  if (bad.empty()) return;
+  if (!force)
+    throw Error(Exit::refused, "refused: " + bad + "; nothing was written",
+                "'kscfg catalog TYPE' lists the documented values; --force writes them anyway");
+  std::cerr << "kscfg: warning: --force: writing values the catalog does not document: " << bad << '\n';
+}
+
 }  // namespace
 
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
@@ -47,6 +74,9 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
+  check_raw_registers(want, ctx.catalog(), force);  // before anything is read: nothing to undo
+  // A partial file (position = N): the station's other terminals are left alone.
+  if (want.partial()) want = expand_partial(want, ctx.layout());
   const StationLayout& layout = ctx.layout_for(want);
   Plan plan;
   {
@@ -61,7 +91,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     }
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
-  guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
+  LockoutReport rep = guard_lockout(ctx.link(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
   BackupInfo info;
   info.coupler = layout.coupler;
   nlohmann::json lj = ctx.link_json();
@@ -82,6 +112,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   std::cerr << "kscfg: undo with: " << r.undo << '\n';
+  if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
   if (ctx.options().verbose)
     for (const auto& old : r.rotated) ctx.trace("removed old backup " + old);
   if (ctx.json()) {

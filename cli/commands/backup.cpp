@@ -24,11 +24,16 @@ class Backup : public Command {
            "the named parameters) and writes a station file (TOML) that \\fBkscfg restore\\fR and "
            "\\fBkscfg diff\\fR take. The hardware version (R16) is identity, not configuration, and is not "
            "saved. With \\fIFILE\\fR the file is written atomically; without it the file goes to stdout. "
-           "On a terminal a progress line with an estimate of the time left is shown on stderr.";
+           "An existing \\fIFILE\\fR is never replaced without \\fB\\-\\-force\\fR (exit status 7 before anything "
+           "is read). On a terminal a progress line with an estimate of the time left is shown on stderr.";
   }
   std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Output file (default or -: stdout)")->option_text("FILE"); }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FILE", file_, "Output file (default or -: stdout)")->option_text("FILE");
+    sub.add_flag("--force", force_, "Replace an existing FILE");
+  }
   int run(Context& ctx) override {
+    refuse_to_replace(file_, force_);  // before the station is read: nothing is lost, no time wasted
     StationSpec spec;
     {
       ProgressBar bar(ctx, "backup", 0);  // on a terminal only (progress.hpp)
@@ -46,6 +51,7 @@ class Backup : public Command {
 
  private:
   std::string file_;
+  bool force_ = false;
 };
 
 }  // namespace

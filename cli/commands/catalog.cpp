@@ -74,7 +74,7 @@ class CatalogCmd : public Command {
         nlohmann::json values = nlohmann::json::array();
         for (const auto& c : param_choices(p)) values.push_back(param_json(c));
         params.push_back({{"name", p.name}, {"register", p.reg}, {"mask", p.mask}, {"choices", values},
-                          {"default", param_json(decode_param(p, t.regs[p.reg].def))}, {"measured_in", p.unit},
+                          {"default", param_json(decode_param(p, t.regs[p.reg].def))}, {"measured_in", p.unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(p.unit)},
                           {"description", p.desc}});
       }
       for (const auto& im : t.images) images.push_back({{"name", im.name}, {"elements", elements_text(im.out)}});

@@ -1,18 +1,23 @@
 // kscfg data [force NAME=VALUE... --yes]: the live process data of the station, decoded per the
 // catalog (library: kscfg/session/process_data.hpp), and forcing outputs.
 #include <fmt/format.h>
+#include <sys/ioctl.h>
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <iostream>
 #include <thread>
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../output.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/process_data.hpp"
 
 namespace kscfg::cli {
@@ -52,8 +57,65 @@ std::string bit_string(const nlohmann::json& a) {
   return s;
 }
 
-// One line for people from a channel's JSON object.
-std::string line_text(const nlohmann::json& j, const Catalog& cat) {
+// Columns of the screen (a terminal), else of COLUMNS (watch sets it), else 80.
+std::size_t screen_width() {
+  winsize ws{};
+  if (isatty(STDOUT_FILENO) && ioctl(STDOUT_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col >= 40) return ws.ws_col;
+  if (const char* c = std::getenv("COLUMNS"); c && *c) {
+    char* end = nullptr;
+    unsigned long v = std::strtoul(c, &end, 10);
+    if (end && !*end && v >= 40 && v <= 1000) return v;
+  }
+  return 80;
+}
+
+constexpr std::size_t kIndent = 17;  // "POS CH TYPE      ": where the values start
+
+// `head` then the parts, two blanks apart, in lines of at most `width` columns: a part that does
+// not fit goes on a line of its own, indented under the first; a part wider than a line breaks at
+// its blanks (never inside a word).
+std::string wrap_parts(std::string head, const std::vector<std::string>& parts, std::size_t width) {
+  std::string out = std::move(head);
+  std::size_t col = out.size();
+  const std::string indent(kIndent, ' ');
+  bool first = true;
+  for (const auto& part : parts) {
+    std::size_t sep = first ? 0 : 2;
+    if (!first && col + sep + part.size() > width) {
+      out += "\n" + indent;
+      col = kIndent;
+      sep = 0;
+    }
+    if (col + sep + part.size() <= width) {
+      out += std::string(sep, ' ') + part;
+      col += sep + part.size();
+    } else {
+      out += std::string(sep, ' ');
+      col += sep;
+      std::size_t start = 0;
+      bool word_on_line = false;
+      while (start < part.size()) {
+        std::size_t end = part.find(' ', start);
+        if (end == std::string::npos) end = part.size();
+        std::string word = part.substr(start, end - start);
+        if (word_on_line && col + 1 + word.size() > width) {
+          out += "\n" + indent;
+          col = kIndent;
+          word_on_line = false;
+        }
+        out += (word_on_line ? " " : "") + word;
+        col += (word_on_line ? 1 : 0) + word.size();
+        word_on_line = true;
+        start = end + 1;
+      }
+    }
+    first = false;
+  }
+  return out;
+}
+
+// One line for people from a channel's JSON object (wrapped at `width` columns).
+std::string line_text(const nlohmann::json& j, const Catalog& cat, std::size_t width) {
   const TerminalType* type = cat.find(j.at("type").get<std::string>());
   std::string format = j.value("format", "");
   std::string ch = j.contains("channel") ? std::to_string(j.at("channel").get<unsigned>()) : "-";
@@ -69,7 +131,7 @@ std::string line_text(const nlohmann::json& j, const Catalog& cat) {
   if (j.contains("word")) {
     std::string v = fmt::format("word {}", j.at("word").get<std::int32_t>());
     if (j.contains("scaled"))
-      v += fmt::format(" = {:.3f} {}", j.at("scaled").get<double>(), j.at("unit").get<std::string>());
+      v += fmt::format(" = {:.3f} {}", j.at("scaled").get<double>(), j.at("measured_in").get<std::string>());
     parts.push_back(v);
   }
   if (j.contains("inputs")) parts.push_back("inputs " + bit_string(j.at("inputs")));
@@ -81,15 +143,34 @@ std::string line_text(const nlohmann::json& j, const Catalog& cat) {
         b += fmt::format("{}{}.{}=0x{:02X}", b.empty() ? "" : " ", side, it.key(), it.value().get<unsigned>());
     parts.push_back(b);
   }
-  for (std::size_t i = 0; i < parts.size(); ++i) s += (i ? "  " : "") + parts[i];
-  return s;
+  return wrap_parts(s, parts, width);
 }
 
+// False once the reader of stdout has gone away (EPIPE: `kscfg data force ... | head -c 100`).
 bool write_out(const std::string& s) {
   std::cout << s;
   std::cout.flush();
   if (!std::cout) throw Error(Exit::file, "cannot write to stdout");
-  return true;
+  return !stdout_reader_gone();
+}
+
+// The command line that writes the outputs' previous values back and leaves them (kill -9).
+std::string undo_command(Context& ctx, const TerminalImage& t, unsigned ch, const ForcePlan& plan) {
+  auto quote = [](const std::string& w) {
+    bool plain = !w.empty() && w.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
+                                                   "_-+=.,:/@%") == std::string::npos;
+    if (plain) return w;
+    std::string q = "'";
+    for (char c : w) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+    return q + "'";
+  };
+  std::string cmd = "kscfg --port " + quote(ctx.options().port);
+  if (!ctx.options().station.empty() && ctx.options().station != "-") cmd += " --station " + quote(ctx.options().station);
+  cmd += fmt::format(" -t {}", t.position);
+  if (t.complex && ch > 0) cmd += fmt::format(" -c {}", ch + 1);
+  cmd += " data force";
+  for (const auto& u : plan.undo) cmd += " " + quote(u);
+  return cmd + " --yes --no-restore";
 }
 
 class Data : public Command {
@@ -110,11 +191,11 @@ class Data : public Command {
            "sample is one JSON line (keys in docs/json.md: \\fBposition\\fR, \\fBchannel\\fR, \\fBtype\\fR, "
            "\\fBfamily\\fR, \\fBformat\\fR, \\fBsample\\fR, \\fBregister_mode\\fR, \\fBstatus\\fR and "
            "\\fBcontrol\\fR as {value, bits}, \\fBin_length\\fR, \\fBin_data\\fR, \\fBout_length\\fR, "
-           "\\fBout_data\\fR, \\fBcounter\\fR, \\fBlatch\\fR, \\fBword\\fR, \\fBscaled\\fR, \\fBunit\\fR, "
+           "\\fBout_data\\fR, \\fBcounter\\fR, \\fBlatch\\fR, \\fBword\\fR, \\fBscaled\\fR, \\fBmeasured_in\\fR, "
            "\\fBinputs\\fR, \\fBoutputs\\fR, and \\fBbytes\\fR with every named byte). Works over every link: "
            "the emulator (whose K\\-bus then runs in real time between samples, so an encoder turning with "
-           "\\fBkscfg emu encoder \\-\\-speed\\fR counts on screen), Modbus TCP and RTU. Nothing is written.\\n"
-           ".IP\\n"
+           "\\fBkscfg emu encoder \\-\\-speed\\fR counts on screen), Modbus TCP and RTU. Nothing is written.\n"
+           ".IP\n"
            "\\fBdata force\\fR \\fINAME\\fR=\\fIVALUE\\fR... \\fB\\-\\-yes\\fR forces outputs of the terminal "
            "given with \\fB\\-t\\fR (channel \\fB\\-c\\fR): digital outputs by number (\\fB1=on 2=off\\fR), an "
            "analog output channel by value in its unit (\\fBvalue=5.0\\fR) or data word (\\fBword=0x4000\\fR), any "
@@ -123,9 +204,17 @@ class Data : public Command {
            "and never on a terminal whose control byte shows register mode. The previous values are read first; "
            "the forced values are held (written again every interval, so a coupler watchdog does not drop them) "
            "while the live view runs, until Ctrl\\-C, \\fB\\-\\-hold\\fR \\fIMS\\fR, \\fB\\-\\-once\\fR or "
-           "\\fB\\-\\-count\\fR; then the previous values are written back and read back, also after an error. "
+           "\\fB\\-\\-count\\fR; then the previous values are written back and read back, also after an error, "
+           "SIGTERM, SIGHUP (a closed terminal or SSH session), a lost link (tried again; a Modbus link reconnects) "
+           "or a reader of stdout that went away (\\fB| head\\fR). A kill \\-9 cannot be caught: when it forces, "
+           "kscfg prints on stderr the command that puts the previous values back, "
+           "\\fBdata force\\fR ... \\fB\\-\\-yes \\-\\-no\\-restore\\fR (which writes the values once and "
+           "leaves them). "
            "With \\fB\\-\\-json\\fR the last line is {position, channel, forced: [{name, before, after}], "
-           "restored}. Ctrl\\-C ends \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0).";
+           "restored}. Ctrl\\-C, SIGTERM and SIGHUP end \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0). "
+           "Over \\fBads://\\fR the coupler's port\\-300 watchdog switches the outputs to the safe state when no "
+           "telegram came for 1000 ms: \\fBdata force\\fR feeds it with every interval, and refuses an "
+           "\\fB\\-\\-interval\\fR of 1000 ms or more there.";
   }
   std::vector<std::string> examples() const override {
     return {"data", "data --once", "--json data --once", "-t 2 data --count 5 --interval 100",
@@ -140,6 +229,8 @@ class Data : public Command {
     sub.add_option("--interval", interval_, "Time between samples in ms (default 500)")->option_text("MS");
     sub.add_flag("--yes", yes_, "data force: really write the outputs");
     sub.add_option("--hold", hold_, "data force: hold the forced values for MS ms, then restore")->option_text("MS");
+    sub.add_flag("--no-restore", no_restore_,
+                 "data force: write the values once and leave them (how to put outputs back by hand)");
   }
 
   int run(Context& ctx) override {
@@ -153,6 +244,15 @@ class Data : public Command {
     std::size_t count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
     auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
+    // ADS port 300: "If no further telegram arrives within 1000 ms the outputs will be switched to
+    // the safe state" (link/ads_link.hpp). Held values are written every interval: keep it shorter.
+    if (force && interval >= std::chrono::milliseconds(adsimage::kWatchdogMs) &&
+        parse_port_uri(ctx.options().port).scheme == "ads")
+      throw Error(Exit::usage,
+                  fmt::format("--interval {} ms: over ADS the coupler switches the outputs off after {} ms without a "
+                              "telegram, so forced values would drop between two writes",
+                              interval.count(), adsimage::kWatchdogMs),
+                  "give --interval below 1000 (default 500)");
     if (interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
     std::optional<std::chrono::milliseconds> hold;
     if (!hold_.empty()) hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));
@@ -172,6 +272,10 @@ class Data : public Command {
     ForcePlan plan;
     const TerminalImage* ft = nullptr;
     unsigned fch = ctx.options().channel - 1;
+    if (no_restore_ && (!force || !hold_.empty() || once_ || !count_.empty()))
+      throw Error(Exit::usage, "--no-restore goes with 'data force' alone (no --hold, --once or --count)",
+                  "it writes the values once and leaves them; kscfg prints it for putting outputs back by hand");
+    std::string undo_cmd;
     if (force) {
       if (!only)
         throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
@@ -184,21 +288,56 @@ class Data : public Command {
                     fmt::format("forcing outputs of terminal {} ({}) moves what is wired to them; nothing written",
                                 ft->position, ft->type->type),
                     "add --yes to force them");
+      undo_cmd = undo_command(ctx, *ft, fch, plan);
+      // kill -9 is the one way out kscfg cannot clean up after: say how to do it by hand before
+      // anything is forced (said after, a kill could come between).
+      if (!no_restore_)
+        std::cerr << fmt::format("kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
+                                 "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
+                                 ft->position, ft->type->type, undo_cmd);
       apply_force(link, plan);
+      if (no_restore_) {
+        if (ctx.json()) {
+          nlohmann::json j{{"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes},
+                           {"restored", false}};
+          if (ft->complex) j["channel"] = fch + 1;
+          write_out(j.dump() + "\n");
+        } else {
+          write_out(fmt::format("terminal {} ({}): outputs forced and left so (--no-restore)\n", ft->position,
+                                ft->type->type));
+        }
+        return 0;
+      }
     }
     int rc = 0;
-    auto restore_after_error = [&] {
-      if (!force) return;
+    // Puts the outputs back, verified. A signal during it does not stop it (a second Ctrl-C must not
+    // leave them forced); a link error is tried again (a Modbus link reconnects). Returns the error.
+    auto restore = [&]() -> std::optional<Error> {
       bool was = g_interrupted.exchange(false);  // the link refuses to work while it is set
-      try {
-        restore_force(link, plan);
-        std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
-                                 ft->type->type);
-      } catch (const Error& e) {
-        std::cerr << fmt::format("kscfg: warning: restoring the outputs of terminal {} failed: {}\n", ft->position,
-                                 e.what());
+      std::optional<Error> failed;
+      for (int attempt = 0; attempt < 3; ++attempt) {
+        try {
+          restore_force(link, plan);
+          failed.reset();
+          break;
+        } catch (const Error& e) {
+          failed = e;
+          was = g_interrupted.exchange(false) || was;
+          if (e.code() != Exit::interrupted && e.code() != Exit::link) break;
+        }
       }
       if (was) g_interrupted = true;
+      return failed;
+    };
+    auto restore_after_error = [&] {
+      if (!force) return;
+      if (auto e = restore())
+        std::cerr << fmt::format("kscfg: warning: restoring the outputs of terminal {} failed: {}; they may still be "
+                                 "forced: put them back with: {}\n",
+                                 ft->position, e->what(), undo_cmd);
+      else
+        std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
+                                 ft->type->type);
     };
     try {
       rc = loop(ctx, link, L, only, count, interval, hold, force ? &plan : nullptr);
@@ -214,7 +353,14 @@ class Data : public Command {
       throw;
     }
     if (force) {
-      restore_force(link, plan);
+      if (auto e = restore())
+        throw Error(e->code(),
+                    fmt::format("restoring the outputs of terminal {} ({}) failed: {}", ft->position, ft->type->type,
+                                e->what()),
+                    "they may still be forced: put them back with: " + undo_cmd);
+      if (stdout_reader_gone())
+        std::cerr << fmt::format("kscfg: the reader of stdout went away; terminal {} ({}): outputs restored\n",
+                                 ft->position, ft->type->type);
       if (ctx.json()) {
         nlohmann::json j{{"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes},
                          {"restored", true}};
@@ -237,7 +383,9 @@ class Data : public Command {
     for (std::size_t n = 1;; ++n) {
       if (g_interrupted) break;
       if (plan && n > 1) apply_force(link, *plan);  // held: written again every interval
-      ImageSnapshot s = read_image(link, L);
+      // Only outside register mode: a command that read a register just before leaves its answer in
+      // the input image until the terminal has seen the control byte go back.
+      ImageSnapshot s = read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), only);
       auto rows = decode_station(L, s, only);
       std::string out;
       if (ctx.json()) {
@@ -247,12 +395,20 @@ class Data : public Command {
         }
       } else {
         if (tty) out += "\x1b[H\x1b[J";
-        out += fmt::format("{} sample {}{}\n", link.describe(), n,
-                           plan ? fmt::format(", outputs of terminal {} forced (Ctrl-C restores them)", only) : "");
-        for (const auto& r : rows) out += line_text(r, ctx.catalog()) + "\n";
+        std::size_t width = screen_width();
+        std::string head = fmt::format("{} sample {}{}", link.describe(), n,
+                                       plan ? fmt::format(", outputs of terminal {} forced", only) : "");
+        std::vector<std::string> heading{head};
+        if (tty) {
+          heading.front() += ";";
+          heading.push_back(plan ? "Ctrl-C restores them and quits" : "Ctrl-C quits");
+        }
+        out += wrap_parts("", heading, width) + "\n";
+        out += fmt::format("{:<4}{:<3}{:<10}{}\n", "POS", "CH", "TYPE", "PROCESS DATA");
+        for (const auto& r : rows) out += line_text(r, ctx.catalog(), width) + "\n";
         if (!tty && (count == 0 || count > 1)) out += "\n";
       }
-      write_out(out);
+      if (!write_out(out)) break;  // nobody reads: end (and restore) as after Ctrl-C
       if (count && n >= count) break;
       if (hold && std::chrono::steady_clock::now() - start >= *hold) break;
       // Wait for the next sample; the emulated K-bus runs for the time that passed.
@@ -275,7 +431,7 @@ class Data : public Command {
 
   std::vector<std::string> args_;
   std::string count_, interval_, hold_;
-  bool once_ = false, yes_ = false;
+  bool once_ = false, yes_ = false, no_restore_ = false;
 };
 
 }  // namespace

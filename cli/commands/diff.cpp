@@ -62,6 +62,7 @@ class Diff : public Command {
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec want = load_station_arg(file_, ctx.catalog());
+    if (want.partial()) want = expand_partial(want, ctx.layout());  // position = N: only those
     Plan plan;
     {
       ProgressBar bar(ctx, "diff: reading", 0);  // on a terminal only (progress.hpp)

@@ -6,6 +6,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "kscfg/session/process_data.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
@@ -208,7 +209,7 @@ class EmuEncoder : public Command {
                   {"pending", {{"step", far.step}, {"ref_pulses", far.ref_pulses}, {"latch_pulses", far.latch_pulses}}},
                   {"counter", enc.counter()},
                   {"latch", enc.latch()},
-                  {"status", s},
+                  {"status", ctst_json(*t.type, "status", t.format, s)},
                   {"c", enc.c_level()}});
     } else {
       std::cout << fmt::format("terminal {} ({}): encoder {} Hz {}, {} lines a revolution, gate {}, latch input {}\n",

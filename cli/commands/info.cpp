@@ -15,6 +15,20 @@
 
 namespace kscfg::cli {
 
+// (commands.hpp) Where the terminal's bytes are, with the names of `kscfg --json map`.
+nlohmann::json image_json(const TerminalImage& t) {
+  nlohmann::json j{{"format", t.format.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.format)},
+                   {"complex", t.complex}, {"inputs", nullptr}, {"outputs", nullptr}};
+  if (t.complex) {
+    if (t.in_size) j["inputs"] = {{"offset", t.in_offset}, {"size", t.in_size}};
+    if (t.out_size) j["outputs"] = {{"offset", t.out_offset}, {"size", t.out_size}};
+  } else {
+    if (t.bits_in) j["inputs"] = {{"byte", t.in_bit / 8}, {"bit", t.in_bit % 8}, {"bits", t.bits_in}};
+    if (t.bits_out) j["outputs"] = {{"byte", t.out_bit / 8}, {"bit", t.out_bit % 8}, {"bits", t.bits_out}};
+  }
+  return j;
+}
+
 namespace {
 
 std::string image_text(const TerminalImage& t) {
@@ -30,19 +44,6 @@ std::string image_text(const TerminalImage& t) {
   return "no process image";
 }
 
-// Where the terminal's bytes are, with the names of `kscfg --json map`.
-nlohmann::json image_json(const TerminalImage& t) {
-  nlohmann::json j{{"format", t.format.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.format)},
-                   {"complex", t.complex}, {"inputs", nullptr}, {"outputs", nullptr}};
-  if (t.complex) {
-    if (t.in_size) j["inputs"] = {{"offset", t.in_offset}, {"size", t.in_size}};
-    if (t.out_size) j["outputs"] = {{"offset", t.out_offset}, {"size", t.out_size}};
-  } else {
-    if (t.bits_in) j["inputs"] = {{"byte", t.in_bit / 8}, {"bit", t.in_bit % 8}, {"bits", t.bits_in}};
-    if (t.bits_out) j["outputs"] = {{"byte", t.out_bit / 8}, {"bit", t.out_bit % 8}, {"bits", t.bits_out}};
-  }
-  return j;
-}
 
 class Info : public Command {
  public:

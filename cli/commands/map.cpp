@@ -4,6 +4,7 @@
 
 #include <cstdlib>
 #include <iostream>
+#include <optional>
 
 #include "../command.hpp"
 #include "../commands.hpp"
@@ -22,6 +23,18 @@ std::optional<bool> parse_switch(const std::string& text, const char* option) {
   throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: expected on or off", text, option));
 }
 
+// The same process image: the same sizes, and every terminal with the same format at the same bytes.
+bool same_layout(const StationLayout& a, const StationLayout& b) {
+  if (a.in_bytes != b.in_bytes || a.out_bytes != b.out_bytes || a.terminals.size() != b.terminals.size()) return false;
+  for (std::size_t i = 0; i < a.terminals.size(); ++i) {
+    const auto &x = a.terminals[i], &y = b.terminals[i];
+    if (x.type != y.type || x.format != y.format || x.in_offset != y.in_offset || x.in_size != y.in_size ||
+        x.out_offset != y.out_offset || x.out_size != y.out_size)
+      return false;
+  }
+  return true;
+}
+
 class Map : public Command {
  public:
   std::string name() const override { return "map"; }
@@ -38,7 +51,11 @@ class Map : public Command {
            "types given on the command line, laid out for \\fB\\-\\-coupler\\fR (default BK9000) with the terminals' "
            "factory settings or the file's. \\fBOnline\\fR (no types, no \\fB\\-\\-station\\fR, or \\fB\\-\\-online\\fR): "
            "reads the registers that decide each terminal's image (e.g. KL6001 R34 and R35) through the link and "
-           "shows the layout the coupler will use with them; a terminal whose control/status byte is not mapped "
+           "shows the layout the coupler will use with them. The coupler lays its image out when it starts: when "
+           "those registers were changed since (\\fBkscfg set alternative\\-format off\\fR) and give another "
+           "layout, the map shows the one in effect now and after it the one of the coupler's next start "
+           "(\\fB\\-\\-json\\fR: \\fBnext_start\\fR, null when they agree). A terminal whose control/status "
+           "byte is not mapped "
            "cannot be read and keeps the described values (a note says so on stderr). \\fB\\-\\-coupler\\fR, "
            "\\fB\\-\\-complete\\-evaluation\\fR, \\fB\\-\\-motorola\\fR and \\fB\\-\\-word\\-alignment\\fR override the "
            "coupler's settings (a BK2000 always maps the control/status byte with word alignment).\n"
@@ -82,6 +99,7 @@ class Map : public Command {
     if (!types_.empty() && online_) throw Error(Exit::usage, "--online reads the connected station; drop the types");
 
     StationLayout L;
+    std::optional<StationLayout> next;  // online: the layout of the coupler's next start, when it differs
     std::string source;
     nlohmann::json readings = nlohmann::json::array();
     std::vector<std::string> notes;
@@ -89,7 +107,7 @@ class Map : public Command {
       StationSpec spec;
       if (!types_.empty()) {
         spec.origin = "command line";
-        for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}});
+        for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}, 0});
         source = "command line";
       } else {
         spec = load_station_arg(station_file, cat);
@@ -114,6 +132,17 @@ class Map : public Command {
       MappingSettings s = resolve_settings(base, ce, mo, wa);
       OnlineMap m = map_online(ctx.link(), current, spec, cat, s, ctx.session_options());
       L = std::move(m.layout);
+      // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
+      // they give another layout than the one the coupler uses now, the map shows what is in effect
+      // and, after it, what the next start brings (issue 23 item 21).
+      if (coupler_.empty() && !ce && !mo && !wa && !same_layout(L, current)) {
+        next = std::move(L);
+        L = current;
+        notes.push_back(fmt::format("the terminals' mapping registers give another process image at the coupler's "
+                                    "next start ({} input and {} output bytes instead of {} and {}): restart the "
+                                    "coupler (power off and on) to apply them; the map shows both",
+                                    next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes));
+      }
       notes = std::move(m.notes);
       for (const auto& r : m.readings)
         readings.push_back({{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg},
@@ -138,9 +167,12 @@ class Map : public Command {
       j["source"] = source;
       j["online"] = types_.empty() && (station_file.empty() || online_);
       j["registers_read"] = readings;
+      j["next_start"] = nullptr;
+      if (next) j["next_start"] = map_json(*next, p);
       if (pos) {
         (void)L.terminal(pos);
         j["terminals"] = nlohmann::json::array({j["terminals"].at(pos - 1)});
+        if (next) j["next_start"]["terminals"] = nlohmann::json::array({j["next_start"]["terminals"].at(pos - 1)});
       }
       print_json(j);
       return 0;
@@ -151,11 +183,17 @@ class Map : public Command {
     const char* term = std::getenv("TERM");
     bool dumb = !term || std::string(term) == "dumb";
     bool color = color_ == "always" || (color_ == "auto" && tty && !(no_color && *no_color) && !dumb);
+    const char* after = "\nAfter the coupler's next start (the terminals' mapping registers say so; restart it to "
+                        "apply them):\n";
     if (pos) {
+      if (next) std::cout << "In effect now:\n";
       std::cout << render_terminal(L, p, pos);
+      if (next) std::cout << after << render_terminal(*next, p, pos);
       return 0;
     }
+    if (next) std::cout << "In effect now:\n";
     std::cout << render_table(L, p);
+    if (next) std::cout << after << render_table(*next, p);
     if (grid_ || tty || color_ == "always") std::cout << '\n' << render_grid(L, color);
     return 0;
   }

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "../command.hpp"
+#include "kscfg/base/parse.hpp"
 #include "kscfg/provision/provision.hpp"
 
 namespace kscfg::cli {
@@ -25,14 +26,28 @@ class ApplyCommand : public Command {
     sub.add_option("FILE", file_, "Station file (desired state, or a backup; -: stdin)")->required()->option_text("FILE");
     sub.add_flag("--dry-run", dry_, "Print the plan only; write nothing");
     sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
-    sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
-    sub.add_option("--keep-backups", keep_, "Automatic backups of this port to keep (default 20; 0: all)")
+    sub.add_flag("--force", force_,
+                 "Write even raw values the catalog does not document, or a change that costs a terminal its "
+                 "register window");
+    sub.add_option_function<std::string>(
+           "--keep-backups",
+           [this](const std::string& v) {
+             keep_ = v;
+             keep_given_ = true;
+           },
+           "Automatic backups of this port to keep (default 20; 0: all)")
         ->option_text("N");
   }
-  int run(Context& ctx) override { return run_apply(ctx, file_, dry_, backup_, force_, name(), keep_); }
+  int run(Context& ctx) override {
+    // Strict like every number kscfg parses (" 3" and "3x" are errors; CLI11 would trim them).
+    std::optional<unsigned> keep;
+    if (keep_given_) keep = static_cast<unsigned>(parse_uint(keep_, 1'000'000, "--keep-backups value"));
+    return run_apply(ctx, file_, dry_, backup_, force_, name(), keep);
+  }
 
  private:
-  std::optional<unsigned> keep_;
+  std::string keep_;
+  bool keep_given_ = false;
   std::string file_, backup_;
   bool dry_ = false, force_ = false;
 };

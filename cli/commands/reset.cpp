@@ -54,7 +54,14 @@ class Reset : public Command {
     (void)register_terminal(ctx.layout(), pos, chan);
     std::vector<PlannedWrite> planned;
     for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF});
-    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
+    {
+      // Through the terminal's own session (no second session on the channel, see set), closed
+      // before the question: no terminal waits in register mode for an answer.
+      const StationLayout& L = ctx.layout();
+      auto g = ctx.session();
+      guard_lockout(ctx.link(), L, ctx.catalog(), ctx.session_options(), planned, force_, g.get());
+      g->close();
+    }
     if (!yes_) {
       if (!isatty(STDIN_FILENO))
         throw Error(Exit::usage, fmt::format("reset of terminal {} ({}) needs confirmation", pos, type.type),

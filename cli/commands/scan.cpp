@@ -71,8 +71,7 @@ class Scan : public Command {
     auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"), mo = on_off(mo_, "--motorola");
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
-    if (!write_.empty() && write_ != "-" && !force_ && std::filesystem::exists(write_))
-      throw Error(Exit::usage, fmt::format("'{}' exists", write_), "add --force to replace it");
+    if (!write_.empty()) refuse_to_replace(write_, force_);
     auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
     if (!link)
       throw Error(Exit::usage, fmt::format("'kscfg scan' reads a Modbus coupler; the port is '{}'", ctx.options().port),
@@ -115,9 +114,9 @@ class Scan : public Command {
       nlohmann::json terms = nlohmann::json::array();
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
+        // Image placement as info and map give it: image {format, complex, inputs, outputs}.
         terms.push_back({{"position", t.position}, {"type", t.type->type}, {"r8", i < r.r8.size() ? r.r8[i] : 0},
-                         {"format", t.format}, {"out_offset", t.out_offset}, {"out_size", t.out_size},
-                         {"in_offset", t.in_offset}, {"in_size", t.in_size}});
+                         {"image", image_json(t)}});
       }
       print_json({{"port", link->describe()},
                   {"identification", r.ident},

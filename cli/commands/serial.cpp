@@ -22,8 +22,10 @@
 #include "../serial_map.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
+#include "kscfg/session/process_data.hpp"
 #include "kscfg/session/serial_port.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -46,6 +48,18 @@ std::unique_ptr<SerialPort> open_port(Context& ctx) {
   if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace(s); };
   unsigned pos = serial_position(ctx);
   return std::make_unique<SerialPort>(ctx.link(), ctx.layout(), pos, ctx.options().channel - 1, so);
+}
+
+// {"position", "channel", "type"} of the port's terminal channel (docs/json.md).
+nlohmann::json port_json(Context& ctx, const SerialPort& port) {
+  return terminal_json(port.terminal(), ctx.options().channel - 1);
+}
+
+// The status byte (or word: IL in its high byte) as every command gives it: {value, bits}.
+nlohmann::json port_status_json(const SerialPort& port) {
+  std::uint16_t v = port.status();
+  if (port.image().word) v = static_cast<std::uint16_t>(v | (port.in_length() << 8));
+  return ctst_json(*port.terminal().type, "status", port.terminal().format, v);
 }
 
 struct Diagnostics {
@@ -85,7 +99,7 @@ std::string diag_text(std::uint16_t r6) {
 // After a transfer: tell about BUF_F and R6 errors on stderr; never silent about lost data.
 nlohmann::json report_diagnostics(Context& ctx, const SerialPort& port) {
   nlohmann::json j;
-  j["buf_f"] = port.buffer_full();
+  j["status"] = port_status_json(port);  // BUF_F among its bits
   Diagnostics d = read_diagnostics(ctx, port);
   if (d.known) {
     j["r0_tx_fifo"] = d.r0;
@@ -151,12 +165,30 @@ class SerialInit : public Command {
   int run(Context& ctx) override {
     auto port = open_port(ctx);
     port->init();
-    if (ctx.json()) print_json({{"position", port->terminal().position}, {"initialised", true},
-                                {"format", port->image().format}});
+    if (ctx.json()) {
+      nlohmann::json j = port_json(ctx, *port);
+      j.update({{"initialised", true}, {"format", port->image().format}});
+      print_json(j);
+    }
     else std::cout << fmt::format("{} initialised ({})\n", port->who(), port->image().describe());
     return 0;
   }
 };
+
+// stdin for SerialPort::send_stream: what is there now (waiting up to `wait_ms` for something),
+// 0 at its end, -1 when nothing came. Errors are the OS's, with the file class of exit status.
+long read_stdin(std::uint8_t* buf, std::size_t max, int wait_ms) {
+  pollfd p{STDIN_FILENO, POLLIN, 0};
+  int r = ::poll(&p, 1, wait_ms);
+  if (r < 0 && errno != EINTR) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
+  if (r <= 0) return -1;
+  ssize_t n = ::read(STDIN_FILENO, buf, max);
+  if (n < 0) {
+    if (errno == EINTR || errno == EAGAIN) return -1;
+    throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
+  }
+  return static_cast<long>(n);
+}
 
 class SerialSend : public Command {
  public:
@@ -166,7 +198,8 @@ class SerialSend : public Command {
     return "Hands \\fIDATA\\fR to the terminal through the process-data handshake: up to as many bytes as the "
            "image has data bytes (OL) per request, TR toggled, TA awaited. \\fIDATA\\fR is text with the escapes "
            "\\\\r \\\\n \\\\t \\\\0 \\\\\\\\ \\\\xHH; with \\fB\\-\\-hex\\fR pairs of hex digits; \\fB\\-\\fR reads raw "
-           "bytes from stdin. The command returns when the terminal has accepted the last byte into its send FIFO; "
+           "bytes from stdin and sends them as it reads them, any amount in bounded memory (with \\fB\\-\\-hex\\fR, "
+           "at most 4 MiB of hex text). The command returns when the terminal has accepted the last byte into its send FIFO; "
            "when TA does not follow TR within \\fB\\-\\-timeout\\fR (send FIFO full and the line not moving) it "
            "fails with exit status 4 and says how many bytes were accepted.\n"
            ".IP\n"
@@ -191,10 +224,34 @@ class SerialSend : public Command {
   }
   int run(Context& ctx) override {
     std::vector<std::uint8_t> bytes;
-    if (data_ == "-") {
-      std::string in((std::istreambuf_iterator<char>(std::cin)), std::istreambuf_iterator<char>());
-      bytes = hex_ ? parse_serial_data(in, true) : std::vector<std::uint8_t>(in.begin(), in.end());
-    } else {
+    bool stream = false;  // raw stdin beyond kPreload goes out as it is read, never held whole
+    std::size_t preloaded = 0;
+    if (data_ == "-" && !hex_) {
+      // Read ahead up to kPreload: an input that ends there is sent whole (its size known, so the
+      // progress line has an estimate); a longer one (a device, /dev/zero) is streamed after it.
+      constexpr std::size_t kPreload = 64 * 1024;
+      bytes.resize(kPreload);
+      std::size_t n = 0;
+      for (;;) {
+        if (n == kPreload) {
+          stream = true;
+          break;
+        }
+        ssize_t k = ::read(STDIN_FILENO, bytes.data() + n, kPreload - n);
+        if (k < 0 && errno == EINTR) {
+          if (g_interrupted) throw Error(Exit::interrupted, "interrupted before anything was sent");
+          continue;
+        }
+        if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
+        if (k == 0) break;
+        n += static_cast<std::size_t>(k);
+      }
+      bytes.resize(n);
+      if (stream) preloaded = n;
+    } else if (data_ == "-" && hex_) {
+      // Hex text is parsed whole: bounded like every input file (4 MiB of text).
+      bytes = parse_serial_data(read_input("-", "hex data"), true);
+    } else if (!stream) {
       bytes = parse_serial_data(data_, hex_);
     }
     std::size_t count = 0;
@@ -203,7 +260,27 @@ class SerialSend : public Command {
       count = static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     }
     auto port = open_port(ctx);
-    {
+    std::size_t sent = bytes.size();
+    if (stream) {
+      ByteProgress bar(ctx, *port, "send", 0, [&] { return port->accepted(); });
+      std::size_t handed = 0;  // of the bytes read ahead
+      auto source = [&](std::uint8_t* buf, std::size_t max, int wait_ms) -> long {
+        if (handed < preloaded) {
+          std::size_t k = std::min(max, preloaded - handed);
+          std::copy_n(bytes.begin() + static_cast<std::ptrdiff_t>(handed), k, buf);
+          handed += k;
+          return static_cast<long>(k);
+        }
+        return read_stdin(buf, max, wait_ms);
+      };
+      try {
+        sent = port->send_stream(source, recv_);
+      } catch (const Error& e) {
+        // Ctrl-C ends an endless stream (stdin from a device): say how much went out.
+        if (e.code() != Exit::interrupted) throw;
+        throw Error(Exit::interrupted, fmt::format("interrupted after {} bytes were sent", port->accepted()));
+      }
+    } else {
       ByteProgress bar(ctx, *port, "send", bytes.size(),
                        [&] { return bytes.size() - std::min(bytes.size(), port->queued()); });
       port->send(bytes, recv_);
@@ -223,15 +300,15 @@ class SerialSend : public Command {
     if (recv_ && !ctx.json()) write_bytes(port->received(), hex_);
     nlohmann::json j = report_diagnostics(ctx, *port);
     if (ctx.json()) {
-      j["position"] = port->terminal().position;
-      j["sent"] = bytes.size();
+      j.update(port_json(ctx, *port));
+      j["sent"] = sent;
       if (recv_) {
         j["received"] = port->received().size();
         j["data_hex"] = to_hex_text(port->received());
       }
       print_json(j);
     } else if (!recv_) {
-      std::cout << fmt::format("sent {} bytes to {}\n", bytes.size(), port->who());
+      std::cout << fmt::format("sent {} bytes to {}\n", sent, port->who());
     }
     return 0;
   }
@@ -274,7 +351,7 @@ class SerialRecv : public Command {
     }
     nlohmann::json j = report_diagnostics(ctx, *port);
     if (ctx.json()) {
-      j["position"] = port->terminal().position;
+      j.update(port_json(ctx, *port));
       j["received"] = port->received().size();
       j["data_hex"] = to_hex_text(port->received());
       print_json(j);
@@ -559,10 +636,8 @@ class SerialStatus : public Command {
     Diagnostics d = read_diagnostics(ctx, *port);
     const SerialImage& img = port->image();
     if (ctx.json()) {
-      nlohmann::json j{{"position", port->terminal().position}, {"type", port->terminal().type->type},
-                       {"format", img.format}, {"data_bytes", img.out_data.size()}, {"status", s},
-                       {"ta", (s & serial::kTA) != 0}, {"rr", (s & serial::kRR) != 0}, {"ia", (s & serial::kIA) != 0},
-                       {"buf_f", (s & serial::kBufF) != 0}, {"il", port->in_length()}};
+      nlohmann::json j = port_json(ctx, *port);
+      j.update({{"format", img.format}, {"data_bytes", img.out_data.size()}, {"status", port_status_json(*port)}});
       if (d.known) j.update({{"r0_tx_fifo", d.r0}, {"r1_rx_fifo", d.r1}, {"r6", d.r6}, {"r6_text", diag_text(d.r6)}});
       print_json(j);
       return 0;
@@ -664,7 +739,7 @@ class SerialLine : public Command {
       if (frame)
         far_frame = {{"baud", frame->baud},
                      {"frame", fmt::format("{}{}{}", frame->data_bits, frame->parity, frame->stop_bits)}};
-      print_json({{"position", pos}, {"type", t.type->type}, {"baud", ls.baud},
+      print_json({{"position", pos}, {"channel", ctx.options().channel}, {"type", t.type->type}, {"baud", ls.baud},
                   {"frame", fmt::format("{}{}{}", ls.data_bits, ls.parity, ls.stop_bits)},
                   {"far_end", ser->far_end()}, {"bytes_per_second", ls.bytes_per_second()},
                   {"tx_fifo", ser->tx_count()}, {"rx_fifo", ser->rx_count()}, {"r6", ser->diagnostics()},

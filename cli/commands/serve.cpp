@@ -2,13 +2,16 @@
 #include <fmt/format.h>
 
 #include <iostream>
+#include <tuple>
 
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/emulator/ads_server.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/link/ams.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/discovery/open.hpp"
 
@@ -20,7 +23,7 @@ class Serve : public Command {
  public:
   std::string name() const override { return "serve"; }
   std::string brief() const override {
-    return "Serve the emulated station over Modbus TCP or RTU (its state file: --port emu:PATH)";
+    return "Serve the emulated station over Modbus TCP, Modbus RTU or ADS (its state file: --port emu:PATH)";
   }
   std::string man() const override {
     return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
@@ -52,19 +55,35 @@ class Serve : public Command {
            "Every change is saved to the state file (atomically) within a fraction of a second, so a write "
            "that was acknowledged survives even a kill \\-9 of the server. Serving on an address that is "
            "not a loopback one (0.0.0.0, *, [::]) prints a warning: the emulator has no authentication. "
-           "SIGINT or SIGTERM stops the server; the emulator state is saved and the exit status is 0. "
+           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0. "
            "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
            "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
            "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs: another kscfg on the "
            "same file (\\fBkscfg \\-\\-port emu:\\fR\\fIPATH\\fR ...) waits for it, says after a moment "
            "which process holds it (the serve, with its PID and command line), and gives up after "
-           "\\fB\\-\\-lock\\-wait\\fR seconds with status 11; use the server's port instead.";
+           "\\fB\\-\\-lock\\-wait\\fR seconds with status 11; use the server's port instead.\n"
+           ".IP\n"
+           "\\fB\\-\\-ads\\fR \\fIADDR\\fR:\\fIPORT\\fR serves the station as a BK9000's ADS (AMS/TCP) server instead, "
+           "printing its URI (e.g. \\fBads://127.0.0.1:48898\\fR). Port 100 answers register reads and writes "
+           "straight from the emulated terminals, with no byte of the process image touched: index group 0 "
+           "is the coupler's tables (read only; table 9 lists the terminals, table 100 the Ethernet "
+           "settings), index groups 1..255 the terminals by number (passive terminals such as KL9010 are not "
+           "counted), the offset's high word the channel (0..3) and its low word the register (R0 = 0); a "
+           "register is 2 bytes. Port 300 is the process image: index group 0xF020 the inputs, 0xF030 the "
+           "outputs, offsets 0..511; the outputs are set to 0 when no telegram came for "
+           "\\fB\\-\\-watchdog\\-ms\\fR (default 1000). ReadDeviceInfo is answered; ReadState is refused with AMS "
+           "error 0x8 (unknown command ID), as a BK9050 does. The coupler's AMS NetId is the address a "
+           "client connected to plus .1.1 (\\fB\\-\\-ads\\-netid\\fR sets another); a request for another NetId "
+           "gets AMS error 0x7. \\fB\\-\\-ads\\-route\\fR \\fINETID\\fR (repeatable) fills the AMS routing table: "
+           "when it is not empty, only the NetIds it lists are served, the others get AMS error 0x7. A "
+           "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR).";
   }
   std::vector<std::string> examples() const override {
     return {"serve --tcp 127.0.0.1:5020", "--port emu:station.json serve --pty",
             "--port emu:station.json serve --tcp 0.0.0.0:502",
             "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
-            "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7"};
+            "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7",
+            "serve --ads 127.0.0.1:48898 --ads-route 192.168.1.20.1.1"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--tcp", tcp_, "Serve Modbus TCP on ADDR:PORT (port 0: any free port)")->option_text("ADDR:PORT");
@@ -78,25 +97,27 @@ class Serve : public Command {
     sub.add_option("--fault", fault_, "Inject faults: drop=R,delay=R,corrupt=R,busy=R,delay_ms=N (R from 0 to 1)")
         ->option_text("SPEC");
     sub.add_option("--seed", seed_, "Seed of the fault injection (default 1)")->option_text("N");
-    sub.add_option("--max-connections", max_conn_, "TCP clients served at once (default 256)")->option_text("N");
+    sub.add_option("--max-connections", max_conn_, "TCP clients served at once (default 256; ADS: 64)")->option_text("N");
+    sub.add_option("--ads", ads_, "Serve ADS (AMS/TCP) as a BK9000 on ADDR:PORT (port 0: any free port)")
+        ->option_text("ADDR:PORT");
+    sub.add_option("--ads-route", ads_routes_, "ADS: a NetId of the AMS routing table (repeatable; empty: all served)")
+        ->option_text("NETID");
+    sub.add_option("--ads-netid", ads_netid_, "ADS: the coupler's AMS NetId (default: the address reached, plus .1.1)")
+        ->option_text("NETID");
+    sub.add_option("--ads-idle-ms", ads_idle_, "ADS: cut a connection idle this long (default 10000, 0 = never)")
+        ->option_text("MS");
   }
 
   int run(Context& ctx) override {
     ServeOptions so;
-    int modes = !tcp_.empty() + !rtu_.empty() + pty_;
-    if (modes != 1) throw Error(Exit::usage, "give exactly one of --tcp ADDR:PORT, --rtu DEVICE or --pty");
+    int modes = !tcp_.empty() + !rtu_.empty() + pty_ + !ads_.empty();
+    if (modes != 1) throw Error(Exit::usage, "give exactly one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT");
+    if (ads_.empty() && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty()))
+      throw Error(Exit::usage, "--ads-route, --ads-netid and --ads-idle-ms go with --ads ADDR:PORT");
+    if (!ads_.empty()) return run_ads(ctx);
     if (!tcp_.empty()) {
       so.mode = ServeOptions::Mode::tcp;
-      std::string host = tcp_, port;
-      auto colon = tcp_.rfind(':');
-      if (colon == std::string::npos)
-        throw Error(Exit::usage, fmt::format("invalid --tcp '{}': give ADDR:PORT, e.g. 127.0.0.1:5020", tcp_));
-      host = tcp_.substr(0, colon);
-      port = tcp_.substr(colon + 1);
-      if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
-      if (host.empty()) throw Error(Exit::usage, fmt::format("invalid --tcp '{}': no address", tcp_));
-      so.host = host;
-      so.port = static_cast<unsigned>(parse_uint(port, 65535, "TCP port"));
+      std::tie(so.host, so.port) = host_port("--tcp", tcp_);
     } else if (!rtu_.empty()) {
       PortUri p = parse_port_uri("rtu:" + rtu_);
       ModbusTarget t = modbus_target(p, "rtu:" + rtu_);
@@ -164,7 +185,72 @@ class Serve : public Command {
   }
 
  private:
-  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_;
+  static std::pair<std::string, unsigned> host_port(const char* opt, const std::string& v) {
+    auto colon = v.rfind(':');
+    if (colon == std::string::npos)
+      throw Error(Exit::usage, fmt::format("invalid {} '{}': give ADDR:PORT, e.g. 127.0.0.1:5020", opt, v));
+    std::string host = v.substr(0, colon), port = v.substr(colon + 1);
+    if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+    if (host.empty()) throw Error(Exit::usage, fmt::format("invalid {} '{}': no address", opt, v));
+    return {host, static_cast<unsigned>(parse_uint(port, 65535, "TCP port"))};
+  }
+
+  static ams::NetId netid_arg(const char* opt, const std::string& v) {
+    auto id = ams::parse_netid(v);
+    if (!id)
+      throw Error(Exit::usage, fmt::format("invalid {} '{}': an AMS NetId is six numbers 0..255, A.B.C.D.E.F", opt, v));
+    return *id;
+  }
+
+  int run_ads(Context& ctx) {
+    AdsServeOptions ao;
+    std::tie(ao.host, ao.port) = host_port("--ads", ads_);
+    for (const auto& r : ads_routes_) ao.routes.push_back(netid_arg("--ads-route", r));
+    if (!ads_netid_.empty()) ao.netid = netid_arg("--ads-netid", ads_netid_);
+    if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
+    if (!unit_.empty() || !fault_.empty() || !seed_.empty())
+      throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
+    if (!cycle_.empty()) {
+      ao.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
+      if (ao.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
+    }
+    if (!watchdog_.empty()) ao.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
+    if (!max_conn_.empty()) {
+      ao.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
+      if (ao.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
+    }
+    if (ctx.options().verbose) ao.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
+    ao.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
+    PortUri p = parse_port_uri(ctx.options().port);
+    if (p.scheme != "emu")
+      throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
+                  "use --port emu, emu:PATH or emu:mem");
+    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    EmulatorStore store(path, ctx.catalog());
+    if (!store.path().empty()) ao.save_state = [&store](const std::string& text) { store.save_text(text); };
+    AdsServeStats st;
+    {
+      AdsServer server(store.station(), ao);
+      if (ctx.json())
+        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
+      else
+        std::cout << server.endpoint() << std::endl;
+      server.run(g_interrupted);
+      st = server.stats();
+    }
+    store.save();
+    if (ctx.options().verbose || st.refused || st.timed_out || st.malformed)
+      std::cerr << fmt::format(
+          "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} cut idle, {} slow client(s) "
+          "disconnected, {} malformed; state saved to {}\n",
+          st.requests, st.connections, st.refused, ao.max_connections, st.idle_cut, st.timed_out, st.malformed,
+          path.empty() ? "memory" : path);
+    g_interrupted = false;
+    return 0;
+  }
+
+  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_, ads_, ads_netid_, ads_idle_;
+  std::vector<std::string> ads_routes_;
   bool pty_ = false;
 };
 

@@ -60,13 +60,21 @@ class Set : public Command {
     unsigned pos = ctx.terminal_position();
     const TerminalType& type = *ctx.layout().terminal(pos).type;
     unsigned chan = ctx.options().channel - 1;
+    pairs = with_settings(type, pairs, ctx.catalog(), chan);  // KL6031 image-size with extended-image
     check_params(type, pairs, ctx.catalog(), chan, divisor_);
     (void)register_terminal(ctx.layout(), pos, chan);
-    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(),
-                  planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
+    // The terminal's own session reads its mapping registers for the guard: a second session on the
+    // channel would take this one's register request for a dead session's and zero the channel's
+    // bytes when it closed (issue 23 item 20: Ser-CT/ST and D0 left at 0, a phantom RA toggle).
+    const StationLayout& L = ctx.layout();
     auto s = ctx.session();
+    LockoutReport rep = guard_lockout(ctx.link(), L, ctx.catalog(), ctx.session_options(),
+                                      planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_, s.get());
     SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
     s->close();
+    // A mapping register (KL6001 R34/R35, ...) changes the image only when the coupler starts again.
+    if (r.changed)
+      if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
     if (ctx.json()) {
       nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
       for (const auto& p : r.params)

@@ -1,6 +1,7 @@
 // kscfg show: every named parameter of the terminal, decoded, non-default ones marked.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <iostream>
 #include <set>
 
@@ -52,16 +53,48 @@ class Show : public Command {
   int run(Context& ctx) override {
     std::vector<nlohmann::json> docs;
     auto positions = ctx.terminal_positions();
-    if (!ctx.json() && ctx.several_terminals())
-      std::cout << fmt::format("{:<3} {:<7} {:<20}  {:<10} {:<10} {}\n", "POS", "TYPE", "PARAMETER", "VALUE", "DEFAULT",
-                               "REGISTER");
-    for (unsigned pos : positions) docs.push_back(show_one(ctx, pos));
-    if (ctx.json()) print_json_terminals(ctx, docs);
+    bool several = ctx.several_terminals();
+    std::vector<Row> rows;
+    for (unsigned pos : positions) docs.push_back(show_one(ctx, pos, rows));
+    if (ctx.json()) {
+      print_json_terminals(ctx, docs);
+      return 0;
+    }
+    // Columns as wide as their widest value (a KL5101's values are longer than ten characters).
+    std::size_t wn = 9, wv = 5, wd = 7;
+    for (const auto& r : rows)
+      if (!r.param.empty()) wn = std::max(wn, r.param.size()), wv = std::max(wv, r.value.size()), wd = std::max(wd, r.fallback.size());
+    auto line = [&](const std::string& prefix, const std::string& a, const std::string& b, const std::string& c,
+                    const std::string& d) {
+      return fmt::format("{}{:<{}}  {:<{}} {:<{}} {}\n", prefix, a, wn, b, wv, c, wd, d);
+    };
+    if (several) std::cout << line(fmt::format("{:<3} {:<7} ", "POS", "TYPE"), "PARAMETER", "VALUE", "DEFAULT", "REGISTER");
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      const Row& r = rows[i];
+      if (!several && r.heading) {
+        std::cout << r.text << '\n';
+        if (i + 1 < rows.size() && !rows[i + 1].heading && !rows[i + 1].param.empty())
+          std::cout << line("", "PARAMETER", "VALUE", "DEFAULT", "REGISTER");
+        continue;
+      }
+      if (r.heading) continue;
+      if (r.param.empty()) {
+        std::cout << (several ? r.prefix + "(no named parameters)" : r.text) << '\n';
+        continue;
+      }
+      std::cout << line(several ? r.prefix : "", r.param, r.value, r.fallback, r.reg);
+    }
     return 0;
   }
 
  private:
-  nlohmann::json show_one(Context& ctx, unsigned pos) {
+  // One line of the table for people: a terminal's heading, a parameter, or a note.
+  struct Row {
+    bool heading = false;
+    std::string prefix, text, param, value, fallback, reg;
+  };
+
+  nlohmann::json show_one(Context& ctx, unsigned pos, std::vector<Row>& rows) {
     auto s = ctx.session(pos);
     const TerminalType& type = *s->terminal().type;
     std::vector<const ParamDef*> params;
@@ -74,31 +107,18 @@ class Show : public Command {
       for (const auto& v : vals)
         arr.push_back({{"name", v.param->name}, {"value", param_json(v.value)}, {"default", param_json(v.fallback)},
                        {"at_default", !v.differs}, {"register", v.param->reg}, {"register_value", v.reg_value},
-                       {"measured_in", v.param->unit}});
+                       {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)}});
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j["params"] = arr;
       return j;
     }
     std::string prefix = terminal_prefix(ctx, s->terminal());
-    if (!prefix.empty()) {  // several terminals: one table, each line names its terminal
-      if (vals.empty()) std::cout << prefix << "(no named parameters)\n";
-      for (const auto& v : vals)
-        std::cout << prefix
-                  << fmt::format("{:<20}  {:<10} {:<10} R{} {}\n", v.param->name, v.value + (v.differs ? " *" : ""),
-                                 v.fallback, v.param->reg, hex4(v.reg_value));
-      return {};
-    }
-    std::cout << fmt::format("{}  {}\n", s->who(), type.title);
-    if (vals.empty()) {
-      std::cout << "(no named parameters in the catalog; 'kscfg dump' shows the registers)\n";
-      return {};
-    }
-    std::size_t w = 9;
-    for (const auto& v : vals) w = std::max(w, v.param->name.size());
-    std::cout << fmt::format("{:<{}}  {:<10} {:<10} {}\n", "PARAMETER", w, "VALUE", "DEFAULT", "REGISTER");
+    rows.push_back({true, prefix, fmt::format("{}  {}", s->who(), type.title), "", "", "", ""});
+    if (vals.empty())
+      rows.push_back({false, prefix, "(no named parameters in the catalog; 'kscfg dump' shows the registers)", "", "", "", ""});
     for (const auto& v : vals)
-      std::cout << fmt::format("{:<{}}  {:<10} {:<10} R{} {}\n", v.param->name, w,
-                               v.value + (v.differs ? " *" : ""), v.fallback, v.param->reg, hex4(v.reg_value));
+      rows.push_back({false, prefix, "", v.param->name, v.value + (v.differs ? " *" : ""), v.fallback,
+                      fmt::format("R{} {}", v.param->reg, hex4(v.reg_value))});
     return {};
   }
 };

@@ -94,9 +94,7 @@ class StationInit : public Command {
       write_output("-", text);
       return 0;
     }
-    std::error_code ec;
-    if (std::filesystem::exists(file_, ec) && !force_)
-      throw Error(Exit::file, fmt::format("'{}' already exists", file_), "give --force to overwrite it");
+    refuse_to_replace(file_, force_);
     write_file_atomic(file_, text);
     if (ctx.json()) print_json({{"file", file_}, {"coupler", coupler_profile(coupler_).name}});
     else std::cerr << fmt::format("kscfg: wrote {}\n", file_);
@@ -121,12 +119,32 @@ class StationCheck : public Command {
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec spec = load_station_arg(file_, ctx.catalog());
+    if (spec.partial()) {
+      // Positions only: what is there is checked when it is applied (apply, diff, restore).
+      std::vector<unsigned> positions;
+      std::string list;
+      for (const auto& t : spec.terminals) {
+        positions.push_back(t.position);
+        list += fmt::format("{}{} ({})", list.empty() ? "" : ", ", t.position, t.type);
+      }
+      if (ctx.json()) {
+        print_json({{"file", input_name(file_)}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()},
+                    {"partial", true}, {"positions", positions}});
+        return 0;
+      }
+      std::cout << fmt::format("{}: a partial station file naming {} terminal{} by position: {}; apply, diff and "
+                               "restore check each against the station's type there and leave the others alone\n",
+                               input_name(file_), spec.terminals.size(), spec.terminals.size() == 1 ? "" : "s", list);
+      return 0;
+    }
     StationLayout L = compute_layout(spec, ctx.catalog());
     const CouplerProfile& p = coupler_profile(L.coupler);
     check_image_limits(L, p);
     if (ctx.json()) {
+      // The image sizes with the names of map: inputs and outputs {bytes, complex_bytes, digital_bits, limit}.
+      nlohmann::json m = map_json(L, p);
       print_json({{"file", input_name(file_)}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
-                  {"in_bytes", L.in_bytes}, {"out_bytes", L.out_bytes}});
+                  {"inputs", m["inputs"]}, {"outputs", m["outputs"]}});
       return 0;
     }
     std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", input_name(file_), L.coupler,

@@ -6,6 +6,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/catalog/describe.hpp"
+#include "kscfg/catalog/params.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/lockout.hpp"
@@ -24,7 +25,11 @@ class Write : public Command {
   std::string man() const override {
     return "Writes \\fIVALUE\\fR to register \\fIREG\\fR of the selected terminal. The register is read "
            "first; if it already holds the value nothing is written (EEPROM care). Protected registers "
-           "(R16..R30, R32..R47) are unlocked with the code word 0x1235 in R31 and locked again. The "
+           "(R16..R30, R32..R47) are unlocked with the code word 0x1235 in R31 and locked again. A value the "
+           "catalog does not document for the register (a baud code the terminal does not have, a divisor rate "
+           "above its maximum, a count outside its range; \\fBkscfg catalog\\fR \\fITYPE\\fR lists them) is "
+           "refused with status 5, as \\fBset\\fR refuses it, unless \\fB\\-\\-force\\fR is given; so is such "
+           "a raw register in a station file for \\fBapply\\fR and \\fBrestore\\fR. The "
            "register is then read back: a different value exits with status 6. With \\fB\\-\\-mask\\fR "
            "\\fIM\\fR only the bits set in \\fIM\\fR change (read-modify-write): new = (old & ~M) | "
            "(VALUE & M). ROM registers (R8..R14) and the extended area are refused with status 5. "
@@ -50,7 +55,8 @@ class Write : public Command {
     sub.add_option("REG", reg_, "Register to write")->required()->option_text("REG");
     sub.add_option("VALUE", value_, "Value 0..0xFFFF")->required()->option_text("VALUE");
     sub.add_option("--mask", mask_, "Change only the bits set in this mask")->option_text("MASK");
-    sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
+    sub.add_flag("--force", force_,
+                 "Write even a value the catalog does not document, or one that costs a terminal its register window");
   }
   int run(Context& ctx) override {
     unsigned reg = parse_register(reg_);
@@ -60,6 +66,16 @@ class Write : public Command {
     // start must leave every terminal its register window (DESIGN.md section 6).
     unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
     const TerminalType& ttype = *register_terminal(ctx.layout(), pos, chan).type;
+    // A value the catalog does not document (a baud code the terminal does not have, a divisor rate
+    // above its maximum, a count outside its range) is refused like by set, unless forced.
+    if (!ttype.regs[reg].command && reg < proto::kRegisterCount)
+      if (std::string why = undocumented_value(ttype, reg, value, chan, mask); !why.empty()) {
+        std::string what = fmt::format("R{} = 0x{:04X} on terminal {} ({}): {}", reg, value & mask, pos, ttype.type, why);
+        if (!force_)
+          throw Error(Exit::refused, "refused: " + what + "; nothing was written",
+                      fmt::format("'kscfg catalog {}' lists the documented values; --force writes it anyway", ttype.type));
+        std::cerr << "kscfg: warning: --force: writing " << what << '\n';
+      }
     std::vector<PlannedWrite> planned;
     if (ttype.regs[reg].command) {
       if (auto eff = command_effect(ttype, reg, value))
@@ -67,8 +83,10 @@ class Write : public Command {
     } else {
       planned.push_back({pos, chan, reg, value, mask});
     }
-    guard_lockout(ctx.link(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
+    // Through the terminal's own session: a second one on the channel would zero its bytes (see set).
+    const StationLayout& L = ctx.layout();
     auto s = ctx.session();
+    LockoutReport rep = guard_lockout(ctx.link(), L, ctx.catalog(), ctx.session_options(), planned, force_, s.get());
     const TerminalType& type = *s->terminal().type;
     if (type.regs[reg].command) {
       if (!mask_.empty())
@@ -78,6 +96,8 @@ class Write : public Command {
     }
     WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
     s->close();
+    if (r.changed)
+      if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
       nlohmann::json j = terminal_json(s->terminal(), ch);

@@ -6,6 +6,7 @@
 namespace kscfg {
 
 std::atomic<bool> g_interrupted{false};
+std::atomic<int> g_signal{0};
 std::atomic<unsigned> g_interrupts{0};
 
 bool pause_interrupt() {

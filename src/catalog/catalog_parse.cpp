@@ -1,6 +1,7 @@
 // Catalog parsing: one TOML description (catalog/FORMAT.md) -> TerminalType, and loading a folder
 // of them. The queries on the parsed catalog are in catalog.cpp.
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/catalog/params.hpp"
 
 #include <fmt/format.h>
 
@@ -346,11 +347,18 @@ static void parse_params(const Ctx& c, const toml::table& root, TerminalType& t)
       for (const auto& ve : *vals) {
         const auto* vt = ve.as_table();
         if (!vt) c.fail(&ve, "value", "entries must be { name = \"..\", code = N }");
-        c.only_keys(*vt, {"name", "code", "desc"}, "value");
+        c.only_keys(*vt, {"name", "code", "desc", "with"}, "value");
         EnumValue ev;
         ev.name = c.str(*vt, "name", true);
         ev.code = static_cast<std::uint16_t>(c.num(*vt, "code", true, 0, 0, fmax));
         ev.desc = c.str(*vt, "desc", false);
+        if (std::string w = c.str(*vt, "with", false); !w.empty()) {
+          auto eq = w.find('=');
+          if (eq == std::string::npos || eq == 0 || eq + 1 == w.size())
+            c.fail(*vt, "with", "must be \"PARAM=VALUE\", another parameter of the type and its value");
+          ev.with_param = w.substr(0, eq);
+          ev.with_value = w.substr(eq + 1);
+        }
         d.values.push_back(ev);
       }
     } else if (kind == "bool") {
@@ -455,8 +463,21 @@ std::shared_ptr<const TerminalType> parse_description(std::string_view origin, s
   parse_params(c, root, *t);
   parse_images(c, root, *t);
   parse_decode(c, root, *t);
-  for (const auto& p : t->params)
+  for (const auto& p : t->params) {
     if (!t->has_registers) c.fail(root, "param", fmt::format("'{}': parameters need registers = true", p.name));
+    for (const auto& v : p.values) {
+      if (v.with_param.empty()) continue;
+      const ParamDef* other = t->param(v.with_param);
+      if (!other || other == &p)
+        c.fail(root, "param", fmt::format("'{}' value '{}': with = \"{}={}\" names no other parameter of {}", p.name,
+                                          v.name, v.with_param, v.with_value, t->type));
+      try {
+        (void)encode_param(*other, v.with_value, 0);
+      } catch (const Error& e) {
+        c.fail(root, "param", fmt::format("'{}' value '{}': with: {}", p.name, v.name, e.what()));
+      }
+    }
+  }
   return t;
 }
 

@@ -111,8 +111,8 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
                       fmt::format("{} {} is not one of the terminal's rates ({}){}", p.name, text,
                                   join(param_choices(p), ", "), dym.empty() ? "" : "; did you mean " + dym + "?"),
                       fmt::format("another rate{} needs the divisor form, asked for explicitly: 'kscfg set {} RATE "
-                                  "--divisor', or the raw register R{} in a station file",
-                                  upto, p.name, p.reg));
+                                  "--divisor'",
+                                  upto, p.name));
         }
         double base = static_cast<double>(d.clock) / d.prescale;
         auto rate_of = [&](long hb) { return base / static_cast<double>(hb + 1); };
@@ -147,6 +147,73 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
     }
   }
   return current;
+}
+
+std::string undocumented_value(const TerminalType& type, unsigned reg, std::uint16_t value, unsigned channel,
+                               std::uint16_t mask) {
+  std::vector<std::string> why;
+  for (const auto& p : type.params) {
+    if (p.reg != reg || (p.channel && *p.channel != channel) || (p.mask & ~mask)) continue;
+    std::uint16_t f = p.field(value);
+    switch (p.kind) {
+      case ParamDef::Kind::boolean: break;
+      case ParamDef::Kind::integer:
+        if (f < p.min || f > p.max)
+          why.push_back(fmt::format("{} {} is outside {}..{}", p.name, f, p.min, p.max));
+        break;
+      case ParamDef::Kind::enumeration: {
+        bool listed = std::any_of(p.values.begin(), p.values.end(), [&](const EnumValue& e) { return e.code == f; });
+        if (listed) break;
+        if (p.divisor && (value & 0xFF) == p.divisor->low) {
+          const Divisor& d = *p.divisor;
+          double rate = divisor_rate(d, value);
+          if (d.max && rate > d.max * (1.0 + d.tolerance_pct / 100.0))
+            why.push_back(fmt::format("the divisor form gives {} {:.0f}, above the {}'s documented maximum of {}", p.name,
+                                      rate, type.type, d.max));
+          break;
+        }
+        std::string codes;
+        for (const auto& e : p.values) codes += fmt::format("{}{} ({})", codes.empty() ? "" : ", ", e.code, e.name);
+        why.push_back(fmt::format("{} code {} is none of the documented codes {}{}", p.name, f, codes,
+                                  p.divisor ? fmt::format(" nor the divisor form (low byte 0x{:02X})", p.divisor->low)
+                                            : std::string()));
+        break;
+      }
+    }
+  }
+  std::string out;
+  for (const auto& w : why) out += (out.empty() ? "" : "; ") + w;
+  return out;
+}
+
+std::vector<SettingConflict> setting_conflicts(const TerminalType& type,
+                                               const std::array<std::uint16_t, proto::kRegisterCount>& regs,
+                                               unsigned channel) {
+  std::vector<SettingConflict> out;
+  for (const auto& p : type.params) {
+    if (p.kind != ParamDef::Kind::enumeration || (p.channel && *p.channel != channel)) continue;
+    std::uint16_t f = p.field(regs[p.reg]);
+    for (const auto& v : p.values) {
+      if (v.code != f || v.with_param.empty()) continue;
+      const ParamDef* other = type.param(v.with_param);
+      if (!other) continue;
+      std::uint16_t want = other->field(encode_param(*other, v.with_value, 0));
+      std::uint16_t have = other->field(regs[other->reg]);
+      if (want == have) continue;
+      std::string now = decode_param(*other, regs[other->reg]);
+      // The values of `p` that go with what `other` holds now: the other way to agree.
+      std::vector<std::string> alt;
+      for (const auto& a : p.values)
+        if (a.with_param == other->name && other->field(encode_param(*other, a.with_value, 0)) == have)
+          alt.push_back(a.name);
+      std::string fix = fmt::format("{} {} with {} {}", other->name, v.with_value, p.name, v.name);
+      if (!alt.empty()) fix = fmt::format("{} {} with {} {}, or {}", other->name, now, p.name, join(alt, " or "), fix);
+      out.push_back({fmt::format("{} {} needs {} {}, and {} is {}", p.name, v.name, other->name, v.with_value,
+                                 other->name, now),
+                     fix});
+    }
+  }
+  return out;
 }
 
 std::string decode_param(const ParamDef& p, std::uint16_t reg) {

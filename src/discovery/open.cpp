@@ -6,9 +6,11 @@
 #include <filesystem>
 #include <optional>
 
+#include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
 
@@ -34,6 +36,28 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   if (p.scheme == "emu") {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
     return std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait);
+  }
+  if (p.scheme == "ads") {
+    // ADS (BK9000 family, BC/BX controllers): the image over port 300, the station from the
+    // coupler's table 9 on port 100. One request may take the whole --timeout; a register access
+    // on port 100 more than 1 s (link/ads_registers.hpp).
+    AdsOptions ao;
+    ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
+    ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+    ao.trace = opt.trace;
+    auto link = std::make_unique<AdsImageLink>(ads_target(p, uri), ao);
+    AdsImageLink* raw = link.get();
+    const Catalog* cat = &catalog;
+    unsigned timeout = opt.timeout_ms;
+    auto trace = opt.trace;
+    link->set_discovery([raw, cat, timeout, trace]() -> std::optional<AdsImageLink::Found> {
+      AdsStation st = read_ads_station(raw->client(), *cat, timeout);
+      if (trace)
+        for (const auto& n : st.notes) trace("ads: " + n);
+      StationLayout L = ads_layout(raw->client(), st, *cat, timeout);
+      return AdsImageLink::Found{std::move(st.spec), std::move(L)};
+    });
+    return link;
   }
   // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
   // timeout is tried twice more, so a silent coupler is reported within about --timeout.

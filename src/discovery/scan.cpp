@@ -22,7 +22,7 @@ namespace {
 const TerminalType& probe_type() {
   static const TerminalType t = [] {
     TerminalType p;
-    p.type = "?";
+    p.type = "type not read yet";  // in messages: "terminal 3 (type not read yet)", not "(?)"
     p.title = "terminal being identified";
     p.family = "probe";
     p.has_registers = true;

@@ -172,7 +172,7 @@ speed_t speed_of(unsigned baud) {
     case 921600: return B921600;
     default:
       throw Error(Exit::usage, fmt::format("unsupported baud rate {}", baud),
-                  "use 150, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600 or 115200");
+                  "use 150, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800 or 921600");
   }
 }
 
@@ -324,6 +324,13 @@ void ModbusClient::connect() {
       modbus_free(ctx_);
       ctx_ = nullptr;
       if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+      if (e == ECONNREFUSED && connected_once_)
+        // It answered earlier in this run: it was stopped or reset meanwhile, not misaddressed.
+        throw Error(Exit::link,
+                    fmt::format("the connection to {}:{} was lost during the command ({}) and a new one was refused: "
+                                "the coupler (or 'kscfg serve') stopped or was reset",
+                                target_.host, target_.port, broke_.empty() ? "closed by the coupler" : broke_),
+                    "run the command again once the coupler is back");
       if (e == ECONNREFUSED)
         throw Error(Exit::link, fmt::format("connection refused by {}:{}", target_.host, target_.port),
                     "is the coupler (or 'kscfg serve') listening on that port?");
@@ -348,6 +355,7 @@ void ModbusClient::connect() {
     }
     modbus_set_socket(ctx_, serial_fd_);
   }
+  connected_once_ = true;
   modbus_set_error_recovery(ctx_, MODBUS_ERROR_RECOVERY_NONE);
   modbus_set_slave(ctx_, target_.unit);
   ms(opt_.response_timeout_ms, modbus_set_response_timeout, ctx_);
@@ -522,6 +530,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and
     // the chain goes on); a fresh connection leaves it behind. Reconnects on the next attempt.
     if (is_broken(e) || (target_.tcp && (timeout || is_garbled(e)))) {
+      broke_ = errtext(e);
       disconnect();
       continue;
     }

@@ -41,18 +41,22 @@ PortUri parse_port_uri(const std::string& uri) {
   if (uri.rfind("tcp://", 0) == 0) {
     p.scheme = "tcp";
     rest = uri.substr(6);
+  } else if (uri.rfind("ads://", 0) == 0) {
+    p.scheme = "ads";
+    p.port = 48898;  // AMS/TCP (link/ams.hpp)
+    rest = uri.substr(6);
   } else if (uri.rfind("rtu:", 0) == 0) {
     p.scheme = "rtu";
     rest = uri.substr(4);
   } else {
-    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT] or rtu:DEVICE", uri));
+    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT] or rtu:DEVICE", uri));
   }
   auto qm = rest.find('?');
   if (qm != std::string::npos) {
     p.query = parse_query(uri, rest.substr(qm + 1));
     rest.resize(qm);
   }
-  if (p.scheme == "tcp") {
+  if (p.scheme == "tcp" || p.scheme == "ads") {
     std::string port_text;
     bool has_port = false;
     if (!rest.empty() && rest.front() == '[') {  // [IPv6]:port
@@ -75,8 +79,12 @@ PortUri parse_port_uri(const std::string& uri) {
     }
     if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no host", uri));
     p.target = rest;
-    for (const auto& [k, v] : p.query)
-      if (k != "unit") throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (unit)", uri, k));
+    for (const auto& [k, v] : p.query) {
+      if (p.scheme == "tcp" && k != "unit")
+        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (unit)", uri, k));
+      if (p.scheme == "ads" && k != "netid" && k != "source")
+        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (netid, source)", uri, k));
+    }
   } else {
     if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));
     p.target = rest;

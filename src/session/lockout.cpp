@@ -114,7 +114,7 @@ std::string LockoutReport::recovery() const {
 }
 
 LockoutReport check_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
-                            const SessionOptions& so, const std::vector<PlannedWrite>& writes) {
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes, RegisterSession* own) {
   LockoutReport rep;
   // Only registers that decide an image can change the layout.
   std::set<std::pair<unsigned, unsigned>> touched;  // (position, channel)
@@ -135,9 +135,13 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
     for (unsigned ch = 0; ch < t.type->channels; ++ch) {
       Regs regs = registers_for(*t.type, t, ch);
       if (!mregs.empty() && ch < t.channels.size() && t.channels[ch].window) {
-        RegisterSession s(link, t, ch, so);
-        for (unsigned r : mregs) regs[r] = s.read(r);
-        s.close();
+        if (own && own->terminal().position == t.position && own->channel() == ch) {
+          for (unsigned r : mregs) regs[r] = own->read(r);
+        } else {
+          RegisterSession s(link, t, ch, so);
+          for (unsigned r : mregs) regs[r] = s.read(r);
+          s.close();
+        }
       }
       now[{t.position, ch}] = regs;
     }
@@ -148,6 +152,17 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
     if (it == next.end()) continue;
     auto& r = it->second[w.reg];
     r = static_cast<std::uint16_t>((r & ~w.mask) | (w.value & w.mask));
+  }
+  // Settings that go together (KL6031 image-size and extended-image): the coupler lays the image
+  // out from one, the terminal's R35 says the other; such a change is refused like a lock-out.
+  for (const auto& key : touched) {
+    auto it = next.find(key);
+    if (it == next.end()) continue;
+    const TerminalImage& t = current.terminal(key.first);
+    for (const auto& c : setting_conflicts(*t.type, it->second, key.second)) {
+      rep.conflicts.push_back(fmt::format("{}: {}", who_of(t, key.second), c.text));
+      rep.conflict_fixes.push_back(fmt::format("{}: {}", who_of(t, key.second), c.fix));
+    }
   }
   for (const auto& [key, regs] : next) {
     const TerminalImage& t = current.terminal(key.first);
@@ -162,7 +177,7 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
 
   StationSpec spec;
   spec.coupler = current.coupler;
-  for (const auto& t : current.terminals) spec.terminals.push_back({t.type->type, 0, {}});
+  for (const auto& t : current.terminals) spec.terminals.push_back({t.type->type, 0, {}, 0});
   auto source = [&](const std::map<std::pair<unsigned, unsigned>, Regs>& m) {
     return [&m, &current](unsigned pos, unsigned ch) {
       auto it = m.find({pos, ch});
@@ -200,16 +215,37 @@ LockoutReport check_lockout(Link& link, const StationLayout& current, const Cata
   return rep;
 }
 
-void guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
-                   const std::vector<PlannedWrite>& writes, bool force) {
-  LockoutReport rep = check_lockout(link, current, catalog, so, writes);
-  if (!rep.locks_out()) return;
+std::string next_start_note(const LockoutReport& rep) {
+  if (rep.causes.empty()) return {};
+  return fmt::format("takes effect at the coupler's next start (power off and on): {}; until then the coupler keeps "
+                     "the process image it has ('kscfg map' shows both)",
+                     by_terminal(rep.causes, [](const ChangedMapping& c) { return c.setting; }));
+}
+
+LockoutReport guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+                            const std::vector<PlannedWrite>& writes, bool force, RegisterSession* own) {
+  LockoutReport rep = check_lockout(link, current, catalog, so, writes, own);
+  if (!rep.conflicts.empty()) {
+    std::string text, fix;
+    for (const auto& c : rep.conflicts) text += (text.empty() ? "" : "; ") + c;
+    for (const auto& f : rep.conflict_fixes) fix += (fix.empty() ? "" : "; ") + f;
+    if (!force)
+      throw Error(Exit::refused,
+                  fmt::format("refused: {}: the coupler lays the image out from one and the terminal reports the "
+                              "other, so the PLC's image would change unannounced; nothing was written",
+                              text),
+                  "change them together (kscfg set, or both in the station file): " + fix +
+                      ". Give --force to write anyway");
+    if (so.notice) so.notice(fmt::format("warning: --force: writing although {}", text));
+  }
+  if (!rep.locks_out()) return rep;
   if (!force)
     throw Error(Exit::refused, fmt::format("refused: {}", rep.consequence()),
                 "nothing was written; " + rep.recovery() +
                     ". Give --force to write anyway");
   if (so.notice)
     so.notice(fmt::format("warning: --force: writing although {}. {}", rep.consequence(), rep.recovery()));
+  return rep;
 }
 
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,

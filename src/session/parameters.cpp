@@ -97,6 +97,40 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
   return r;
 }
 
+std::vector<std::pair<std::string, std::string>> with_settings(
+    const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs, const Catalog& catalog,
+    unsigned channel) {
+  auto out = pairs;
+  auto given = [&](const std::string& name) -> const std::pair<std::string, std::string>* {
+    for (const auto& pr : pairs)
+      if (find_param(type, pr.first, catalog, channel).name == name) return &pr;
+    return nullptr;
+  };
+  for (const auto& [n, v] : pairs) {
+    const ParamDef& p = find_param(type, n, catalog, channel);
+    // Only values that say what they go with (a rate by divisor has none: --divisor is not asked here).
+    if (p.kind != ParamDef::Kind::enumeration ||
+        std::none_of(p.values.begin(), p.values.end(), [](const EnumValue& e) { return !e.with_param.empty(); }))
+      continue;
+    std::uint16_t code = p.field(encode_param(p, v, 0));
+    for (const auto& ev : p.values) {
+      if (ev.code != code || ev.with_param.empty()) continue;
+      const ParamDef& other = find_param(type, ev.with_param, catalog, channel);
+      std::uint16_t want = other.field(encode_param(other, ev.with_value, 0));
+      if (const auto* g = given(other.name)) {
+        if (other.field(encode_param(other, g->second, 0)) != want)
+          throw Error(Exit::usage,
+                      fmt::format("{} {} needs {} {}; '{} {}' contradicts it", p.name, v, other.name, ev.with_value,
+                                  g->first, g->second),
+                      fmt::format("leave {} out: it is set with {}", other.name, p.name));
+      } else {
+        out.emplace_back(other.name, ev.with_value);
+      }
+    }
+  }
+  return out;
+}
+
 ResetPlan reset_plan(const TerminalType& type) {
   ResetPlan plan;
   plan.r7 = type.reset == FactoryReset::r7;

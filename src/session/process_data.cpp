@@ -7,6 +7,7 @@
 #include <map>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/parameters.hpp"
@@ -28,6 +29,28 @@ bool in_register_mode(const TerminalImage& t, unsigned channel, const std::vecto
   if (!t.complex || channel >= t.channels.size() || !t.channels[channel].window) return false;
   std::size_t c = t.channels[channel].window->ctrl;
   return c < out.size() && (out[c] & proto::kReg) != 0;
+}
+
+bool answers_register(const TerminalImage& t, unsigned channel, const std::vector<std::uint8_t>& in) {
+  if (!t.complex || channel >= t.channels.size() || !t.channels[channel].window) return false;
+  std::size_t st = t.channels[channel].window->status;
+  return st < in.size() && (in[st] & proto::kReg) != 0;
+}
+
+ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::chrono::milliseconds timeout,
+                                 unsigned only) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (unsigned poll = 1;; ++poll) {
+    ImageSnapshot s = read_image(link, layout);
+    bool settled = true;
+    for (const auto& t : layout.terminals) {
+      if (only && t.position != only) continue;
+      for (unsigned c = 0; c < t.channels.size(); ++c)
+        if (answers_register(t, c, s.in) && !in_register_mode(t, c, s.out)) settled = false;
+    }
+    if (settled || std::chrono::steady_clock::now() >= deadline || g_interrupted) return s;
+    link.pause(poll);
+  }
 }
 
 namespace {
@@ -81,7 +104,9 @@ std::optional<std::uint32_t> data_value(const std::vector<Element>& elements, co
   return std::nullopt;
 }
 
-nlohmann::json bits_json(const TerminalType& type, const std::string& kind, const std::string& format,
+}  // namespace
+
+nlohmann::json ctst_json(const TerminalType& type, const std::string& kind, const std::string& format,
                          std::uint16_t value, bool reg) {
   nlohmann::json j{{"value", value}};
   if (reg) return j;  // a register request or acknowledge, not process-data bits
@@ -95,6 +120,8 @@ nlohmann::json bits_json(const TerminalType& type, const std::string& kind, cons
   }
   return j;
 }
+
+namespace {
 
 std::vector<int> bit_list(const std::vector<std::uint8_t>& image, std::size_t first_bit, unsigned n) {
   std::vector<int> v;
@@ -122,9 +149,14 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
   const ChannelImage& ci = t.channels.at(ch);
   Named in = named(ci.in, image.in), out = named(ci.out, image.out);
   nlohmann::json bin = nlohmann::json::object(), bout = nlohmann::json::object();
-  for (const auto& [name, off] : in.at) bin[name] = image.in.at(off);
-  for (const auto& [name, off] : out.at) bout[name] = image.out.at(off);
-  const bool reg = in_register_mode(t, ch, image.out);
+  // Every named byte; a padding byte ("--", only mapped with complete evaluation) carries nothing.
+  for (const auto& [name, off] : in.at)
+    if (name != "--") bin[name] = image.in.at(off);
+  for (const auto& [name, off] : out.at)
+    if (name != "--") bout[name] = image.out.at(off);
+  // Register mode: the control byte asks for it, or the status byte still answers a request (the
+  // data bytes are a register value then, not process data).
+  const bool reg = in_register_mode(t, ch, image.out) || answers_register(t, ch, image.in);
   j["register_mode"] = reg;
   const ImageFormat* f = format_of(t);
 
@@ -137,8 +169,8 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
         st = static_cast<std::uint16_t>(st | (il << 8));
         ct = static_cast<std::uint16_t>(ct | (ol << 8));
       }
-      j["status"] = bits_json(type, "status", t.format, st, false);
-      j["control"] = bits_json(type, "control", t.format, ct, false);
+      j["status"] = ctst_json(type, "status", t.format, st, false);
+      j["control"] = ctst_json(type, "control", t.format, ct, false);
       std::vector<std::uint8_t> din, dout;
       for (unsigned i = 0; i < il && i < s->in_data.size(); ++i) din.push_back(image.in.at(s->in_data[i].offset));
       for (unsigned i = 0; i < ol && i < s->out_data.size(); ++i) dout.push_back(image.out.at(s->out_data[i].offset));
@@ -149,8 +181,8 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
     }
     if (reg) {
       auto c = out.get("CT/ST"), s = in.get("CT/ST");
-      if (s) j["status"] = bits_json(type, "status", t.format, *s, true);
-      if (c) j["control"] = bits_json(type, "control", t.format, *c, true);
+      if (s) j["status"] = ctst_json(type, "status", t.format, *s, true);
+      if (c) j["control"] = ctst_json(type, "control", t.format, *c, true);
     }
   } else if (f) {
     // The control/status byte or word, when mapped.
@@ -162,8 +194,8 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
         if (auto hi = side.get(f->in.front().hi)) v = static_cast<std::uint16_t>(v | (*hi << 8));
       return v;
     };
-    if (auto s = word_of(in)) j["status"] = bits_json(type, "status", t.format, *s, reg);
-    if (auto c = word_of(out)) j["control"] = bits_json(type, "control", t.format, *c, reg);
+    if (auto s = word_of(in)) j["status"] = ctst_json(type, "status", t.format, *s, reg);
+    if (auto c = word_of(out)) j["control"] = ctst_json(type, "control", t.format, *c, reg);
     if (!reg) {
       if (type.family == "encoder" || type.family == "counter") {
         if (auto v = data_value(f->in, in, 0)) j["counter"] = *v;
@@ -175,7 +207,7 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
           if (type.scale) {
             j["word"] = type.scale->raw(w);
             j["scaled"] = type.scale->value(w);
-            j["unit"] = type.scale->unit;
+            j["measured_in"] = type.scale->unit;
           } else {
             j["word"] = static_cast<std::int16_t>(w);
           }
@@ -273,6 +305,7 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
       std::uint8_t before = static_cast<std::uint8_t>((out.at(bit / 8) >> (bit % 8)) & 1);
       add(p, bit / 8, static_cast<std::uint8_t>(1u << (bit % 8)), v ? 0xFF : 0x00, out);
       p.changes.push_back({{"name", name}, {"before", before}, {"after", v ? 1 : 0}});
+      p.undo.push_back(fmt::format("{}={}", n, before ? "on" : "off"));
       continue;
     }
     const ChannelImage& ci = t.channels[ch];
@@ -308,12 +341,13 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
       if (t.type->scale && name == "value") {
         c["before"] = t.type->scale->value(before);
         c["after"] = t.type->scale->value(word);
-        c["unit"] = t.type->scale->unit;
+        c["measured_in"] = t.type->scale->unit;
       } else {
         c["before"] = before;
         c["after"] = word;
       }
       p.changes.push_back(c);
+      p.undo.push_back(fmt::format("word=0x{:04X}", before));
       continue;
     }
     auto it = o.at.find(name);
@@ -334,6 +368,7 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
                   "force process-data bits only (bit 7 clear)");
     add(p, it->second, 0xFF, v, out);
     p.changes.push_back({{"name", name}, {"before", out.at(it->second)}, {"after", v}});
+    p.undo.push_back(fmt::format("{}=0x{:02X}", name, out.at(it->second)));
   }
   return p;
 }

@@ -231,6 +231,53 @@ void SerialPort::send(std::span<const std::uint8_t> bytes, bool receive) {
   }
 }
 
+std::size_t SerialPort::send_stream(const std::function<long(std::uint8_t*, std::size_t, int)>& source,
+                                    bool receive) {
+  std::vector<std::uint8_t> buf(kStreamLow);
+  std::size_t taken = 0;  // bytes the source handed over
+  bool end = false;
+  auto last = std::chrono::steady_clock::now();
+  unsigned idle = 0;
+  accepted_ = 0;
+  while (!end || !txq_.empty() || tx_busy_) {
+    check_interrupt();
+    if (!end && txq_.size() < kStreamLow) {
+      // Nothing to hand over: wait a little for the source (the line is polled between waits).
+      int wait_ms = txq_.empty() && !tx_busy_ ? 20 : 0;
+      long n = source(buf.data(), buf.size(), wait_ms);
+      if (n == 0) {
+        end = true;
+      } else if (n > 0) {
+        queue(std::span<const std::uint8_t>(buf.data(), static_cast<std::size_t>(n)));
+        taken += static_cast<std::size_t>(n);
+        if (txq_.size() == static_cast<std::size_t>(n) && !tx_busy_) last = std::chrono::steady_clock::now();
+      }
+    }
+    std::size_t before = queued();
+    bool rx = poll(receive);
+    accepted_ = taken - queued();
+    if (queued() < before || (rx && !tx_busy_)) {
+      last = std::chrono::steady_clock::now();
+      idle = 0;
+      continue;
+    }
+    if (txq_.empty() && !tx_busy_) {
+      last = std::chrono::steady_clock::now();  // waiting for the source, not for the terminal
+      continue;
+    }
+    if (std::chrono::steady_clock::now() - last > opt_.timeout)
+      throw Error(Exit::timeout,
+                  fmt::format("{} did not accept data: TA did not follow TR within {} ms ({} bytes accepted, {} "
+                              "waiting; status 0x{:02X}{})",
+                              who(), opt_.timeout.count(), accepted_, queued(), status_,
+                              status_ & serial::kIA ? ", IA set: run 'kscfg serial init'" : ""),
+                  "the send FIFO is full and the line does not move (XOFF, or the far end does not take data)? "
+                  "raise --timeout");
+    link_.pause(++idle);
+  }
+  return accepted_;
+}
+
 void SerialPort::receive(std::size_t count, std::chrono::milliseconds idle_timeout) {
   auto last = std::chrono::steady_clock::now();
   unsigned idle = 0;

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <map>
 
 #include "kscfg/base/error.hpp"
 
@@ -11,8 +12,24 @@ namespace kscfg {
 const TerminalImage& StationLayout::terminal(unsigned position) const {
   for (const auto& t : terminals)
     if (t.position == position) return t;
+  if (std::string digital = unidentified_digital(); !digital.empty())
+    throw Error(Exit::usage,
+                fmt::format("no terminal at position {} that kscfg can identify: it knows {} terminal{}, and the "
+                            "coupler reports {} of digital terminals, which cannot be identified over Modbus",
+                            position, terminals.size(), terminals.size() == 1 ? "" : "s", digital),
+                "give --station FILE with the terminals in plug order ('kscfg scan --write FILE' starts one)");
   throw Error(Exit::usage,
               fmt::format("no terminal at position {} (the station has {} terminals)", position, terminals.size()));
+}
+
+std::string StationLayout::unidentified_digital() const {
+  std::size_t in = 0, out = 0;
+  for (const auto& t : terminals)
+    if (!t.complex) in += t.bits_in, out += t.bits_out;
+  std::size_t ui = digital_in_bits > in ? digital_in_bits - in : 0, uo = digital_out_bits > out ? digital_out_bits - out : 0;
+  if (!ui && !uo) return {};
+  if (ui && uo) return fmt::format("{} input and {} output bits", ui, uo);
+  return ui ? fmt::format("{} input bit{}", ui, ui == 1 ? "" : "s") : fmt::format("{} output bit{}", uo, uo == 1 ? "" : "s");
 }
 
 namespace {
@@ -215,10 +232,47 @@ StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, co
 }
 
 StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog) {
+  if (spec.partial())
+    throw Error(Exit::usage,
+                fmt::format("{} is a partial station file (its terminals name their positions): it does not describe "
+                            "the whole station",
+                            spec.origin.empty() ? "the station file" : spec.origin),
+                "apply, diff and restore take it; as --station or for map give a file with every terminal");
   return compute_layout(spec, catalog, spec.settings(), [&](unsigned pos, unsigned ch) {
     const auto& t = spec.terminals.at(pos - 1);
     return channel_registers(catalog.get(t.type), &t, ch);
   });
+}
+
+StationSpec expand_partial(const StationSpec& file, const StationLayout& station) {
+  if (!file.partial()) return file;
+  std::string origin = file.origin.empty() ? "the station file" : file.origin;
+  StationSpec full;
+  full.coupler = station.coupler;
+  full.complete_evaluation = file.complete_evaluation;
+  full.motorola = file.motorola;
+  full.word_alignment = file.word_alignment;
+  full.origin = file.origin;
+  std::map<unsigned, const TerminalSpec*> named;
+  for (const auto& t : file.terminals) named[t.position] = &t;
+  for (const auto& [pos, t] : named) {
+    const TerminalImage& have = station.terminal(pos);  // Error(usage): no such position
+    if (have.type->type != t->type)
+      throw Error(Exit::refused,
+                  fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line, pos,
+                              t->type, have.type->type),
+                  "nothing was written; 'kscfg info' lists the station's terminals by position");
+  }
+  for (const auto& have : station.terminals) {
+    TerminalSpec ts;
+    ts.type = have.type->type;
+    if (auto it = named.find(have.position); it != named.end()) {
+      ts.channels = it->second->channels;
+      ts.line = it->second->line;
+    }
+    full.terminals.push_back(std::move(ts));
+  }
+  return full;
 }
 
 }  // namespace kscfg

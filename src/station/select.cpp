@@ -95,6 +95,14 @@ std::vector<unsigned> select_terminals(const TerminalSelection& sel, const Stati
       if (usable(t)) out.insert(t.position);
     }
     if (!found) {
+      const TerminalType* known = Catalog::standard().find(type);
+      std::string digital = L.unidentified_digital();
+      if (known && !known->has_registers && !digital.empty())
+        throw Error(Exit::usage,
+                    fmt::format("no {} that kscfg can identify: {} is a terminal without registers, and the coupler "
+                                "reports {} of such terminals, which cannot be identified over Modbus",
+                                type, known->type, digital),
+                    "give --station FILE with the terminals in plug order, then -t KL.. or -t POS selects them");
       std::string dym = did_you_mean(type, present);
       throw Error(Exit::usage, fmt::format("the station has no {}", type),
                   dym.empty() ? std::string("'kscfg info' lists the station") : dym);

@@ -110,7 +110,7 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
                    bool allow_structure) {
   for (auto&& [k, v] : t) {
     std::string key(k.str());
-    if (allow_structure && (key == "type" || key == "channel")) continue;
+    if (allow_structure && (key == "type" || key == "channel" || key == "position")) continue;
     if (!allow_structure && key == "channel") continue;  // the channel number, read by parse_channels
     int line = v.source().begin ? static_cast<int>(v.source().begin.line) : 0;
     if (!key.empty() && (key[0] == 'R' || key[0] == 'r') && key.size() > 1 &&
@@ -268,6 +268,20 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
         fail_at(origin, ty, Exit::usage, e.what());
       }
       ts.type = type->type;
+      if (const auto* pn = t->get("position")) {
+        auto v = pn->value_exact<std::int64_t>();
+        if (!v || *v < 1 || *v > 255)
+          fail_at(origin, pn, Exit::file, "'position' is the plug position, an integer 1..255");
+        ts.position = static_cast<unsigned>(*v);
+        for (const auto& other : spec.terminals)
+          if (other.position == ts.position)
+            fail_at(origin, pn, Exit::usage,
+                    fmt::format("position {} is named twice (line {} and here)", ts.position, other.line));
+      }
+      if (!spec.terminals.empty() && (spec.terminals.front().position == 0) != (ts.position == 0))
+        fail_at(origin, &el, Exit::usage,
+                "either every [[terminal]] names its position (a partial file: the others are left alone) or none "
+                "does (every terminal in plug order)");
       parse_channels(origin, *t, *type, ts);
       spec.terminals.push_back(std::move(ts));
     }
@@ -391,6 +405,7 @@ std::string station_to_toml(const StationSpec& spec) {
     const auto& t = spec.terminals[i];
     std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? toml_comment(spec.comments[i]) : "";
     out += fmt::format("\n[[terminal]]\n{}type = {}\n", comment, toml_string(t.type));
+    if (t.position) out += fmt::format("position = {}\n", t.position);
     if (t.channels.size() == 1) {
       channel_toml(out, t.channels[0]);  // one channel: its settings under [[terminal]]
       continue;

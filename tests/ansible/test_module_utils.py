@@ -54,6 +54,16 @@ class Tmp(unittest.TestCase):
         return self.path(name)
 
 
+class StationFileProblemTest(Tmp):
+    # Issue 23 item 14: a directory was "does not exist".
+    def test_the_cause_is_named(self):
+        self.assertEqual(ku.station_file_problem(self.dir.name), 'is a directory, not a station file')
+        self.assertEqual(ku.station_file_problem(self.path('none.toml')), 'does not exist')
+        os.symlink(self.path('gone'), self.path('link.toml'))
+        self.assertIn('symbolic link to nothing', ku.station_file_problem(self.path('link.toml')))
+        self.assertIsNone(ku.station_file_problem(self.write('ok.toml', 'coupler = "BK9000"\n')))
+
+
 class PortTest(unittest.TestCase):
     def test_unit_is_added_to_the_uri(self):
         self.assertEqual(ku.port_with_unit('tcp://10.0.3.11', 3), 'tcp://10.0.3.11?unit=3')
@@ -254,7 +264,7 @@ class ErrorTest(Tmp):
 class FactsTest(Tmp):
     def backup_text(self, state):
         path = self.path('backup.toml')
-        kscfg('--port', state, 'backup', path)
+        kscfg('--port', state, 'backup', '--force', path)  # called twice: the file is there
         with open(path) as f:
             return f.read()
 
@@ -286,7 +296,7 @@ class FactsTest(Tmp):
         self.assertEqual(terms[0]['image']['format'], 'alternative')
         self.assertEqual((terms[4]['r8'], terms[4]['version']), (None, None))
         self.assertEqual(terms[0]['params']['baud'], 19200)
-        self.assertIs(terms[0]['params']['rts-cts'], True)
+        self.assertIs(terms[0]['params']['rts_cts'], True)  # snake_case: Jinja's dot access
         self.assertEqual(terms[0]['params']['frame'], '8N1')
         self.assertEqual(terms[0]['channels'][0]['registers']['R32'], 7)
         kl3022 = terms[3]['channels']

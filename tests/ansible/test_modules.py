@@ -130,6 +130,20 @@ def main():
               ['KL6001', 'KL5101', 'KL6031', 'KL3022'] and t[2]['params']['baud'] == 38400 and
               'registers' not in t[2]['channels'][0], 'facts over Modbus: baud 38400, no registers asked')
         check(len(t) == 7 and t[4]['type'] == 'KL1104', 'facts over Modbus with the layout: 7 terminals')
+        # Issue 23 item 18: snake_case keys (params.data_bytes), partial stations by position.
+        check(str(res['data_bytes_dot']) == '3', 'facts: params.data_bytes by dot access: %r' % res['data_bytes_dot'])
+        check('data-bytes' not in res['facts_emu']['ansible_facts']['kscfg']['terminals'][0]['params'],
+              'facts: no hyphenated keys')
+        x = res['partial']
+        check(x['changed'] and x['rc'] == 10 and [(t['position'], t['changed']) for t in x['terminals']] == [(1, True)],
+              'partial: only the KL6001 at position 1 changed: %s' % x.get('msg'))
+        check((read(emu, 1, 32), read(emu, 1, 35), read(emu, 4, 35, 2)) == (7, 4, 5),
+              'partial: KL6001 baud 19200 as it was and data-bytes 4, the KL3022 left alone')
+        x = res['partial_wrong']
+        check(x['failed'] and x['rc'] == 5 and 'position 2' in x['msg'] and 'KL5101' in x['msg'],
+              'partial: the type at position 2 is checked: %s' % x['msg'])
+        x = res['directory']
+        check(x['failed'] and 'is a directory' in x['msg'], 'a directory is named as one: %s' % x['msg'])
         x = res['no_kscfg']
         check(x['failed'] and 'no-kscfg' in x['msg'], 'no kscfg: %s' % x['msg'])
         codes = fleet.stop()

@@ -36,7 +36,7 @@ const Catalog& cat() {
 StationSpec station(const char* coupler, const std::vector<std::string>& types) {
   StationSpec s;
   s.coupler = coupler;
-  for (const auto& t : types) s.terminals.push_back(TerminalSpec{t, 0, {}});
+  for (const auto& t : types) s.terminals.push_back(TerminalSpec{t, 0, {}, 0});
   return s;
 }
 

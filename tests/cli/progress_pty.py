@@ -123,7 +123,7 @@ def main():
             data = bytes((i * 37 + 11) % 256 for i in range(300))
             cases = [
                 # name, args, stdin, progress label, estimate expected
-                ("backup", ["backup", backup], b"", "backup", False),  # per terminal: 4 steps
+                ("backup", ["backup", "--force", backup], b"", "backup", False),  # per terminal: 4 steps; run again
                 ("dump", ["-t", "all", "dump"], b"", "dump", True),
                 ("restore", ["restore", backup], b"", "restore: reading", True),
                 ("serial send", ["serial", "send", "--recv", "--count", str(len(data)), "-"], data, "send", True),

@@ -3,10 +3,13 @@
 // shell would offer are compared with what the command line means.
 #include <catch2/catch.hpp>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <set>
 #include <sstream>
+#include <thread>
+#include <unistd.h>
 
 #include "support.hpp"
 
@@ -176,4 +179,46 @@ TEST_CASE("__complete offers every command and every option of each command", "[
   CHECK_THAT(run({"map", "-"}), Catch::Contains("--list-couplers\t"));
   CHECK_THAT(run({"map", "-"}), Catch::Contains("--port\t"));  // global options everywhere
   CHECK_THAT(run({"--port", "tcp://192.0.2.1", "-t", "3", "set", "baud", ""}), Catch::Contains("38400"));  // no link
+}
+
+// Issue 23 item 16: bash offered candidates sorted as text (R0 R10 R12, 1200 19200 2400). In an
+// interactive bash (tmux) Tab Tab lists them in kscfg's order.
+TEST_CASE("bash lists candidates in kscfg's order, not sorted as text (tmux)", "[completion][tmux]") {
+  if (!installed("tmux")) FAIL("tmux is not installed (the README's test command installs it)");
+  Shells sh;
+  std::string sock = "kscfg-compl-" + std::to_string(getpid());
+  std::string tmux = "tmux -L " + sock + " ";
+  auto run = [](const std::string& cmd) {
+    std::string out;
+    FILE* p = popen(cmd.c_str(), "r");
+    if (!p) return out;
+    char buf[4096];
+    while (std::size_t n = fread(buf, 1, sizeof buf, p)) out.append(buf, n);
+    pclose(p);
+    return out;
+  };
+  struct Kill {
+    std::string cmd;
+    ~Kill() { (void)std::system(cmd.c_str()); }
+  } kill{tmux + "kill-server 2>/dev/null"};
+  write_text(sh.home.file("rc"), "source /usr/share/bash-completion/bash_completion\nsource " + sh.src +
+                                     "/completions/kscfg.bash\nPS1='$ '\n");
+  run(tmux + "new-session -d -s c -x 120 -y 20 " + quote(sh.env() + "bash --noprofile --rcfile " + sh.home.file("rc") + " -i"));
+  auto pane = [&] { return run(tmux + "capture-pane -p -t c 2>/dev/null"); };
+  auto wait_for = [&](const std::string& text) {
+    for (int i = 0; i < 400; ++i) {  // bounded: 20 s
+      if (pane().find(text) != std::string::npos) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  REQUIRE(wait_for("$"));  // the prompt (capture-pane drops trailing blanks)
+  run(tmux + "send-keys -t c 'kscfg set baud ' Tab Tab");
+  REQUIRE(wait_for("19200"));
+  std::string screen = pane();
+  INFO(screen);
+  auto at = [&](const std::string& w) { return screen.find(w + " "); };
+  CHECK(at("1200") < at("2400"));
+  CHECK(at("2400") < at("4800"));
+  CHECK(at("9600") < screen.find("19200"));
 }

@@ -78,7 +78,7 @@ void check_default_station(const std::vector<json>& rows, unsigned counter, cons
     const json& a = m.at({4, ch});
     CHECK(a["type"] == "KL3022");
     CHECK(a["word"].is_number_integer());
-    CHECK(a["unit"] == "mA");
+    CHECK(a["measured_in"] == "mA");
     CHECK(a["scaled"].get<double>() == Approx(4.0 + 16.0 * a["word"].get<int>() / 32767.0));
   }
   CHECK(m.at({5, 0})["inputs"] == json(inputs));
@@ -220,6 +220,15 @@ TEST_CASE("data --once --json: every terminal of the default station over the em
   CHECK(text.out.find("counter 40") != std::string::npos);
   CHECK(text.out.find("= 4.000 mA") != std::string::npos);
   CHECK(text.out.find("TA=0 RR=0 IA=0 BUF_F=0 IL=0") != std::string::npos);  // the catalog's order
+  // Issue 23 item 13: lines fit 80 columns (or COLUMNS, which watch sets), under a header.
+  CHECK(kscfg::test::widest_line(text.out) <= 80);
+  CHECK_THAT(text.out, Catch::Contains("\nPOS CH TYPE      PROCESS DATA\n"));
+  auto narrow_env = emu.env;
+  narrow_env["COLUMNS"] = "60";
+  Run narrow = run_kscfg({"data", "--once"}, narrow_env);
+  REQUIRE(narrow.rc == 0);
+  CHECK(kscfg::test::widest_line(narrow.out) <= 60);
+  CHECK_THAT(narrow.out, Catch::Contains("BUF_F=0"));
   // Samples: the emulated K-bus runs between them, so a turning encoder counts on.
   REQUIRE(emu({"emu", "encoder", "--speed", "1000"}).rc == 0);
   Run two = emu({"-t", "2", "--json", "data", "--count", "2", "--interval", "50"});
@@ -403,9 +412,9 @@ TEST_CASE("data force on the KL5101: CNT_SET through the control byte, an analog
   auto ch2 = by_position({vl.begin(), vl.end() - 1}).at({1, 2});
   CHECK(ch2["word"] == 16384);
   CHECK(ch2["scaled"].get<double>() == Approx(5.0).epsilon(0.001));
-  CHECK(ch2["unit"] == "V");
+  CHECK(ch2["measured_in"] == "V");
   CHECK(vl.back()["channel"] == 2);
-  CHECK(vl.back()["forced"][0]["unit"] == "V");
+  CHECK(vl.back()["forced"][0]["measured_in"] == "V");
   CHECK(lines_of(ao({"-t", "1", "--json", "data", "--once"}).out).at(1)["word"] == 0);
   Run w = ao({"-t", "1", "data", "force", "word=-1", "--yes", "--once"});
   CHECK(w.rc == 0);
@@ -441,8 +450,8 @@ TEST_CASE("data force over kscfg serve: held while running, restored on Ctrl-C",
 
 TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[data][cli][tmux]") {
   if (system("command -v tmux >/dev/null 2>&1") != 0) {
-    WARN("tmux not installed; skipped");
-    return;
+    // A missing tool never passes (issue 23 item 19): tmux is a test dependency.
+    FAIL("tmux is not installed (the README's test command installs it)");
   }
   Emu emu;
   REQUIRE(emu({"emu", "encoder", "--speed", "100"}).rc == 0);
@@ -473,9 +482,14 @@ TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[
   };
   std::string cmd = "KSCFG_PORT=emu:" + emu.state + " timeout --foreground 30 " + std::string(KSCFG_BIN) +
                     " data --interval 100; echo EXIT=$?; sleep 30";
-  sh(tmux + "new-session -d -s t -x 200 -y 30 \"" + cmd + "\"");
+  // An 80-column screen (issue 23 item 13: lines of about 150 columns wrapped mid-word).
+  sh(tmux + "new-session -d -s t -x 80 -y 40 \"" + cmd + "\"");
   REQUIRE(wait_for([](const std::string& p) { return p.find("sample 3") != std::string::npos; }, 20));
   std::string screen = pane();
+  CHECK_THAT(screen, Catch::Contains("Ctrl-C quits"));
+  CHECK_THAT(screen, Catch::Contains("POS CH TYPE      PROCESS DATA"));
+  CHECK_THAT(screen, Catch::Contains("TA=0 RR=0 IA=0 BUF_F=0 IL=0"));  // whole words on one line
+  CHECK(kscfg::test::widest_line(screen) < 80);                          // never the last column
   // In place: one sample on the screen, not a scroll of them.
   CHECK(screen.find("sample 1") == std::string::npos);
   CHECK(screen.find("sample 2") == std::string::npos);
@@ -522,4 +536,29 @@ TEST_CASE("data, emu encoder and serial line: completion of commands, options an
   Run man = run_kscfg({"manpage"});
   for (const char* s : {".SS \"kscfg data", ".SS \"kscfg emu encoder\"", ".SS \"kscfg serial line"})
     CHECK_THAT(man.out, Catch::Contains(s));
+}
+
+// Issue 23 item 4: right after a command that read R8, the terminal's answer was still in the
+// input image, and 'data --once' showed it as process data ("KL3022 status 0x88 ... word 3022",
+// register_mode false). Now a sample is taken once no status byte answers a register request.
+TEST_CASE("data samples process data only outside register mode, right after a register read", "[data][cli][serve]") {
+  Emu emu;
+  Server srv(emu.state, {"--tcp", "127.0.0.1:0"}, emu.dir.file("serve.err"));
+  std::map<std::string, std::string> env{{"XDG_CACHE_HOME", emu.dir.file("cache")}};
+  for (int round = 0; round < 5; ++round) {
+    Run rd = run_kscfg({"--port", srv.uri, "-t", "4", "read", "--raw", "R8"}, env);
+    REQUIRE(rd.rc == 0);
+    REQUIRE(rd.out == "0x0BCE\n");  // 3022
+    Run d = run_kscfg({"--port", srv.uri, "-t", "4", "--json", "data", "--once"}, env);
+    INFO(d.err);
+    REQUIRE(d.rc == 0);
+    auto rows = lines_of(d.out);
+    REQUIRE(rows.size() == 2);
+    for (const auto& j : rows) {
+      INFO(j.dump());
+      CHECK(j["register_mode"] == false);
+      CHECK((j["status"]["value"].get<unsigned>() & 0x80) == 0);
+      CHECK(j["word"] != 3022);
+    }
+  }
 }

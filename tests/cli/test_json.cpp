@@ -170,7 +170,7 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(reset["method"] == "defaults");
   CHECK(J("reset", {"-t", "1", "reset", "-y"})["changed"] == false);
   // R7 = 0x7000 (KL6031): "changed" only when a register really changed.
-  REQUIRE(emu({"-t", "3", "write", "R32", "0x0001"}).rc == 0);
+  REQUIRE(emu({"-t", "3", "write", "R32", "0x0007"}).rc == 0);
   json r7 = J("reset", {"-t", "3", "reset", "-y"});
   CHECK(r7["method"] == "r7");
   CHECK(r7["changed"] == true);
@@ -232,6 +232,17 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   json tdiff = run_json(tcp, {"diff", tbk});
   CHECK(tdiff["unit"] == 1);
   CHECK(tdiff["changed"] == false);
+  // kscfg coupler over Modbus: the watchdog registers, 0x1123 not served by serve.
+  covered.insert("coupler");
+  json cp = run_json(tcp, {"coupler"});
+  CHECK(cp["protocol"] == "modbus");
+  REQUIRE(cp["settings"].size() == 4);
+  CHECK(cp["settings"][0]["name"] == "watchdog");
+  CHECK(cp["settings"][0]["register_value"] == 1000);
+  CHECK(cp["settings"][2]["register_value"] == 1);
+  CHECK(cp["settings"][3]["register_value"].is_null());
+  CHECK(cp["settings"][3]["value"] == "not served");
+  CHECK(cp["settings"][0]["source"].get<std::string>().rfind("https://infosys.beckhoff.com/", 0) == 0);
 
   for (const auto& p : command_paths()) {
     INFO(p);

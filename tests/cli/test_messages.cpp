@@ -115,3 +115,34 @@ TEST_CASE("the man page says each parameter's factory value once", "[messages][d
   CHECK_THAT(man, Catch::Contains(".SS \"kscfg map [TYPE...]\""));
   CHECK_THAT(man, Catch::Contains(".SS \"kscfg read REG...\""));
 }
+
+// Issue 23 item 8: '--station /nonexistent.toml info' on the emulator exited 0 (the file was never
+// read); over Modbus it was 7. Now the emulator reads it too and checks it against its station.
+TEST_CASE("the emulator reads a --station file and checks it against its station", "[messages][cli][issue23]") {
+  kscfg::test::TempDir d;
+  Run missing = k({"--station", d.file("nonexistent.toml"), "info"});
+  CHECK(missing.rc == 7);
+  CHECK(one_line_error(missing));
+  CHECK_THAT(missing.err, Catch::Contains("nonexistent.toml"));
+  kscfg::test::write_text(d.file("other.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n");
+  Run other = k({"--station", d.file("other.toml"), "info"});
+  CHECK(other.rc == 5);
+  CHECK(one_line_error(other));
+  kscfg::test::write_text(d.file("same.toml"),
+                          "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n"
+                          "[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\n"
+                          "type = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
+  Run same = k({"--station", d.file("same.toml"), "info"});
+  CHECK(same.rc == 0);
+  CHECK(same.err.empty());
+}
+
+// Issue 23 item 14: messages that name the real cause.
+TEST_CASE("messages name the real cause: --timeout 0, RTU baud rates", "[messages][cli][issue23]") {
+  Run t = k({"--timeout", "0", "info"});
+  CHECK(t.rc == 2);
+  CHECK_THAT(t.err, Catch::Contains("at least 1 ms"));
+  Run b = run_kscfg({"--port", "rtu:/dev/null?baud=1234", "info"});
+  CHECK(b.rc == 2);
+  CHECK_THAT(b.err, Catch::Contains("230400, 460800 or 921600"));
+}

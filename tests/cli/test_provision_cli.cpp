@@ -1,6 +1,8 @@
 // Issue: scripted provisioning — backup, diff, apply, restore — on the emulator and over Modbus TCP.
 #include <catch2/catch.hpp>
 
+#include <filesystem>
+
 #include <nlohmann/json.hpp>
 
 #include "support.hpp"
@@ -236,4 +238,31 @@ TEST_CASE("station init's example names channels by number and reads back", "[pr
   Run c = run_kscfg({"--port", "emu:mem", "station", "check", d.file("s.toml")});
   CHECK(c.rc == 0);
   CHECK(c.err.empty());
+}
+
+// Issue 23 item 1: backup replaced an existing file without a word; station init and scan --write
+// refused. Now all three refuse before anything is read (exit 7), and --force replaces.
+TEST_CASE("backup never replaces an existing file without --force", "[provision][issue23]") {
+  Station st;
+  write_text(st.file("keep.toml"), "precious\n");
+  Run r = st({"backup", st.file("keep.toml")});
+  CHECK(r.rc == 7);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("already exists") && Catch::Contains("--force"));
+  CHECK(read_text(st.file("keep.toml")) == "precious\n");
+  // A directory, and a dangling symbolic link, are there too.
+  std::filesystem::create_directory(st.file("dir.toml"));
+  CHECK(st({"backup", st.file("dir.toml")}).rc == 7);
+  std::filesystem::create_symlink(st.file("nowhere"), st.file("link.toml"));
+  CHECK(st({"backup", st.file("link.toml")}).rc == 7);
+  CHECK(!std::filesystem::exists(st.file("nowhere")));
+  Run j = st({"--json", "backup", st.file("keep.toml")});
+  CHECK(j.rc == 7);
+  CHECK(nlohmann::json::parse(j.err).at("exit") == 7);
+  // --force replaces it; stdout is never refused.
+  Run f = st({"backup", "--force", st.file("keep.toml")});
+  CHECK(f.rc == 0);
+  CHECK_THAT(read_text(st.file("keep.toml")), Catch::Contains("type = \"KL6001\""));
+  CHECK(st({"backup", "-"}).rc == 0);
+  CHECK(st({"station", "init", st.file("keep.toml")}).rc == 7);
 }

@@ -135,7 +135,7 @@ TEST_CASE("a failed file write keeps the good file and leaves no temporary file"
   std::string before = read_text(good);
   REQUIRE(before.size() > 1024);
   // A file size limit of 1 KiB: the write fails with EFBIG ("File too large").
-  Run r = bash(emu, "cd " + d.path + " && ulimit -f 1 && trap '' XFSZ && \"$KSCFG\" backup good.toml; echo \"rc=$?\"");
+  Run r = bash(emu, "cd " + d.path + " && ulimit -f 1 && trap '' XFSZ && \"$KSCFG\" backup --force good.toml; echo \"rc=$?\"");
   INFO(r.err);
   CHECK(r.out == "rc=7\n");
   CHECK(one_line_error(r));

@@ -493,6 +493,51 @@ def c_map_follow(ctx):
     check(not bad, "; ".join(bad[:4]))
 
 
+@case("map-in-effect-and-next-start", "issue 23 item 21: a mapping register (KL6001 R34 bit 1, "
+      "alternative format) takes effect when the coupler lays out its image at power-on; until then "
+      "the coupler keeps 48 complex bytes and the KL6001 its alternative format. set says a restart is "
+      "needed, map shows what is in effect and what the next start brings", passes=("tcp",))
+def c_map_next_start(ctx):
+    ctx.expect_rc(0, "info")                          # the layout in effect, kept with the scan
+    _, err = ctx.expect_rc(0, "set", "alternative-format", "off")
+    check("next start" in err, "set does not say that a restart is needed: %r" % err)
+    st = ctx.state()
+    check(st["terminals"][0]["channels"][0]["layout"]["in_size"] == 8, "the peer applied R34 before a restart")
+    out, _ = ctx.expect_rc(0, "--json", "map")
+    m = json.loads(out)
+    check(m["inputs"]["complex_bytes"] == 48, "map: %s complex input bytes in effect; the coupler has 48"
+          % m["inputs"]["complex_bytes"])
+    check(m["terminals"][0]["format"] == "alternative", "map: KL6001 %s in effect" % m["terminals"][0]["format"])
+    nxt = m.get("next_start") or {}
+    check(nxt.get("inputs", {}).get("complex_bytes") == 44, "map: next start %r" % nxt.get("inputs"))
+    check(nxt["terminals"][0]["format"] == "standard", "map: KL6001 after the restart %s"
+          % nxt["terminals"][0]["format"])
+    out, _ = ctx.expect_rc(0, "map")
+    check("In effect now" in out and "next start" in out, "map text shows one layout: %r" % out[:300])
+
+
+@case("set-unchanged-keeps-handshake-bytes", "issue 23 item 20: seed KL6001 alternative format, "
+      "Ser-CT/ST carries RA; a set that changes nothing must leave the process-data bytes as they "
+      "were, or RA toggles, the terminal takes it as an acknowledge and its last bytes come again",
+      passes=("tcp",))
+def c_set_unchanged(ctx):
+    ctx.expect_rc(0, "info")                          # a warm scan: the command keeps its R8 session
+    ctx.expect_rc(0, "serial", "send", "ABCDE\r")
+    out, _ = ctx.expect_rc(0, "serial", "recv", "--hex")
+    check(out.split() == ["41", "42", "43", "44", "45", "0d"], "received %r" % out)
+
+    def out_bytes():
+        o, _ = ctx.expect_rc(0, "--json", "-t", "1", "data", "--once")
+        b = json.loads(o.splitlines()[0])["bytes"]["out"]
+        return b["Ser-CT/ST"], b["D0"]
+    before = out_bytes()
+    for words in (("xon-xoff-send", "off"), ("rts-cts", "on")):
+        ctx.expect_rc(0, "set", *words)               # both as they are: nothing written
+        check(out_bytes() == before, "set %s: Ser-CT/ST, D0 %r, were %r" % (" ".join(words), out_bytes(), before))
+    rc, out, err = ctx.kscfg("serial", "recv", "--hex")
+    check(rc == 4 and not out.strip(), "received again after the sets: exit %s %r" % (rc, out))
+
+
 @case("stale-station-read-R8", "seed KL6001: R8 = 6001; in the standard format the register "
       "value follows CT/ST in bytes 1-2 (annex). The station file still says factory "
       "(alternative format) while the terminal was switched to the standard format with 5 data "
@@ -729,7 +774,9 @@ def c_serial_status(ctx):
     doc = json.loads(out)
     check(doc.get("r0_tx_fifo") == 0 and doc.get("r1_rx_fifo") == 0, "R0/R1 %r/%r"
           % (doc.get("r0_tx_fifo"), doc.get("r1_rx_fifo")))
-    check(not any(doc.get(k) for k in ("ta", "rr", "ia", "buf_f")), "handshake bits set: %r" % doc)
+    bits = doc.get("status", {}).get("bits", {})
+    check(set(("TA", "RR", "IA", "BUF_F")) <= set(bits), "status bits missing: %r" % doc)
+    check(not any(bits.get(k) for k in ("TA", "RR", "IA", "BUF_F")), "handshake bits set: %r" % doc)
 
 
 @case("serial-loopback", "seed KL6001 TR/TA, RR/RA, IR/IA handshake; the peer's far end bridges "

@@ -338,7 +338,7 @@ namespace {
 StationSpec station(const char* coupler) {
   StationSpec s;
   s.coupler = coupler;
-  for (const char* t : {"KL6001", "KL1104", "KL5101", "KL2134", "KL9010"}) s.terminals.push_back(TerminalSpec{t, 0, {}});
+  for (const char* t : {"KL6001", "KL1104", "KL5101", "KL2134", "KL9010"}) s.terminals.push_back(TerminalSpec{t, 0, {}, 0});
   return s;
 }
 

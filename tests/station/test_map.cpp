@@ -27,7 +27,7 @@ const Catalog& cat() {
 StationSpec spec_of(const char* coupler, const std::vector<std::string>& types) {
   StationSpec s;
   s.coupler = coupler;
-  for (const auto& t : types) s.terminals.push_back(TerminalSpec{t, 0, {}});
+  for (const auto& t : types) s.terminals.push_back(TerminalSpec{t, 0, {}, 0});
   return s;
 }
 

@@ -1,4 +1,5 @@
-// The interrupt flag: set by the CLI's SIGINT/SIGTERM handler; every wait on a device checks it.
+// The interrupt flag: set by the CLI's SIGINT/SIGTERM/SIGHUP handler; every wait on a device checks
+// it. g_signal is the signal that set it (0: none), for commands that end differently on Ctrl-C.
 #pragma once
 #include <atomic>
 #include <chrono>
@@ -6,6 +7,7 @@
 namespace kscfg {
 
 extern std::atomic<bool> g_interrupted;
+extern std::atomic<int> g_signal;
 // How many SIGINT/SIGTERM the process got (the CLI's handler counts them with the flag).
 extern std::atomic<unsigned> g_interrupts;
 

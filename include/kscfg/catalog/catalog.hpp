@@ -53,6 +53,10 @@ struct EnumValue {
   std::string name;
   std::uint16_t code = 0;
   std::string desc;
+  // Catalog `with = "PARAM=VALUE"`: this value only goes with that value of another parameter of
+  // the type (KL6031 image-size 22 with extended-image on); set writes both, a change that leaves
+  // them apart is refused (params.hpp setting_conflicts).
+  std::string with_param, with_value;
 };
 
 struct Divisor {

@@ -21,6 +21,24 @@ std::string decode_param(const ParamDef& param, std::uint16_t reg);
 // Baud rate for a divisor-form register value (low byte == divisor.low), or 0.
 double divisor_rate(const Divisor& d, std::uint16_t reg);
 
+// Why `value` in register `reg` is not what the catalog documents for `type` (channel 0-based):
+// a parameter field outside its enumeration ("baud code 8 is none of ..."), outside its range
+// ("data-bytes 6 is outside 1..5"), or a divisor form above the documented maximum rate. Only
+// parameter fields wholly inside `mask` (the bits a write sets) are checked. "" when it is fine.
+std::string undocumented_value(const TerminalType& type, unsigned reg, std::uint16_t value, unsigned channel = 0,
+                               std::uint16_t mask = 0xFFFF);
+
+// Settings that must go together (catalog `with`) but do not in the register values `regs` of a
+// channel (0-based): `text` "image-size 22 needs extended-image on, and extended-image is off";
+// `fix` the settings that agree: "extended-image off with image-size 3 or 5, or image-size 22 with
+// extended-image on".
+struct SettingConflict {
+  std::string text, fix;
+};
+std::vector<SettingConflict> setting_conflicts(const TerminalType& type,
+                                               const std::array<std::uint16_t, proto::kRegisterCount>& regs,
+                                               unsigned channel = 0);
+
 // Allowed values as text for messages and completion.
 std::vector<std::string> param_choices(const ParamDef& param);
 

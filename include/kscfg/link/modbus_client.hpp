@@ -134,6 +134,8 @@ class ModbusClient {
   unsigned silent_ = 0;   // requests in a row that failed without any answer
   std::string dead_;      // why the link is taken for dead ("" while it lives)
   bool drain_ = false;    // RTU: a reply may still come for a request given up on (interrupted)
+  bool connected_once_ = false;  // a connect() succeeded: a later refusal means the coupler went away
+  std::string broke_;            // why the connection was dropped last (a reset, ...), for that message
 };
 
 }  // namespace kscfg

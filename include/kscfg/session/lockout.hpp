@@ -42,6 +42,10 @@ struct LockoutReport {
   bool checked = false;  // false: no planned write touches a register that decides an image
   std::vector<ChangedMapping> causes;
   std::vector<LostWindow> lost;
+  // Settings the writes would leave apart although they go together (catalog `with`, KL6031
+  // image-size and extended-image): "terminal 3 (KL6031): image-size 22 needs extended-image on, ..."
+  std::vector<std::string> conflicts;
+  std::vector<std::string> conflict_fixes;  // "extended-image off with image-size 3 or 5, or ..."
   bool locks_out() const { return !lost.empty(); }
   // "after the coupler's next start terminal 1 (KL6001) would have no register window (its standard
   //  image maps 1 data byte ...), because of terminal 1 (KL6001) data-bytes = 1 (R35 0x0003 -> 0x0001)"
@@ -54,13 +58,22 @@ struct LockoutReport {
 // `current`. Reads the image-deciding registers (KL6001 R34/R35, KL6031 R34/R35, ...) of every
 // terminal it can reach, but only when a planned write touches one of them; otherwise nothing is
 // read and `checked` is false.
+// `own`: the command's own session, through which its terminal channel is read (a second session
+// on the same channel would find the first one's register request in the control byte, take it
+// for a dead session's leftover and put the channel's bytes back to zero when it closes).
 LockoutReport check_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
-                            const SessionOptions& so, const std::vector<PlannedWrite>& writes);
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes,
+                            RegisterSession* own = nullptr);
 
 // check_lockout, then: a lock-out is Error(Exit::refused) naming the consequence and the setting
 // that causes it; with `force` the write may go ahead and so.notice is told what recovery needs.
-void guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
-                   const std::vector<PlannedWrite>& writes, bool force);
+LockoutReport guard_lockout(Link& link, const StationLayout& current, const Catalog& catalog,
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force,
+                            RegisterSession* own = nullptr);
+// "takes effect at the coupler's next start: terminal 1 (KL6001) alternative-format = off (R34
+// 0x0003 -> 0x0001); ..." for a report whose writes change a register that decides an image; ""
+// otherwise. The coupler lays its image out at its start: until then it keeps the one it has.
+std::string next_start_note(const LockoutReport& rep);
 
 // Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,

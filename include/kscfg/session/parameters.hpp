@@ -50,6 +50,14 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
 void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,
                   const Catalog& catalog, unsigned channel = 0, bool divisor = false);
 
+// NAME VALUE pairs with the settings their values go with (catalog `with`) added after them:
+// `set image-size 3` on a KL6031 also sets extended-image off, so both registers are written as
+// one change. A pair that names the other setting with a value that contradicts it is
+// Error(usage). Validation only, no I/O.
+std::vector<std::pair<std::string, std::string>> with_settings(
+    const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs, const Catalog& catalog,
+    unsigned channel = 0);
+
 struct ResetPlan {
   bool r7 = false;                                         // R7 = 0x7000 (documented by the manual)
   std::vector<std::pair<unsigned, std::uint16_t>> values;  // the factory values (written, or checked after R7)

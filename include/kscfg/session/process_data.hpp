@@ -2,6 +2,7 @@
 // bits and lengths, encoder counter/latch/status, analog raw and scaled values, digital bits; and
 // forcing outputs with the previous values kept for restoring them.
 #pragma once
+#include <chrono>
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -29,8 +30,25 @@ std::vector<nlohmann::json> decode_station(const StationLayout& layout, const Im
                                            unsigned only_position = 0);
 nlohmann::json decode_channel(const TerminalImage& t, unsigned channel, const ImageSnapshot& image);
 
+// A control or status byte/word as JSON (docs/json.md): {"value": N, "bits": {NAME: 0/1 or a number}}
+// with the names of the type's decode table for `kind` ("control", "status") and image format;
+// without "bits" when REG is set (`register_mode`) or the type has no table.
+nlohmann::json ctst_json(const TerminalType& type, const std::string& kind, const std::string& format,
+                         std::uint16_t value, bool register_mode = false);
+
 // Whether a channel's control byte asks for register mode now (a register session is running).
 bool in_register_mode(const TerminalImage& t, unsigned channel, const std::vector<std::uint8_t>& out);
+// Whether a channel's status byte still answers a register request (REG set in the input image):
+// its data bytes carry a register value, not process data, until the terminal has seen the control
+// byte go back (a K-bus cycle or more after the command that read a register ended).
+bool answers_register(const TerminalImage& t, unsigned channel, const std::vector<std::uint8_t>& in);
+
+// read_image() taken only outside register mode: while a channel (of the terminal at `only`, 0: of
+// every terminal) shows REG in its status byte but not in its control byte, the terminal has not
+// yet seen its control byte go back, and the image is read again (link pause between reads), for
+// at most `timeout`. A channel whose control byte asks for register mode is not waited for.
+ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::chrono::milliseconds timeout,
+                                 unsigned only = 0);
 
 // One output byte a force changes: `mask` are the bits it sets to `after`.
 struct ForcedByte {
@@ -40,6 +58,9 @@ struct ForcedByte {
 struct ForcePlan {
   std::vector<ForcedByte> bytes;
   nlohmann::json changes = nlohmann::json::array();  // [{name, before, after}] for people and JSON
+  // NAME=VALUE specs that write the previous values back (`data force ... --no-restore`): what to
+  // run by hand when kscfg could not restore them (killed with kill -9, a link that stayed dead).
+  std::vector<std::string> undo;
 };
 // NAME=VALUE specs for the terminal at `position` (channel 0-based for complex terminals):
 //  digital outputs:  N=on|off|1|0        (N: output 1..bits_out)

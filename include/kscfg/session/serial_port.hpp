@@ -53,6 +53,14 @@ class SerialPort {
   // With `receive`, bytes arriving meanwhile are collected (see received()); without, they stay
   // in the terminal's receive FIFO. Error(timeout) when TA does not follow TR in time.
   void send(std::span<const std::uint8_t> bytes, bool receive = false);
+  // Sends what `source` hands over, as the terminal takes it: `source(buf, max, wait_ms)` puts up to
+  // `max` bytes in `buf` and returns how many, 0 at the end, -1 when it has none yet (it may wait
+  // up to `wait_ms` for some). It is asked for more only while fewer than kStreamLow bytes wait, so
+  // memory stays bounded whatever the source holds (`serial send - </dev/zero`). Returns the bytes
+  // accepted. Error(timeout) as send(), naming how many were accepted.
+  static constexpr std::size_t kStreamLow = 4096;
+  std::size_t send_stream(const std::function<long(std::uint8_t*, std::size_t, int)>& source, bool receive = false);
+  std::size_t accepted() const { return accepted_; }  // by send_stream so far
   // Receives until `count` bytes are there (0: until the line is idle for the timeout).
   // Error(timeout) when nothing at all arrives, or fewer than `count` bytes (what arrived is kept
   // in received()).
@@ -92,6 +100,7 @@ class SerialPort {
   std::size_t tx_len_ = 0;
   std::vector<std::uint8_t> rx_;
   std::size_t polls_ = 0;
+  std::size_t accepted_ = 0;
   std::function<void()> moved_;
 };
 

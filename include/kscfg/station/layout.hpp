@@ -57,6 +57,9 @@ struct StationLayout {
   std::size_t digital_in_bits = 0, digital_out_bits = 0;
 
   const TerminalImage& terminal(unsigned position) const;  // throws Error(usage)
+  // The digital bits the coupler reports that no terminal of the layout accounts for (a Modbus
+  // scan sees digital terminals only as bit totals): "4 input and 4 output bits"; "" when none.
+  std::string unidentified_digital() const;
 };
 
 using RegisterSource = std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position,
@@ -70,7 +73,16 @@ ChannelImage layout_channel(const ImageFormat& fmt, const TerminalType& type, co
 // Whole station. Register values come from `regs` (defaults + station file, or read online).
 StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, const MappingSettings& settings,
                              const RegisterSource& regs);
-// Offline: register values from the spec (channel_registers).
+// Offline: register values from the spec (channel_registers). A partial spec (position = N) is
+// Error(usage): it does not describe a station.
 StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog);
+
+// A partial station file (position = N) as a full one for `station`, the station as kscfg knows it
+// (a scan, or --station): every terminal of the station in plug order, with the file's settings
+// where the file names its position and nothing configured elsewhere (left alone). Error(refused)
+// when a named position holds another type, Error(usage) when the station has no such position.
+// A full file is returned as it is.
+StationSpec expand_partial(const StationSpec& file, const StationLayout& station);
+
 
 }  // namespace kscfg

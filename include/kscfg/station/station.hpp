@@ -60,6 +60,9 @@ struct TerminalSpec {
   // Indexed by channel (channels[0] is channel 1); may be empty or shorter than the type's channel
   // count, and an entry may be empty (that channel is not configured).
   std::vector<ChannelSpec> channels;
+  // `position = N` (plug position, 1-based) in a partial station file: it names only the terminals
+  // it configures, each checked against the station's type there. 0: a full file, plug order.
+  unsigned position = 0;
 };
 
 struct StationSpec {
@@ -70,6 +73,9 @@ struct StationSpec {
   std::string origin;  // file name for messages
 
   MappingSettings settings() const;
+  // A partial file: its terminals name their plug positions (position = N), the others are left
+  // alone. It does not describe a station's layout (expand_partial() makes it a full one).
+  bool partial() const { return !terminals.empty() && terminals.front().position != 0; }
 };
 
 // Parses a station file; errors name file, line and column (Exit::file for syntax, Exit::usage for

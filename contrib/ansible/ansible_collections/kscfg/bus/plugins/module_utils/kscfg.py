@@ -10,6 +10,7 @@ from __future__ import absolute_import, division, print_function
 __metaclass__ = type
 
 import json
+import os
 import re
 
 # kscfg's exit statuses (kscfg(1), EXIT STATUS).
@@ -51,6 +52,20 @@ def base_args(kscfg, port=None, unit=None, timeout=None, catalog=None):
     return args
 
 
+def station_file_problem(path):
+    """What keeps `path` from being read as a station file ("is a directory", "does not exist",
+    "is not readable"), or None. The cause, not "does not exist" for all of them."""
+    if os.path.isdir(path):
+        return 'is a directory, not a station file'
+    if not os.path.lexists(path):
+        return 'does not exist'
+    if not os.path.exists(path):
+        return 'is a symbolic link to nothing (%s)' % os.readlink(path)
+    if not os.access(path, os.R_OK):
+        return 'is not readable'
+    return None
+
+
 # ---------------------------------------------------------------------------------------------
 # Station files (man 5 kscfg-station) from the inline form of the module options.
 
@@ -82,11 +97,22 @@ def _toml_value(key, value):
                      % (key, type(value).__name__))
 
 
+def snake(name):
+    """A kscfg name as Ansible keys are written: data-bytes -> data_bytes (Jinja's dot access)."""
+    return str(name).replace('-', '_')
+
+
+def kebab(name):
+    """A key given the Ansible way back to kscfg's name: data_bytes -> data-bytes (R32 stays R32)."""
+    return str(name).replace('_', '-')
+
+
 def _settings_toml(where, settings, skip):
     lines = []
     for key, value in settings.items():
         if key in skip:
             continue
+        key = kebab(key)  # snake_case keys (data_bytes) are kscfg's names (data-bytes)
         if isinstance(value, (dict, list)):
             raise ValueError("%s: '%s' must be a single value (channels go in a 'channel' list)" % (where, key))
         lines.append('%s = %s' % (_toml_key(key), _toml_value(key, value)))
@@ -95,9 +121,16 @@ def _settings_toml(where, settings, skip):
 
 def station_toml(terminals, coupler=None, mapping=None):
     """A station file from a list of terminal dicts, each with 'type', parameters, registers
-    (R32: 7) and an optional 'channel' list of dicts with parameters and registers per channel."""
+    (R32: 7) and an optional 'channel' list of dicts with parameters and registers per channel.
+    Keys may be snake_case (data_bytes) or kscfg's own (data-bytes). With 'position' in every
+    dict the file is partial (man 5 kscfg-station): it names only those terminals, each checked
+    against the coupler's type at that plug position, and the others are left alone."""
     if not isinstance(terminals, list) or not terminals:
         raise ValueError('terminals must be a non-empty list, one entry per terminal in plug order')
+    with_pos = [isinstance(t, dict) and 'position' in t for t in terminals]
+    if any(with_pos) and not all(with_pos):
+        raise ValueError('either every terminal names its position (the others are left alone) or none does '
+                         '(every terminal in plug order)')
     out = ['# written by the kscfg.bus Ansible collection']
     if coupler:
         out.append('coupler = %s' % json.dumps(str(coupler)))
@@ -114,7 +147,11 @@ def station_toml(terminals, coupler=None, mapping=None):
         out.append('')
         out.append('[[terminal]]')
         out.append('type = %s' % json.dumps(term['type']))
-        out += _settings_toml(where, term, ('type', 'channel'))
+        if 'position' in term:
+            if not isinstance(term['position'], int) or isinstance(term['position'], bool) or term['position'] < 1:
+                raise ValueError('%s: position must be a plug position, 1 or more' % where)
+            out.append('position = %d' % term['position'])
+        out += _settings_toml(where, term, ('type', 'channel', 'position'))
         channels = term.get('channel')
         if channels is None:
             continue
@@ -346,6 +383,9 @@ def station_facts(info, backup, include_registers=False):
             if not include_registers:
                 for c in chans:
                     del c['registers']
+            # Ansible keys are snake_case (params.data_bytes): Jinja's dot access needs them.
+            for c in chans:
+                c['params'] = dict((snake(k), v) for k, v in c['params'].items())
             fact['params'] = chans[0]['params'] if chans else {}
             fact['channels'] = chans
         else:

@@ -44,6 +44,20 @@ options:
     description:
       - Path of the kscfg binary. Default, C(kscfg) from C(PATH).
     type: path
+attributes:
+  check_mode:
+    support: full
+    description: Reads only; runs the same in check mode.
+  diff_mode:
+    support: none
+    description: Nothing changes, so there is nothing to show.
+  facts:
+    support: full
+    description: Returns the fact C(kscfg).
+  platform:
+    support: full
+    platforms: posix
+    description: Runs where kscfg is installed (the control node or a gateway for couplers on the network).
 notes:
   - Over Modbus only complex terminals (those with a register interface or a byte image) are
     listed, unless I(station) describes the station; digital terminals have no type register.
@@ -122,9 +136,10 @@ ansible_facts:
                        outputs: {offset: 0, size: 8}}
             params:
               description: Named parameters of channel 1, typed as in a station file
-                (numbers, C(true)/C(false), strings).
+                (numbers, C(true)/C(false), strings), keys in snake_case (kscfg's C(data-bytes) is
+                C(data_bytes), so that C(params.data_bytes) works in Jinja).
               type: dict
-              sample: {baud: 9600, frame: 8N1, rts-cts: true, data-bytes: 3}
+              sample: {baud: 9600, frame: 8N1, rts_cts: true, data_bytes: 3}
             channels:
               description: Each channel with I(ansible_facts.kscfg.terminals[].channels[].params)
                 and, with I(registers), its configuration registers as a dict, C(R32) to C(R47) as numbers.

@@ -30,18 +30,23 @@ options:
     description:
       - Path of a station file on the host the task runs on (C(kscfg station init) writes a
         commented example, C(kscfg backup) and C(kscfg scan --write) write one from a station).
-      - It must list every terminal the station has, in plug order; over Modbus the complex
+      - It lists every terminal the station has, in plug order; over Modbus the complex
         terminals are matched with the coupler's by R8 and order, and digital terminals (which
         cannot be identified over Modbus) by their total bit counts, so a file may list them or not.
+      - Or it is partial, each C([[terminal]]) with its plug position (C(position = N)). Only those
+        terminals are configured, each checked against the coupler's type at that position, and
+        the others are left alone, so one file serves couplers with different I/O.
       - Mutually exclusive with I(terminals).
     type: path
   terminals:
     description:
       - The station inline, one dict per terminal in plug order with the keys of a
         C([[terminal]]) table of a station file, for example C(type=KL6001) and C(baud=19200).
-      - Named parameters (C(baud), C(frame), C(data-bytes), ...), raw registers (C(R32=7) or
-        C(R32="0x0007")) and C(channel), a list of dicts with the parameters and registers of
-        each channel of a multi-channel terminal.
+      - Named parameters (C(baud), C(frame), C(data_bytes), ...; snake_case or kscfg's own
+        C(data-bytes)), raw registers (C(R32=7) or C(R32="0x0007")) and C(channel), a list of
+        dicts with the parameters and registers of each channel of a multi-channel terminal.
+      - With C(position) in every dict, only those terminals, each at its plug position (checked
+        against the coupler's type there); the others are left alone.
       - The module writes them to a temporary station file. Mutually exclusive with I(station).
     type: list
     elements: dict
@@ -84,6 +89,17 @@ options:
     description:
       - Path of the kscfg binary. Default, C(kscfg) from C(PATH).
     type: path
+attributes:
+  check_mode:
+    support: full
+    description: C(kscfg apply --dry-run); nothing is written.
+  diff_mode:
+    support: full
+    description: The parameters and registers that change, before and after, in station-file syntax.
+  platform:
+    support: full
+    platforms: posix
+    description: Runs where kscfg is installed (the control node or a gateway for couplers on the network).
 notes:
   - kscfg runs on the host the task runs on. For couplers reached over the network, run the task
     on the control node or a gateway (C(connection=local), or C(delegate_to)) with one inventory
@@ -119,6 +135,15 @@ EXAMPLES = r'''
           - R35: 0
           - R35: 5
   register: station
+
+- name: The KL6001 at position 1 of every coupler, whatever else is plugged in
+  kscfg.bus.kscfg_station:
+    port: "tcp://{{ coupler_ip }}"
+    terminals:
+      - type: KL6001
+        position: 1
+        baud: 19200
+        data_bytes: 5
 
 - name: Where the previous values were saved
   ansible.builtin.debug:
@@ -242,7 +267,7 @@ import os
 from ansible.module_utils.basic import AnsibleModule
 from ansible_collections.kscfg.bus.plugins.module_utils.kscfg import (
     EXIT_CHANGED, EXIT_DIFFERENCES, EXIT_OK, base_args, normalize_plan, parse_error, plan_diff,
-    port_with_unit, rollback_state, station_toml)
+    port_with_unit, rollback_state, station_file_problem, station_toml)
 
 
 def _verify_backup(module, args, backup):
@@ -299,8 +324,10 @@ def main():
         with open(station, 'w') as f:
             f.write(text)
         result['station_toml'] = text
-    elif not os.path.isfile(station):
-        module.fail_json(msg="station file '%s' does not exist on %s" % (station, os.uname()[1]), **result)
+    else:
+        problem = station_file_problem(station)
+        if problem:
+            module.fail_json(msg="station file '%s' %s on %s" % (station, problem, os.uname()[1]), **result)
 
     if p['layout']:
         args = args[:-1] + ['--station', station, '--json']

@@ -1,0 +1,29 @@
+// The documented settings of a coupler, read only (kscfg coupler): over Modbus the watchdog
+// registers 0x1120..0x1123, over ADS the coupler's tables 9 and 100 on port 100. Each setting
+// names the register it came from and the public page that documents it.
+#pragma once
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "kscfg/link/link.hpp"
+
+namespace kscfg {
+
+struct CouplerSetting {
+  std::string name;      // "watchdog"
+  std::string value;     // "1000 ms"; "not served" when the coupler refuses the register
+  std::optional<unsigned> raw;  // the register value(s) as read (empty: not served)
+  std::string where;     // "Modbus 0x1120" / "ADS port 100, table 100 register 14"
+  std::string source;    // URL of the page that documents it
+};
+
+struct CouplerSettings {
+  std::string protocol;  // "modbus" or "ads"
+  std::vector<CouplerSetting> settings;
+};
+
+// Error(usage) for a link that is no coupler (the emulator: serve it first).
+CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms);
+
+}  // namespace kscfg

@@ -1,0 +1,62 @@
+// AdsImageLink: the process image of a BK9000-family coupler over ADS port 300 (fieldbus process
+// data) as a Link. "The fieldbus data is accessed via ADS port number 300 ... index group 0xF020
+// inputs, 0xF030 outputs, offset 0...511. The data is monitored by a watchdog. If no further
+// telegram arrives within 1000 ms the outputs will be switched to the safe state" (BK/BC9000
+// "ADS services", https://infosys.beckhoff.com/content/1033/bc9000/2802215435.html).
+#pragma once
+#include <functional>
+#include <map>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+
+#include "kscfg/link/ads_client.hpp"
+#include "kscfg/link/link.hpp"
+#include "kscfg/station/layout.hpp"
+
+namespace kscfg {
+
+namespace adsimage {
+constexpr std::uint32_t kInputs = 0xF020;
+constexpr std::uint32_t kOutputs = 0xF030;
+constexpr std::size_t kImageBytes = 512;  // offsets 0..511
+constexpr unsigned kWatchdogMs = 1000;    // outputs to the safe state after this long without a telegram
+}  // namespace adsimage
+
+class AdsImageLink : public Link {
+ public:
+  AdsImageLink(AdsTarget target, AdsOptions opt);
+  std::string describe() const override { return client_.target().uri; }
+  void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
+  void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
+  void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
+  // The write and the read go out together (two requests in flight on the connection).
+  bool pipelines() const override { return true; }
+  void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
+                                 std::span<std::uint8_t> dst) override;
+  void pause(unsigned poll_number) override;
+  bool discovers_layout() const override { return true; }
+  const StationLayout* layout() override { return layout_upto(0); }
+  const StationLayout* layout_upto(unsigned position) override;
+  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
+  AckTiming* ack_timing(unsigned position) override { return &timings_[position]; }
+
+  AdsClient& client() { return client_; }
+  // How layout() finds the station (discovery/ads_station.hpp: the coupler's table 9 over port 100).
+  struct Found {
+    StationSpec spec;
+    StationLayout layout;
+  };
+  void set_discovery(std::function<std::optional<Found>()> find) { find_ = std::move(find); }
+
+ private:
+  void count() { exchanges_ = client_.exchanges(); }
+  AdsClient client_;
+  std::function<std::optional<Found>()> find_;
+  std::optional<Found> found_;
+  bool searched_ = false;
+  std::map<unsigned, AckTiming> timings_;
+};
+
+}  // namespace kscfg

@@ -1,0 +1,80 @@
+// The process image over ADS port 300 (link/ads_link.hpp).
+#include "kscfg/link/ads_link.hpp"
+
+#include <fmt/format.h>
+
+#include <thread>
+
+namespace kscfg {
+
+namespace {
+
+void check_image(std::size_t offset, std::size_t n, const char* what) {
+  if (n == 0 || offset + n > adsimage::kImageBytes)
+    throw Error(Exit::link, fmt::format("{} image access {}..{} outside the coupler's 512 bytes", what, offset,
+                                        offset + n));
+}
+
+}  // namespace
+
+AdsImageLink::AdsImageLink(AdsTarget target, AdsOptions opt) : client_(std::move(target), std::move(opt)) { count(); }
+
+void AdsImageLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
+  check_image(offset, dst.size(), "input");
+  auto d = client_.read(adsport::kProcessData, adsimage::kInputs, static_cast<std::uint32_t>(offset),
+                        static_cast<std::uint32_t>(dst.size()), fmt::format("reading input bytes {}+{}", offset, dst.size()));
+  std::copy(d.begin(), d.end(), dst.begin());
+  count();
+}
+
+void AdsImageLink::read_outputs(std::size_t offset, std::span<std::uint8_t> dst) {
+  check_image(offset, dst.size(), "output");
+  auto d = client_.read(adsport::kProcessData, adsimage::kOutputs, static_cast<std::uint32_t>(offset),
+                        static_cast<std::uint32_t>(dst.size()), fmt::format("reading output bytes {}+{}", offset, dst.size()));
+  std::copy(d.begin(), d.end(), dst.begin());
+  count();
+}
+
+void AdsImageLink::write_outputs(std::size_t offset, std::span<const std::uint8_t> src) {
+  check_image(offset, src.size(), "output");
+  // ADS writes bytes: nothing outside `src` is touched, so no neighbour byte needs reading first.
+  client_.write(adsport::kProcessData, adsimage::kOutputs, static_cast<std::uint32_t>(offset), src,
+                fmt::format("writing output bytes {}+{}", offset, src.size()));
+  count();
+}
+
+void AdsImageLink::write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
+                                             std::size_t in_offset, std::span<std::uint8_t> dst) {
+  check_image(out_offset, src.size(), "output");
+  check_image(in_offset, dst.size(), "input");
+  std::string wwhat = fmt::format("writing output bytes {}+{}", out_offset, src.size());
+  std::string rwhat = fmt::format("reading input bytes {}+{}", in_offset, dst.size());
+  AdsClient::Call calls[2] = {
+      {adsport::kProcessData, ams::kWrite,
+       ams::write_request(adsimage::kOutputs, static_cast<std::uint32_t>(out_offset), src), true, 0, wwhat},
+      {adsport::kProcessData, ams::kRead,
+       ams::read_request(adsimage::kInputs, static_cast<std::uint32_t>(in_offset), static_cast<std::uint32_t>(dst.size())),
+       true, 0, rwhat}};
+  auto r = client_.transact(calls);
+  count();
+  if (r[0].result) throw client_.ads_error(r[0].result, adsport::kProcessData, wwhat);
+  if (r[1].result) throw client_.ads_error(r[1].result, adsport::kProcessData, rwhat);
+  if (r[1].data.size() != dst.size())
+    throw Error(Exit::link, fmt::format("{} answered {} with {} bytes", client_.target().where(), rwhat, r[1].data.size()));
+  std::copy(r[1].data.begin(), r[1].data.end(), dst.begin());
+}
+
+void AdsImageLink::pause(unsigned poll_number) {
+  std::this_thread::sleep_for(std::chrono::microseconds(poll_number > 20 ? 2000 : 500));
+}
+
+const StationLayout* AdsImageLink::layout_upto(unsigned) {
+  if (!searched_ && find_) {
+    searched_ = true;
+    found_ = find_();
+    count();
+  }
+  return found_ ? &found_->layout : nullptr;
+}
+
+}  // namespace kscfg

@@ -1,0 +1,310 @@
+#!/usr/bin/env python3
+"""An ADS coupler written from Beckhoff's public documentation, with the Python standard library
+only and no code shared with kscfg: the other side for kscfg's ADS client (tests/ads_peer/README.md).
+
+What it is built from:
+- AMS/TCP frame: 6-byte AMS/TCP header (2 reserved bytes, 4-byte length) and a 32-byte AMS header
+  (target NetId, target port, source NetId, source port, command id, state flags, data length,
+  error code, invoke id), little endian ("AMS/TCP Packet", "AMS Header", Beckhoff Information System).
+- Commands: 1 ReadDeviceInfo, 2 Read, 3 Write; state flags 0x0004 (ADS command), 0x0001 (response).
+- BK/BC9000 "ADS services": port 100 registers (index group 0: coupler tables, high word table,
+  low word register; index group 1..64: terminal, high word channel 0..3, low word register),
+  port 300 process data (0xF020 inputs, 0xF030 outputs, offsets 0..511, outputs off after 1000 ms
+  without a telegram). The coupler cuts a connection idle for 10 s.
+- Tc2_Coupler FB_ReadCouplerRegs: terminals are numbered from 1 without passive terminals;
+  register n of a table is element n.
+- A BK9050 answers ReadState with AMS error 0x8 (unknown command ID).
+- Terminal registers: R8 type, R31 code word 0x1235 unlocks R32..R47 (terminal manuals).
+
+Each connection is served by a thread of its own, requests one after the other; every register
+access takes --latency-ms (a coupler's K-bus register handshake), so a client's time for N
+registers can be compared with N times the per-access latency. With --overlap the peer works on
+every request of a connection at once and answers each when it is done, each register access
+taking between half and one and a half times the latency: replies come out of order, matched
+only by their invoke ids.
+"""
+import argparse
+import random
+import socket
+import struct
+import sys
+import threading
+import time
+
+AMS_TCP = struct.Struct("<HI")
+AMS_HDR = struct.Struct("<6sH6sHHHIII")
+CMD_DEVINFO, CMD_READ, CMD_WRITE = 1, 2, 3
+FLAG_RESPONSE, FLAG_ADS = 0x0001, 0x0004
+ERR_PORT, ERR_MACHINE, ERR_CMD = 0x6, 0x7, 0x8
+ADS_GROUP, ADS_OFFSET, ADS_DENIED, ADS_SIZE, ADS_NOTSUPP = 0x702, 0x703, 0x704, 0x705, 0x701
+CODE_WORD = 0x1235
+
+
+class Terminal:
+    """One terminal: its type, the number of channels with registers, its process image bits."""
+
+    def __init__(self, name, number, channels=1, digital_bits=0, digital_out=False, passive=False):
+        self.name, self.number, self.channels = name, number, channels
+        self.digital_bits, self.digital_out, self.passive = digital_bits, digital_out, passive
+        self.regs = [[0] * 64 for _ in range(channels)] if number else []
+        for ch in self.regs:
+            ch[8] = number
+            ch[9] = 0x3141  # "1A", version as two ASCII characters
+
+    def table9(self):
+        if self.number:
+            return self.number
+        return 0x8000 | (self.digital_bits << 8) | (2 if self.digital_out else 1)
+
+
+def default_station():
+    t = [
+        Terminal("KL6001", 6001),
+        Terminal("KL1104", 0, digital_bits=4),
+        Terminal("KL9100", 0, passive=True),  # a power feed: no number on port 100
+        Terminal("KL3022", 3022, channels=2),
+        Terminal("KL2134", 0, digital_bits=4, digital_out=True),
+        Terminal("KL9010", 0, passive=True),
+    ]
+    t[0].regs[0][32] = 0x0006  # 9600 baud
+    t[0].regs[0][34] = 0x0003
+    t[0].regs[0][35] = 0x0003
+    for ch in t[3].regs:
+        ch[32] = 0x0100
+    return t
+
+
+class Peer:
+    def __init__(self, latency_ms=0.0, idle_s=10.0, netid=None, routes=(), overlap=False):
+        self.overlap = overlap
+        self.station = default_station()
+        self.numbered = [t for t in self.station if not t.passive]
+        self.latency = latency_ms / 1000.0
+        self.idle_s = idle_s
+        self.netid = netid  # bytes, or None: the address the client reached, plus .1.1
+        self.routes = list(routes)
+        self.inputs = bytearray(512)
+        self.outputs = bytearray(512)
+        self.lock = threading.Lock()
+        self.requests = 0
+        self.connections = 0
+        self.stop = threading.Event()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(16)
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.last_telegram = None
+        self.image_writes = []  # (offset, bytes) of every port-300 write
+        # Table 100 (BK9000 manual, "Register settings, Table 100"): IP address 172.16.17.0 and mask
+        # 255.255.0.0 (the documented defaults, two bytes a register), the device name, the ADS
+        # watchdog 1000 ms, Ethernet 100 Mbaud full duplex autobaud, Modbus watchdog 1000 ms and
+        # port 502, ADS connection life 10 s.
+        name = b"BK9000\0\0\0\0\0\0\0\0\0\0\0\0\0\0"
+        self.table100 = {0: 0x10AC, 1: 0x0011, 2: 0xFFFF, 3: 0x0000, 14: 1000, 15: 0, 16: 0x3100, 24: 1000,
+                         26: 502, 27: 10}
+        for i in range(10):
+            self.table100[4 + i] = name[2 * i] | (name[2 * i + 1] << 8)
+        self.thread = threading.Thread(target=self.serve, daemon=True)
+
+    def start(self):
+        self.thread.start()
+        return self
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(5)
+        self.sock.close()
+
+    def serve(self):
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except socket.timeout:
+                self.watchdog()
+                continue
+            with self.lock:
+                self.connections += 1
+            threading.Thread(target=self.client, args=(conn,), daemon=True).start()
+
+    def watchdog(self):
+        with self.lock:
+            if self.last_telegram is not None and time.monotonic() - self.last_telegram > 1.0:
+                self.outputs[:] = bytes(512)
+                self.last_telegram = None
+
+    def client(self, conn):
+        me = socket.inet_aton(conn.getsockname()[0]) + b"\x01\x01"
+        conn.settimeout(0.1)
+        buf = b""
+        send_lock = threading.Lock()
+        last = time.monotonic()
+        try:
+            while not self.stop.is_set():
+                if time.monotonic() - last > self.idle_s:
+                    return  # the coupler cuts a connection idle for 10 s
+                try:
+                    chunk = conn.recv(65536)
+                except socket.timeout:
+                    continue
+                if not chunk:
+                    return
+                last = time.monotonic()
+                buf += chunk
+                while len(buf) >= 6:
+                    reserved, length = AMS_TCP.unpack_from(buf)
+                    if reserved != 0 or length < 32 or length > 32 + 1916:
+                        return  # not AMS/TCP
+                    if len(buf) < 6 + length:
+                        break
+                    frame, buf = buf[6:6 + length], buf[6 + length:]
+                    if self.overlap:
+                        threading.Thread(target=self.answer_later, args=(conn, send_lock, frame, me),
+                                         daemon=True).start()
+                        continue
+                    reply = self.handle(frame, me)
+                    if reply:
+                        conn.sendall(reply)
+                last = time.monotonic()
+        finally:
+            conn.close()
+
+    def answer_later(self, conn, send_lock, frame, me):
+        reply = self.handle(frame, me)
+        if reply:
+            with send_lock:
+                try:
+                    conn.sendall(reply)
+                except OSError:
+                    pass
+
+    def delay(self):
+        time.sleep(self.latency * (0.5 + random.random()) if self.overlap else self.latency)
+
+    def handle(self, frame, me):
+        tnet, tport, snet, sport, cmd, flags, dlen, err, invoke = AMS_HDR.unpack_from(frame)
+        data = frame[32:]
+        if flags & FLAG_RESPONSE or not flags & FLAG_ADS or dlen != len(data):
+            return None
+        with self.lock:
+            self.requests += 1
+
+        def answer(payload, error=0):
+            hdr = AMS_HDR.pack(snet, sport, tnet, tport, cmd, FLAG_RESPONSE | FLAG_ADS, len(payload), error, invoke)
+            return AMS_TCP.pack(0, 32 + len(payload)) + hdr + payload
+
+        if tnet != (self.netid or me) or (self.routes and snet not in self.routes):
+            return answer(b"", ERR_MACHINE)
+        if tport not in (100, 300):
+            return answer(b"", ERR_PORT)
+        if cmd == CMD_DEVINFO:
+            return answer(struct.pack("<IBBH16s", 0, 2, 11, 0, b"BK9000"))
+        if cmd == CMD_READ and len(data) == 12:
+            group, offset, n = struct.unpack_from("<III", data)
+            result, out = self.read(tport, group, offset, n)
+            return answer(struct.pack("<II", result, len(out)) + out)
+        if cmd == CMD_WRITE and len(data) >= 12:
+            group, offset, n = struct.unpack_from("<III", data)
+            if n != len(data) - 12:
+                return answer(struct.pack("<I", ADS_SIZE))
+            return answer(struct.pack("<I", self.write(tport, group, offset, data[12:])))
+        if cmd in (CMD_READ, CMD_WRITE):
+            return answer(struct.pack("<I", ADS_SIZE))
+        return answer(b"", ERR_CMD)
+
+    def register(self, group, offset):
+        """(result, terminal, channel, register) of a port-100 address of a terminal."""
+        if group < 1 or group > len(self.numbered):
+            return ADS_GROUP, None, 0, 0
+        t = self.numbered[group - 1]
+        ch, reg = offset >> 16, offset & 0xFFFF
+        if ch >= len(t.regs) or reg > 63:
+            return ADS_OFFSET, None, 0, 0
+        return 0, t, ch, reg
+
+    def read(self, port, group, offset, n):
+        with self.lock:
+            if port == 300:
+                self.last_telegram = time.monotonic()
+                if group not in (0xF020, 0xF030):
+                    return ADS_GROUP, b""
+                if offset + n > 512 or n == 0:
+                    return ADS_SIZE, b""
+                img = self.inputs if group == 0xF020 else self.outputs
+                return 0, bytes(img[offset:offset + n])
+        self.delay()
+        with self.lock:
+            if group == 0:
+                table, reg = offset >> 16, offset & 0xFFFF
+                if table not in (9, 100):
+                    return ADS_OFFSET, b""
+                if n != 2:
+                    return ADS_SIZE, b""
+                if table == 100:
+                    return 0, struct.pack("<H", self.table100.get(reg, 0))
+                if reg == 0:
+                    return 0, struct.pack("<H", 9000)
+                v = self.numbered[reg - 1].table9() if reg <= len(self.numbered) else 0
+                return 0, struct.pack("<H", v)
+            result, t, ch, reg = self.register(group, offset)
+            if result:
+                return result, b""
+            if n != 2:
+                return ADS_SIZE, b""
+            v = t.regs[ch][reg]
+            if reg == 31:
+                v = CODE_WORD if v == CODE_WORD else 0
+            return 0, struct.pack("<H", v)
+
+    def write(self, port, group, offset, value):
+        with self.lock:
+            if port == 300:
+                self.last_telegram = time.monotonic()
+                if group != 0xF030:
+                    return ADS_DENIED if group == 0xF020 else ADS_GROUP
+                if offset + len(value) > 512 or not value:
+                    return ADS_SIZE
+                self.outputs[offset:offset + len(value)] = value
+                self.image_writes.append((offset, bytes(value)))
+                return 0
+        self.delay()
+        with self.lock:
+            if group == 0:
+                return ADS_DENIED
+            result, t, ch, reg = self.register(group, offset)
+            if result:
+                return result
+            if len(value) != 2:
+                return ADS_SIZE
+            v = struct.unpack("<H", value)[0]
+            regs = t.regs[ch]
+            if reg == 31:
+                regs[31] = v
+            elif 8 <= reg <= 15:
+                pass  # ROM
+            elif 32 <= reg <= 47 and regs[31] != CODE_WORD:
+                pass  # protected by the code word: the terminal ignores it
+            else:
+                regs[reg] = v
+            return 0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--latency-ms", type=float, default=0.0)
+    ap.add_argument("--idle-s", type=float, default=10.0)
+    ap.add_argument("--overlap", action="store_true", help="work on a connection's requests at once, answer out of order")
+    a = ap.parse_args()
+    peer = Peer(a.latency_ms, a.idle_s, overlap=a.overlap).start()
+    print(f"ads://127.0.0.1:{peer.port}", flush=True)
+    try:
+        while True:
+            time.sleep(1)
+    except KeyboardInterrupt:
+        peer.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
