@@ -1,5 +1,5 @@
 // A crashed session's leftovers: what a session finds in register mode at its start, and what
-// dead kscfg processes left according to their journals (DESIGN.md section 6). Moved out of
+// dead kscfg processes left according to their journals (docs/design.md section 6). Moved out of
 // session.cpp.
 #include <fmt/format.h>
 
@@ -32,7 +32,7 @@ void RegisterSession::take_leftover() {
     link_.read_outputs(saved_at_, saved_out_);
     if (!(saved_out_[w_.ctrl - saved_at_] & proto::kReg)) return;
   }
-  // A control byte in register mode is not process data: a session died here (DESIGN.md section
+  // A control byte in register mode is not process data: a session died here (docs/design.md section
   // 6). Restoring it would repeat the dead session's request (e.g. the code word) after ours, so the
   // bytes to restore are the idle process-data ones: control byte 0, register value bytes 0.
   std::uint8_t& found = saved_out_[w_.ctrl - saved_at_];

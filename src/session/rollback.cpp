@@ -1,4 +1,4 @@
-// Rolling a change back from what the terminal holds (DESIGN.md section 6). Moved out of
+// Rolling a change back from what the terminal holds (docs/design.md section 6). Moved out of
 // session.cpp.
 #include <fmt/format.h>
 
