@@ -103,13 +103,12 @@ struct Coupler {
 TEST_CASE("two kscfg on one coupler: the second waits for the first and names it, or gives up with status 11",
           "[sessions][lock][serve]") {
   Coupler c;
-  // The first holds the coupler for two seconds: it listens to a serial terminal that stays silent.
-  Child first(c.args({"--timeout", "2000", "serial", "recv"}));
+  // The first holds the coupler until it is stopped: data's live view runs until Ctrl-C.
+  Child first(c.args({"data"}));
   const int first_pid = first.pid;
   std::string lock = kscfg::test::kscfg_lock_dir() + "/" + c.key() + ".lock";
   REQUIRE(wait_for([&] { return read_text(lock).rfind(std::to_string(first_pid) + "\n", 0) == 0; }));
-  std::string holder = "kscfg process " + std::to_string(first_pid) + " (kscfg --port " + c.uri() +
-                       " --timeout 2000 serial recv)";
+  std::string holder = "kscfg process " + std::to_string(first_pid) + " (kscfg --port " + c.uri() + " data)";
   std::string where = "the coupler at " + c.srv->host_port() + " unit 1";
 
   Run gave_up = c({"--lock-wait", "0.5", "-t", "4", "read", "--raw", "R8"});
@@ -120,13 +119,16 @@ TEST_CASE("two kscfg on one coupler: the second waits for the first and names it
                                           "longer with --lock-wait SECONDS)\n"));
   CHECK(gave_up.out.empty());
 
-  Run waited = c({"-t", "4", "read", "--raw", "R8"});
-  CHECK(waited.rc == 0);
-  CHECK(waited.out == "0x0BCE\n");
-  CHECK_THAT(waited.err, Catch::StartsWith("kscfg: waiting for " + where + ": " + holder +
-                                           " is using it (up to 30 s in all, --lock-wait)\n"));
-  CHECK_FALSE(first.running());  // it had the coupler to itself until it ended
-  CHECK(first.wait() == 4);       // nothing received
+  // The second waits (default: 30 s), says whom for, and goes on once the first has ended.
+  Child second(c.args({"-t", "4", "read", "--raw", "R8"}));
+  REQUIRE(wait_for([&] { return second.err().find("kscfg: waiting for ") != std::string::npos; }));
+  CHECK(second.running());
+  first.signal(SIGINT);
+  CHECK(first.wait() == 0);
+  CHECK(second.wait() == 0);
+  CHECK(second.out() == "0x0BCE\n");
+  CHECK(second.err() ==
+        "kscfg: waiting for " + where + ": " + holder + " is using it (up to 30 s in all, --lock-wait)\n");
   CHECK_FALSE(fs::exists(lock));  // let go, and removed
   CHECK(c({"--lock-wait", "x", "info"}).rc == 2);
 }
