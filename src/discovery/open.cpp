@@ -96,8 +96,9 @@ void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOpti
     if (e.channel >= t.channels.size() || !t.channels[e.channel].window) return false;
     const RegisterWindow& w = *t.channels[e.channel].window;
     const RegisterWindow& j = e.window;
-    // A scan's session, before it knew the type: its control and status byte are the terminal's.
-    if (e.type == "?") return e.channel == 0 && j.ctrl == w.ctrl && j.status == w.status;
+    // A scan's session, before it knew the type (a type no catalog has: the scan's probe): its
+    // control and status byte are the terminal's.
+    if (!catalog.find(e.type)) return e.channel == 0 && j.ctrl == w.ctrl && j.status == w.status;
     return e.type == t.type->type && j.ctrl == w.ctrl && j.status == w.status && j.out_lo == w.out_lo &&
            j.out_hi == w.out_hi && j.in_lo == w.in_lo && j.in_hi == w.in_hi;
   };

@@ -40,7 +40,8 @@ std::string coupler_lock_path(const ModbusTarget& target);
 
 // Finishes what kscfg processes that died on this port left in register mode (their journals,
 // finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position
-// must have its type and register window (a scan's entry, type "?", its control and status byte).
+// must have its type and register window (a scan's entry, whose type no catalog has, its control
+// and status byte).
 // `layout_upto(n)` gives the station's terminals 1..n at least. Never throws but Error(interrupted).
 void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto);
