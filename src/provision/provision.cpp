@@ -355,7 +355,7 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
       code = cf->cause_code();
       account(*current, cf->rollback());
     }
-    bool was_interrupted = g_interrupted.exchange(false);
+    bool was_interrupted = pause_interrupt();
     for (auto it = done.rbegin(); it != done.rend(); ++it) {
       const ChannelPlan& cp = **it;
       try {
@@ -370,7 +370,7 @@ ApplyResult apply_plan(Link& link, const StationLayout& layout, const Plan& plan
         unverified.push_back(fmt::format("{}: {}", who(cp), e2.what()));
       }
     }
-    if (was_interrupted) g_interrupted = true;
+    resume_interrupt(was_interrupted);
     std::string terms;
     for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
     std::string msg = fmt::format("apply failed: {}", cause);

@@ -9,6 +9,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/ack_latency.hpp"
 
 namespace kscfg {
 
@@ -57,150 +58,10 @@ RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsi
   saved_at_ = lo;
   saved_out_.resize(hi - lo + 1);
   link_.read_outputs(saved_at_, saved_out_);
+  if (saved_out_[w_.ctrl - saved_at_] & proto::kReg) take_leftover();
   shadow_.assign(saved_out_.begin() + static_cast<std::ptrdiff_t>(out_lo_ - lo),
                  saved_out_.begin() + static_cast<std::ptrdiff_t>(out_hi_ - lo + 1));
   if (link_.pipelines()) timing_ = link_.ack_timing(terminal.position);
-  // A control byte in register mode is not process data: a session died here (DESIGN.md section
-  // 6). Restoring it would repeat the dead session's request (e.g. the code word) after ours, so the
-  // bytes to restore are the idle process-data ones: control byte 0, register value bytes 0.
-  std::uint8_t& found = saved_out_[w_.ctrl - saved_at_];
-  if (found & proto::kReg) {
-    leftover_ = found;
-    found = 0;
-    saved_out_[w_.out_lo - saved_at_] = 0;
-    saved_out_[w_.out_hi - saved_at_] = 0;
-    maybe_unlocked_ = true;  // relock at the end whatever happens
-  }
-}
-
-void RegisterSession::note(const std::string& s) const {
-  if (opt_.notice) opt_.notice(s);
-  if (opt_.trace) opt_.trace(s);
-}
-
-void RegisterSession::finish_leftover() {
-  leftover_done_ = true;
-  std::string r31;
-  try {
-    std::uint16_t v = read_retry(proto::kCodeWordRegister);
-    if (v == proto::kCodeWord) {
-      write_checked(proto::kCodeWordRegister, 0);
-      std::uint16_t after = read_retry(proto::kCodeWordRegister);
-      r31 = after == 0 ? "it was unlocked (R31 = 0x1235): locked again, R31 reads 0x0000"
-                       : fmt::format("it was unlocked (R31 = 0x1235) and still reads R31 = 0x{:04X}", after);
-      if (after == 0) unlocked_ = false;
-    } else {
-      r31 = fmt::format("R31 reads 0x{:04X} (locked)", v);
-    }
-  } catch (const Error& e) {
-    if (e.code() == Exit::interrupted) throw;
-    r31 = fmt::format("R31 could not be checked ({}); relocking at the end", e.what());
-  }
-  if (dead_pid_)
-    note(fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
-                     "without finishing its session; {}; its process-data bytes go back to what that session found "
-                     "(control byte 0x{:02X})",
-                     who(), *leftover_, dead_pid_, r31, saved_out_[w_.ctrl - saved_at_]));
-  else
-    note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
-                     "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
-                     who(), *leftover_, r31, *leftover_));
-}
-
-void RegisterSession::journal_enter() {
-  if (journaled_ || !opt_.journal) return;
-  journaled_ = true;
-  SessionJournal::Entry e;
-  e.position = term_->position;
-  e.channel = channel_;
-  e.type = term_->type->type;
-  e.window = w_;
-  e.saved_at = saved_at_;
-  e.saved = saved_out_;
-  bool was = opt_.journal->enabled();
-  opt_.journal->enter(e);
-  if (was && !opt_.journal->enabled() && opt_.trace)
-    opt_.trace(fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
-                           "finds what it left",
-                           opt_.journal->why(), who()));
-}
-
-bool RegisterSession::finish_dead(const SessionJournal::Entry& e, long pid) {
-  if (!leftover_) {
-    close();
-    return false;
-  }
-  // The bytes that session found, where they are this session's to restore; never REG.
-  for (std::size_t i = 0; i < e.saved.size(); ++i) {
-    std::size_t b = e.saved_at + i;
-    if (b >= saved_at_ && b < saved_at_ + saved_out_.size()) saved_out_[b - saved_at_] = e.saved[i];
-  }
-  if (saved_out_[w_.ctrl - saved_at_] & proto::kReg) {
-    saved_out_[w_.ctrl - saved_at_] = 0;
-    saved_out_[w_.out_lo - saved_at_] = 0;
-    saved_out_[w_.out_hi - saved_at_] = 0;
-  }
-  dead_pid_ = pid;
-  try {
-    finish_leftover();
-  } catch (...) {
-    close();
-    throw;
-  }
-  close();
-  return true;
-}
-
-void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
-  if (!so.journal || !so.journal->enabled()) return;
-  for (auto& d : so.journal->claim_dead()) {
-    bool done = true;
-    try {
-      for (const auto& e : d.open) {
-        // A session of a scan that had not identified the terminal yet ("?") is finished as one of
-        // an unknown type: only R31 and the control byte are touched.
-        const TerminalType* type = catalog.find(e.type);
-        TerminalType unknown;
-        if (!type || !type->has_registers || e.channel >= type->channels) {
-          unknown.type = "type unknown";
-          unknown.has_registers = true;
-          unknown.channels = e.channel + 1;
-          type = &unknown;
-        }
-        const RegisterWindow& w = e.window;
-        try {
-          if (fits && !fits(e)) continue;
-          // Only a terminal that shows register mode now, in its control byte and in the status byte
-          // that answers it: otherwise it was finished already, or the station is not the one the
-          // journal describes, and nothing is touched.
-          std::uint8_t ctrl = 0, status = 0;
-          link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-          link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
-          if (!(ctrl & proto::kReg) || !(status & proto::kReg)) continue;
-          TerminalImage t;
-          t.position = e.position;
-          t.type = type;
-          t.complex = true;
-          t.channels.resize(e.channel + 1);
-          t.channels[e.channel].window = w;
-          RegisterSession s(link, t, e.channel, so);
-          s.finish_dead(e, d.pid);
-        } catch (const Error& err) {
-          if (err.code() == Exit::interrupted) throw;
-          // A line that failed may work next time; anything else (an address the coupler does not
-          // have: not this station) will not.
-          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
-          if (so.trace) so.trace(fmt::format("finishing terminal {} left by kscfg process {}: {}", e.position, d.pid,
-                                             err.what()));
-        }
-      }
-    } catch (...) {
-      SessionJournal::release(d, false);
-      throw;
-    }
-    SessionJournal::release(d, done);
-  }
 }
 
 void RegisterSession::forget() {
@@ -252,7 +113,7 @@ std::string RegisterSession::who() const {
 }
 
 void RegisterSession::put(std::uint8_t ctrl, std::optional<std::uint16_t> value) {
-  journal_enter();
+  journal_ctrl(ctrl);
   // Data bytes and control byte travel in one write: the data is never behind the control byte.
   shadow_[w_.ctrl - out_lo_] = ctrl;
   if (value) {
@@ -269,14 +130,11 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::microseconds;
 
-// Read-ahead timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is
-// known, the first poll goes out this long after the request and the next ones every kStep; the
-// latency is then the longest of kLearnSamples acknowledges.
-constexpr microseconds kLearnFirst{500};
+// Read-ahead timing on links that pipeline (Modbus): how long to wait before the first poll is
+// ack_latency.hpp's; the polls after it come every kStep at first.
 constexpr microseconds kStep{250};
-constexpr unsigned kLearnSamples = 3;
-// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
-// after this many in a run, no more speculation on that terminal.
+// After this many read-aheads (or restores with the last poll) that came too early in a run, no
+// more speculation on that terminal.
 constexpr unsigned kMaxMisses = 3;
 
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
@@ -297,8 +155,8 @@ RegisterSession::Status RegisterSession::poll_once() {
 }
 
 RegisterSession::Status RegisterSession::poll_ahead(unsigned next) {
-  journal_enter();
   std::uint8_t ctrl = proto::control_byte(false, next);
+  journal_ctrl(ctrl);
   shadow_[w_.ctrl - out_lo_] = ctrl;
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&shadow_[w_.ctrl - out_lo_], 1), in_lo_, in);
@@ -313,13 +171,15 @@ std::optional<RegisterSession::Status> RegisterSession::poll_restoring() {
     if (b != w_.ctrl && shadow_[b - out_lo_] != saved_out_[b - saved_at_]) return std::nullopt;
   std::uint8_t& ctrl = shadow_[w_.ctrl - out_lo_];
   ctrl = saved_out_[w_.ctrl - saved_at_];
+  journal_ctrl(ctrl);
   std::vector<std::uint8_t> in(in_hi_ - in_lo_ + 1);
   link_.write_outputs_read_inputs(w_.ctrl, std::span<const std::uint8_t>(&ctrl, 1), in_lo_, in);
   return status_of(in);
 }
 
 void RegisterSession::sleep_until(Clock::time_point due) const {
-  if (timing_ && Clock::now() < due) std::this_thread::sleep_until(due);
+  // Interruptible (a SIGINT ends it within kInterruptSlice); the caller's loop then sees the flag.
+  if (timing_) sleep_until_or_cancelled(due);
 }
 
 std::uint16_t RegisterSession::transact(bool write, unsigned reg, std::uint16_t value) {
@@ -382,13 +242,15 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
   const Clock::time_point sent = sent_;
   // The first poll: once the terminal's latency is known, when it has answered; it may carry the
   // request for the next register (read-ahead) unless a read-ahead came too early before.
-  bool known = timing_ && timing_->wait.count() > 0;
-  bool speculate = known && timing_->misses < kMaxMisses;
+  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
+  AckPlan plan = timing_ ? ack_plan(*timing_, opt_.timeout) : AckPlan{};
+  bool known = plan.known();
+  bool speculate = known && !plan.probe && timing_->misses < kMaxMisses;
   bool ahead_ok = next && speculate && *next != reg;
   bool restore_ok = !write && !next && restore_with_ == reg && speculate && link_.pipelines();
   if (restore_with_ == reg) restore_with_.reset();
-  if (timing_) sleep_until(sent + (known ? timing_->wait : kLearnFirst));
-  microseconds step = known ? std::max(kStep, timing_->wait / 8) : kStep;
+  if (timing_) sleep_until(sent + plan.first);
+  microseconds step = known ? std::max(kStep, plan.wait / 8) : kStep;
   std::optional<unsigned> ahead;  // written ahead, not yet answered
   Clock::time_point ahead_sent{};
   auto start = Clock::now();
@@ -418,20 +280,7 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
         pending_ = ahead;
         sent_ = ahead_sent;
       }
-      if (timing_) {
-        ++timing_->acks;
-        microseconds took = us(t - sent);
-        if (!known) {
-          // Learning: time a few acknowledges, then trust the longest.
-          timing_->longest = std::max(timing_->longest, took);
-          if (++timing_->samples >= kLearnSamples) timing_->wait = timing_->base = timing_->longest;
-        } else if (poll > 1) {
-          // It needed longer than we thought. Bounded by twice what the run started with: on a
-          // loaded machine one slow answer after another must not ratchet the wait up.
-          microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-          timing_->wait = std::max(timing_->wait, std::min(took, cap));
-        }
-      }
+      if (timing_) ack_seen(*timing_, plan, poll, us(t - sent), opt_.timeout);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(),
                                write ? "write" : "read ", reg, ctrl, write ? fmt::format(" value 0x{:04X}", value) : "",
@@ -441,22 +290,17 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
                                restored ? ", control byte restored with the poll" : ""));
       return s.value;
     }
-    // The terminal is slower than we thought. When its answer shows on a later poll, the wait
-    // becomes what it took (above; the polls after an early one come every kStep); when the
-    // request written ahead (or the restore) replaced ours first, how much slower is unknown:
-    // an eighth more (the terminal's latency is quantised by its bus cycle: the edge is near).
-    auto raise_unknown = [&] {
-      microseconds cap = 2 * (timing_->base.count() > 0 ? timing_->base : timing_->wait);
-      timing_->wait = std::min(timing_->wait + timing_->wait / 8, std::max(cap, timing_->wait));
-    };
+    // The terminal is slower than we thought (ack_latency.hpp). When the request written ahead
+    // (or the restore) replaced ours first, how much slower is unknown: ack_replaced().
     if (poll == 1 && known) {
-      timing_->missed = true;
-      ++timing_->misses;
+      ack_early(*timing_, plan);
       step = kStep;
+      // A probe that came too early: the usual poll at the estimate comes next.
+      if (plan.probe) sleep_until(sent + plan.wait);
     }
     if (restored) {
       // The control byte is back to what the session found: the request is gone. Ask again.
-      if (known) raise_unknown();
+      if (known) ack_replaced(*timing_, opt_.timeout);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(), reg));
       last_status_ = s.status;
@@ -464,7 +308,7 @@ std::uint16_t RegisterSession::wait_ack(bool write, unsigned reg, std::uint16_t 
     }
     if (ahead && proto::is_ack(s.status, *ahead)) {
       // The terminal took the request written ahead before answering ours: ask again.
-      if (known) raise_unknown();
+      if (known) ack_replaced(*timing_, opt_.timeout);
       if (opt_.trace) opt_.trace(fmt::format("{}: R{} answered before R{}; asking again", who(), *ahead, reg));
       last_status_ = s.status;
       return request(write, reg, value, std::nullopt);
@@ -642,96 +486,13 @@ std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedC
   } catch (const Error& e) {
     // Whatever failed, what the terminal holds now decides: read every register of the change,
     // write back those that moved, read them again (also after Ctrl-C: the change is all or nothing).
-    bool was_interrupted = g_interrupted.exchange(false);
+    bool was_interrupted = pause_interrupt();
     RollbackResult rb = roll_back(change);
-    if (was_interrupted) g_interrupted = true;
+    resume_interrupt(was_interrupted);
     throw ChangeFailed(e.code(), e.what(), std::move(rb), who());
   }
   return results;
 }
-
-RollbackResult RegisterSession::roll_back(const std::vector<WriteResult>& changes) {
-  RollbackResult rb;
-  std::set<unsigned> unreadable;
-  std::vector<const WriteResult*> moved;
-  auto unreadable_text = [&](unsigned reg, const Error& e) {
-    unreadable.insert(reg);
-    rb.unverified.push_back(fmt::format("R{} (could not be read: {})", reg, e.what()));
-  };
-  for (const auto& w : changes) {
-    try {
-      if (read_retry(w.reg) != w.before) moved.push_back(&w);
-    } catch (const Error& e) {
-      unreadable_text(w.reg, e);
-    }
-  }
-  std::string write_error;
-  if (!moved.empty()) {
-    bool prot = std::any_of(moved.begin(), moved.end(), [&](const WriteResult* w) {
-      return proto::is_protected(w->reg) || term_->type->regs[w->reg].code_word;
-    });
-    try {
-      if (prot) {
-        maybe_unlocked_ = true;
-        write_checked(proto::kCodeWordRegister, proto::kCodeWord);
-        unlocked_ = true;
-      }
-      for (const auto* w : moved) {
-        write_checked(w->reg, w->before);
-        rb.rewritten.push_back(w->reg);
-      }
-    } catch (const Error& e) {
-      write_error = e.what();
-    }
-  }
-  for (const auto& w : changes) {
-    if (unreadable.count(w.reg)) continue;
-    try {
-      std::uint16_t now = read_retry(w.reg);
-      if (now == w.before) rb.verified.emplace_back(w.reg, now);
-      else
-        rb.unverified.push_back(fmt::format("R{} (reads 0x{:04X}, was 0x{:04X}{})", w.reg, now, w.before,
-                                            write_error.empty() ? "" : "; writing it back failed: " + write_error));
-    } catch (const Error& e) {
-      unreadable_text(w.reg, e);
-    }
-  }
-  // Never leave it unlocked: R31 must read 0.
-  try {
-    std::uint16_t v = read_retry(proto::kCodeWordRegister);
-    if (v != 0) {
-      write_checked(proto::kCodeWordRegister, 0);
-      v = read_retry(proto::kCodeWordRegister);
-    }
-    rb.locked = v == 0;
-    if (rb.locked) maybe_unlocked_ = unlocked_ = false;
-    else rb.unverified.push_back(fmt::format("R31 (reads 0x{:04X}: still unlocked)", v));
-  } catch (const Error& e) {
-    rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", e.what()));
-  }
-  return rb;
-}
-
-std::string RollbackResult::text(const std::string& what) const {
-  std::string seen;
-  for (const auto& [r, v] : verified) seen += fmt::format("{}R{} 0x{:04X}", seen.empty() ? "" : ", ", r, v);
-  if (ok())
-    return fmt::format("{} is as it was: verified by reading {} register{} ({}) and R31 = 0x0000", what,
-                       verified.size(), verified.size() == 1 ? "" : "s", seen);
-  std::string bad;
-  for (const auto& u : unverified) bad += (bad.empty() ? "" : ", ") + u;
-  return fmt::format("could not verify {}: {}{}", what, bad, seen.empty() ? "" : "; read back as before: " + seen);
-}
-
-ChangeFailed::ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb, const std::string& who)
-    : Error(rb.ok() ? cause_code : Exit::unverified,
-            rb.ok() ? fmt::format("{}; rolled back: {}", cause, rb.text(who))
-                    : fmt::format("{}; rollback failed: {}", cause, rb.text(who)),
-            rb.ok() ? std::string() : "these registers may hold the new values: read them with 'kscfg dump' when the "
-                                      "terminal answers again"),
-      cause_code_(cause_code),
-      cause_(std::move(cause)),
-      rb_(std::move(rb)) {}
 
 void RegisterSession::command(unsigned reg, std::uint16_t value) {
   check_writable(reg);
@@ -747,7 +508,7 @@ void RegisterSession::command(unsigned reg, std::uint16_t value) {
 void RegisterSession::close() noexcept {
   if (closed_) return;
   closed_ = true;
-  bool was_interrupted = g_interrupted.exchange(false);
+  bool was_interrupted = pause_interrupt();
   if (leftover_ && !leftover_done_) {
     try {
       finish_leftover();
@@ -798,6 +559,14 @@ void RegisterSession::close() noexcept {
       break;
     }
   }
+  if (!restored)
+    try {
+      note(fmt::format("warning: {} is left in register mode: putting its process-data bytes back failed{}", who(),
+                       journaled_ && opt_.journal && opt_.journal->enabled()
+                           ? "; the next kscfg on this port finishes it (session journal)"
+                           : ""));
+    } catch (...) {
+    }
   // Back in process-data mode: nothing for the next kscfg to finish. Otherwise the entry stays.
   if (restored && journaled_) {
     try {
@@ -805,7 +574,7 @@ void RegisterSession::close() noexcept {
     } catch (...) {
     }
   }
-  if (was_interrupted) g_interrupted = true;
+  resume_interrupt(was_interrupted);
 }
 
 }  // namespace kscfg

@@ -32,6 +32,9 @@ struct SessionOptions {
   // Where this process notes the terminals it has in register mode, so that the next kscfg can
   // finish them if it dies (journal.hpp). Null: nothing is noted.
   std::shared_ptr<SessionJournal> journal;
+  // The session finishes what a dead kscfg's journal names: register mode found at the start is
+  // that process's (no leftover watch, leftover_watch.hpp).
+  bool leftover_is_dead = false;
 };
 
 struct WriteResult {
@@ -148,8 +151,12 @@ class RegisterSession {
   void write_checked(unsigned reg, std::uint16_t value);
   void forget();  // after a failed exchange: the status byte and any read ahead are unknown
   void finish_leftover();  // a crashed session's register mode / code word (DESIGN.md section 6)
+  // The control byte found at the start is in register mode: another master's (watch_leftover:
+  // Error(other_master)), or a leftover to finish (leftover_ set, the bytes to restore idle).
+  void take_leftover();
   void note(const std::string& s) const;
   void journal_enter();  // before the first register-mode byte goes out
+  void journal_ctrl(std::uint8_t ctrl);  // before a control byte goes out (enters first)
   void relock_write();
   void verify_locked();
   void put(std::uint8_t ctrl, std::optional<std::uint16_t> value);
@@ -209,10 +216,11 @@ class RegisterSession {
 
 // Finishes the sessions that kscfg processes on this link's port left open when they died
 // (journal.hpp): each terminal of a dead journal that is still in register mode (REG in its control
-// and its status byte) is relocked and put back to process data, with a note. A journal is dropped
-// once dealt with; one whose terminal did not answer stays for the next run. `fits` (when given)
-// says whether an entry's window lies inside the image the coupler has now; one that does not is
-// not this station's and is dropped untouched. Never throws but Error(interrupted).
+// and its status byte) with a control byte that process wrote last is relocked and put back to
+// process data (only the bytes of its register window), with a note. A journal is dropped once
+// dealt with; one whose terminal did not answer stays for the next run. `fits` (when given) says
+// whether an entry describes the station (the terminal at its position has its type and register
+// window); one that does not is dropped untouched. Never throws but Error(interrupted).
 void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
                           const std::function<bool(const SessionJournal::Entry&)>& fits = {});
 
