@@ -14,9 +14,10 @@ itself dying.
 
     bench/campaign.py [--kscfg build/kscfg] [--seed N] [--quick] [CAMPAIGN...]
 
-CAMPAIGN: mixed, kill9, connections, writers, durability (default: all). --quick runs a tenth.
-Run it under `nice -n 10`; a full run takes about 15 minutes on two cores. Uses only Debian's
-/usr/bin/python3 and the built kscfg.
+CAMPAIGN: mixed, kill9, connections, writers, durability, and issue 21's meet, kill9all, forged,
+poison (bench/campaign_sessions.py, each via serve and via the pymodbus peer) (default: all).
+--quick runs a tenth. Run it under `nice -n 10`. Uses only Debian's /usr/bin/python3 (with
+python3-pymodbus for the peer) and the built kscfg.
 """
 import argparse
 import json
@@ -549,7 +550,8 @@ def main():
     ap.add_argument("--kscfg", default=KSCFG)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("campaigns", nargs="*", default=["mixed", "kill9", "connections", "writers", "durability"])
+    ap.add_argument("campaigns", nargs="*", default=["mixed", "kill9", "connections", "writers", "durability", "meet",
+                                                     "kill9all", "forged", "poison"])
     a = ap.parse_args()
     KSCFG = os.path.abspath(a.kscfg)
     q = 10 if a.quick else 1
@@ -571,6 +573,9 @@ def main():
             elif c == "durability":
                 campaign_durability(400 // q, a.seed, work)
                 continue
+            elif c in ("meet", "kill9all", "forged", "poison"):
+                import campaign_sessions
+                rows += campaign_sessions.run(sys.modules[__name__], c, a.seed, work, a.quick)
             else:
                 raise SystemExit("unknown campaign " + c)
             print(f"({c}: {time.time() - t0:.0f} s)", file=sys.stderr)

@@ -52,6 +52,10 @@ std::unique_ptr<App> build_app() {
   cli.add_option("--timeout", a->timeout_text, "Longest wait for one acknowledge, in ms (default 1000)")
       ->option_text("MS");
   cli.add_flag("-v,--verbose", a->opt.verbose, "Trace every control/status exchange on stderr");
+  cli.add_option("--lock-wait", a->lock_wait_text,
+                 "Longest wait for a coupler (or emulator state file) that another kscfg is using, in seconds "
+                 "(default 30; 0: do not wait)")
+      ->option_text("SEC");
   cli.add_flag("--rescan", a->opt.rescan,
                "Modbus: scan the coupler again instead of using the scan kept from an earlier run");
   cli.set_help_flag("-h,--help", "Show this help (also: kscfg help COMMAND)");
@@ -65,6 +69,7 @@ std::unique_ptr<App> build_app() {
 // restored (killed by it, kscfg would leave register mode or forced outputs behind).
 static void on_signal(int sig) {
   g_signal = sig;
+  g_interrupts.fetch_add(1);  // a second one ends a rollback too (interrupt.hpp)
   g_interrupted = true;
 }
 
@@ -153,6 +158,12 @@ static int run_command(int argc, char** argv) {
       if (o.timeout_ms == 0)
         throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
                     "leave --timeout out for the default of 1000 ms");
+    }
+    if (!app->lock_wait_text.empty()) {
+      double s = parse_real(app->lock_wait_text, "lock wait");
+      if (s < 0 || s > 86400)
+        throw Error(Exit::usage, fmt::format("invalid lock wait '{}': 0 to 86400 seconds", app->lock_wait_text));
+      o.lock_wait_ms = static_cast<unsigned>(s * 1000 + 0.5);
     }
     if (!o.catalog.empty()) set_user_catalog_dir(o.catalog);
     (void)Catalog::standard();  // a broken user catalog is reported before anything is touched

@@ -15,7 +15,7 @@ namespace kscfg::cli {
 struct App {
   CLI::App cli{"kscfg: configure Bus Terminals through their register interface", "kscfg"};
   GlobalOptions opt;
-  std::string terminal_text, channel_text, timeout_text;
+  std::string terminal_text, channel_text, timeout_text, lock_wait_text;
   std::vector<std::unique_ptr<Command>> commands;
   std::map<const CLI::App*, Command*> command_of;  // subcommand -> its Command
 };

@@ -61,8 +61,11 @@ Scene scene_of(const ArgvWalk& w, const Catalog& cat) {
     if (!station.empty() && station != "-") {
       s.layout = compute_layout(load_station_arg(station, cat), cat);
     } else if (parse_port_uri(port).scheme == "emu") {
-      // The emulator's state is a local file: reading it touches no hardware.
-      auto link = open_link(port, cat, LinkOptions{});
+      // The emulator's state is a local file: reading it touches no hardware. Never waits for it
+      // (a serve holding it): completion goes on from the catalog alone.
+      LinkOptions lo;
+      lo.lock_wait.limit = std::chrono::milliseconds(0);
+      auto link = open_link(port, cat, lo);
       if (const StationLayout* l = link->layout()) s.layout = *l;
     }
   } catch (const std::exception&) {

@@ -12,6 +12,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/interrupt.hpp"
 #include "kscfg/discovery/match.hpp"
+#include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/discovery/scan.hpp"
@@ -33,8 +34,9 @@ Link& Context::link() {
     lo.cache_dir = default_cache_dir();
     lo.rescan = opt_.rescan;
     lo.notice = session_options().notice;
-    journal_ = std::make_shared<SessionJournal>();
     lo.journal = journal_;
+    lo.journal_dir = state_dir() + "/sessions";
+    lo.lock_wait = lock_wait();
     link_ = open_link(opt_.port, catalog(), lo);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
@@ -71,6 +73,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
     StationLayout L = compute_layout(spec, catalog());
     if (auto* mb = dynamic_cast<ModbusLink*>(&l)) check_image_lengths(L, read_image_lengths(mb->client()), opt_.station);
     set_layout(std::move(L), true);
+    recover_dead_sessions_once();
     return *layout_;
   }
   const StationLayout* found = l.layout_upto(position);
@@ -86,6 +89,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
   if (found) {
     const auto* mb = dynamic_cast<ModbusLink*>(&l);
     set_layout(*found, !mb || !mb->scan() || mb->scan()->complete);
+    recover_dead_sessions_once();
     if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
   } else if (!opt_.station.empty()) {
     set_layout(compute_layout(load_station_arg(opt_.station, catalog()), catalog()), true);
@@ -94,6 +98,15 @@ const StationLayout& Context::layout_upto(unsigned position) {
                 "give --station FILE, or run 'kscfg scan'");
   }
   return *layout_;
+}
+
+void Context::recover_dead_sessions_once() {
+  if (recovered_ || !journal_->enabled()) return;
+  recovered_ = true;
+  // The layout of the whole station may be needed (an entry beyond what this command walked): a
+  // nested layout_upto() scans on, and does not come back here.
+  kscfg::recover_dead_sessions(link(), catalog(), session_options(),
+                               [this](unsigned upto) -> const StationLayout& { return layout_upto(upto); });
 }
 
 const StationLayout& Context::layout_unchecked() {
@@ -144,7 +157,20 @@ bool Context::check_terminal(const TerminalImage& t, bool keep) {
     if (t.channels.empty() || !t.channels[0].window) return true;
   }
   auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
-  std::uint16_t r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
+  std::uint16_t r8 = 0;
+  try {
+    r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
+  } catch (const Error& e) {
+    // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
+    // image lengths move every window (issue 21 item 6). The station is not what was kept.
+    if (e.code() != Exit::timeout) throw;
+    s->close();
+    if (opt_.verbose)
+      trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
+                        t.position, t.type->type, e.what()));
+    checked_r8_[t.position] = 0;
+    return false;
+  }
   checked_r8_[t.position] = r8;
   if (r8 != t.type->r8) {
     s->close();
@@ -233,7 +259,8 @@ bool Context::several_terminals() {
   return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
 }
 
-SessionOptions Context::session_options() const {
+SessionOptions Context::session_options() {
+  kept_.reset();
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
@@ -248,6 +275,13 @@ SessionOptions Context::session_options() const {
     };
   }
   return so;
+}
+
+LockWait Context::lock_wait() const {
+  LockWait w;
+  w.limit = std::chrono::milliseconds(opt_.lock_wait_ms);
+  w.waiting = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
+  return w;
 }
 
 std::unique_ptr<RegisterSession> Context::session() { return session(terminal_position()); }
@@ -267,7 +301,10 @@ std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
     std::uint16_t r8 = checked_r8_[pos];
     forget_layout();
     throw Error(Exit::refused,
-                fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8, was),
+                r8 ? fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8,
+                                 was)
+                   : fmt::format("terminal {} does not answer where the scan kept from an earlier run puts its {}", pos,
+                                 was),
                 "the station changed; the kept scan was dropped: run the command again");
   }
   return std::make_unique<RegisterSession>(engine(), t, ch, session_options());

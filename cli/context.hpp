@@ -8,6 +8,7 @@
 #include <vector>
 #include <string>
 
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
@@ -29,6 +30,7 @@ struct GlobalOptions {
   unsigned timeout_ms = 1000; // --timeout
   bool verbose = false;       // -v
   bool rescan = false;        // --rescan: scan a Modbus coupler even if the scan cache is valid
+  unsigned lock_wait_ms = 30000;  // --lock-wait: longest wait for a coupler another kscfg holds
 };
 
 class Context {
@@ -78,7 +80,14 @@ class Context {
   // The selection means several terminals (a list, a range, all, or a type several have): output
   // then names the terminal of each line, and JSON is {"terminals": [...]}.
   bool several_terminals();
-  SessionOptions session_options() const;
+  // The options of every session of this run. A library call given them may open sessions on any
+  // terminal, so the session kept from checking the selected terminal's R8 (in register mode until
+  // it closes) is closed first: another session on that terminal would find register mode and take
+  // this run's own request for a dead session's leftover (issue 23 item 5).
+  SessionOptions session_options();
+  // How to wait for a coupler or an emulator state file another kscfg holds (--lock-wait; the
+  // holder is named on stderr after a moment).
+  LockWait lock_wait() const;
   // A register session with the selected terminal (or the one at `position`) and channel.
   std::unique_ptr<RegisterSession> session();
   std::unique_ptr<RegisterSession> session(unsigned position);
@@ -93,18 +102,27 @@ class Context {
 
  private:
   void set_layout(StationLayout L, bool complete);
+  // Once per run, when the layout is first known: what dead kscfg processes left on this port
+  // (their journals), checked against the layout, is finished before any session of this run.
+  void recover_dead_sessions_once();
   unsigned select_position();
   bool check_terminal(const TerminalImage& t, bool keep);
   void check_cached_terminals();
 
   GlobalOptions opt_;
-  std::shared_ptr<SessionJournal> journal_;  // before link_: sessions left open note it at exit
+  // Before link_: sessions left open note it at exit. It exists from the start, so that every
+  // SessionOptions handed out carries it, also those taken before the link opened it: C++ leaves
+  // the order of a call's arguments open, and f(ctx.link(), ctx.session_options()) took the options
+  // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
+  // (issue 21 item 2). It is opened with the link, before any exchange.
+  std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   std::unique_ptr<Link> link_;
   std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
   std::unique_ptr<Engine> engine_;
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
   bool layout_complete_ = false;
+  bool recovered_ = false;
   bool check_cached_ = true;                      // layout(): check a cached layout's R8s
   std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
   std::optional<StationLayout> matched_;

@@ -268,7 +268,8 @@ std::string generate_manpage(const App& a) {
   m << ".SH JSON OUTPUT\n" << md_to_roff(embedded_doc("json.md"));
   m << ".SH EXIT STATUS\n";
   for (Exit e : {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify,
-                 Exit::file, Exit::interrupted, Exit::unverified, Exit::changed, Exit::internal}) {
+                 Exit::file, Exit::interrupted, Exit::unverified, Exit::changed, Exit::busy,
+                 Exit::other_master, Exit::internal}) {
     static const std::map<Exit, const char*> text = {
         {Exit::ok, "Success."},
         {Exit::differences, "diff: the station differs from the file."},
@@ -285,6 +286,12 @@ std::string generate_manpage(const App& a) {
          "that went down): the message names the registers that may hold the new value; read them with "
          "\\fBkscfg dump\\fR."},
         {Exit::changed, "apply: the station was changed (success)."},
+        {Exit::busy,
+         "Gave up waiting for the coupler (port and unit) or the emulator state file that another kscfg on this "
+         "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process."},
+        {Exit::other_master,
+         "Another master is using the terminal: its control byte is in register mode and changes (a kscfg on "
+         "another computer, KS2000); nothing was written."},
         {Exit::internal, "Internal error (a bug)."},
     };
     m << ".TP\n.B " << static_cast<int>(e) << "\n" << text.at(e) << "\n";
@@ -292,24 +299,34 @@ std::string generate_manpage(const App& a) {
   m << ".SH ENVIRONMENT\n"
        ".TP\n.B KSCFG_PORT\nDefault for \\fB\\-\\-port\\fR.\n"
        ".TP\n.B KSCFG_CATALOG\nDirectory of extra terminal descriptions, like \\fB\\-\\-catalog\\fR.\n"
-       ".TP\n.B XDG_STATE_HOME\nWhere the emulator keeps its state (\\fIkscfg/emulator.json\\fR) and apply its "
-       "backups (\\fIkscfg/backups/PORT/\\fR).\n"
+       ".TP\n.B XDG_STATE_HOME\nWhere the emulator keeps its state (\\fIkscfg/emulator.json\\fR), apply its "
+       "backups (\\fIkscfg/backups/PORT/\\fR) and kscfg its session journals (\\fIkscfg/sessions/\\fR).\n"
        ".TP\n.B KSCFG_BACKUP_KEEP\nHow many automatic backups of a port \\fBapply\\fR and \\fBrestore\\fR keep "
        "(default 20; 0 keeps all), like \\fB\\-\\-keep\\-backups\\fR.\n"
+       ".TP\n.B KSCFG_LOCK_DIR\nWhere the coupler locks are kept (default /run/lock/kscfg).\n"
        ".TP\n.B KSCFG_TEST_NO_UNLOCK\nTest hook: when 1, writes skip the code word, so the read-back "
        "must catch the refused write.\n"
        ".TP\n.B KSCFG_TEST_KILL_AFTER\nTest hook: a register such as R31; kscfg kills itself (SIGKILL) right after "
        "the terminal acknowledged a write of it, leaving the terminal as a crashed session would.\n";
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
-       "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR.\n"
+       "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR, which names "
+       "its holder to a waiter (\\fB\\-\\-lock\\-wait\\fR).\n"
        ".TP\n.I ~/.cache/kscfg/scans/PORT.json\nWhat a scan of a Modbus coupler found, with the terminals' "
        "acknowledge latencies (\\fB$XDG_CACHE_HOME\\fR); see \\fBscan\\fR.\n"
-       ".TP\n.I ~/.cache/kscfg/sessions/PORT.PID\\-TIME.sessions\nThe terminals a running kscfg has in register mode "
-       "on a Modbus port, locked while it runs. If it dies (kill \\-9, a crash), the next kscfg on that port finds the "
-       "journal unlocked and finishes what it names: each terminal still in register mode is relocked and put back to "
-       "the process-data bytes the dead session found, with a note on stderr. A kscfg on another computer keeps its "
-       "journal there: what it leaves is finished by the next session on that terminal, or by the coupler's "
-       "watchdog.\n";
+       ".TP\n.I ~/.local/state/kscfg/sessions/PORT.PID\\-TIME.sessions\nThe terminals a running kscfg has in "
+       "register mode on a Modbus port, with the process-data bytes it found there and the control bytes it wrote, "
+       "locked while it runs (\\fB$XDG_STATE_HOME\\fR: cleaning ~/.cache does not forget them). If it dies (kill "
+       "\\-9, a crash), the next kscfg on that port finds the journal unlocked and finishes what it names, once it "
+       "has checked each entry against the station: the terminal at that position has the recorded type and "
+       "register window, and its control byte is in register mode with a value that process wrote last. Only that "
+       "terminal's bytes are put back, with a note on stderr; an entry that does not match is left alone. A kscfg on "
+       "another computer keeps its journal there: what it leaves is finished by the next session on that terminal "
+       "once its control byte stayed unchanged for the timeout, or by the coupler's watchdog.\n"
+       ".TP\n.I /run/lock/kscfg/PORT.lock\nThe lock of a Modbus coupler (per host, port and unit; per device on "
+       "RTU) that one kscfg holds while it uses the coupler, with its PID and command line, so that another one "
+       "waits (\\fB\\-\\-lock\\-wait\\fR) and names it; removed when it is let go. Shared by every user of the "
+       "computer (\\fB$KSCFG_LOCK_DIR\\fR, else \\fB$XDG_STATE_HOME/kscfg/locks\\fR when /run/lock is not "
+       "writable).\n";
   m << ".SH SEE ALSO\n.BR kscfg\\-station (5),\n.BR kscfg\\-catalog (5)\n";
   return m.str();
 }

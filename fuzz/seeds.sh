@@ -6,8 +6,8 @@ set -euo pipefail
 K=$(realpath "${1:-build/kscfg}")
 cd "$(dirname "$0")"
 rm -rf corpus regressions
-mkdir -p corpus/{parse,port_uri,station,catalog,state,modbus_requests} \
-         regressions/{parse,port_uri,station,catalog,state,modbus_requests}
+mkdir -p corpus/{parse,port_uri,station,catalog,state,modbus_requests,journal} \
+         regressions/{parse,port_uri,station,catalog,state,modbus_requests,journal}
 T=$(mktemp -d)
 trap 'rm -rf "$T"' EXIT
 
@@ -18,7 +18,9 @@ done
 n=0
 for s in emu emu:mem emu:/tmp/state.json "tcp://127.0.0.1" "tcp://127.0.0.1:5020?unit=3" "tcp://[::1]:502" \
          "rtu:/dev/ttyUSB0?baud=19200&parity=E&unit=3" "rtu:/dev/pts/3?parity=N" "rtu:/dev/ttyS0?baud=9600&parity=N&data=7&stop=2" \
-         "tcp://" "tcp://127.0.0.1:99999" "tcp://127.0.0.1?unit=300" "rtu:/dev/ttyS0?baud=fast" "udp://127.0.0.1"; do
+         "tcp://" "tcp://127.0.0.1:99999" "tcp://127.0.0.1?unit=300" "rtu:/dev/ttyS0?baud=fast" "udp://127.0.0.1" \
+         "ads://10.0.3.11" "ads://127.0.0.1:48898?netid=10.0.3.11.1.1&source=10.0.3.1.1.1" "ads://tv/tt" \
+         "ads://h?netid=1.2.3"; do
   printf '%s' "$s" > corpus/port_uri/$((n++))
 done
 
@@ -110,4 +112,11 @@ variant("response-delay-float.json", lambda j: j.__setitem__("response_delay", 2
 # Found by fuzz_state: a station naming a type the catalog does not know (was exit 2, not 7).
 variant("station-unknown-type.json", lambda j: j.__setitem__("station", j["station"].replace("KL6001", "KL4505")))
 PY
+# Session journals (fuzz_journal.cpp): what kscfg writes (entered, control bytes, left), one cut
+# by a kill -9 inside a line, and forged ones (offsets beyond the image, huge positions).
+printf '+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n' > corpus/journal/left
+printf '+ 3 0 16 16 18 19 18 19 16 000041420000000000000000000000000000000000000000 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n' > corpus/journal/open
+printf '+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n> 4 1 a4\n+ 2 0 8 8 10 11 10 11 8 0000000000000000 ?\n> 2 0 8' > corpus/journal/cut
+printf '+ 1 0 600 0 2 3 2 3 0 00 KL6001\n+ 99999 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 zz\n- 1\n' > regressions/journal/forged
+
 echo "seeds: $(find corpus -type f | wc -l) corpus files, $(find regressions -type f | wc -l) regression inputs"

@@ -40,9 +40,12 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
     close(out[0]);
     close(err[0]);
     close(in[1]);
-    // Scans of Modbus couplers are kept per port in $XDG_CACHE_HOME/kscfg: a test's go in a
-    // directory of this test process, not in the user's cache.
+    // Scans of Modbus couplers are kept per port in $XDG_CACHE_HOME/kscfg, session journals in
+    // $XDG_STATE_HOME/kscfg/sessions, coupler locks in $KSCFG_LOCK_DIR: a test's go in a directory
+    // of this test process, not in the user's.
     setenv("XDG_CACHE_HOME", cache.c_str(), 1);
+    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
+    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
     for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
     std::vector<char*> argv;
     std::string bin = KSCFG_BIN;
@@ -92,6 +95,70 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
   waitpid(pid, &status, 0);
   r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
   return r;
+}
+
+std::string kscfg_cache_dir() { return test_cache_dir(); }
+std::string kscfg_state_dir() { return test_cache_dir() + "/state/kscfg"; }
+std::string kscfg_lock_dir() { return test_cache_dir() + "/locks"; }
+
+bool wait_for(const std::function<bool()>& cond, double timeout_s) {
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  for (;;) {
+    if (cond()) return true;
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    usleep(2000);
+  }
+}
+
+Child::Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env) {
+  const std::string& cache = test_cache_dir();
+  std::string out = dir.file("out"), err = dir.file("err");
+  pid = fork();
+  if (pid == 0) {
+    int o = open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    int e = open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    int n = open("/dev/null", O_RDONLY);
+    dup2(o, 1);
+    dup2(e, 2);
+    dup2(n, 0);
+    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
+    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
+    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
+    for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
+    std::vector<std::string> copy = args;
+    std::string bin = KSCFG_BIN;
+    std::vector<char*> argv{bin.data()};
+    for (auto& a : copy) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    execv(bin.c_str(), argv.data());
+    _exit(127);
+  }
+  if (pid < 0) throw std::runtime_error("fork");
+}
+
+void Child::signal(int sig) const {
+  if (pid > 0) kill(pid, sig);
+}
+
+bool Child::running() {
+  if (pid <= 0) return false;
+  int st = 0;
+  if (waitpid(pid, &st, WNOHANG) != pid) return true;
+  status = WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
+  pid = -1;
+  return false;
+}
+
+int Child::wait(double timeout_s) {
+  wait_for([&] { return !running(); }, timeout_s);
+  return status;
+}
+
+Child::~Child() {
+  if (pid > 0) {
+    kill(pid, SIGKILL);
+    waitpid(pid, nullptr, 0);
+  }
 }
 
 bool one_line_error(const Run& r) {

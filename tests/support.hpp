@@ -1,5 +1,6 @@
 // Test helpers: run the kscfg binary, temporary directories, in-process stations.
 #pragma once
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -15,6 +16,15 @@ struct Run {
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
           double timeout_s = 60, const std::string& input = "");
+
+// What run_kscfg() and Child give kscfg: XDG_CACHE_HOME is this directory (one per test process),
+// XDG_STATE_HOME its state/ and KSCFG_LOCK_DIR its locks/.
+std::string kscfg_cache_dir();
+std::string kscfg_state_dir();  // .../state/kscfg
+std::string kscfg_lock_dir();
+
+// Waits until `cond` holds, looking every 2 ms, at most `timeout_s` seconds; returns whether it did.
+bool wait_for(const std::function<bool()>& cond, double timeout_s = 30);
 
 // A fresh temporary directory, removed when the object dies.
 struct TempDir {
@@ -32,6 +42,26 @@ bool one_line_error(const Run& r);
 
 // The width of the widest line of text (the 80-column checks).
 std::size_t widest_line(const std::string& text);
+
+// kscfg running as a child process (two at once, a kill -9 or a signal at a chosen point), with
+// the environment of run_kscfg() and `env`; stdout and stderr go to files. Killed (SIGKILL) when the
+// object dies, so no test leaves one behind.
+struct Child {
+  explicit Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {});
+  ~Child();
+  Child(const Child&) = delete;
+  Child& operator=(const Child&) = delete;
+  void signal(int sig) const;
+  // Its exit status as run_kscfg() gives it (-N for signal N), waiting at most `timeout_s`; -999
+  // when it is still running then.
+  int wait(double timeout_s = 60);
+  bool running();
+  std::string out() const { return read_text(dir.file("out")); }
+  std::string err() const { return read_text(dir.file("err")); }
+  TempDir dir;
+  int pid = -1;
+  int status = -999;
+};
 
 // An emulator with its own state file; runs kscfg with KSCFG_PORT pointing at it.
 struct Emu {

@@ -42,7 +42,7 @@ class EmuReset : public Command {
   int run(Context& ctx) override {
     std::string path = state_path(ctx);
     StationSpec spec = station_.empty() ? default_station() : load_station_arg(station_, ctx.catalog());
-    reset_emulator_state(path, spec, ctx.catalog());
+    reset_emulator_state(path, spec, ctx.catalog(), ctx.lock_wait());
     if (ctx.json()) print_json({{"state", path}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}});
     else std::cout << fmt::format("emulator reset: {} with {} terminals ({})\n", spec.coupler, spec.terminals.size(), path);
     return 0;

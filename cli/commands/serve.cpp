@@ -23,7 +23,9 @@ namespace {
 class Serve : public Command {
  public:
   std::string name() const override { return "serve"; }
-  std::string brief() const override { return "Serve the emulated station over Modbus TCP, Modbus RTU or ADS"; }
+  std::string brief() const override {
+    return "Serve the emulated station over Modbus TCP, Modbus RTU or ADS (its state file: --port emu:PATH)";
+  }
   std::string man() const override {
     return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
            "\\fBemu:\\fR\\fIPATH\\fR or \\fBemu:mem\\fR) behind a Modbus server with the register map of a "
@@ -54,7 +56,13 @@ class Serve : public Command {
            "Every change is saved to the state file (atomically) within a fraction of a second, so a write "
            "that was acknowledged survives even a kill \\-9 of the server. Serving on an address that is "
            "not a loopback one (0.0.0.0, *, [::]) prints a warning: the emulator has no authentication. "
-           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0.\n"
+           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0. "
+           "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
+           "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
+           "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs: another kscfg on the "
+           "same file (\\fBkscfg \\-\\-port emu:\\fR\\fIPATH\\fR ...) waits for it, says after a moment "
+           "which process holds it (the serve, with its PID and command line), and gives up after "
+           "\\fB\\-\\-lock\\-wait\\fR seconds with status 11; use the server's port instead.\n"
            ".IP\n"
            "\\fB\\-\\-ads\\fR \\fIADDR\\fR:\\fIPORT\\fR serves the station as a BK9000's ADS (AMS/TCP) server instead, "
            "printing its URI (e.g. \\fBads://127.0.0.1:48898\\fR). Port 100 answers register reads and writes "
@@ -72,7 +80,8 @@ class Serve : public Command {
            "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR).";
   }
   std::vector<std::string> examples() const override {
-    return {"serve --tcp 127.0.0.1:5020", "serve --pty", "--port emu:station.json serve --tcp 0.0.0.0:502",
+    return {"serve --tcp 127.0.0.1:5020", "--port emu:station.json serve --pty",
+            "--port emu:station.json serve --tcp 0.0.0.0:502",
             "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
             "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7",
             "serve --ads 127.0.0.1:48898 --ads-route 192.168.1.20.1.1"};
@@ -146,7 +155,7 @@ class Serve : public Command {
                   "use --port emu, emu:PATH or emu:mem");
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
     // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
-    EmulatorStore store(path, ctx.catalog());
+    EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
     // Durable: the server saves the state soon after every change, not only when it stops.
     if (!store.path().empty()) so.save_state = [&store](const std::string& text) { store.save_text(text); };
     so.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };

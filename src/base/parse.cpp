@@ -24,6 +24,8 @@ const char* exit_name(Exit e) {
     case Exit::interrupted: return "interrupted";
     case Exit::unverified: return "unverified";
     case Exit::changed: return "changed";
+    case Exit::busy: return "busy";
+    case Exit::other_master: return "other_master";
     case Exit::internal: return "internal";
   }
   return "?";

@@ -1,5 +1,7 @@
 #include "kscfg/discovery/open.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <optional>
@@ -16,11 +18,26 @@
 
 namespace kscfg {
 
+namespace {
+
+std::string safe(const std::string& s) {
+  std::string o;
+  for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
+  return o;
+}
+
+}  // namespace
+
+std::string coupler_lock_path(const ModbusTarget& t) {
+  std::string key = t.tcp ? port_key(t) : fmt::format("rtu-{}", safe(t.device));
+  return (std::filesystem::path(lock_dir()) / (key + ".lock")).string();
+}
+
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    return std::make_unique<EmulatorLink>(path, catalog);
+    return std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait);
   }
   if (p.scheme == "ads") {
     // ADS (BK9000 family, BC/BX controllers): the image over port 300, the station from the
@@ -52,7 +69,11 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
   mo.ack_timeout_ms = opt.timeout_ms;
   mo.trace = opt.trace;
-  auto link = std::make_unique<ModbusLink>(modbus_target(p, uri), mo);
+  ModbusTarget target = modbus_target(p, uri);
+  // One kscfg at a time on a coupler of this computer (issue 21 item 1): before it connects.
+  OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
+                                      opt.lock_wait);
+  auto link = std::make_unique<ModbusLink>(target, mo, std::move(lock));
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(mo.ack_timeout_ms);
   so.trace = mo.trace;
@@ -60,29 +81,11 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
   so.notice = opt.notice;  // e.g. a dead session's register mode, finished by the scan's session
-  if (opt.journal && !opt.cache_dir.empty()) {
-    opt.journal->open((std::filesystem::path(opt.cache_dir) / "sessions").string(),
-                      port_key(link->client().target()));
+  if (opt.journal && !opt.journal_dir.empty()) {
+    opt.journal->open(opt.journal_dir, port_key(link->client().target()));
     so.journal = opt.journal;
   }
   discover_by_scan(*link, catalog, so, d);
-  if (so.journal) {
-    // Before anything else touches the station: what kscfg processes that died left in register
-    // mode, wherever on the station it is. A window outside the image the coupler reports now
-    // belongs to another station: dropped untouched.
-    std::optional<std::size_t> out_bytes, in_bytes;
-    ModbusLink& mb = *link;
-    auto fits = [&](const SessionJournal::Entry& e) {
-      if (!out_bytes) {
-        auto len = read_image_lengths(mb.client());  // complex out, complex in, digital out, digital in (bits)
-        out_bytes = (len[0] + len[2] + 7) / 8;
-        in_bytes = (len[1] + len[3] + 7) / 8;
-      }
-      const RegisterWindow& w = e.window;
-      return std::max({w.ctrl, w.out_lo, w.out_hi}) < *out_bytes && std::max({w.status, w.in_lo, w.in_hi}) < *in_bytes;
-    };
-    finish_dead_sessions(*link, catalog, so, fits);
-  }
   return link;
 }
 
@@ -93,6 +96,24 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
     return std::make_unique<AdsAccess>(ads->client(), number, so.timeout, so.cancel);
   }
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
+}
+
+void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+                           const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
+  auto fits = [&](const SessionJournal::Entry& e) {
+    const StationLayout& L = layout_upto(e.position);
+    if (e.position < 1 || e.position > L.terminals.size()) return false;
+    const TerminalImage& t = L.terminal(e.position);
+    if (e.channel >= t.channels.size() || !t.channels[e.channel].window) return false;
+    const RegisterWindow& w = *t.channels[e.channel].window;
+    const RegisterWindow& j = e.window;
+    // A scan's session, before it knew the type (a type no catalog has: the scan's probe): its
+    // control and status byte are the terminal's.
+    if (!catalog.find(e.type)) return e.channel == 0 && j.ctrl == w.ctrl && j.status == w.status;
+    return e.type == t.type->type && j.ctrl == w.ctrl && j.status == w.status && j.out_lo == w.out_lo &&
+           j.out_hi == w.out_hi && j.in_lo == w.in_lo && j.in_hi == w.in_hi;
+  };
+  finish_dead_sessions(link, catalog, so, fits);
 }
 
 }  // namespace kscfg

@@ -6,9 +6,11 @@
 
 #include <algorithm>
 #include <memory>
+#include <set>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
+#include "kscfg/session/ack_latency.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg {
@@ -375,11 +377,23 @@ class ScanDiscovery : public StationDiscovery {
     primed_ = true;
     try {
       if (!cache_->lock(kLockSeconds)) return;
-      auto c = cache_->load(catalog_);
+      auto c = cache_->load(catalog_, so_.trace);
       cache_->unlock();
       if (!c) return;
-      for (auto [pos, w] : c->ack_wait) link_.set_ack_wait(pos, w);
       saved_wait_ = c->ack_wait;
+      saved_suspect_ = c->ack_suspect;
+      // --rescan starts from nothing, latencies too (issue 21 item 4); a latency longer than the
+      // timeout is no estimate (a read would sleep past the timeout): learned again.
+      for (auto [pos, w] : c->ack_wait) {
+        if (opt_.rescan) continue;
+        if (!ack_plausible(w, so_.timeout)) {
+          trace(fmt::format("the scan cache's acknowledge latency of terminal {} ({} us) is longer than the timeout "
+                            "({} ms): ignored, learned again",
+                            pos, w.count(), so_.timeout.count()));
+          continue;
+        }
+        link_.set_ack_wait(pos, w, c->ack_suspect.count(pos) > 0 || ack_suspect_when_kept(w, so_.timeout));
+      }
       if (!forgotten_ && !opt_.rescan) kept_ = std::move(c->scan);
     } catch (...) {
     }
@@ -391,21 +405,14 @@ class ScanDiscovery : public StationDiscovery {
       CachedScan c;
       if (r_) c.scan = *r_;
       else if (kept_) c.scan = *kept_;  // a command with --station: the scan kept stays
-      // What is kept is never the wait a slow answer raised (under load that ratchets up run
-      // after run: bench_modbus saw 2.6 ms grow to 78 ms per register): a latency learned in this
-      // run is kept as learned; one that held a whole run without an early poll, 3 % shorter (it
-      // comes down to what the terminal needs); one that a poll came too early for (the terminal
-      // did not answer yet: not a slow poll), an eighth longer at most. A run too short to learn
-      // (a single read) keeps the longest it timed and a quarter, so the next run polls once.
+      // The estimate as it stands (ack_latency.hpp), and whether it may be too long.
       for (const auto& [pos, t] : link_.ack_timings()) {
-        if (t.base.count() <= 0) {
-          if (t.samples > 0 && t.longest.count() > 0) c.ack_wait[pos] = t.longest + t.longest / 4;
-          continue;
-        }
-        if (t.missed) c.ack_wait[pos] = std::min(t.wait, t.base + t.base / 8);
-        else c.ack_wait[pos] = t.samples || t.acks < 8 ? t.base : t.base * 97 / 100;
+        auto keep = ack_keep(t);
+        if (keep.count() <= 0) continue;
+        c.ack_wait[pos] = keep;
+        if (t.suspect) c.ack_suspect.insert(pos);
       }
-      bool changed = dirty_ || c.ack_wait != saved_wait_;
+      bool changed = dirty_ || c.ack_wait != saved_wait_ || c.ack_suspect != saved_suspect_;
       if (!changed || (!c.scan && c.ack_wait.empty())) {
         cache_->unlock();
         return;
@@ -414,6 +421,7 @@ class ScanDiscovery : public StationDiscovery {
       if (cache_->store(c)) {
         dirty_ = false;
         saved_wait_ = c.ack_wait;
+        saved_suspect_ = c.ack_suspect;
       } else {
         trace(fmt::format("cannot write the scan cache {}", cache_->path()));
       }
@@ -468,6 +476,7 @@ class ScanDiscovery : public StationDiscovery {
   std::optional<ScanResult> r_;     // this run's
   std::optional<ScanResult> kept_;  // the cache's, not used (yet) in this run
   std::map<unsigned, std::chrono::microseconds> saved_wait_;
+  std::set<unsigned> saved_suspect_;
   bool dirty_ = false, forgotten_ = false, primed_ = false;
 };
 

@@ -3,16 +3,21 @@
 #include <fcntl.h>
 #include <fmt/format.h>
 #include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <thread>
 
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/discovery/scan.hpp"
 
 namespace kscfg {
@@ -55,15 +60,15 @@ bool ScanCache::lock(double timeout_s) {
   if (lock_fd_ >= 0) return true;
   std::error_code ec;
   fs::create_directories(fs::path(path_).parent_path(), ec);
-  int fd = ::open((path_ + ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  int fd = ::open((path_ + ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK, 0644);
   if (fd < 0) return false;
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
   while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
-    if ((errno != EWOULDBLOCK && errno != EINTR) || std::chrono::steady_clock::now() > deadline) {
+    if ((errno != EWOULDBLOCK && errno != EINTR) || std::chrono::steady_clock::now() > deadline ||
+        !sleep_for_or_cancelled(std::chrono::milliseconds(5))) {
       ::close(fd);
       return false;
     }
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   lock_fd_ = fd;
   return true;
@@ -155,17 +160,50 @@ json scan_to_json(const ScanResult& r) {
 
 }  // namespace
 
-std::optional<CachedScan> ScanCache::load(const Catalog& catalog) const {
+std::optional<CachedScan> ScanCache::load(const Catalog& catalog,
+                                          const std::function<void(const std::string&)>& note) const {
+  auto ignored = [&](const std::string& why) -> std::optional<CachedScan> {
+    if (note) note(fmt::format("the scan cache {} {}: ignored, the station is scanned again", path_, why));
+    return std::nullopt;
+  };
   try {
-    std::ifstream f(path_);
-    if (!f) return std::nullopt;
-    std::stringstream ss;
-    ss << f.rdbuf();
-    json j = json::parse(ss.str());
-    if (j.value("format", 0) != kFormat) return std::nullopt;
+    // Looked at before it is opened: a FIFO would block open(), a device or a link lead anywhere.
+    struct stat st {};
+    if (::lstat(path_.c_str(), &st) != 0) return std::nullopt;  // none yet
+    if (!S_ISREG(st.st_mode))
+      return ignored(S_ISLNK(st.st_mode)    ? "is a symbolic link"
+                     : S_ISFIFO(st.st_mode) ? "is a FIFO"
+                     : S_ISDIR(st.st_mode)  ? "is a directory"
+                                            : "is not a regular file");
+    if (static_cast<std::uintmax_t>(st.st_size) > kMaxBytes)
+      return ignored(fmt::format("has {} bytes, more than a scan cache has ({} KiB at most)", st.st_size,
+                                 kMaxBytes / 1024));
+    int fd = ::open(path_.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0) return ignored(fmt::format("cannot be read ({})", std::strerror(errno)));
+    std::string text;
+    try {
+      struct stat now {};
+      if (::fstat(fd, &now) != 0 || !S_ISREG(now.st_mode) || now.st_ino != st.st_ino) {
+        ::close(fd);
+        return ignored("changed while it was opened");
+      }
+      text = read_input_fd(fd, "scan cache", path_, kMaxBytes);
+    } catch (const Error& e) {
+      ::close(fd);
+      return ignored(fmt::format("cannot be read ({})", e.what()));
+    }
+    ::close(fd);
+    json j = json::parse(text);
+    if (j.value("format", 0) != kFormat) return ignored("is of another format");
     CachedScan c;
-    for (auto it = j.at("ack_wait_us").begin(); it != j.at("ack_wait_us").end(); ++it)
-      c.ack_wait[static_cast<unsigned>(std::stoul(it.key()))] = std::chrono::microseconds(it.value().get<long>());
+    for (auto it = j.at("ack_wait_us").begin(); it != j.at("ack_wait_us").end(); ++it) {
+      unsigned pos = static_cast<unsigned>(std::stoul(it.key()));
+      long us = it.value().get<long>();
+      if (pos == 0 || pos > 1024 || us <= 0) return ignored("holds an invalid acknowledge latency");
+      c.ack_wait[pos] = std::chrono::microseconds(us);
+    }
+    if (j.contains("ack_suspect"))
+      for (const json& p : j.at("ack_suspect")) c.ack_suspect.insert(p.get<unsigned>());
     if (!j.at("scan").is_null()) {
       try {
         c.scan = scan_from_json(j.at("scan"), catalog);
@@ -174,8 +212,8 @@ std::optional<CachedScan> ScanCache::load(const Catalog& catalog) const {
       }
     }
     return c;
-  } catch (const std::exception&) {
-    return std::nullopt;  // unreadable, corrupt, or from another version: scan again
+  } catch (const std::exception& e) {
+    return ignored(fmt::format("is corrupt ({})", e.what()));  // or from another version: scan again
   }
 }
 
@@ -184,6 +222,7 @@ bool ScanCache::store(const CachedScan& c) const noexcept {
     json wait = json::object();
     for (auto [pos, us] : c.ack_wait) wait[std::to_string(pos)] = us.count();
     json j{{"format", kFormat}, {"scan", c.scan ? scan_to_json(*c.scan) : json(nullptr)}, {"ack_wait_us", wait}};
+    if (!c.ack_suspect.empty()) j["ack_suspect"] = c.ack_suspect;
     std::error_code ec;
     fs::create_directories(fs::path(path_).parent_path(), ec);
     // Written beside and renamed over: a reader sees the old entry or the new one, never half of

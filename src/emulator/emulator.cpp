@@ -264,7 +264,7 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
 
 std::string EmulatorStore::default_path() { return (std::filesystem::path(state_dir()) / "emulator.json").string(); }
 
-EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lock_timeout_s) : path_(std::move(path)) {
+EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, const LockWait& wait) : path_(std::move(path)) {
   if (path_.empty() || path_ == "mem") {
     path_.clear();
     station_ = std::make_unique<EmulatedStation>(default_station(), catalog);
@@ -276,7 +276,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
   if (ec)
     throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
   // Beside the file a symbolic link points to, so that every name of it takes the same lock.
-  lock_fd_ = lock_file(resolve_link(path_) + ".lock", lock_timeout_s);
+  lock_ = OwnerLock::acquire(resolve_link(path_) + ".lock", fmt::format("the emulator state file {}", path_), wait);
   remove_stale_temporaries(path_);  // what a killed kscfg left, also when this run only reads
   struct stat st {};
   if (::stat(path_.c_str(), &st) != 0 && errno == ENOENT) {
@@ -287,8 +287,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
   try {
     text = read_input_file(path_, "the emulator state file");
   } catch (...) {
-    ::close(lock_fd_);
-    lock_fd_ = -1;
+    lock_.release();
     throw;
   }
   try {
@@ -296,8 +295,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
     station_ = EmulatedStation::from_json(j, catalog);
     saved_ = snapshot();
   } catch (const std::exception& e) {
-    ::close(lock_fd_);
-    lock_fd_ = -1;
+    lock_.release();
     std::string why = e.what();
     if (auto p = why.find('\n'); p != std::string::npos) why.resize(p);
     throw Error(Exit::file, fmt::format("emulator state file '{}' is corrupt ({})", path_, why),
@@ -305,9 +303,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, double lo
   }
 }
 
-EmulatorStore::~EmulatorStore() {
-  if (lock_fd_ >= 0) ::close(lock_fd_);
-}
+EmulatorStore::~EmulatorStore() = default;
 
 std::string EmulatorStore::snapshot() const { return station_->to_json().dump(1) + "\n"; }
 
@@ -323,8 +319,8 @@ bool EmulatorStore::save_text(const std::string& text) {
 // ---------------------------------------------------------------------------------------------
 // EmulatorLink
 
-EmulatorLink::EmulatorLink(std::string path, const Catalog& catalog)
-    : store_(std::make_unique<EmulatorStore>(std::move(path), catalog)), station_(&store_->station()) {}
+EmulatorLink::EmulatorLink(std::string path, const Catalog& catalog, const LockWait& wait)
+    : store_(std::make_unique<EmulatorStore>(std::move(path), catalog, wait)), station_(&store_->station()) {}
 
 EmulatorLink::EmulatorLink(EmulatedStation& station) : station_(&station) {}
 
@@ -374,7 +370,8 @@ void EmulatorLink::commit() {
 
 namespace kscfg {
 
-void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog) {
+void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog,
+                          const LockWait& wait) {
   EmulatedStation fresh(spec, catalog);
   // The coupler's limits, as `map` applies them (a Modbus coupler's register map holds 512 bytes).
   check_image_limits(fresh.layout(), coupler_profile(spec.coupler));
@@ -383,14 +380,9 @@ void reset_emulator_state(const std::string& path, const StationSpec& spec, cons
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
   if (ec) throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
-  int fd = lock_file(resolve_link(path) + ".lock", 10.0);
-  try {
-    write_file_atomic(path, fresh.to_json().dump(1) + "\n");
-  } catch (...) {
-    ::close(fd);
-    throw;
-  }
-  ::close(fd);
+  OwnerLock lock =
+      OwnerLock::acquire(resolve_link(path) + ".lock", fmt::format("the emulator state file {}", path), wait);
+  write_file_atomic(path, fresh.to_json().dump(1) + "\n");
 }
 
 }  // namespace kscfg

@@ -323,6 +323,7 @@ void ModbusClient::connect() {
       int e = errno;
       modbus_free(ctx_);
       ctx_ = nullptr;
+      if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
       if (e == ECONNREFUSED && connected_once_)
         // It answered earlier in this run: it was stopped or reset meanwhile, not misaddressed.
         throw Error(Exit::link,
@@ -361,22 +362,127 @@ void ModbusClient::connect() {
   ms(std::max(50u, opt_.response_timeout_ms / 2), modbus_set_byte_timeout, ctx_);
 }
 
-template <class F>
-void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, bool* refused) {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+// A reply is waited for in slices this long, the interrupt flag looked at between two.
+constexpr std::chrono::milliseconds kSlice{20};
+
+// The reply in rsp[0..n) (header of hl bytes) to function `fc`: its PDU offset, or -1 with errno
+// set as libmodbus sets it (an exception: MODBUS_ENOBASE + code; anything else: EMBBADDATA).
+int reply_pdu(const std::uint8_t* rsp, int n, int hl, int fc) {
+  if (n < hl + 2 || (hl == 7 && (rsp[2] != 0 || rsp[3] != 0))) {  // MBAP: protocol id 0
+    errno = EMBBADDATA;
+    return -1;
+  }
+  if (rsp[hl] == (fc | 0x80)) {
+    errno = MODBUS_ENOBASE + rsp[hl + 1];
+    return -1;
+  }
+  if (rsp[hl] != fc) {
+    errno = EMBBADDATA;
+    return -1;
+  }
+  return hl;
+}
+
+// A reply that carries `count` registers (FC3, FC23) into `dst`.
+int parse_registers(const std::uint8_t* rsp, int n, int hl, int fc, unsigned count, std::uint16_t* dst) {
+  int p = reply_pdu(rsp, n, hl, fc);
+  if (p < 0) return -1;
+  if (rsp[p + 1] != 2 * count || n < p + 2 + 2 * static_cast<int>(count)) {
+    errno = EMBBADDATA;
+    return -1;
+  }
+  for (unsigned i = 0; i < count; ++i)
+    dst[i] = static_cast<std::uint16_t>(rsp[p + 2 + 2 * i] << 8 | rsp[p + 3 + 2 * i]);
+  return static_cast<int>(count);
+}
+
+// The reply to FC16: the address and quantity written, echoed.
+int parse_written(const std::uint8_t* rsp, int n, int hl, std::uint16_t addr, unsigned count) {
+  int p = reply_pdu(rsp, n, hl, 0x10);
+  if (p < 0) return -1;
+  if (n < p + 5 || (rsp[p + 1] << 8 | rsp[p + 2]) != addr || (rsp[p + 3] << 8 | rsp[p + 4]) != static_cast<int>(count)) {
+    errno = EMBBADDATA;
+    return -1;
+  }
+  return static_cast<int>(count);
+}
+
+}  // namespace
+
+void ModbusClient::set_response_timeout(std::chrono::microseconds t) {
+  auto us = std::max<long long>(t.count(), 1000);
+  modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(us / 1000000), static_cast<std::uint32_t>(us % 1000000));
+}
+
+template <class P>
+int ModbusClient::wait_reply(Clock::time_point sent, P&& parse) {
+  const auto deadline = sent + std::chrono::milliseconds(opt_.response_timeout_ms);
+  std::uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+  for (;;) {
+    if (g_interrupted) {
+      errno = EINTR;
+      return -1;
+    }
+    auto left = std::chrono::duration_cast<std::chrono::microseconds>(deadline - Clock::now());
+    if (left.count() <= 0) {
+      errno = ETIMEDOUT;
+      return -1;
+    }
+    set_response_timeout(std::min<std::chrono::microseconds>(left, kSlice));
+    int n = modbus_receive_confirmation(ctx_, rsp);
+    if (n >= 0) return parse(rsp, n, modbus_get_header_length(ctx_));
+    if (errno != ETIMEDOUT) return -1;
+  }
+}
+
+template <class F, class P>
+void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused) {
   unsigned timeouts = 0, others = 0;
   bool busy = false;  // an attempt was answered "busy" (exception 6)
   for (;;) {
-    // Interrupted: no more attempts (the first one is made: it may put a terminal back).
-    if (g_interrupted && timeouts + others > 0) throw Error(Exit::interrupted, "interrupted");
+    if (!dead_.empty())
+      throw Error(Exit::link, dead_,
+                  target_.tcp ? "check that the coupler is running and reachable" : "check the line and the coupler");
+    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
     if (!ctx_) connect();
+    if (drain_) {
+      drain_ = false;
+      drain_late_reply();
+      modbus_flush(ctx_);
+    }
     ++exchanges_;
     errno = 0;
-    if (f(ctx_) >= 0) return;
+    auto sent = Clock::now();
+    set_response_timeout(std::min<std::chrono::microseconds>(std::chrono::milliseconds(opt_.response_timeout_ms), kSlice));
+    int rc = f(ctx_);
+    if (rc < 0 && errno == ETIMEDOUT) rc = wait_reply(sent, parse);
+    if (rc >= 0) {
+      silent_ = 0;
+      return;
+    }
     int e = errno;
+    if (e == EINTR && g_interrupted) {
+      // Given up on: its reply may still come. TCP leaves it behind with the connection; RTU reads
+      // it off the line before the next request (drain_late_reply).
+      if (opt_.trace)
+        opt_.trace(fmt::format("modbus {}: interrupted after waiting {} ms for the reply ({})", what,
+                               std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - sent).count(),
+                               target_.where()));
+      if (target_.tcp) disconnect();
+      else drain_ = true;
+      // An attempt of it had gone unanswered already: that counts towards a dead link.
+      if (timeouts > 0 && ++silent_ >= 2)
+        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
+      throw Error(Exit::interrupted, "interrupted");
+    }
     bool timeout = e == ETIMEDOUT;
     bool transient = is_garbled(e) || e == EMBXSBUSY || is_broken(e);
     if (opt_.trace) opt_.trace(fmt::format("modbus {}: {} ({})", what, errtext(e), target_.where()));
     if (is_exception(e) && e != EMBXSBUSY) {
+      silent_ = 0;
       int code = e - MODBUS_ENOBASE;
       if (code == 2 && refused) {
         *refused = true;
@@ -392,6 +498,9 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
       throw Error(Exit::link, fmt::format("{} failed on {}: {}", what, target_.where(), errtext(e)));
     if ((timeout && timeouts >= opt_.timeout_retries) || (!timeout && others >= opt_.retries)) {
       std::string attempts = fmt::format("{} attempt{}", timeouts + others + 1, timeouts + others ? "s" : "");
+      // No answer at all, attempt after attempt: after the second such request the link is dead.
+      if ((timeout || is_broken(e)) && ++silent_ >= 2)
+        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
       if (timeout)
         throw Error(Exit::link,
                     fmt::format("no answer from {} within {} ms ({}, {})", target_.where(), opt_.response_timeout_ms,
@@ -466,7 +575,8 @@ std::vector<std::uint16_t> ModbusClient::read(std::uint16_t addr, unsigned count
     unsigned n = std::min(count - done, mbmap::kMaxRead);
     auto a = static_cast<std::uint16_t>(addr + done);
     run(fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, n,
-        [&](modbus_t* c) { return modbus_read_registers(c, a, static_cast<int>(n), v.data() + done); });
+        [&](modbus_t* c) { return modbus_read_registers(c, a, static_cast<int>(n), v.data() + done); },
+        [&](const std::uint8_t* r, int len, int hl) { return parse_registers(r, len, hl, 0x03, n, v.data() + done); });
     done += n;
   }
   return v;
@@ -476,7 +586,9 @@ std::optional<std::vector<std::uint16_t>> ModbusClient::read_optional(std::uint1
   std::vector<std::uint16_t> v(count);
   bool refused = false;
   run(fmt::format("reading {} register{} at 0x{:04X}", count, count == 1 ? "" : "s", addr), addr, count,
-      [&](modbus_t* c) { return modbus_read_registers(c, addr, static_cast<int>(count), v.data()); }, &refused);
+      [&](modbus_t* c) { return modbus_read_registers(c, addr, static_cast<int>(count), v.data()); },
+      [&](const std::uint8_t* r, int len, int hl) { return parse_registers(r, len, hl, 0x03, count, v.data()); },
+      &refused);
   if (refused) return std::nullopt;
   return v;
 }
@@ -486,9 +598,8 @@ void ModbusClient::write(std::uint16_t addr, std::span<const std::uint16_t> valu
     std::size_t n = std::min<std::size_t>(values.size() - done, mbmap::kMaxWrite);
     auto a = static_cast<std::uint16_t>(addr + done);
     run(fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, static_cast<unsigned>(n),
-        [&](modbus_t* c) {
-      return modbus_write_registers(c, a, static_cast<int>(n), values.data() + done);
-    });
+        [&](modbus_t* c) { return modbus_write_registers(c, a, static_cast<int>(n), values.data() + done); },
+        [&](const std::uint8_t* r, int len, int hl) { return parse_written(r, len, hl, a, static_cast<unsigned>(n)); });
     done += n;
   }
 }
@@ -500,10 +611,13 @@ std::vector<std::uint16_t> ModbusClient::write_read(std::uint16_t waddr, std::sp
     return read(raddr, count);
   }
   std::vector<std::uint16_t> v(count);
-  run(fmt::format("writing 0x{:04X} and reading 0x{:04X} (FC23)", waddr, raddr), raddr, count, [&](modbus_t* c) {
-    return modbus_write_and_read_registers(c, waddr, static_cast<int>(values.size()), values.data(), raddr,
-                                           static_cast<int>(count), v.data());
-  });
+  run(
+      fmt::format("writing 0x{:04X} and reading 0x{:04X} (FC23)", waddr, raddr), raddr, count,
+      [&](modbus_t* c) {
+        return modbus_write_and_read_registers(c, waddr, static_cast<int>(values.size()), values.data(), raddr,
+                                               static_cast<int>(count), v.data());
+      },
+      [&](const std::uint8_t* r, int len, int hl) { return parse_registers(r, len, hl, 0x17, count, v.data()); });
   return v;
 }
 

@@ -13,8 +13,8 @@ namespace kscfg {
 // ---------------------------------------------------------------------------------------------
 // ModbusLink. Register n carries image byte 2n in its low byte and 2n+1 in its high byte.
 
-ModbusLink::ModbusLink(ModbusTarget target, ModbusOptions opt)
-    : client_(std::move(target), std::move(opt)), out_cache_(2 * mbmap::kImageRegisters, -1) {
+ModbusLink::ModbusLink(ModbusTarget target, ModbusOptions opt, OwnerLock lock)
+    : lock_(std::move(lock)), client_(std::move(target), std::move(opt)), out_cache_(2 * mbmap::kImageRegisters, -1) {
   count();
 }
 
@@ -33,10 +33,11 @@ ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
   }
   auto it = timings_.find(position);
   if (it == timings_.end()) {
-    // A terminal not timed yet: start from the slowest one known on this coupler.
+    // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
+    // may be too long (probed below).
     AckTiming t;
-    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.base);
-    t.base = t.wait;
+    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait);
+    t.suspect = t.wait.count() > 0;
     it = timings_.emplace(position, t).first;
   }
   return &it->second;

@@ -434,8 +434,18 @@ std::string RollbackResult::text(const std::string& what) const {
   if (ok())
     return fmt::format("{} is as it was: verified by reading {} register{} ({}) and R31 = 0x0000", what,
                        verified.size(), verified.size() == 1 ? "" : "s", seen);
+  // "R36 (could not be read: WHY)" for many registers with one WHY (a dead link) is said once:
+  // "R36, R37, R38 (could not be read: WHY)".
+  std::vector<std::pair<std::string, std::string>> groups;  // registers, "(could not be read: WHY)"
+  for (const auto& u : unverified) {
+    auto sp = u.find(" (could not be read: ");
+    std::string reg = sp == std::string::npos ? u : u.substr(0, sp);
+    std::string why = sp == std::string::npos ? "" : u.substr(sp + 1);
+    if (!why.empty() && !groups.empty() && groups.back().second == why) groups.back().first += ", " + reg;
+    else groups.emplace_back(reg, why);
+  }
   std::string bad;
-  for (const auto& u : unverified) bad += (bad.empty() ? "" : ", ") + u;
+  for (const auto& [regs, why] : groups) bad += (bad.empty() ? "" : ", ") + regs + (why.empty() ? "" : " " + why);
   return fmt::format("could not verify {}: {}{}", what, bad, seen.empty() ? "" : "; read back as before: " + seen);
 }
 

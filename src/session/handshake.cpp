@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <thread>
 
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/protocol/codec.hpp"
+#include "kscfg/session/leftover_watch.hpp"
 
 namespace kscfg {
 
@@ -14,15 +16,12 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::microseconds;
 
-// Timing on links that pipeline (Modbus). Until a terminal's acknowledge latency is known, the
-// first poll goes out this long after the request and the next ones every kStep (or an eighth of
-// the time since the request, whichever is longer); the latency is then the longest of
-// kLearnSamples acknowledges.
-constexpr microseconds kLearnFirst{500};
+// Timing on links that pipeline (Modbus). The first poll goes out when ack_latency.hpp says; the
+// next ones every kStep (or an eighth of the estimate, or of the time since the request, whichever
+// is longest).
 constexpr microseconds kStep{250};
-constexpr unsigned kLearnSamples = 3;
-// A read-ahead (or a restore with the last poll) that came too early raises the wait by an eighth;
-// after this many in a run, no more speculation on that terminal.
+// After this many read-aheads (or restores with the last poll) that came too early in a run, no
+// more speculation on that terminal.
 constexpr unsigned kMaxMisses = 3;
 // Bytes read for the save of several channels in one request: a Modbus read carries 125 registers.
 constexpr std::size_t kSaveSpan = 240;
@@ -30,6 +29,15 @@ constexpr std::size_t kSaveSpan = 240;
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
 
 }  // namespace
+
+HandshakeAccess::Paused::Paused(const HandshakeAccess& a, bool cleanup) {
+  active = cleanup && a.opt_.cancel == &g_interrupted && g_interrupted.load();
+  if (active) was = pause_interrupt();
+}
+
+HandshakeAccess::Paused::~Paused() {
+  if (active) resume_interrupt(was);
+}
 
 HandshakeAccess::HandshakeAccess(Link& link, HandshakeOptions opt) : link_(link), opt_(std::move(opt)) {}
 
@@ -129,10 +137,15 @@ void HandshakeAccess::journal_enter(Chan& c) {
                            opt_.journal->why(), who(c)));
 }
 
+void HandshakeAccess::journal_ctrl(Chan& c) {
+  if (c.journaled && opt_.journal) opt_.journal->control(c.key.position, c.key.channel, c.shadow[c.w.ctrl - c.out_lo]);
+}
+
 void HandshakeAccess::put_request(Chan& c, bool write, unsigned reg, std::uint16_t value) {
   journal_enter(c);
   // Value bytes and control byte travel in one write: the value is never behind the control byte.
   c.shadow[c.w.ctrl - c.out_lo] = proto::control_byte(write, reg);
+  journal_ctrl(c);
   if (write) {
     c.shadow[c.w.out_lo - c.out_lo] = static_cast<std::uint8_t>(value & 0xFF);
     c.shadow[c.w.out_hi - c.out_lo] = static_cast<std::uint8_t>(value >> 8);
@@ -148,6 +161,7 @@ void HandshakeAccess::put_restore(Chan& c, bool ctrl_only) {
   auto saved = [&](std::size_t b) { return c.saved[b - c.saved_at]; };
   if (ctrl_only) {
     c.shadow[c.w.ctrl - c.out_lo] = saved(c.w.ctrl);
+    journal_ctrl(c);
     c.out_at = c.w.ctrl;
     c.out_n = 1;
     return;
@@ -163,6 +177,7 @@ void HandshakeAccess::put_restore(Chan& c, bool ctrl_only) {
   c.out_n = 0;
   if (lo > hi) return;
   for (std::size_t b = lo; b <= hi; ++b) c.shadow[b - c.out_lo] = saved(b);
+  journal_ctrl(c);
   c.out_at = lo;
   c.out_n = hi - lo + 1;
 }
@@ -182,12 +197,53 @@ void HandshakeAccess::closed_now(Chan& c) {
 }
 
 void HandshakeAccess::sleep_until(Clock::time_point t) const {
-  // In short steps, so that SIGINT/SIGTERM end a wait within a few milliseconds.
-  for (auto now = Clock::now(); now < t && !cancelled(); now = Clock::now())
-    std::this_thread::sleep_for(std::min<Clock::duration>(t - now, std::chrono::milliseconds(5)));
+  // In short steps, so that SIGINT/SIGTERM end a wait within a few milliseconds; clean-up (only
+  // shielded programs left) sleeps on after the first signal, not after a second.
+  bool unshielded = std::any_of(chans_.begin(), chans_.end(),
+                                [](const auto& kv) { return kv.second.prog && !kv.second.prog->shielded; });
+  for (auto now = Clock::now(); now < t; now = Clock::now()) {
+    if ((unshielded && cancelled()) || abandoned()) return;
+    std::this_thread::sleep_for(std::min<Clock::duration>(t - now, kInterruptSlice));
+  }
 }
 
-void HandshakeAccess::save(std::vector<Chan*>& chans) {
+bool HandshakeAccess::watch_found(Chan& c) {
+  // Another master at work (a kscfg on another computer, KS2000 on the service port) changes the
+  // control byte with every request; a dead session's stays. Never taken for a leftover on first
+  // sight (issue 21 item 1): watched for as long as a live handshake can go without a step. A
+  // journal's entry (adopt_dead) says whose it is: no watch.
+  if (c.dead_entry || !link_.other_masters_possible()) return true;
+  static const std::atomic<bool> never{false};
+  auto quiet = std::clamp(opt_.timeout, std::chrono::milliseconds(100), std::chrono::milliseconds(5000));
+  LeftoverWatch v = watch_leftover(link_, c.w, quiet, 4 * quiet, std::chrono::milliseconds(10),
+                                   opt_.cancel ? *opt_.cancel : never);
+  note_trace(fmt::format("{}: control byte 0x{:02X} found in register mode; watched {} ms: {}", who(c), v.ctrl_first,
+                         v.watched.count(),
+                         v.verdict == LeftoverWatch::Verdict::leftover       ? "unchanged, a dead session's"
+                         : v.verdict == LeftoverWatch::Verdict::process_data ? "back in process-data mode"
+                                                                             : v.text()));
+  if (v.verdict == LeftoverWatch::Verdict::other_master)
+    throw Error(Exit::other_master,
+                fmt::format("another master is using {}: {} in register mode; nothing was written", who(c), v.text()),
+                "a kscfg on another computer or KS2000 on the coupler; try again when it has finished");
+  if (v.verdict == LeftoverWatch::Verdict::leftover) return true;
+  // Finished by the other master: the bytes as they are now are process data.
+  link_.read_outputs(c.saved_at, c.saved);
+  return (c.saved[c.w.ctrl - c.saved_at] & proto::kReg) != 0;
+}
+
+HandshakeAccess::Request HandshakeAccess::sent_request(Chan& c, bool write, unsigned reg, std::uint16_t value,
+                                                       Clock::time_point t) const {
+  Request r;
+  r.write = write;
+  r.reg = reg;
+  r.value = write ? value : 0;
+  r.sent = r.since = t;
+  if (link_.pipelines() && c.timing) r.ack = ack_plan(*c.timing, opt_.timeout);
+  return r;
+}
+
+void HandshakeAccess::save(std::vector<Chan*>& chans, std::vector<Program*>& done) {
   std::sort(chans.begin(), chans.end(), [](const Chan* a, const Chan* b) { return a->saved_at < b->saved_at; });
   for (std::size_t i = 0; i < chans.size();) {
     // One read for the channels that fit in one request.
@@ -202,13 +258,23 @@ void HandshakeAccess::save(std::vector<Chan*>& chans) {
       Chan& c = *chans[i];
       std::copy_n(buf.begin() + static_cast<std::ptrdiff_t>(c.saved_at - lo), c.saved.size(), c.saved.begin());
       auto at = [&](std::size_t b) -> std::uint8_t& { return c.saved[b - c.saved_at]; };
+      bool leftover = false;
+      if (at(c.w.ctrl) & proto::kReg) {
+        try {
+          leftover = watch_found(c);
+        } catch (const Error& e) {
+          if (e.code() == Exit::interrupted) throw;
+          fail(c, e, done);  // another master (or the link): this channel only
+          continue;
+        }
+      }
       c.shadow.assign(c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_lo - c.saved_at),
                       c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_hi - c.saved_at + 1));
       // A control byte in register mode is not process data: a session died here (docs/design.md
       // section 6). Restoring it would repeat that session's request (the code word, say) after
       // ours, so what goes back are the idle process-data bytes, or those the dead session found
       // when its journal says so.
-      if (at(c.w.ctrl) & proto::kReg) {
+      if (leftover) {
         c.found.leftover = at(c.w.ctrl);
         if (c.dead_entry) {
           const auto& e = *c.dead_entry;
@@ -231,8 +297,9 @@ void HandshakeAccess::save(std::vector<Chan*>& chans) {
 std::vector<Program*> HandshakeAccess::advance() {
   std::vector<Program*> done;
   if (cancelled()) {
+    bool all = abandoned();  // a second signal: clean-up ends too
     for (auto& [k, c] : chans_)
-      if (c.prog && !c.prog->shielded) fail(c, Error(Exit::interrupted, "interrupted"), done);
+      if (c.prog && (all || !c.prog->shielded)) fail(c, Error(Exit::interrupted, "interrupted"), done);
     if (!done.empty()) return done;
   }
   // Channels whose work begins: their process-data bytes saved, in one request where they fit.
@@ -241,14 +308,14 @@ std::vector<Program*> HandshakeAccess::advance() {
     if (c.prog && !c.ready) fresh.push_back(&c);
   if (!fresh.empty()) {
     try {
-      save(fresh);
+      save(fresh, done);
     } catch (const Error& e) {
       for (Chan* c : fresh)
         if (!c->ready) fail(*c, e, done);
       return done;
     }
     for (Chan* c : fresh)
-      if (c->prog && c->prog->ops.empty() && !c->prog->close_after) finish(*c, done);
+      if (c->ready && c->prog && c->prog->ops.empty() && !c->prog->close_after) finish(*c, done);
     return done;
   }
 
@@ -298,6 +365,10 @@ std::vector<Program*> HandshakeAccess::advance() {
     xs.push_back(x);
   }
   auto t = Clock::now();
+  // Clean-up after SIGINT/SIGTERM (only shielded programs left) exchanges as if there were no
+  // interrupt, so that the link does not cut its waits short; a second signal still does
+  // (base/interrupt.hpp pause_interrupt).
+  Paused paused(*this, std::none_of(act.begin(), act.end(), [](const Chan* c) { return !c->prog->shielded; }));
   try {
     link_.transfer(xs);
   } catch (const Error& e) {
@@ -355,18 +426,20 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   // A request is in the control byte: poll once its answer is due.
   const Request& r = *c.req;
   bool timed = link_.pipelines() && c.timing;
-  bool known = timed && c.timing->wait.count() > 0;
+  bool known = timed && r.ack.known();
   Clock::time_point when = now;
   if (!timed) {
     // The emulator runs a K-bus cycle on every read: poll at once; a terminal that does not
     // answer is not worth spinning on.
     if (r.polls > 64) when = c.last_poll + microseconds(200);
   } else if (r.polls == 0) {
-    when = r.sent + (known ? c.timing->wait : kLearnFirst);
+    when = r.sent + r.ack.first;
+  } else if (r.polls == 1 && r.ack.probe) {
+    when = r.sent + r.ack.wait;  // a probe below the estimate came too early: the usual poll next
   } else {
     // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the
     // time since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
-    microseconds step = known ? std::max(kStep, c.timing->wait / 8) : kStep;
+    microseconds step = known ? std::max(kStep, r.ack.wait / 8) : kStep;
     when = c.last_poll + std::max(step, us(c.last_poll - r.sent) / 8);
   }
   if (now < when) {
@@ -374,7 +447,8 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
     return;
   }
   c.act = Act::poll;
-  bool speculate = known && c.timing->misses < kMaxMisses;
+  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
+  bool speculate = known && !r.ack.probe && c.timing->misses < kMaxMisses;
   if (r.polls == 0 && !r.write && !r.probe && speculate && !c.ahead) {
     if (k + 1 < p.ops.size() && !p.ops[k + 1].write && p.ops[k + 1].reg != r.reg) {
       put_request(c, false, p.ops[k + 1].reg, 0);  // read-ahead
@@ -422,12 +496,8 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
         return;
       }
       const RegisterOp& op = p.ops[p.values.size()];
-      Request r;
-      r.write = !probe && op.write;
-      r.reg = reg;
-      r.value = r.write ? op.value : 0;
+      Request r = sent_request(c, !probe && op.write, reg, op.value, t);
       r.probe = probe;
-      r.sent = r.since = t;
       c.req = r;
       c.last_status.reset();
       return;
@@ -439,23 +509,11 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
   Request& r = *c.req;
   ++r.polls;
   std::uint8_t st = status();
-  bool known = c.timing && c.timing->wait.count() > 0;
+  bool timed = link_.pipelines() && c.timing;
+  bool known = timed && r.ack.known();
   if (proto::is_ack(st, r.reg)) {
     if (!r.probe) {
-      if (c.timing) {
-        auto& T = *c.timing;
-        ++T.acks;
-        microseconds took = us(t - r.sent);
-        if (!known) {
-          // Learning: time a few acknowledges, then trust the longest.
-          T.longest = std::max(T.longest, took);
-          if (++T.samples >= kLearnSamples) T.wait = T.base = T.longest;
-        } else if (r.polls > 1) {
-          // It needed longer than thought, bounded by twice what the run started with.
-          microseconds cap = 2 * (T.base.count() > 0 ? T.base : T.wait);
-          T.wait = std::max(T.wait, std::min(took, cap));
-        }
-      }
+      if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
                                r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
@@ -476,10 +534,7 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
       c.last_status = st;
     }
     if (c.with_ahead) {
-      Request a;
-      a.reg = p.ops[p.values.size()].reg;
-      a.sent = a.since = t;
-      c.req = a;
+      c.req = sent_request(c, false, p.ops[p.values.size()].reg, 0, t);
     } else if (c.ahead) {
       c.req = *c.ahead;
       c.ahead.reset();
@@ -489,30 +544,21 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) finish(c, done);
     return;
   }
-  // Not answered yet. A read-ahead or restore that came too early: the terminal is slower than
-  // thought; how much is unknown, so an eighth more (its latency is quantised by its bus cycle).
-  if (r.polls == 1 && known && (c.with_ahead || c.with_restore)) {
-    auto& T = *c.timing;
-    T.missed = true;
-    ++T.misses;
-    microseconds cap = 2 * (T.base.count() > 0 ? T.base : T.wait);
-    T.wait = std::min(T.wait + T.wait / 8, std::max(cap, T.wait));
-  }
+  // Not answered yet: the first poll at the estimate came too early (ack_latency.hpp).
+  if (r.polls == 1 && known) ack_early(*c.timing, r.ack);
   if (c.with_restore) {
-    // The control byte is back to what was found: the request is gone. Ask again.
+    // The control byte is back to what was found: the request is gone. Ask again; how much slower
+    // the terminal is is unknown (ack_replaced).
+    if (known) ack_replaced(*c.timing, opt_.timeout);
     note_trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(c), r.reg));
     c.last_status = st;
     c.req.reset();
     return;
   }
-  if (c.with_ahead) {
-    Request a;
-    a.reg = p.ops[p.values.size() + 1].reg;
-    a.sent = a.since = t;
-    c.ahead = a;
-  }
+  if (c.with_ahead) c.ahead = sent_request(c, false, p.ops[p.values.size() + 1].reg, 0, t);
   if (c.ahead && proto::is_ack(st, c.ahead->reg)) {
     // The terminal took the request written ahead before answering ours: ask again.
+    if (known) ack_replaced(*c.timing, opt_.timeout);
     note_trace(fmt::format("{}: R{} answered before R{}; asking again", who(c), c.ahead->reg, r.reg));
     c.last_status = st;
     c.req.reset();
@@ -549,6 +595,7 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
   }
   put_restore(c, false);
   bool restored = c.out_n == 0;
+  Paused paused(*this, true);
   for (int attempt = 0; !restored && attempt < 3; ++attempt) {
     try {
       link_.write_outputs(c.out_at, std::span<const std::uint8_t>(&c.shadow[c.out_at - c.out_lo], c.out_n));
@@ -563,6 +610,16 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
     closed_now(c);
   } else {
     // The journal entry stays: the next kscfg on this port finishes the terminal.
+    if (opt_.notice) {
+      try {
+        opt_.notice(fmt::format("warning: {} is left in register mode: putting its process-data bytes back failed{}",
+                                who(c),
+                                c.journaled && opt_.journal && opt_.journal->enabled()
+                                    ? "; the next kscfg on this port finishes it (session journal)"
+                                    : ""));
+      } catch (...) {
+      }
+    }
     c.closed = true;
     c.journaled = false;
   }

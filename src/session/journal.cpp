@@ -12,7 +12,6 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
-#include <sstream>
 
 namespace kscfg {
 
@@ -20,8 +19,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr std::size_t kMaxJournal = 1 << 20;  // a journal holds a few lines; more is not ours
 constexpr std::size_t kMaxSaved = 512;        // an image is at most 512 bytes
+constexpr std::size_t kMaxOffset = 511;       // nor is any offset beyond it
 
 bool number(std::string_view s, std::size_t& v) {
   auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
@@ -65,6 +64,9 @@ bool SessionJournal::parse_entry(const std::string& line, Entry& e) {
   for (int i = 0; i < 9; ++i)
     if (!number(w[i], v[i])) return false;
   if (w[9].size() % 2 || w[9].size() / 2 > kMaxSaved || v[0] == 0 || v[0] > 1024 || v[1] > 256) return false;
+  for (int i = 2; i < 9; ++i)
+    if (v[i] > kMaxOffset) return false;
+  if (w[10].size() > 64) return false;  // a type name
   e = Entry{};
   e.position = static_cast<unsigned>(v[0]);
   e.channel = static_cast<unsigned>(v[1]);
@@ -138,13 +140,59 @@ void SessionJournal::append(const std::string& line) {
 void SessionJournal::enter(const Entry& e) {
   if (!enabled()) return;
   append("+ " + format_entry(e) + "\n");
-  if (enabled()) ++open_;
+  if (!enabled()) return;
+  ++open_;
+  last_ctrl_[{e.position, e.channel}] = -1;
+}
+
+void SessionJournal::control(unsigned position, unsigned channel, std::uint8_t ctrl) {
+  if (!enabled() || fd_ < 0) return;
+  auto it = last_ctrl_.find({position, channel});
+  if (it == last_ctrl_.end() || it->second == ctrl) return;  // not entered, or noted already
+  append(fmt::format("> {} {} {:02x}\n", position, channel, ctrl));
+  it->second = ctrl;
 }
 
 void SessionJournal::leave(unsigned position, unsigned channel) {
   if (!enabled() || fd_ < 0) return;
   append(fmt::format("- {} {}\n", position, channel));
+  last_ctrl_.erase({position, channel});
   if (enabled() && open_ > 0) --open_;
+}
+
+std::vector<SessionJournal::Entry> SessionJournal::parse_open(std::string_view text) {
+  if (text.size() > kMaxJournalBytes) text = text.substr(0, kMaxJournalBytes);
+  std::map<std::pair<unsigned, unsigned>, Entry> open;
+  while (!text.empty()) {
+    auto nl = text.find('\n');
+    // A last line without its newline was cut by a kill -9 inside the write: not a line.
+    if (nl == std::string_view::npos) break;
+    std::string_view line = text.substr(0, nl);
+    text.remove_prefix(nl + 1);
+    if (line.size() <= 2 || line[1] != ' ') continue;
+    std::string_view rest = line.substr(2);
+    if (line[0] == '+') {
+      Entry e;
+      if (parse_entry(std::string(rest), e)) open[{e.position, e.channel}] = std::move(e);
+    } else if (line[0] == '-' || line[0] == '>') {
+      auto w = words(rest, 3);
+      std::size_t p = 0, c = 0;
+      if (w.size() < 2 || !number(w[0], p) || !number(w[1], c) || p > 1024 || c > 256) continue;
+      auto it = open.find({static_cast<unsigned>(p), static_cast<unsigned>(c)});
+      if (it == open.end()) continue;
+      if (line[0] == '-') {
+        if (w.size() == 2) open.erase(it);
+        continue;
+      }
+      if (w.size() != 3 || w[2].size() != 2 || hex(w[2][0]) < 0 || hex(w[2][1]) < 0) continue;
+      auto& ctrl = it->second.ctrl;
+      ctrl.push_back(static_cast<std::uint8_t>(hex(w[2][0]) << 4 | hex(w[2][1])));
+      if (ctrl.size() > 2) ctrl.erase(ctrl.begin());
+    }
+  }
+  std::vector<Entry> out;
+  for (auto& [k, e] : open) out.push_back(std::move(e));
+  return out;
 }
 
 std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
@@ -170,39 +218,28 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
     std::size_t pid = 0;
     std::string_view id = std::string_view(rest).substr(0, rest.size() - 9);
     if (!number(id.substr(0, id.find('-')), pid)) continue;
-    int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
+    // O_NONBLOCK: a FIFO planted under a journal's name must not hang the open (it is then
+    // refused as not a regular file).
+    int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
     if (fd < 0) continue;
     struct stat a{}, b{};
     // Locked: its process lives. Unlinked or replaced since we opened it: someone else finished it.
     if (::flock(fd, LOCK_EX | LOCK_NB) != 0 || ::fstat(fd, &a) != 0 || a.st_nlink == 0 ||
         ::stat(path.c_str(), &b) != 0 || a.st_ino != b.st_ino || a.st_dev != b.st_dev ||
-        !S_ISREG(a.st_mode) || static_cast<std::size_t>(a.st_size) > kMaxJournal) {
+        !S_ISREG(a.st_mode) || static_cast<std::size_t>(a.st_size) > kMaxJournalBytes) {
       ::close(fd);
       continue;
     }
     std::string text;
     char buf[4096];
-    for (ssize_t n; (n = ::read(fd, buf, sizeof buf)) > 0 && text.size() < kMaxJournal;) text.append(buf, n);
-    std::map<std::pair<unsigned, unsigned>, Entry> open;
-    std::istringstream in(text);
-    for (std::string line; std::getline(in, line);) {
-      if (line.size() > 2 && line.compare(0, 2, "+ ") == 0) {
-        Entry e;
-        if (parse_entry(line.substr(2), e)) open[{e.position, e.channel}] = std::move(e);
-      } else if (line.size() > 2 && line.compare(0, 2, "- ") == 0) {
-        // The views point into `line`: never into a temporary (a use after scope that aborted
-        // kscfg in CI, and was silent elsewhere).
-        auto w = words(std::string_view(line).substr(2), 2);
-        std::size_t p = 0, c = 0;
-        if (w.size() == 2 && number(w[0], p) && number(w[1], c))
-          open.erase({static_cast<unsigned>(p), static_cast<unsigned>(c)});
-      }
-    }
+    for (ssize_t n; text.size() <= kMaxJournalBytes && (n = ::read(fd, buf, sizeof buf)) > 0;)
+      text.append(buf, static_cast<std::size_t>(n));
+    std::vector<Entry> open = parse_open(text);
     Dead d;
     d.path = path;
     d.pid = static_cast<long>(pid);
     d.fd = fd;
-    for (auto& [k, e] : open) d.open.push_back(std::move(e));
+    d.open = std::move(open);
     dead.push_back(std::move(d));
   }
   return dead;

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
@@ -13,6 +14,9 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   h.trace = so.trace;
   h.journal = so.journal;
   h.cancel = so.cancel;
+  h.notice = so.notice;
+  // A second SIGINT/SIGTERM ends the clean-up too (base/interrupt.hpp).
+  if (so.cancel) h.abandon = [] { return g_interrupts.load() >= 2; };
   h.after_write = so.after_write;
   return h;
 }
@@ -81,61 +85,6 @@ void RegisterSession::close() noexcept {
     engine_.wait(ch_->close());
   } catch (...) {
     engine_.access().close_now(ch_->key());
-  }
-}
-
-void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
-  if (!so.journal || !so.journal->enabled()) return;
-  for (auto& d : so.journal->claim_dead()) {
-    bool done = true;
-    try {
-      for (const auto& e : d.open) {
-        // A session of a scan that had not identified the terminal yet ("?") is finished as one of
-        // an unknown type: only R31 and the control byte are touched.
-        const TerminalType* type = catalog.find(e.type);
-        TerminalType unknown;
-        if (!type || !type->has_registers || e.channel >= type->channels) {
-          unknown.type = "type unknown";
-          unknown.has_registers = true;
-          unknown.channels = e.channel + 1;
-          type = &unknown;
-        }
-        const RegisterWindow& w = e.window;
-        try {
-          if (fits && !fits(e)) continue;
-          // Only a terminal that shows register mode now, in its control byte and in the status byte
-          // that answers it: otherwise it was finished already, or the station is not the one the
-          // journal describes, and nothing is touched.
-          std::uint8_t ctrl = 0, status = 0;
-          link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-          link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
-          if (!(ctrl & proto::kReg) || !(status & proto::kReg)) continue;
-          TerminalImage t;
-          t.position = e.position;
-          t.type = type;
-          t.complex = true;
-          t.channels.resize(e.channel + 1);
-          t.channels[e.channel].window = w;
-          HandshakeAccess access(link, handshake_options(so));
-          Engine engine(access);
-          Channel ch(engine, t, e.channel, so);
-          access.adopt_dead(ch.key(), e, d.pid);
-          engine.wait(ch.finish_dead());
-        } catch (const Error& err) {
-          if (err.code() == Exit::interrupted) throw;
-          // A line that failed may work next time; anything else (an address the coupler does not
-          // have: not this station) will not.
-          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
-          if (so.trace) so.trace(fmt::format("finishing terminal {} left by kscfg process {}: {}", e.position, d.pid,
-                                             err.what()));
-        }
-      }
-    } catch (...) {
-      SessionJournal::release(d, false);
-      throw;
-    }
-    SessionJournal::release(d, done);
   }
 }
 

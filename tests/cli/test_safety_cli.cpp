@@ -300,7 +300,7 @@ struct Served {
       : st(s), srv(s.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, s.dir.file("serve.err")) {}
   Run operator()(std::vector<std::string> args, std::map<std::string, std::string> env = {}) {
     args.insert(args.begin(), {"--port", srv.uri});
-    env["XDG_STATE_HOME"] = st.dir.file("xdg");
+    if (!env.count("XDG_STATE_HOME")) env["XDG_STATE_HOME"] = st.dir.file("xdg");
     if (!env.count("XDG_CACHE_HOME")) env["XDG_CACHE_HOME"] = st.dir.file("cache");
     return run_kscfg(args, env);
   }
@@ -312,10 +312,10 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
   REQUIRE(st({"emu", "reset"}).rc == 0);
   Served on(st);
   auto& srv = on.srv;
-  // A kscfg on another computer (its journal is not in this one's cache): the next session on the
-  // terminal is what finds its leftovers.
+  // A kscfg on another computer (its journal is not in this one's state directory): the next
+  // session on the terminal is what finds its leftovers, once it stayed unchanged for a timeout.
   Run killed = on({"write", "R31", "0x1235"},
-                  {{"KSCFG_TEST_KILL_AFTER", "R31"}, {"XDG_CACHE_HOME", st.dir.file("another-computer")}});
+                  {{"KSCFG_TEST_KILL_AFTER", "R31"}, {"XDG_STATE_HOME", st.dir.file("another-computer")}});
   REQUIRE(killed.rc == -9);
   REQUIRE(output_byte0(srv.uri) == 0xDF);  // the dead session's register request is still there
   Run wr = on({"write", "R32", "7"});
@@ -360,7 +360,7 @@ TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is 
   CHECK(r31.out == "0x0000\n");
   CHECK(r31.err.empty());
   std::error_code ec;
-  CHECK(std::filesystem::is_empty(st.dir.file("cache") + "/kscfg/sessions", ec));
+  CHECK(std::filesystem::is_empty(st.dir.file("xdg") + "/kscfg/sessions", ec));
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -156,14 +156,17 @@ TEST_CASE("register n carries image bytes 2n (low) and 2n+1 (high), neighbours a
     auto& c = dynamic_cast<ModbusLink&>(*link).client();
     CHECK(c.read(mbmap::kOutputImage + 20, 1)[0] == 0x2211);
   }
-  // A fresh link knows nothing of byte 40: writing byte 41 alone must keep it.
-  auto link = s.link();
-  std::uint8_t one[1] = {0x33};
-  link->write_outputs(41, one);
+  // A fresh link knows nothing of byte 40: writing byte 41 alone must keep it. (One link at a time:
+  // a link holds the coupler's lock, owner_lock.hpp.)
   std::uint8_t back[2];
-  link->read_outputs(40, back);
-  CHECK(back[0] == 0x11);
-  CHECK(back[1] == 0x33);
+  {
+    auto link = s.link();
+    std::uint8_t one[1] = {0x33};
+    link->write_outputs(41, one);
+    link->read_outputs(40, back);
+    CHECK(back[0] == 0x11);
+    CHECK(back[1] == 0x33);
+  }
   // And an even byte alone keeps its odd neighbour.
   auto link2 = s.link();
   std::uint8_t even[1] = {0x44};

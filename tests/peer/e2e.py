@@ -101,6 +101,7 @@ class Ctx:
         env.pop("KSCFG_PORT", None)
         env["XDG_STATE_HOME"] = self.path("xdg")
         env["XDG_CACHE_HOME"] = self.path("xdg-cache")
+        env["KSCFG_LOCK_DIR"] = self.path("locks")  # coupler locks: the case's, not the machine's
         try:
             p = subprocess.run(cmd, input=stdin, capture_output=True, text=True,
                                timeout=timeout, env=env)

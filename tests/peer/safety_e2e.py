@@ -33,12 +33,13 @@ def out_ctrl(ctx, pos=1):
     return bytes.fromhex(st["out_image"])[lay["out_off"] + lay["ctl"]]
 
 
-def kill_after_code_word(ctx, station, pos=1, cache="xdg-cache"):
+def kill_after_code_word(ctx, station, pos=1, home="xdg"):
     """kscfg killed (SIGKILL) right after terminal `pos` acknowledged `write R31 0x1235`. With another
-    `cache` than the next commands' it stands for a kscfg on another computer (its journal is not here)."""
+    `home` (XDG_STATE_HOME) than the next commands' it stands for a kscfg on another computer (its
+    journal is not here)."""
     cmd = [ctx.suite.kscfg, "--port", ctx.port, "--station", station, "-t", str(pos), "write", "R31", "0x1235"]
-    env = dict(os.environ, KSCFG_TEST_KILL_AFTER="R31", XDG_STATE_HOME=ctx.path("xdg"),
-               XDG_CACHE_HOME=ctx.path(cache))
+    env = dict(os.environ, KSCFG_TEST_KILL_AFTER="R31", XDG_STATE_HOME=ctx.path(home),
+               XDG_CACHE_HOME=ctx.path("xdg-cache"), KSCFG_LOCK_DIR=ctx.path("locks"))
     env.pop("KSCFG_PORT", None)
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env)
     ctx.log.append(("KSCFG_TEST_KILL_AFTER=R31 kscfg ... write R31 0x1235", p.returncode, p.stdout, p.stderr))
@@ -62,7 +63,7 @@ def finish_and_check(ctx, station, says):
       "session belongs to a session that died (here one of a kscfg on another computer, whose journal is not here): finish it (relock, control byte back to process-data mode), say "
       "so, never restore REG; seed: R31 reads 0 when locked", peer_extra=["--watchdog-ms", "0"])
 def c_crash_reg(ctx):
-    kill_after_code_word(ctx, ctx.station, cache="another-computer")
+    kill_after_code_word(ctx, ctx.station, home="another-computer")
     check(out_ctrl(ctx) == 0xDF, "the killed session left control byte 0x%02X, not 0xDF" % out_ctrl(ctx))
     finish_and_check(ctx, ctx.station, "was in register mode (control byte 0xDF)")
 

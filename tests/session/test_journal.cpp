@@ -28,14 +28,20 @@ std::size_t files_in(const std::string& dir) {
   return n;
 }
 
-// A process that enters `entries` in its journal and dies without leaving them (no destructors run).
-void die_with(const std::string& dir, const std::vector<SessionJournal::Entry>& entries, bool leave_first = false) {
+// A process that enters `entries` in its journal, writes control byte `ctrl` to each, and dies
+// without leaving them (no destructors run).
+void die_with(const std::string& dir, const std::vector<SessionJournal::Entry>& entries, bool leave_first = false,
+              std::uint8_t ctrl = 0xDF) {
   pid_t pid = ::fork();
   REQUIRE(pid >= 0);
   if (pid == 0) {
     auto* j = new SessionJournal;  // never destroyed: the process dies as after kill -9
     j->open(dir, "tcp-127.0.0.1-502-unit1");
-    for (const auto& e : entries) j->enter(e);
+    for (const auto& e : entries) {
+      j->enter(e);
+      j->control(e.position, e.channel, 0x88);
+      j->control(e.position, e.channel, ctrl);
+    }
     if (leave_first && !entries.empty()) j->leave(entries.front().position, entries.front().channel);
     ::_exit(j->why().empty() ? 0 : 3);
   }
@@ -101,6 +107,27 @@ TEST_CASE("session journal: an entry is one line and reads back the same, broken
                           "0 0 16 17 18 19 20 21 16 00 KL6001", "3 1 16 17 18 19 20 21x 16 00 KL6001",
                           "3 1 16 17 18 19 20 21 16 zz KL6001", "3 1 -16 17 18 19 20 21 16 00 KL6001"})
     CHECK_FALSE(SessionJournal::parse_entry(bad, back));
+}
+
+TEST_CASE("session journal: the open entries of a journal's text, with the last two control bytes, within limits",
+          "[session][journal]") {
+  std::string text = "+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n"
+                     "+ 3 0 16 16 18 19 18 19 16 0041 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n"
+                     "+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n"
+                     "+ 2 0 600 8 10 11 10 11 8 00 KL5101\n"  // an offset beyond any image
+                     "> 3 0 zz\n- 9 9\n> 7 0 88\n"           // garbage, and lines for no entry
+                     "+ 5 0 8 8 10 11 10 11 8 00 KL5101";      // cut by a kill -9: no newline
+  auto open = SessionJournal::parse_open(text);
+  REQUIRE(open.size() == 2);
+  CHECK(open[0].position == 3);
+  CHECK(open[0].ctrl == std::vector<std::uint8_t>{0xA0, 0x88});
+  CHECK(open[0].saved == std::vector<std::uint8_t>{0x00, 0x41});
+  CHECK(open[1].position == 4);
+  CHECK(open[1].channel == 1);
+  CHECK(open[1].ctrl.empty());  // it never wrote a control byte: nothing of it to finish
+  std::string big(SessionJournal::kMaxJournalBytes + 100, '\n');
+  big.replace(big.size() - 60, 45, "+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 88\n");
+  CHECK(SessionJournal::parse_open(big).empty());  // beyond the limit: not looked at
 }
 
 TEST_CASE("session journal: a dead process's open entries are claimed, a live one's never",

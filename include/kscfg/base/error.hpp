@@ -18,6 +18,8 @@ enum class Exit : int {
   interrupted = 8,   // SIGINT/SIGTERM; the terminal was restored
   unverified = 9,    // a change failed and its rollback could not verify every register: state unknown
   changed = 10,      // apply: the station was changed (success)
+  busy = 11,         // gave up waiting for the coupler (or emulator state file) that another kscfg holds
+  other_master = 12, // another master is using the terminal (its control byte changes in register mode)
   internal = 70,     // a bug
 };
 

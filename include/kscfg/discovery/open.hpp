@@ -5,11 +5,14 @@
 #include <memory>
 #include <string>
 
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/journal.hpp"
+#include "kscfg/session/session.hpp"
 
 namespace kscfg {
 
@@ -19,10 +22,16 @@ struct LinkOptions {
   std::string cache_dir;  // Modbus: keep scans here between runs (scan_cache.hpp); empty: no cache
   bool rescan = false;    // Modbus: scan even when the cache holds a valid scan
   std::function<void(const std::string&)> notice;  // what the scan's sessions must tell the user (SessionOptions)
-  // Modbus with a cache directory: opened on CACHE/sessions for this port; the sessions this
-  // process leaves open if it dies are noted there, and those that dead kscfg processes left on
-  // this port are finished as the link opens (journal.hpp).
+  // Modbus with a journal directory ($XDG_STATE_HOME/kscfg/sessions): the journal is opened there
+  // for this port; the sessions this process leaves open if it dies are noted in it
+  // (journal.hpp). What dead kscfg processes left is finished by recover_dead_sessions() once the
+  // station's layout is known.
   std::shared_ptr<SessionJournal> journal;
+  std::string journal_dir;
+  // Waiting for the coupler (Modbus: coupler_lock_path()) or the emulator state file that another
+  // kscfg of this computer holds (owner_lock.hpp): the link is opened only once it is free, and
+  // holds it until it closes.
+  LockWait lock_wait;
 };
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
@@ -32,5 +41,17 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
 // command uses); the process-image handshake otherwise.
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
                                                      std::function<const StationLayout&()> layout);
+
+// The lock file of a Modbus coupler on this computer (lock_dir()): per host, port and unit over
+// TCP; per serial device over RTU (one master on a line, whatever the unit).
+std::string coupler_lock_path(const ModbusTarget& target);
+
+// Finishes what kscfg processes that died on this port left in register mode (their journals,
+// finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position
+// must have its type and register window (a scan's entry, whose type no catalog has, its control
+// and status byte).
+// `layout_upto(n)` gives the station's terminals 1..n at least. Never throws but Error(interrupted).
+void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+                           const std::function<const StationLayout&(unsigned upto)>& layout_upto);
 
 }  // namespace kscfg

@@ -5,7 +5,9 @@
 // differ.
 #pragma once
 #include <chrono>
+#include <functional>
 #include <map>
+#include <set>
 #include <optional>
 #include <string>
 
@@ -24,6 +26,7 @@ std::string port_key(const ModbusTarget& target);
 struct CachedScan {
   std::optional<ScanResult> scan;  // none when only latencies are known (commands with --station)
   std::map<unsigned, std::chrono::microseconds> ack_wait;  // by terminal position
+  std::set<unsigned> ack_suspect;  // positions whose latency may be too long (ack_latency.hpp)
 };
 
 class ScanCache {
@@ -31,8 +34,12 @@ class ScanCache {
   ScanCache(std::string dir, const ModbusTarget& target);
   const std::string& path() const { return path_; }
   // The entry, if there is a readable one of this format whose terminal types the catalog knows;
-  // nullopt otherwise (never throws: a broken cache is no cache).
-  std::optional<CachedScan> load(const Catalog& catalog) const;
+  // nullopt otherwise (never throws: a broken cache is no cache). Read like any other input
+  // (issue 21 item 5): only a regular file (looked at before it is opened, so a FIFO cannot block
+  // the open), at most kMaxBytes; anything else is ignored, and `note` (-v) says why.
+  static constexpr std::size_t kMaxBytes = 1u << 20;  // a cache entry is a few KiB
+  std::optional<CachedScan> load(const Catalog& catalog,
+                                 const std::function<void(const std::string&)>& note = {}) const;
   // Replaces the entry (atomically). Never throws; false when it could not be written.
   bool store(const CachedScan& c) const noexcept;
   void remove() const noexcept;

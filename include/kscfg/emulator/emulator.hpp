@@ -12,6 +12,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/emulator/encoder_model.hpp"
 #include "kscfg/emulator/serial_model.hpp"
@@ -102,12 +103,13 @@ class EmulatedStation {
 };
 
 // State file handling: $XDG_STATE_HOME/kscfg/emulator.json by default, or emu:PATH.
-// Opening takes an exclusive lock (bounded wait) held until the store is destroyed.
+// Opening takes an exclusive lock (owner_lock.hpp: bounded wait, the holder named to a waiter) on
+// PATH.lock, held until the store is destroyed.
 class EmulatorStore {
  public:
   static std::string default_path();
   // path "" or "mem": no file. A missing file starts from the factory state of `spec_for_new`.
-  EmulatorStore(std::string path, const Catalog& catalog, double lock_timeout_s = 10.0);
+  EmulatorStore(std::string path, const Catalog& catalog, const LockWait& wait = {});
   ~EmulatorStore();
   EmulatorStore(const EmulatorStore&) = delete;
   EmulatorStore& operator=(const EmulatorStore&) = delete;
@@ -126,13 +128,13 @@ class EmulatorStore {
  private:
   std::string path_;
   std::string saved_;  // the snapshot the file holds ("" when unknown or missing)
-  int lock_fd_ = -1;
+  OwnerLock lock_;
   std::unique_ptr<EmulatedStation> station_;
 };
 
 class EmulatorLink : public Link {
  public:
-  explicit EmulatorLink(std::string path, const Catalog& catalog);
+  EmulatorLink(std::string path, const Catalog& catalog, const LockWait& wait = {});
   explicit EmulatorLink(EmulatedStation& station);  // in-process station owned elsewhere
   std::string describe() const override;
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
@@ -156,5 +158,6 @@ namespace kscfg {
 // Replaces the state at `path` with the factory state of `spec` (under the lock). Works on a
 // corrupt state file too: that is how a user recovers from one. Error(usage) when the station
 // exceeds its coupler's image limits (check_image_limits, as `map` applies them).
-void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog);
+void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog,
+                          const LockWait& wait = {});
 }  // namespace kscfg

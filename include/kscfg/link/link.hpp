@@ -34,20 +34,27 @@ class Link {
   // Writes output bytes; bytes outside the span are left as they are.
   virtual void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) = 0;
 
+  // Whether a master other than this process may write the coupler's outputs (a Modbus coupler: a
+  // kscfg on another computer, KS2000). The emulator's state file is locked: never.
+  virtual bool other_masters_possible() const { return false; }
+
   // Waits a little between two polls of the input image (bounded by the caller's timeout).
   virtual void pause(unsigned poll_number) { (void)poll_number; }
 
   // How fast the terminals behind a link answer (session read-ahead). A pipelining link keeps one
-  // per terminal position; a Modbus link keeps them with its scan cache between runs.
+  // per terminal position; a Modbus link keeps them with its scan cache between runs. What the
+  // fields mean and how they move: session/ack_latency.hpp.
   struct AckTiming {
     std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
-    std::chrono::microseconds base{0};  // `wait` as the run started or as learned in it: a slow answer
-                                        // (a loaded machine) raises `wait` to twice this at most
+    bool suspect = false;               // `wait` may be too long (raised, or guessed): probe below it
     unsigned samples = 0;               // acknowledges timed while learning (this run)
     std::chrono::microseconds longest{0};  // longest latency timed while learning
     bool missed = false;                // a poll at `wait` came too early (this run)
-    unsigned misses = 0;                // how often (this run); after two, no more read-ahead
+    unsigned misses = 0;                // how often (this run); after three, no more read-ahead
     unsigned acks = 0;                  // acknowledges seen this run
+    unsigned streak = 0;                // first polls at `wait` that found the answer since the last probe
+    unsigned probes = 0;                // polls below `wait` (this run), and how many found the answer
+    unsigned probe_hits = 0;
   };
   virtual AckTiming* ack_timing(unsigned position) {
     (void)position;

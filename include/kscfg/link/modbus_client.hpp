@@ -98,6 +98,12 @@ class ModbusClient {
   std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
                                         std::uint16_t raddr, unsigned count);
 
+  // A link proven dead: two requests in a row got no answer after all their attempts (each about
+  // the ack timeout). From then on every request fails at once with that reason, so that a
+  // rollback or a restore over a dead link ends within about two timeouts (issue 23 item 3)
+  // instead of trying every register for seconds. Empty while the link lives.
+  const std::string& dead() const { return dead_; }
+
   const ModbusTarget& target() const { return target_; }
   const ModbusOptions& options() const { return opt_; }
   std::size_t exchanges() const { return exchanges_; }  // requests sent, retries included
@@ -110,14 +116,24 @@ class ModbusClient {
   void drain_late_reply();
   // Runs one request with bounded retries. `addr`/`count`: the registers it reads or writes (for
   // the hint of an exception 2). With `refused`, exception 2 sets it and returns instead of throwing.
-  template <class F>
-  void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, bool* refused = nullptr);
+  // With `parse` (the expected reply from its raw bytes), the wait for a reply is cut into slices
+  // of kSlice: between two, a SIGINT/SIGTERM (g_interrupted) ends it (issue 21 item 4).
+  template <class F, class P>
+  void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused = nullptr);
+  // After the first slice passed without a reply: waits on for it (modbus_receive_confirmation)
+  // until the response timeout, slice by slice. Returns f's result: >= 0, or -1 with errno.
+  template <class P>
+  int wait_reply(std::chrono::steady_clock::time_point sent, P&& parse);
+  void set_response_timeout(std::chrono::microseconds t);
 
   ModbusTarget target_;
   ModbusOptions opt_;
   modbus_t* ctx_ = nullptr;
   int serial_fd_ = -1;
   std::size_t exchanges_ = 0, retried_ = 0;
+  unsigned silent_ = 0;   // requests in a row that failed without any answer
+  std::string dead_;      // why the link is taken for dead ("" while it lives)
+  bool drain_ = false;    // RTU: a reply may still come for a request given up on (interrupted)
   bool connected_once_ = false;  // a connect() succeeded: a later refusal means the coupler went away
   std::string broke_;            // why the connection was dropped last (a reset, ...), for that message
 };

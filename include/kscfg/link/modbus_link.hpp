@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/station/layout.hpp"
@@ -61,7 +62,9 @@ class StationDiscovery {
 
 class ModbusLink : public Link {
  public:
-  ModbusLink(ModbusTarget target, ModbusOptions opt);
+  // `lock`: this computer's lock of the coupler (owner_lock.hpp), taken before the client connects
+  // and held as long as the link.
+  ModbusLink(ModbusTarget target, ModbusOptions opt, OwnerLock lock = {});
   std::string describe() const override;
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
@@ -84,10 +87,14 @@ class ModbusLink : public Link {
   AckTiming* ack_timing(unsigned position) override;
   // Learned acknowledge latencies by terminal position (for the scan cache).
   const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
-  void set_ack_wait(unsigned position, std::chrono::microseconds wait) {
+  // A latency kept from an earlier run; `suspect`: it may be too long (ack_latency.hpp).
+  void set_ack_wait(unsigned position, std::chrono::microseconds wait, bool suspect = false) {
     timings_[position].wait = wait;
-    timings_[position].base = wait;
+    timings_[position].suspect = suspect;
   }
+
+  // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).
+  bool other_masters_possible() const override { return true; }
 
   ModbusClient& client() { return client_; }
   // How layout() finds the station: set by discovery/open.hpp.
@@ -106,6 +113,7 @@ class ModbusLink : public Link {
   void remember_outputs(std::size_t first_word, std::span<const std::uint16_t> words);
   void count() { exchanges_ = client_.exchanges(); }
 
+  OwnerLock lock_;  // taken before the client connects, released after it has closed
   ModbusClient client_;
   std::unique_ptr<StationDiscovery> discovery_;
   std::vector<int> out_cache_;  // output image bytes as the coupler holds them, -1 unknown

@@ -16,12 +16,17 @@
 // - decision 4: every wait is bounded by the timeout and names terminal, register and last status;
 // - decision 5: value bytes travel with (never after) the control byte, and the process-data bytes
 //   found when the work began are put back when it ends (also after errors and on interrupt);
-// - a control byte found in register mode is a dead session's leftover (section 6): never restored.
+// - a control byte found in register mode is a dead session's leftover (section 6), never restored,
+//   but only once it stayed unchanged for longer than a live handshake can go without a step:
+//   where other masters can share the coupler it is watched first (leftover_watch.hpp), and
+//   another master at work fails the channel with Error(other_master).
 // On a link that pipelines (Modbus), once a terminal's acknowledge latency is known the request for
 // the next register of a run of reads goes out in the exchange that fetches the answer before it
 // (read-ahead), and the exchange that fetches the last answer can also put the control byte back.
+// The acknowledge wait before the first poll follows ack_latency.hpp's estimate per terminal.
 // Before the first register-mode byte of a channel goes out, the channel is noted in the session
-// journal; once its process-data bytes are back, the note is closed (journal.hpp).
+// journal, and each control byte before it is sent; once its process-data bytes are back, the
+// note is closed (journal.hpp).
 #pragma once
 #include <atomic>
 #include <chrono>
@@ -34,6 +39,7 @@
 
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
+#include "kscfg/session/ack_latency.hpp"
 #include "kscfg/session/journal.hpp"
 
 namespace kscfg {
@@ -45,6 +51,11 @@ struct HandshakeOptions {
   // Set (SIGINT/SIGTERM): programs that are not shielded fail with Error(interrupted), and waits
   // end early. Null: never cancelled.
   const std::atomic<bool>* cancel = nullptr;
+  // True: even shielded programs end at once (a second Ctrl-C during clean-up). Empty: never.
+  std::function<bool()> abandon;
+  // Diagnostics the user must see: a terminal left in register mode because putting its bytes back
+  // failed, another master found at work.
+  std::function<void(const std::string&)> notice;
   // Test hook (a build for tests only): called after a write of a register was acknowledged.
   std::function<void(unsigned reg)> after_write;
 };
@@ -83,6 +94,7 @@ class HandshakeAccess final : public RegisterAccess {
     Clock::time_point sent{};    // the exchange that put it in the control byte
     Clock::time_point since{};   // when the op was first asked for (its timeout runs from here)
     unsigned polls = 0;
+    AckPlan ack;                 // when its first poll goes out (ack_latency.hpp)
   };
   enum class Act { none, look, send, poll, close };
   struct Chan {
@@ -111,12 +123,25 @@ class HandshakeAccess final : public RegisterAccess {
     std::size_t out_at = 0, out_n = 0;
   };
 
+  // While it lives, the process's interrupt flag is paused when it is the run's cancel flag and
+  // `cleanup` (base/interrupt.hpp): clean-up exchanges are not cut short by the first signal.
+  struct Paused {
+    Paused(const HandshakeAccess& a, bool cleanup);
+    ~Paused();
+    Paused(const Paused&) = delete;
+    Paused& operator=(const Paused&) = delete;
+    bool active = false, was = false;
+  };
   std::string who(const Chan& c) const;
   void note_trace(const std::string& s) const {
     if (opt_.trace) opt_.trace(s);
   }
   bool cancelled() const { return opt_.cancel && opt_.cancel->load(); }
-  void save(std::vector<Chan*>& chans);
+  bool abandoned() const { return opt_.abandon && opt_.abandon(); }
+  // A control byte found in register mode: another master's (Error(other_master)) or a leftover.
+  bool watch_found(Chan& c);
+  Request sent_request(Chan& c, bool write, unsigned reg, std::uint16_t value, Clock::time_point t) const;
+  void save(std::vector<Chan*>& chans, std::vector<Program*>& done);
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
@@ -124,6 +149,7 @@ class HandshakeAccess final : public RegisterAccess {
   void fail(Chan& c, Error e, std::vector<Program*>& done);
   void put_request(Chan& c, bool write, unsigned reg, std::uint16_t value);
   void put_restore(Chan& c, bool ctrl_only);
+  void journal_ctrl(Chan& c);  // the control byte in c.shadow goes out next
   void journal_enter(Chan& c);
   void closed_now(Chan& c);
   void sleep_until(Clock::time_point t) const;

@@ -1,18 +1,30 @@
 // Which terminals a kscfg process has in register mode, kept where the next kscfg on the same port
-// finds them (DESIGN.md section 6, issue 11 item 3).
+// finds them (docs/design.md section 6, issue 11 item 3, issue 21 items 2 and 3).
 //
 // A session that dies (kill -9, a crash) leaves its terminal in register mode. The next session on
 // that terminal sees REG in the control byte and finishes it; but a command on another terminal
 // never looks there. So each process appends to its own journal, before the first register-mode
-// byte goes out to a terminal, what that terminal's process-data bytes were, and after they are
-// back, that they are. The file is locked (flock) for as long as the process lives: a journal
-// whose lock can be taken belongs to a process that is gone, and its open entries are terminals it
-// left in register mode. A live kscfg's sessions are never touched; a kscfg on another computer
-// keeps its own journal there, so only a coupler's watchdog clears what it leaves.
+// byte goes out to a terminal, what that terminal's process-data bytes were, then each control
+// byte it writes there, and after the process-data bytes are back, that they are. The file is
+// locked (flock) for as long as the process lives: a journal whose lock can be taken belongs to a
+// process that is gone, and its open entries are terminals it left in register mode. A live
+// kscfg's sessions are never touched; a kscfg on another computer keeps its own journal there.
+//
+// Journals live in $XDG_STATE_HOME/kscfg/sessions (state, not cache: cleaning ~/.cache must not
+// forget what a dead kscfg left). A journal is input like any other file: read only when it is a
+// regular file of at most kMaxJournalBytes, parsed line by line, any line that is not well formed
+// ignored, and acted on only after it was checked against the station (finish_dead_sessions).
+//
+// The file, one line each:
+//   + POS CH CTRL STATUS OUT_LO OUT_HI IN_LO IN_HI SAVED_AT SAVEDHEX TYPE   entered (register window)
+//   > POS CH XX                                   the control byte goes to 0xXX (written before it is sent)
+//   - POS CH                                      left: the process-data bytes are back
 #pragma once
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "kscfg/station/layout.hpp"
@@ -29,7 +41,12 @@ class SessionJournal {
     RegisterWindow window;  // where its control/status and value bytes are in the image
     std::size_t saved_at = 0;            // output image offset of saved[0]
     std::vector<std::uint8_t> saved;     // the process-data output bytes found when the session began
+    // The last control bytes it wrote, the latest last (at most two: a kill -9 between the line and
+    // the exchange leaves the one before on the coupler). Empty: it never wrote one.
+    std::vector<std::uint8_t> ctrl;
   };
+  // Longest journal read; a journal holds a few lines, more is not one of ours.
+  static constexpr std::size_t kMaxJournalBytes = 256 * 1024;
   // The journal of a process that is gone, locked by the caller until release().
   struct Dead {
     std::string path;
@@ -51,6 +68,8 @@ class SessionJournal {
   // are back. A journal that cannot be written is given up quietly (the session itself goes on:
   // kscfg works without it, as without a cache); `why()` then says what failed.
   void enter(const Entry& e);
+  // The control byte of an entered channel goes to `ctrl` (noted only when it changes).
+  void control(unsigned position, unsigned channel, std::uint8_t ctrl);
   void leave(unsigned position, unsigned channel);
   const std::string& why() const { return why_; }
 
@@ -63,6 +82,9 @@ class SessionJournal {
   // One line of the file, and back (tests; an unreadable line gives false).
   static std::string format_entry(const Entry& e);
   static bool parse_entry(const std::string& line, Entry& e);
+  // The entries a journal's text leaves open (entered, not left), in (position, channel) order.
+  // Bounded: at most kMaxJournalBytes are looked at; a line that is not well formed is skipped.
+  static std::vector<Entry> parse_open(std::string_view text);
 
  private:
   bool create();
@@ -74,6 +96,7 @@ class SessionJournal {
   std::string path_;    // dir/KEY.PID-TIME.sessions once created
   int fd_ = -1;
   unsigned open_ = 0;   // entries entered and not left
+  std::map<std::pair<unsigned, unsigned>, int> last_ctrl_;  // control byte last noted (-1: none)
   std::string why_;
 };
 

@@ -1,0 +1,228 @@
+#!/usr/bin/python3
+"""How fast kscfg lets go (issue 21 item 4, issue 23 item 3): timing figures, not pass/fail tests.
+
+    nice -n 10 bench/interrupts.py [--kscfg build/kscfg] [-n 20]
+
+Against `kscfg serve` (Modbus TCP on loopback, watchdog off, default --timeout of 1000 ms):
+
+  ack wait       SIGINT while kscfg waits for a terminal that does not answer (emu fault --mute):
+                 time from the signal to kscfg's exit (status 8, the terminal restored)
+  stopped reply  SIGINT while kscfg waits for the reply of a coupler that is stopped (SIGSTOP):
+                 time from the signal to kscfg giving the request up (its -v trace), and to its
+                 exit once the coupler runs again (the restore needs it)
+  dead link      the coupler stopped in the middle of an apply of 24 registers: time from the stop
+                 to kscfg's exit (status 9 with the undo command), and whether it named the backup
+  Ctrl-C, dead   the same, and SIGINT 0.5 s after the stop: time from the signal to the exit; and
+                 a second SIGINT during the rollback
+
+Uses only Debian's /usr/bin/python3 and the built kscfg.
+"""
+import argparse
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+KSCFG = "build/kscfg"
+
+
+def serve(state, *extra):
+    p = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--tcp", "127.0.0.1:0", "--watchdog-ms", "0"]
+                         + list(extra), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    uri = p.stdout.readline().strip()
+    if not uri.startswith("tcp://"):
+        raise SystemExit("serve did not start")
+    return p, uri
+
+
+def stop(p):
+    if p.poll() is None:
+        os.kill(p.pid, signal.SIGCONT)
+        p.terminate()
+        p.wait(30)
+
+
+def run(args, env, timeout=60):
+    return subprocess.run([KSCFG] + args, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def start(args, env, errf):
+    return subprocess.Popen([KSCFG] + args, stdout=subprocess.DEVNULL, stderr=errf, env=env)
+
+
+def wait_text(path, text, timeout=10):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        with open(path) as f:
+            if text in f.read():
+                return time.monotonic()
+        time.sleep(0.0005)
+    return None
+
+
+def figures(xs):
+    xs = sorted(xs)
+    if not xs:
+        return "no samples"
+    p95 = xs[min(len(xs) - 1, int(0.95 * len(xs)))]
+    return f"median {statistics.median(xs) * 1000:.1f} ms, p95 {p95 * 1000:.1f} ms, max {xs[-1] * 1000:.1f} ms (n={len(xs)})"
+
+
+def ack_wait(work, env, n):
+    state = os.path.join(work, "mute.json")
+    run(["--port", "emu:" + state, "emu", "reset"], env)
+    run(["--port", "emu:" + state, "emu", "fault", "-t", "1", "--mute"], env)
+    srv, uri = serve(state)
+    times, codes = [], []
+    try:
+        for i in range(n):
+            errp = os.path.join(work, f"ack{i}.err")
+            with open(errp, "w") as ef:
+                # --station: a scan would stop at the muted terminal
+                k = start(["--port", uri, "--station", station_file(work), "-v", "--timeout", "20000", "-t", "1",
+                           "read", "R32"], env, ef)
+                wait_text(errp, "link tcp://", 10)
+                time.sleep(0.2)  # well into the wait for an acknowledge that does not come
+                t0 = time.monotonic()
+                k.send_signal(signal.SIGINT)
+                k.wait(30)
+                times.append(time.monotonic() - t0)
+                codes.append(k.returncode)
+    finally:
+        stop(srv)
+    return times, codes
+
+
+def station_file(work):
+    p = os.path.join(work, "station.toml")
+    if not os.path.exists(p):
+        with open(p, "w") as f:
+            f.write('coupler = "BK9000"\n' + "".join(f'[[terminal]]\ntype = "{t}"\n' for t in
+                    ["KL6001", "KL5101", "KL6031", "KL3022", "KL1104", "KL2134", "KL9010"]))
+    return p
+
+
+def stopped_reply(work, env, n):
+    state = os.path.join(work, "stopped.json")
+    run(["--port", "emu:" + state, "emu", "reset"], env)
+    gave_up, total, codes = [], [], []
+    for i in range(n):
+        srv, uri = serve(state, "--cycle-us", "3000")
+        try:
+            run(["--port", uri, "info"], env)
+            errp = os.path.join(work, f"stop{i}.err")
+            with open(errp, "w") as ef:
+                k = start(["--port", uri, "-v", "--timeout", "3000", "-t", "3", "dump"], env, ef)
+                wait_text(errp, "read  R33", 10)  # in the middle of the dump
+                os.kill(srv.pid, signal.SIGSTOP)
+                time.sleep(0.05)  # a request is on its way to the stopped coupler
+                if k.poll() is not None:
+                    os.kill(srv.pid, signal.SIGCONT)
+                    continue  # the dump was over
+                t0 = time.monotonic()
+                k.send_signal(signal.SIGINT)
+                t1 = wait_text(errp, "interrupted after waiting", 10)
+                os.kill(srv.pid, signal.SIGCONT)
+                k.wait(30)
+                if t1:
+                    gave_up.append(t1 - t0)
+                total.append(time.monotonic() - t0)
+                codes.append(k.returncode)
+        finally:
+            stop(srv)
+    return gave_up, total, codes
+
+
+APPLY = ('coupler = "BK9000"\n[[terminal]]\ntype = "KL6001"\n[[terminal]]\ntype = "KL5101"\n'
+         '[[terminal]]\ntype = "KL6031"\n[[terminal]]\ntype = "KL3022"\n{}[[terminal.channel]]\nchannel = 2\n{}'
+         '[[terminal]]\ntype = "KL1104"\n[[terminal]]\ntype = "KL2134"\n[[terminal]]\ntype = "KL9010"\n')
+
+
+def apply_file(work, v):
+    p = os.path.join(work, f"apply{v}.toml")
+    ch1 = "".join(f"R{r} = {v + r}\n" for r in range(36, 48))
+    ch2 = "".join(f"R{r} = {v + r + 100}\n" for r in range(36, 48))
+    with open(p, "w") as f:
+        f.write(APPLY.format(ch1, ch2))
+    return p
+
+
+def dead_link(work, env, n, ctrl_c):
+    state = os.path.join(work, "dead.json")
+    times, codes, named, second = [], [], 0, []
+    for i in range(n):
+        run(["--port", "emu:" + state, "emu", "reset"], env)
+        srv, uri = serve(state, "--cycle-us", "2000")
+        try:
+            run(["--port", uri, "info"], env)
+            errp = os.path.join(work, f"dead{i}.err")
+            backup = os.path.join(work, f"undo{i}.toml")
+            with open(errp, "w") as ef:
+                k = start(["--port", uri, "-v", "apply", "--backup", backup, apply_file(work, i)], env, ef)
+                wait_text(errp, "write R40", 10)  # a third into the 24 registers
+                os.kill(srv.pid, signal.SIGSTOP)
+                t0 = time.monotonic()
+                if ctrl_c:
+                    time.sleep(0.5)
+                    t0 = time.monotonic()
+                    k.send_signal(signal.SIGINT)
+                k.wait(60)
+                times.append(time.monotonic() - t0)
+                codes.append(k.returncode)
+            with open(errp) as f:
+                err = f.read()
+            named += f"restore {backup}" in err
+            if ctrl_c:
+                # A second run: the second SIGINT during the rollback ends it at once.
+                os.kill(srv.pid, signal.SIGCONT)
+                run(["--port", uri, "restore", backup], env)
+                with open(errp, "w") as ef:
+                    k = start(["--port", uri, "-v", "apply", "--backup", backup + "2", apply_file(work, i + 50)],
+                              env, ef)
+                    wait_text(errp, "write R40", 10)
+                    os.kill(srv.pid, signal.SIGSTOP)
+                    time.sleep(0.2)
+                    k.send_signal(signal.SIGINT)
+                    wait_text(errp, "interrupted after waiting", 10)
+                    time.sleep(0.2)
+                    t2 = time.monotonic()
+                    k.send_signal(signal.SIGINT)
+                    k.wait(60)
+                    second.append(time.monotonic() - t2)
+        finally:
+            stop(srv)
+    return times, codes, named, second
+
+
+def main():
+    global KSCFG
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--kscfg", default=KSCFG)
+    ap.add_argument("-n", type=int, default=20)
+    a = ap.parse_args()
+    KSCFG = os.path.abspath(a.kscfg)
+    with tempfile.TemporaryDirectory(prefix="kscfg-interrupts-") as work:
+        env = dict(os.environ, XDG_CACHE_HOME=os.path.join(work, "cache"), XDG_STATE_HOME=os.path.join(work, "state"),
+                   KSCFG_LOCK_DIR=os.path.join(work, "locks"))
+        env.pop("KSCFG_PORT", None)
+        t, c = ack_wait(work, env, a.n)
+        print(f"| SIGINT while waiting for an acknowledge (terminal muted): signal to exit | {figures(t)}; "
+              f"exit {sorted(set(c))} |")
+        g, t, c = stopped_reply(work, env, a.n)
+        print(f"| SIGINT while waiting for a stopped coupler's reply: signal to request given up | {figures(g)} |")
+        print(f"| ... and to exit once the coupler runs again (restore) | {figures(t)}; exit {sorted(set(c))} |")
+        m = max(3, a.n // 4)
+        t, c, named, _ = dead_link(work, env, m, False)
+        print(f"| coupler stopped a third into an apply of 24 registers (--timeout 1000): stop to exit | {figures(t)}; "
+              f"exit {sorted(set(c))}; undo file named {named}/{m} |")
+        t, c, named, second = dead_link(work, env, m, True)
+        print(f"| the same, SIGINT 0.5 s after the stop: signal to exit | {figures(t)}; exit {sorted(set(c))}; "
+              f"undo file named {named}/{m} |")
+        print(f"| the same, a second SIGINT during the rollback: signal to exit | {figures(second)} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,32 @@
+// libFuzzer: the session journal's parser (session/journal.hpp; issue 21 item 3). Any text gives
+// the open entries within the parser's limits, and nothing else: positions 1..1024, channels up to
+// 256, image offsets below 512, at most 512 saved bytes and two control bytes per entry; an entry
+// written with format_entry() reads back the same. Nothing throws.
+#include <cstdint>
+#include <string_view>
+
+#include "fuzz.hpp"
+#include "kscfg/session/journal.hpp"
+
+using kscfg::SessionJournal;
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  std::string_view text(reinterpret_cast<const char*>(data), size);
+  auto open = SessionJournal::parse_open(text);
+  FUZZ_CHECK(open.size() <= size / 20 + 1);  // an entry line has more than 20 characters
+  for (const auto& e : open) {
+    FUZZ_CHECK(e.position >= 1 && e.position <= 1024);
+    FUZZ_CHECK(e.channel <= 256);
+    FUZZ_CHECK(!e.type.empty() && e.type.size() <= 64);
+    FUZZ_CHECK(e.saved.size() <= 512 && e.ctrl.size() <= 2);
+    const auto& w = e.window;
+    for (std::size_t o : {w.ctrl, w.status, w.out_lo, w.out_hi, w.in_lo, w.in_hi, e.saved_at}) FUZZ_CHECK(o < 512);
+    SessionJournal::Entry back;
+    FUZZ_CHECK(SessionJournal::parse_entry(SessionJournal::format_entry(e), back));
+    FUZZ_CHECK(back.position == e.position && back.channel == e.channel && back.type == e.type);
+    FUZZ_CHECK(back.saved_at == e.saved_at && back.saved == e.saved);
+    FUZZ_CHECK(back.window.ctrl == w.ctrl && back.window.status == w.status && back.window.out_lo == w.out_lo &&
+               back.window.out_hi == w.out_hi && back.window.in_lo == w.in_lo && back.window.in_hi == w.in_hi);
+  }
+  return 0;
+}

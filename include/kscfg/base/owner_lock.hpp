@@ -1,0 +1,77 @@
+// One owner at a time, and a waiter that can name it (issue 21 item 1, issue 23 item 9).
+//
+// An OwnerLock is an advisory lock (flock) on a file, held for as long as a command works on what
+// the file stands for: a coupler (its port and unit, coupler_lock_path()) or an emulator state
+// file. Whoever holds it writes its PID and command line into the file, so that a process waiting
+// for it can say who it waits for ("kscfg process 4242 (kscfg -t 1 write R32 7)") after a moment,
+// and does not wait in silence. The wait is bounded; a SIGINT or SIGTERM ends it at once.
+//
+// The lock goes with the descriptor: a holder that dies (kill -9, a crash) frees it at once. A
+// holder that lets go removes the file first (while it still holds the lock); a waiter that then
+// gets the lock of the removed file opens the name again, so two processes never hold two files
+// of one name.
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include "kscfg/base/interrupt.hpp"
+
+namespace kscfg {
+
+// Who holds a lock, as the holder wrote it.
+struct LockHolder {
+  long pid = 0;
+  std::string command;  // its command line, words joined by spaces (bounded, printable)
+  // "kscfg process 4242 (kscfg -t 1 write R32 7)"
+  std::string text() const;
+};
+
+struct LockWait {
+  // How long to wait for the holder before giving up with Error(Exit::busy).
+  std::chrono::milliseconds limit{30000};
+  // After this long, `waiting` is told once who holds the lock (and how long this one waits).
+  std::chrono::milliseconds say_after{250};
+  std::function<void(const std::string&)> waiting;
+  // Set (SIGINT, SIGTERM): the wait ends with Error(Exit::interrupted).
+  const std::atomic<bool>* cancel = &g_interrupted;
+};
+
+class OwnerLock {
+ public:
+  OwnerLock() = default;
+  ~OwnerLock() { release(); }
+  OwnerLock(OwnerLock&& o) noexcept : fd_(o.fd_), path_(std::move(o.path_)) { o.fd_ = -1; }
+  OwnerLock& operator=(OwnerLock&& o) noexcept;
+  OwnerLock(const OwnerLock&) = delete;
+  OwnerLock& operator=(const OwnerLock&) = delete;
+
+  // Takes the lock on `path` (created, with its directory, when missing), waiting as `w` says.
+  // `what` names the thing in messages: "the coupler at tcp://10.0.3.11:502 unit 1". Throws
+  // Error(Exit::busy) naming the holder when the wait ends, Error(Exit::interrupted) when
+  // cancelled, Error(Exit::file) when the file cannot be opened or locked at all.
+  static OwnerLock acquire(const std::string& path, const std::string& what, const LockWait& w);
+
+  // Drops the lock (the holder record is cleared first). Never throws.
+  void release() noexcept;
+  bool held() const { return fd_ >= 0; }
+  const std::string& path() const { return path_; }
+
+  // The holder of `path` as recorded in the file, if its process is alive; nullopt otherwise.
+  static std::optional<LockHolder> holder(const std::string& path);
+
+ private:
+  int fd_ = -1;
+  std::string path_;
+};
+
+// Where the coupler locks live: $KSCFG_LOCK_DIR if set, else /run/lock/kscfg (shared by every user
+// of the computer: two engineers on one coupler take turns too), else $XDG_STATE_HOME/kscfg/locks.
+std::string lock_dir();
+
+// This process's command line as LockHolder::command shows it (read from /proc/self/cmdline).
+std::string own_command_line();
+
+}  // namespace kscfg

@@ -1,0 +1,56 @@
+// How long a register session on a pipelining link (Modbus) waits after a request before its
+// first poll, per terminal, and how that wait follows the line (issue 21 item 4, docs/design.md
+// section 4).
+//
+// The wait is an estimate of the terminal's acknowledge latency (Link::AckTiming::wait), never a
+// ratchet:
+//  - learned from the first acknowledges of a terminal (the longest of three, polled from 500 us);
+//  - never longer than the ack timeout (--timeout): a longer one would only make a read sleep past
+//    it; one kept from an earlier run that is longer is no estimate at all and is learned again;
+//  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
+//    an eighth up when a request written ahead replaced the one waited for (how much slower the
+//    terminal was is unknown there);
+//  - down as fast as up: a wait that went up (or was guessed, or kept from an earlier run at a
+//    quarter of the timeout or more) is `suspect`, and the next first poll is a probe at half of it
+//    (a plain poll, never one that writes). A probe that finds the answer halves the wait (to what
+//    it took) and the next request probes again; one that does not ends the suspicion (the usual
+//    poll at the wait follows, one exchange more). Every kProbeEvery-th request probes anyway.
+// The scan cache keeps the wait and whether it is suspect; --rescan starts from nothing.
+//
+// A station engine (issue 22) that runs several terminals' handshakes at once uses the same
+// functions per terminal.
+#pragma once
+#include <chrono>
+
+#include "kscfg/link/link.hpp"
+
+namespace kscfg {
+
+struct AckPlan {
+  std::chrono::microseconds wait{0};   // the estimate in use (clamped to the timeout); 0: learning
+  std::chrono::microseconds first{0};  // the first poll goes out this long after the request
+  bool probe = false;                  // the first poll is a probe below the estimate
+  bool known() const { return wait.count() > 0; }
+};
+
+// Until the latency is known, the first poll goes out this long after the request.
+constexpr std::chrono::microseconds kAckLearnFirst{500};
+
+// What the first poll of the next request does.
+AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout);
+// The acknowledge showed at poll `poll` (1: the first), `took` after the request.
+void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, std::chrono::microseconds took,
+              std::chrono::milliseconds timeout);
+// The first poll at the estimate (not a probe) came too early.
+void ack_early(Link::AckTiming& t, const AckPlan& p);
+// The request was replaced (read-ahead, restore) before the terminal answered it.
+void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout);
+// A latency kept from an earlier run is used only when it is shorter than the timeout; one of a
+// quarter of the timeout or more is suspect.
+bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
+bool ack_suspect_when_kept(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
+constexpr unsigned kProbeEvery = 32;
+// What the scan cache keeps for the next run (0: nothing learned).
+std::chrono::microseconds ack_keep(const Link::AckTiming& t);
+
+}  // namespace kscfg

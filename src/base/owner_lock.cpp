@@ -1,0 +1,221 @@
+#include "kscfg/base/owner_lock.hpp"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <signal.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+
+namespace kscfg {
+
+namespace {
+
+constexpr std::size_t kMaxRecord = 1024;   // what a holder writes; more is not a record
+constexpr std::size_t kMaxCommand = 240;   // characters of the command line shown
+
+std::string printable(std::string_view s, std::size_t max) {
+  std::string o;
+  for (char c : s) {
+    if (o.size() >= max) {
+      o += "...";
+      break;
+    }
+    o += static_cast<unsigned char>(c) >= 0x20 && static_cast<unsigned char>(c) < 0x7F ? c : '?';
+  }
+  return o;
+}
+
+bool alive(long pid) { return pid > 0 && (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM); }
+
+std::optional<LockHolder> parse_record(const std::string& text) {
+  auto nl = text.find('\n');
+  if (nl == std::string::npos || nl == 0 || nl > 12) return std::nullopt;
+  long pid = 0;
+  for (std::size_t i = 0; i < nl; ++i) {
+    if (text[i] < '0' || text[i] > '9') return std::nullopt;
+    pid = pid * 10 + (text[i] - '0');
+  }
+  auto end = text.find('\n', nl + 1);
+  LockHolder h;
+  h.pid = pid;
+  h.command = printable(std::string_view(text).substr(nl + 1, end == std::string::npos ? std::string::npos
+                                                                                        : end - nl - 1),
+                        kMaxCommand);
+  if (!alive(pid)) return std::nullopt;
+  return h;
+}
+
+std::optional<LockHolder> read_record(int fd) {
+  char buf[kMaxRecord];
+  ssize_t n = ::pread(fd, buf, sizeof buf, 0);
+  if (n <= 0) return std::nullopt;
+  return parse_record(std::string(buf, static_cast<std::size_t>(n)));
+}
+
+std::string seconds(std::chrono::milliseconds ms) { return fmt::format("{:g} s", ms.count() / 1000.0); }
+
+}  // namespace
+
+std::string LockHolder::text() const {
+  return command.empty() ? fmt::format("kscfg process {}", pid) : fmt::format("kscfg process {} ({})", pid, command);
+}
+
+std::string own_command_line() {
+  std::string raw;
+  int fd = ::open("/proc/self/cmdline", O_RDONLY | O_CLOEXEC);
+  if (fd >= 0) {
+    char buf[4096];
+    ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n > 0) raw.assign(buf, static_cast<std::size_t>(n));
+    ::close(fd);
+  }
+  std::string out;
+  std::size_t start = 0;
+  for (std::size_t i = 0; i <= raw.size(); ++i) {
+    if (i < raw.size() && raw[i] != '\0') continue;
+    std::string word = raw.substr(start, i - start);
+    start = i + 1;
+    if (word.empty() && i == raw.size()) break;
+    if (out.empty()) word = std::filesystem::path(word).filename().string();  // "kscfg", not its path
+    bool quote = word.empty() || word.find_first_of(" \t'\"\\$`*?") != std::string::npos;
+    out += (out.empty() ? "" : " ") + (quote ? "'" + word + "'" : word);
+  }
+  return printable(out, kMaxCommand);
+}
+
+std::string lock_dir() {
+  if (const char* d = std::getenv("KSCFG_LOCK_DIR"); d && *d) return d;
+  // /run/lock is there for every user (mode 1777 on Debian): a lock taken there holds against
+  // kscfg processes of other users too. Its kscfg directory is made sticky and writable by all.
+  struct stat st {};
+  if (::stat("/run/lock", &st) == 0 && S_ISDIR(st.st_mode) && ::access("/run/lock", W_OK | X_OK) == 0) {
+    const char* dir = "/run/lock/kscfg";
+    if (::mkdir(dir, 01777) == 0) ::chmod(dir, 01777);
+    if (::stat(dir, &st) == 0 && S_ISDIR(st.st_mode) && ::access(dir, W_OK | X_OK) == 0) return dir;
+  }
+  return (std::filesystem::path(state_dir()) / "locks").string();
+}
+
+OwnerLock& OwnerLock::operator=(OwnerLock&& o) noexcept {
+  if (this != &o) {
+    release();
+    fd_ = o.fd_;
+    path_ = std::move(o.path_);
+    o.fd_ = -1;
+  }
+  return *this;
+}
+
+void OwnerLock::release() noexcept {
+  if (fd_ < 0) return;
+  // Removed while still locked, so no lock files pile up (one per port): a process waiting on this
+  // file gets its lock next and finds the name gone or another file (acquire() opens it again).
+  // Another user's file in a shared directory cannot be removed: emptied, or left as it is.
+  if (::unlink(path_.c_str()) != 0 && ::ftruncate(fd_, 0) != 0) {
+    // neither: the record stays, naming a process that is gone (holder() checks that it lives)
+  }
+  ::close(fd_);
+  fd_ = -1;
+}
+
+std::optional<LockHolder> OwnerLock::holder(const std::string& path) {
+  int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) return std::nullopt;
+  auto h = read_record(fd);
+  ::close(fd);
+  return h;
+}
+
+OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, const LockWait& w) {
+  auto dir = std::filesystem::path(path).parent_path();
+  std::error_code ec;
+  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  bool said = false;
+  for (;;) {
+    // Never through a symbolic link, never anything but a regular file: in a directory every user
+    // may write, a link planted there must not make kscfg write its record into another file.
+    bool writable = true;
+    int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC, 0644);
+    if (fd < 0 && (errno == EACCES || errno == EPERM)) {
+      writable = false;  // another user's lock file: lock it, record nothing
+      fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+    }
+    if (fd < 0)
+      throw Error(Exit::file,
+                  fmt::format("cannot open the lock file '{}' of {}: {}", path, what, std::strerror(errno)));
+    struct stat st {}, dst {};
+    if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_nlink > 1) {
+      ::close(fd);
+      throw Error(Exit::file, fmt::format("the lock file '{}' of {} is not a plain file", path, what),
+                  "remove it; kscfg makes a new one");
+    }
+    // In a directory shared by all users (sticky, like /run/lock/kscfg) the next user must be able
+    // to record itself in a file this user made.
+    if (writable && st.st_uid == ::geteuid() && ::stat(dir.empty() ? "." : dir.c_str(), &dst) == 0 &&
+        (dst.st_mode & S_ISVTX) && (dst.st_mode & S_IWOTH) && (st.st_mode & 0777) != 0666 &&
+        ::fchmod(fd, 0666) != 0) {
+      // not ours to change after all: the next user records nothing
+    }
+    for (;;) {
+      if (::flock(fd, LOCK_EX | LOCK_NB) == 0) break;
+      if (errno != EWOULDBLOCK && errno != EINTR) {
+        int e = errno;
+        ::close(fd);
+        throw Error(Exit::file, fmt::format("cannot lock '{}' ({}): {}", path, what, std::strerror(e)));
+      }
+      auto waited = std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start);
+      auto holder_text = [&] {
+        auto h = read_record(fd);
+        return h ? h->text() : std::string("another kscfg process");
+      };
+      if (!said && waited >= w.say_after && w.waiting) {
+        said = true;
+        w.waiting(fmt::format("waiting for {}: {} is using it (up to {} in all, --lock-wait)", what, holder_text(),
+                              seconds(w.limit)));
+      }
+      if (waited >= w.limit) {
+        std::string who = holder_text();
+        ::close(fd);
+        throw Error(Exit::busy,
+                    fmt::format("{} is in use by {}; gave up after waiting {}", what, who, seconds(w.limit)),
+                    "try again when it has finished, or wait longer with --lock-wait SECONDS");
+      }
+      if (!sleep_for_or_cancelled(std::chrono::milliseconds(2), w.cancel ? *w.cancel : g_interrupted)) {
+        ::close(fd);
+        throw Error(Exit::interrupted, fmt::format("interrupted while waiting for {}", what));
+      }
+    }
+    // The holder before may have removed the file as it let go (release()): then this lock is on a
+    // file nobody else will look at. Open the name again.
+    struct stat now {};
+    if (::stat(path.c_str(), &now) != 0 || now.st_ino != st.st_ino || now.st_dev != st.st_dev) {
+      ::close(fd);
+      continue;
+    }
+    if (writable) {
+      std::string rec = fmt::format("{}\n{}\n", ::getpid(), own_command_line());
+      // The record first, then the file cut to it: a reader sees the new record's two lines.
+      if (::pwrite(fd, rec.data(), rec.size(), 0) == static_cast<ssize_t>(rec.size()) &&
+          ::ftruncate(fd, static_cast<off_t>(rec.size())) != 0) {
+        // a record with a tail of an older one: its first two lines are this one
+      }
+    }
+    OwnerLock l;
+    l.fd_ = fd;
+    l.path_ = path;
+    return l;
+  }
+}
+
+}  // namespace kscfg

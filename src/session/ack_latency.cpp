@@ -1,0 +1,83 @@
+#include "kscfg/session/ack_latency.hpp"
+
+#include <algorithm>
+
+namespace kscfg {
+
+namespace {
+
+using std::chrono::microseconds;
+constexpr unsigned kLearnSamples = 3;
+// Below this a probe saves too little to be worth an exchange.
+constexpr microseconds kProbeFloor{500};
+
+microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
+
+}  // namespace
+
+AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
+  AckPlan p;
+  if (t.wait.count() <= 0) {
+    p.first = kAckLearnFirst;
+    return p;
+  }
+  p.wait = std::min(t.wait, cap_of(timeout));
+  p.probe = (t.suspect || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
+  p.first = p.probe ? p.wait / 2 : p.wait;
+  return p;
+}
+
+void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
+              std::chrono::milliseconds timeout) {
+  ++t.acks;
+  const microseconds cap = cap_of(timeout);
+  if (!p.known()) {
+    // Learning: time a few acknowledges, then trust the longest.
+    t.longest = std::max(t.longest, took);
+    if (++t.samples >= kLearnSamples) t.wait = std::min(t.longest, cap);
+    return;
+  }
+  if (poll == 1 && !p.probe) ++t.streak;
+  if (p.probe) {
+    t.streak = 0;
+    ++t.probes;
+    if (poll == 1) {
+      // The answer was there at half the wait: the wait was too long. Down, and probe again.
+      ++t.probe_hits;
+      t.wait = std::max(took, microseconds(1));
+      return;
+    }
+    t.suspect = false;  // not at half: the wait is about right
+  }
+  if (poll > 1 && took > p.wait) {
+    // Slower than the wait: up to what it took, at most twice the wait (one slow answer on a
+    // loaded machine must not make every later read slow); suspect until a probe says otherwise.
+    t.wait = std::min({took, 2 * p.wait, cap});
+    t.suspect = true;
+  }
+}
+
+void ack_early(Link::AckTiming& t, const AckPlan& p) {
+  if (!p.known() || p.probe) return;
+  t.missed = true;
+  ++t.misses;
+}
+
+void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout) {
+  // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
+  if (t.wait.count() > 0) t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
+}
+
+bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {
+  return kept.count() > 0 && kept <= cap_of(timeout);
+}
+
+bool ack_suspect_when_kept(microseconds kept, std::chrono::milliseconds timeout) { return 4 * kept >= cap_of(timeout); }
+
+microseconds ack_keep(const Link::AckTiming& t) {
+  if (t.wait.count() > 0) return t.wait;
+  if (t.samples > 0) return t.longest;  // a run too short to learn (a single read): what it timed
+  return microseconds(0);
+}
+
+}  // namespace kscfg
