@@ -67,7 +67,7 @@ class Context {
   void forget_layout();
   // The station with the positions of a station file that will be compared with it (diff, apply,
   // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
-  // order and its digital terminals by bit totals (DESIGN.md section 4); otherwise layout().
+  // order and its digital terminals by bit totals (docs/design.md section 4); otherwise layout().
   const StationLayout& layout_for(const StationSpec& file);
   // -t was given.
   bool terminal_given() const { return !opt_.selection.empty(); }

@@ -1,5 +1,5 @@
 // Discovery of a Modbus coupler's station: identification, image lengths, then a walk over the
-// complex area reading each terminal's R8 (DESIGN.md section 4).
+// complex area reading each terminal's R8 (docs/design.md section 4).
 #include "kscfg/discovery/scan.hpp"
 
 #include <fmt/format.h>

@@ -1,5 +1,5 @@
-// Catalog facts checked against the seeds (shared/seeds/KL6001-serial-interface-RS232C.md,
-// shared/seeds/KL5101-incremental-encoder-interface.md): register defaults and storage classes from
+// Catalog facts checked against the seeds (the KL6001 manual (seed KL6001, docs/design.md Sources),
+// the KL5101 manual (seed KL5101, docs/design.md Sources)): register defaults and storage classes from
 // the register tables at the end of each seed, enum codes from the bit tables, parameter
 // encode/decode round trips, and the catalog description parser's error messages.
 #include <catch2/catch.hpp>
@@ -65,7 +65,7 @@ TEST_CASE("KL6001 register defaults match the seed's register table", "[catalog]
       {2, 0x0000},  {3, 0x0000},  {4, 0x0000},  {5, 0x0000},  {7, 0x0000},  {8, 6001},
       {10, 0x0218}, {11, 0x0130}, {12, 0x3030}, {13, 0x0000}, {14, 0x0000}, {18, 0x0080},
       {32, 0x0006}, {33, 0x0003},
-      // R34: the seed's table says 0x0002, the register description says [0x0003]. DESIGN.md
+      // R34: the seed's table says 0x0002, the register description says [0x0003]. docs/design.md
       // decision 8: RTS/CTS (bit 0) and the alternative format (bit 1) are active at delivery,
       // so the project uses 0x0003.
       {34, 0x0003}, {35, 0x0003},

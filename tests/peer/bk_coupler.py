@@ -2,7 +2,7 @@
 """An independent BK9000/BK7300-style Modbus Bus Coupler for testing kscfg.
 
 This peer shares no code or data with kscfg. Everything it models comes from
-the terminal manuals in shared/seeds, from shared/DESIGN.md, and from
+the terminal manuals, from the design notes (docs/design.md), and from
 Beckhoff's public coupler/terminal documentation; the README beside this file
 lists every fact and every choice made where the sources are unclear.
 
@@ -68,7 +68,7 @@ SUPPORTED_FC = (1, 2, 3, 4, 5, 6, 15, 16, 23)
 COUPLERS = {
     # name: (complete evaluation, motorola, word alignment, watchdog type default)
     # BK9000: Ethernet/Modbus TCP family -> complete evaluation on, Intel,
-    # word alignment on (DESIGN.md section 3).  0x1122 default 1 = telegram
+    # word alignment on (docs/design.md section 3).  0x1122 default 1 = telegram
     # watchdog (BK9000 ModbusTCP interface table).
     "BK9000": (True, False, True, 1),
     "BK9050": (True, False, True, 1),
@@ -108,7 +108,7 @@ def kl6001_regs():
     r[33] = 0x0003          # 8N1
     # Seed register description says 0x0003, the seed table 0x0002; the
     # functional description (RTS/CTS active at delivery, alternative format
-    # at delivery) needs bits 0 and 1: 0x0003 (DESIGN.md decision 8).
+    # at delivery) needs bits 0 and 1: 0x0003 (docs/design.md decision 8).
     r[34] = 0x0003
     r[35] = 0x0003          # 3 data bytes
     return r

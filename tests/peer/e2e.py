@@ -202,7 +202,7 @@ R8 = {1: 6001, 2: 5101, 3: 6031, 4: 3022}
 @case("info", "R8 is the terminal type (seed KL6001 R8 = 6001, seed KL5101 R8 = 5101, "
       "KL6031 manual R8 = 0x178F, seed example 0x0BCE = 3022); the coupler serves "
       "0x1000-0x1006 and 0x1010-0x1013 as separate blocks (BK9000/BK7300 register map, "
-      "DESIGN.md section 4)")
+      "docs/design.md section 4)")
 def c_info_(ctx):
     c_info(ctx)
 
@@ -293,7 +293,7 @@ def c_read_r32(ctx):
 
 
 @case("read-range-station", "seed KL6001 table: R32-R35 = 0x0006 0x0003 0x0003* 0x0003 "
-      "(*R34: DESIGN.md decision 8; this peer's value is read from its own state)")
+      "(*R34: docs/design.md decision 8; this peer's value is read from its own state)")
 def c_read_range(ctx):
     out, _ = ctx.expect_rc(0, "read", "--raw", "R32-R35", station=True)
     vals = [int(x, 16) for x in out.split()]
@@ -304,7 +304,7 @@ def c_read_range(ctx):
 
 @case("read-other-terminals", "KL5101 R8 = 5101 (seed), KL6031 R8 = 0x178F (KL6031 manual), "
       "KL3022 channel 2 R8 = 3022 (seed example); without complete evaluation (BK7300) "
-      "an analog terminal has no control/status byte (DESIGN.md section 3) and must be "
+      "an analog terminal has no control/status byte (docs/design.md section 3) and must be "
       "refused with status 5")
 def c_read_others(ctx):
     for pos, want in ((2, 5101), (3, 6031)):
@@ -326,14 +326,14 @@ def c_read_r9(ctx):
 
 
 @case("write-R32", "seed KL6001: R32-R47 are write-protected by the code word 0x1235 in R31; "
-      "a session never leaves the terminal unlocked (DESIGN.md decision 5)")
+      "a session never leaves the terminal unlocked (docs/design.md decision 5)")
 def c_write_r32(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0007", station=True)
     check(ctx.reg(1, 32) == 7, "peer R32 = 0x%04X" % ctx.reg(1, 32))
     check(not ctx.unlocked(1), "R31 left at 0x1235 (terminal unlocked)")
 
 
-@case("write-unchanged-no-eeprom", "DESIGN.md decision 6: compare before writing a SEEROM "
+@case("write-unchanged-no-eeprom", "docs/design.md decision 6: compare before writing a SEEROM "
       "register; skip writes that change nothing")
 def c_write_same(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0006", station=True)
@@ -399,7 +399,7 @@ def c_set_divisor(ctx):
 
 def compare_map(ctx, doc, st, scanned=False):
     """Compare kscfg's --json map with the peer's layout.  A scan cannot tell
-    digital terminals apart (DESIGN.md section 4): then the complex terminals
+    digital terminals apart (docs/design.md section 4): then the complex terminals
     are compared in order and the digital area by its bit totals."""
     peer_terms = st["terminals"]
     bad = []
@@ -462,7 +462,7 @@ def compare_map(ctx, doc, st, scanned=False):
     return bad
 
 
-@case("map-online-station", "DESIGN.md section 3 and the seed annex tables: complex terminals in "
+@case("map-online-station", "docs/design.md section 3 and the seed annex tables: complex terminals in "
       "plug order (KL6001 8 bytes with complete evaluation + word alignment, KL5101 8, KL6031 24, "
       "KL3022 2 x 4 on a BK9000; on a BK7300 KL6001 standard 4, KL5101 6, KL6031 24, KL3022 2 x 2 "
       "inputs and no outputs), then digital bits")
@@ -558,7 +558,7 @@ def c_scan_one_per_reg(ctx):
     check(raw_value(out) == 6001, "R8 = %s" % out.strip())
 
 
-@case("scan-unknown-coupler", "DESIGN.md section 4: the image lengths 0x1010-0x1013 describe the image "
+@case("scan-unknown-coupler", "docs/design.md section 4: the image lengths 0x1010-0x1013 describe the image "
       "whatever the coupler is called; an identification that names no known coupler is reported and "
       "the scan goes on", passes=("tcp",), peer_extra=["--ident", "XY-COUPLER"])
 def c_scan_unknown(ctx):
@@ -573,7 +573,7 @@ def c_scan_unknown(ctx):
     check(raw_value(out) == 6001, "R8 = %s" % out.strip())
 
 
-@case("scan-without-watchdog-registers", "DESIGN.md section 4: optional registers (the watchdog, "
+@case("scan-without-watchdog-registers", "docs/design.md section 4: optional registers (the watchdog, "
       "0x100A-0x100C) refused with exception 2 are unknown, never a failure", passes=("tcp",),
       peer_extra=["--no-watchdog-regs"])
 def c_scan_no_wd(ctx):
@@ -584,7 +584,7 @@ def c_scan_no_wd(ctx):
     check("unknown" in out, "plain scan does not say the watchdog is unknown")
 
 
-@case("image-lengths-change-rescans", "the coupler builds its image at power-on (DESIGN.md section 3): "
+@case("image-lengths-change-rescans", "the coupler builds its image at power-on (docs/design.md section 3): "
       "after a mapping change and a restart (SIGHUP) the image lengths differ, and a command must "
       "follow the new layout (seed KL6001 annex: standard format, value in bytes 1-2), never "
       "read through the old one", passes=("tcp",))
@@ -611,7 +611,7 @@ def c_rescan(ctx):
 
 
 @case("cache-terminal-removed", "the image lengths 0x1010-0x1013 change when a terminal is removed "
-      "(DESIGN.md section 3: complex terminals in plug order); kscfg keeps a scan between runs and must "
+      "(docs/design.md section 3: complex terminals in plug order); kscfg keeps a scan between runs and must "
       "notice: with the KL6031 gone, terminal 3 is the KL3022 (R8 = 3022, seed example)", passes=("tcp",))
 def c_cache_removed(ctx):
     out, _ = ctx.expect_rc(0, "-t", "4", "read", "--raw", "R8")
@@ -668,7 +668,7 @@ INIT_TYPES = ["KL6001", "KL1104", "KL5101", "KL9100", "KL3022", "KL2134", "KL901
 @case("fleet-apply-station-init", "README fleet example: 'kscfg --port tcp://HOST --json apply "
       "line3.toml' on a file written by 'kscfg station init', without --station. A scan sees "
       "the complex terminals by R8 in plug order and the digital ones as bit totals "
-      "(DESIGN.md section 4): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
+      "(docs/design.md section 4): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
       passes=("tcp",), types={"tcp": INIT_TYPES})
 def c_fleet(ctx):
     f = ctx.path("line3.toml")
@@ -686,7 +686,7 @@ def c_fleet(ctx):
 
 
 @case("apply-digital-bits-differ-refused", "a scan sees digital terminals only as bit totals "
-      "(DESIGN.md section 4): a file whose digital terminals add up to 8 input bits on a coupler "
+      "(docs/design.md section 4): a file whose digital terminals add up to 8 input bits on a coupler "
       "reporting 4 (0x1013) must be refused, naming the difference, before anything is written",
       passes=("tcp",))
 def c_digital_refused(ctx):
@@ -742,7 +742,7 @@ def c_backup_restore(ctx):
     check(not ctx.unlocked(1), "terminal left unlocked")
 
 
-@case("apply-idempotent", "apply writes only what differs (DESIGN.md decision 6): 19200 baud is "
+@case("apply-idempotent", "apply writes only what differs (docs/design.md decision 6): 19200 baud is "
       "R32 = 0x0007 (seed); a second apply writes nothing")
 def c_apply(ctx):
     want = ctx.write_station(ctx.cfg["coupler"], DEFAULT_TYPES,
@@ -812,7 +812,7 @@ def c_read_ext(ctx):
     ctx.expect_rc(5, "read", "R50", station=True)
 
 
-@case("process-data-restored", "DESIGN.md decision 5: the process-data control byte found at the "
+@case("process-data-restored", "docs/design.md decision 5: the process-data control byte found at the "
       "start is restored at the end; the coupler's output image is as before")
 def c_restored(ctx):
     before = ctx.state()["out_image"]
@@ -822,7 +822,7 @@ def c_restored(ctx):
     check(after == before, "output image %s -> %s" % (before[:48], after[:48]))
 
 
-@case("watchdog-untouched", "DESIGN.md section 4: the tool must not silently change watchdog "
+@case("watchdog-untouched", "docs/design.md section 4: the tool must not silently change watchdog "
       "settings (0x1120 preset 1000 ms, 0x1122 type)")
 def c_watchdog(ctx):
     st0 = ctx.state()["watchdog"]
@@ -843,7 +843,7 @@ def c_bk7300_alt(ctx):
     check(raw_value(out) == 5101, "KL5101 R8 = %s" % out.strip())
 
 
-@case("neighbour-byte-kept", "DESIGN.md section 4: writing one byte of a shared word must not "
+@case("neighbour-byte-kept", "docs/design.md section 4: writing one byte of a shared word must not "
       "clobber the neighbour byte. BK7300 without word alignment: KL6001 standard format with "
       "2 data bytes takes bytes 0-2, the KL5101's CT/ST is byte 3, in the same Modbus register "
       "as the KL6001's D1", passes=("tcp",),

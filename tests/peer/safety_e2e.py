@@ -59,7 +59,7 @@ def finish_and_check(ctx, station, says):
     check(ctx.reg(1, 32) == 7, "R32 = %s, want 7" % ctx.reg(1, 32))
 
 
-@case("crash-leftover-register-mode", "DESIGN.md section 6: a control byte with REG set found at the start of a "
+@case("crash-leftover-register-mode", "docs/design.md section 6: a control byte with REG set found at the start of a "
       "session belongs to a session that died (here one of a kscfg on another computer, whose journal is not here): finish it (relock, control byte back to process-data mode), say "
       "so, never restore REG; seed: R31 reads 0 when locked", peer_extra=["--watchdog-ms", "0"])
 def c_crash_reg(ctx):
@@ -68,7 +68,7 @@ def c_crash_reg(ctx):
     finish_and_check(ctx, ctx.station, "was in register mode (control byte 0xDF)")
 
 
-@case("crash-leftover-other-terminal", "DESIGN.md section 6: a kscfg that dies in register mode on one terminal "
+@case("crash-leftover-other-terminal", "docs/design.md section 6: a kscfg that dies in register mode on one terminal "
       "is finished by the next kscfg on the port, whichever terminal that one works on (the dead process's "
       "journal names it); the next session on it finds nothing left", peer_extra=["--watchdog-ms", "0"])
 def c_crash_other(ctx):
@@ -86,7 +86,7 @@ def c_crash_other(ctx):
 
 
 @case("crash-leftover-after-watchdog", "BK9000/BK7300: the watchdog sets the outputs to 0 when it expires, so "
-      "REG is gone but the terminal stays unlocked (R31 is RAM in the terminal, not in the coupler); DESIGN.md "
+      "REG is gone but the terminal stays unlocked (R31 is RAM in the terminal, not in the coupler); docs/design.md "
       "section 6: R31 = 0x1235 found at the start of a session is a dead session's", passes=("tcp",))
 def c_crash_wd(ctx):
     kill_after_code_word(ctx, ctx.station)
@@ -113,7 +113,7 @@ def power_cycle(ctx):
 
 
 @case("lockout-alternative-format-without-complete-evaluation", "seed KL6001 annex: in the alternative format "
-      "without complete evaluation only Ser-CT/ST and D0-D2 are mapped, no CT/ST; DESIGN.md section 6: refuse "
+      "without complete evaluation only Ser-CT/ST and D0-D2 are mapped, no CT/ST; docs/design.md section 6: refuse "
       "without --force; mapping registers take effect at the coupler's power-on", passes=("rtu",))
 def c_lock_alt(ctx):
     rc, _, err = ctx.kscfg("-t", "1", "set", "alternative-format", "on", station=ctx.station)

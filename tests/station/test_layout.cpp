@@ -1,5 +1,5 @@
-// Process-image layout against the annex tables of the seeds (shared/seeds/KL6001-serial-interface-
-// RS232C.md, shared/seeds/KL5101-incremental-encoder-interface.md) and the rules of DESIGN.md
+// Process-image layout against the annex tables of the seeds (the KL6001 and KL5101 manuals,
+// seeds in docs/design.md Sources) and the rules of docs/design.md
 // section 3.
 //
 // Reading the annex tables: "I/O Offset N" is a 16-bit word offset, so the "Low Byte" cell of row
@@ -207,7 +207,7 @@ TEST_CASE("KL6001 alternative format: register window with complete evaluation",
       CHECK(ch.window->out_hi == offset_of(ch.out, "D0"));
       CHECK(ch.window->in_lo == offset_of(ch.in, "Ser-CT/ST"));
       CHECK(ch.window->in_hi == offset_of(ch.in, "D0"));
-      // Intel: low byte at the lower address; Motorola: high byte first (DESIGN.md decision 3).
+      // Intel: low byte at the lower address; Motorola: high byte first (docs/design.md decision 3).
       if (mo) CHECK(ch.window->out_hi < ch.window->out_lo);
       else CHECK(ch.window->out_lo < ch.window->out_hi);
     }
@@ -330,7 +330,7 @@ TEST_CASE("KL3022 with complete evaluation and word alignment (BK2000 example)",
 }
 
 // ---------------------------------------------------------------------------------------------
-// Station level (DESIGN.md section 3)
+// Station level (docs/design.md section 3)
 // ---------------------------------------------------------------------------------------------
 
 namespace {

@@ -1,4 +1,4 @@
-// Discovery of the station behind a Modbus coupler (DESIGN.md section 4).
+// Discovery of the station behind a Modbus coupler (docs/design.md section 4).
 #pragma once
 #include <array>
 #include <functional>

@@ -1,4 +1,4 @@
-// Process-image layout: where each terminal's bytes sit in a coupler's image (DESIGN.md section 3).
+// Process-image layout: where each terminal's bytes sit in a coupler's image (docs/design.md section 3).
 #pragma once
 #include <array>
 #include <cstdint>
