@@ -18,6 +18,7 @@
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/modbus_link.hpp"
+#include "kscfg/session/station_work.hpp"
 #include "output.hpp"
 
 namespace kscfg::cli {
@@ -185,13 +186,47 @@ bool Context::check_terminal(const TerminalImage& t, bool keep) {
 }
 
 void Context::check_cached_terminals() {
+  // Every terminal's R8 at once (the station engine): one run of exchanges for the station.
   for (int round = 0; round < 2 && layout_from_cache(); ++round) {
+    std::vector<ChannelReads> jobs;
+    for (const auto& t : layout_->terminals) {
+      if (checked_r8_.count(t.position) || !t.type->has_registers) continue;
+      if (t.channels.empty() || !t.channels[0].window) continue;
+      ChannelReads j;
+      j.position = t.position;
+      j.regs = {8};
+      jobs.push_back(std::move(j));
+    }
     bool stale = false;
-    for (const auto& t : layout_->terminals)
-      if (!check_terminal(t, false)) {
-        stale = true;
-        break;
+    if (!jobs.empty()) {
+      const StationLayout& L = *layout_;
+      read_channels(engine(), L, jobs, session_options());
+      for (auto& j : jobs) {
+        const TerminalImage& t = L.terminal(j.position);
+        if (j.error) {
+          try {
+            std::rethrow_exception(j.error);
+          } catch (const Error& e) {
+            // No answer where the kept scan puts the terminal: terminals swapped for others that keep
+            // the image lengths move every window (issue 21 item 6).
+            if (e.code() != Exit::timeout) throw;
+            if (opt_.verbose)
+              trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
+                                t.position, t.type->type, e.what()));
+            checked_r8_[t.position] = 0;
+            stale = true;
+          }
+          continue;
+        }
+        checked_r8_[t.position] = j.values[0];
+        if (j.values[0] != t.type->r8) {
+          if (opt_.verbose)
+            trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position,
+                              j.values[0], t.type->type));
+          stale = true;
+        }
       }
+    }
     if (!stale) return;
     bool complete = layout_complete_;
     forget_layout();
@@ -308,6 +343,44 @@ std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
                 "the station changed; the kept scan was dropped: run the command again");
   }
   return std::make_unique<RegisterSession>(engine(), t, ch, session_options());
+}
+
+std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
+    const std::vector<unsigned>& positions, const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
+    const std::function<void(unsigned, unsigned)>& progress) {
+  std::map<unsigned, std::vector<std::uint16_t>> out;
+  if (positions.empty()) return out;
+  const StationLayout& L = layout_upto(*std::max_element(positions.begin(), positions.end()));
+  SessionOptions so = session_options();
+  unsigned ch = opt_.channel - 1;
+  std::vector<ChannelReads> jobs;
+  for (unsigned pos : positions) {
+    const TerminalImage& t = register_terminal(L, pos, ch);
+    ChannelReads j;
+    j.position = pos;
+    j.channel = ch;
+    j.regs = regs_of(t);
+    if (layout_from_cache() && !checked_r8_.count(pos)) j.expect_r8 = t.type->r8;
+    jobs.push_back(std::move(j));
+  }
+  read_channels(engine(), L, jobs, so, progress);
+  for (auto& j : jobs) {
+    if (j.error) {
+      try {
+        std::rethrow_exception(j.error);
+      } catch (const TypeChanged& e) {
+        std::string was = L.terminal(j.position).type->type;
+        forget_layout();
+        throw Error(Exit::refused,
+                    fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}",
+                                j.position, e.r8(), was),
+                    "the station changed; the kept scan was dropped: run the command again");
+      }
+    }
+    if (j.expect_r8) checked_r8_[j.position] = *j.expect_r8;
+    out[j.position] = std::move(j.values);
+  }
+  return out;
 }
 
 nlohmann::json Context::link_json() {

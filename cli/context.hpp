@@ -1,6 +1,7 @@
 // What every command gets: the global options, the link, the station layout and output helpers.
 #pragma once
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <map>
@@ -91,6 +92,15 @@ class Context {
   // A register session with the selected terminal (or the one at `position`) and channel.
   std::unique_ptr<RegisterSession> session();
   std::unique_ptr<RegisterSession> session(unsigned position);
+  // Reads regs_of(terminal) on the selected channel of every terminal in `positions` at once (the
+  // station engine, session/station_work.hpp): a station costs about the exchanges of one terminal.
+  // A terminal of a layout kept from an earlier run that was not checked yet has its R8 read ahead
+  // with its first reads; another type drops the kept scan (Error(refused), as session() does).
+  // The values by position, in the order of regs_of(). The first error in plug order is thrown.
+  std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
+      const std::vector<unsigned>& positions,
+      const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
+      const std::function<void(unsigned done, unsigned total)>& progress = {});
 
   // Saves emulator state etc. Called once after the command, also after a failed command.
   void finish();

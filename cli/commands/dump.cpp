@@ -27,26 +27,37 @@ class Dump : public Command {
   void add_cli(CLI::App&) override {}
   int run(Context& ctx) override {
     auto positions = ctx.terminal_positions();
+    std::vector<unsigned> all(48);
+    for (unsigned r = 0; r < 48; ++r) all[r] = r;
     std::vector<nlohmann::json> docs;
     ProgressBar bar(ctx, "dump", 48 * positions.size());
-    for (std::size_t i = 0; i < positions.size(); ++i) docs.push_back(dump_one(ctx, positions[i], bar, 48 * i));
-    bar.finish();
+    if (positions.size() == 1) {
+      // One terminal: the session that checked its type goes on.
+      auto s = ctx.session(positions[0]);
+      auto v = s->read_then_close(
+          all, [&](std::size_t r) { bar.update(r, fmt::format("terminal {} R{}", positions[0], r)); });
+      bar.finish();
+      docs.push_back(dump_one(ctx, s->terminal(), v));
+    } else {
+      // Several: every terminal's handshake at once (the station engine).
+      auto values = ctx.read_terminals(
+          positions, [&](const TerminalImage&) { return all; },
+          [&](unsigned done, unsigned) { bar.update(done, fmt::format("{} terminals", positions.size())); });
+      bar.finish();
+      unsigned ch = ctx.options().channel - 1;
+      for (unsigned pos : positions)
+        docs.push_back(dump_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), values.at(pos)));
+    }
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }
 
  private:
-  nlohmann::json dump_one(Context& ctx, unsigned pos, ProgressBar& bar, std::size_t done) {
-    auto s = ctx.session(pos);
-    const TerminalType& type = *s->terminal().type;
-    std::vector<unsigned> all(48);
-    for (unsigned r = 0; r < 48; ++r) all[r] = r;
-    std::vector<std::uint16_t> v = s->read_then_close(
-        all, [&](std::size_t r) { bar.update(done + r, fmt::format("terminal {} R{}", pos, r)); });
-    bar.update(done + 48);
-    bar.finish();
+  nlohmann::json dump_one(Context& ctx, const TerminalImage& term, const std::vector<std::uint16_t>& v) {
+    const TerminalType& type = *term.type;
+    unsigned pos = term.position;
     unsigned ch = ctx.options().channel - 1;
-    std::string prefix = terminal_prefix(ctx, s->terminal());
+    std::string prefix = terminal_prefix(ctx, term);
     nlohmann::json arr = nlohmann::json::array();
     if (!ctx.json() && (prefix.empty() || pos == ctx.terminal_positions().front()))
       std::cout << (prefix.empty() ? "" : fmt::format("{:<3} {:<7} ", "POS", "TYPE"))
@@ -79,7 +90,7 @@ class Dump : public Command {
                                  register_meaning(type, r, v[r], ch));
       }
     }
-    nlohmann::json j = terminal_json(s->terminal(), ch);
+    nlohmann::json j = terminal_json(term, ch);
     j["registers"] = arr;
     return j;
   }

@@ -5,6 +5,7 @@
 
 #include <cstdlib>
 #include <iostream>
+#include <map>
 
 #include "../command.hpp"
 #include "../commands.hpp"
@@ -12,6 +13,7 @@
 #include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/station_work.hpp"
 
 namespace kscfg::cli {
 
@@ -68,6 +70,31 @@ class Info : public Command {
     if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
     else
       for (const auto& t : L.terminals) positions.push_back(t.position);
+    // R8 and R9 of every terminal with registers, all at once (the station engine); R8 only where
+    // this run's scan did not read it.
+    std::vector<ChannelReads> jobs;
+    std::map<unsigned, std::size_t> job_of;
+    for (unsigned pos : positions) {
+      const TerminalImage& t = L.terminal(pos);
+      if (!t.type->has_registers || t.channels.empty() || !t.channels[0].window) continue;
+      ChannelReads j;
+      j.position = pos;
+      j.regs = ctx.known_r8(pos) ? std::vector<unsigned>{9} : std::vector<unsigned>{8, 9};
+      job_of[pos] = jobs.size();
+      jobs.push_back(std::move(j));
+    }
+    if (!jobs.empty()) read_channels(ctx.engine(), L, jobs, ctx.session_options());
+    for (const auto& j : jobs)
+      if (j.error) std::rethrow_exception(j.error);  // the first in plug order, as one after the other
+    auto r8_of = [&](const ChannelReads& j) { return j.regs.size() == 2 ? j.values[0] : *ctx.known_r8(j.position); };
+    if (ctx.layout_from_cache() && !rescanned_)
+      for (const auto& j : jobs)
+        if (r8_of(j) != L.terminal(j.position).type->r8) {
+          // The station changed since the scan kept in the cache: scan it again, start over.
+          rescanned_ = true;
+          ctx.forget_layout();
+          return run(ctx);
+        }
     nlohmann::json arr = nlohmann::json::array();
     std::vector<std::vector<std::string>> rows;
     for (unsigned pos : positions) {
@@ -75,24 +102,9 @@ class Info : public Command {
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
                        {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
       std::string r8 = "-", ver = "-";
-      if (t.type->has_registers && !t.channels.empty() && t.channels[0].window) {
-        RegisterSession s(ctx.engine(), t, 0, ctx.session_options());
-        std::uint16_t v8, v9;
-        if (auto known = ctx.known_r8(t.position)) {
-          v8 = *known;  // this run's scan read it
-          v9 = s.read(9);
-        } else {
-          auto v89 = s.read_many({8, 9});
-          v8 = v89[0];
-          v9 = v89[1];
-        }
-        s.close();
-        if (v8 != t.type->r8 && ctx.layout_from_cache() && !rescanned_) {
-          // The station changed since the scan kept in the cache: scan it again, start over.
-          rescanned_ = true;
-          ctx.forget_layout();
-          return run(ctx);
-        }
+      if (auto it = job_of.find(pos); it != job_of.end()) {
+        const ChannelReads& job = jobs[it->second];
+        std::uint16_t v8 = r8_of(job), v9 = job.values.back();
         r8 = fmt::format("{}", v8);
         ver = proto::version_text(v9);
         j["r8"] = v8;

@@ -42,22 +42,33 @@ class Read : public Command {
     std::vector<unsigned> regs;
     for (const auto& r : regs_)
       for (unsigned x : parse_register_list(r)) regs.push_back(x);
+    auto positions = ctx.terminal_positions();
+    for (unsigned r : regs)
+      if (!proto::is_implemented(r))
+        throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
+                                               ctx.layout_upto(positions.front()).terminal(positions.front()).type->type));
     std::vector<nlohmann::json> docs;
-    for (unsigned pos : ctx.terminal_positions()) docs.push_back(read_one(ctx, pos, regs));
+    if (positions.size() == 1) {
+      // One terminal: the session that checked its type goes on.
+      auto s = ctx.session(positions[0]);
+      auto vals = s->read_then_close(regs);
+      docs.push_back(read_one(ctx, s->terminal(), regs, vals));
+    } else {
+      // Several: every terminal's handshake at once (the station engine).
+      auto values = ctx.read_terminals(positions, [&](const TerminalImage&) { return regs; });
+      unsigned ch = ctx.options().channel - 1;
+      for (unsigned pos : positions)
+        docs.push_back(read_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), regs, values.at(pos)));
+    }
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }
 
  private:
-  nlohmann::json read_one(Context& ctx, unsigned pos, const std::vector<unsigned>& regs) {
-    auto s = ctx.session(pos);
-    const TerminalType& type = *s->terminal().type;
-    for (unsigned r : regs)
-      if (!proto::is_implemented(r))
-        throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
-                                               type.type));
-    std::vector<std::uint16_t> vals;
-    vals = s->read_then_close(regs);
+  nlohmann::json read_one(Context& ctx, const TerminalImage& term, const std::vector<unsigned>& regs,
+                          const std::vector<std::uint16_t>& vals) {
+    const TerminalType& type = *term.type;
+    unsigned pos = term.position;
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
@@ -68,11 +79,11 @@ class Read : public Command {
                        {"name", type.regs[regs[i]].name}, {"values", values},
                        {"meaning", register_meaning(type, regs[i], vals[i], ch)}});
       }
-      nlohmann::json j = terminal_json(s->terminal(), ch);
+      nlohmann::json j = terminal_json(term, ch);
       j["registers"] = arr;
       return j;
     }
-    std::string prefix = terminal_prefix(ctx, s->terminal());
+    std::string prefix = terminal_prefix(ctx, term);
     for (std::size_t i = 0; i < regs.size(); ++i) {
       if (raw_) {  // several terminals: "POS VALUE"
         std::cout << (prefix.empty() ? "" : std::to_string(pos) + " ") << hex4(vals[i]) << '\n';

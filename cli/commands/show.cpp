@@ -55,7 +55,24 @@ class Show : public Command {
     auto positions = ctx.terminal_positions();
     bool several = ctx.several_terminals();
     std::vector<Row> rows;
-    for (unsigned pos : positions) docs.push_back(show_one(ctx, pos, rows));
+    if (positions.size() == 1) {
+      // One terminal: the session that checked its type goes on.
+      auto s = ctx.session(positions[0]);
+      auto params = params_of(s->terminal(), s->channel());
+      auto vals = read_params(*s, params);
+      s->close();
+      docs.push_back(show_one(ctx, s->terminal(), s->channel(), vals, rows));
+    } else {
+      // Several: every terminal's handshake at once (the station engine).
+      unsigned ch = ctx.options().channel - 1;
+      auto values = ctx.read_terminals(
+          positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
+      for (unsigned pos : positions) {
+        const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
+        auto params = params_of(t, ch);
+        docs.push_back(show_one(ctx, t, ch, decode_params(*t.type, params, values.at(pos)), rows));
+      }
+    }
     if (ctx.json()) {
       print_json_terminals(ctx, docs);
       return 0;
@@ -94,26 +111,30 @@ class Show : public Command {
     std::string prefix, text, param, value, fallback, reg;
   };
 
-  nlohmann::json show_one(Context& ctx, unsigned pos, std::vector<Row>& rows) {
-    auto s = ctx.session(pos);
-    const TerminalType& type = *s->terminal().type;
+  static std::vector<const ParamDef*> params_of(const TerminalImage& t, unsigned ch) {
     std::vector<const ParamDef*> params;
-    for (const auto& p : type.params)
-      if (!p.channel || *p.channel == s->channel()) params.push_back(&p);
-    auto vals = read_params(*s, params);
-    s->close();
+    for (const auto& p : t.type->params)
+      if (!p.channel || *p.channel == ch) params.push_back(&p);
+    return params;
+  }
+
+  nlohmann::json show_one(Context& ctx, const TerminalImage& term, unsigned ch, const std::vector<ParamValue>& vals,
+                          std::vector<Row>& rows) {
+    const TerminalType& type = *term.type;
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& v : vals)
         arr.push_back({{"name", v.param->name}, {"value", param_json(v.value)}, {"default", param_json(v.fallback)},
                        {"at_default", !v.differs}, {"register", v.param->reg}, {"register_value", v.reg_value},
                        {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)}});
-      nlohmann::json j = terminal_json(s->terminal(), s->channel());
+      nlohmann::json j = terminal_json(term, ch);
       j["params"] = arr;
       return j;
     }
-    std::string prefix = terminal_prefix(ctx, s->terminal());
-    rows.push_back({true, prefix, fmt::format("{}  {}", s->who(), type.title), "", "", "", ""});
+    std::string prefix = terminal_prefix(ctx, term);
+    std::string who = fmt::format("terminal {} ({})", term.position, type.type);
+    if (type.channels > 1) who += fmt::format(" channel {}", ch + 1);
+    rows.push_back({true, prefix, fmt::format("{}  {}", who, type.title), "", "", "", ""});
     if (vals.empty())
       rows.push_back({false, prefix, "(no named parameters in the catalog; 'kscfg dump' shows the registers)", "", "", "", ""});
     for (const auto& v : vals)

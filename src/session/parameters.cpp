@@ -37,14 +37,18 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
               "kscfg show lists the parameters");
 }
 
-std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params) {
-  const TerminalType& type = *s.terminal().type;
-  std::map<unsigned, std::uint16_t> regs;
+std::vector<unsigned> param_registers(const std::vector<const ParamDef*>& params) {
   std::vector<unsigned> order;
   for (const auto* p : params)
     if (std::find(order.begin(), order.end(), p->reg) == order.end()) order.push_back(p->reg);
-  auto values = s.read_many(order);
-  for (std::size_t i = 0; i < order.size(); ++i) regs[order[i]] = values[i];
+  return order;
+}
+
+std::vector<ParamValue> decode_params(const TerminalType& type, const std::vector<const ParamDef*>& params,
+                                      const std::vector<std::uint16_t>& values) {
+  std::vector<unsigned> order = param_registers(params);
+  std::map<unsigned, std::uint16_t> regs;
+  for (std::size_t i = 0; i < order.size() && i < values.size(); ++i) regs[order[i]] = values[i];
   std::vector<ParamValue> out;
   for (const auto* p : params) {
     ParamValue v;
@@ -57,6 +61,10 @@ std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const 
     out.push_back(v);
   }
   return out;
+}
+
+std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params) {
+  return decode_params(*s.terminal().type, params, s.read_many(param_registers(params)));
 }
 
 void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,

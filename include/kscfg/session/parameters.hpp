@@ -26,6 +26,11 @@ struct ParamValue {
 
 // Reads the registers the parameters live in (each register once) and decodes them.
 std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params);
+// The registers the parameters live in, each once, in order; and the parameters decoded from the
+// values of those registers (read by someone else: the station engine for several terminals).
+std::vector<unsigned> param_registers(const std::vector<const ParamDef*>& params);
+std::vector<ParamValue> decode_params(const TerminalType& type, const std::vector<const ParamDef*>& params,
+                                      const std::vector<std::uint16_t>& values);
 
 struct ParamChange {
   const ParamDef* param = nullptr;
