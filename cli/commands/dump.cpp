@@ -1,5 +1,6 @@
 // kscfg dump: all 64 registers with storage class, default and a mark where they differ.
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <iostream>
 
@@ -40,9 +41,11 @@ class Dump : public Command {
       docs.push_back(dump_one(ctx, s->terminal(), v));
     } else {
       // Several: every terminal's handshake at once (the station engine).
+      std::string which = fmt::format("terminals {}", fmt::join(positions, ","));
+      if (which.size() > 24) which = fmt::format("{} terminals", positions.size());
       auto values = ctx.read_terminals(
           positions, [&](const TerminalImage&) { return all; },
-          [&](unsigned done, unsigned) { bar.update(done, fmt::format("{} terminals", positions.size())); });
+          [&](unsigned done, unsigned) { bar.update(done, which); });
       bar.finish();
       unsigned ch = ctx.options().channel - 1;
       for (unsigned pos : positions)

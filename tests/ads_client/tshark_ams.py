@@ -18,6 +18,10 @@ import tempfile
 import time
 
 
+# The runs above exchange well over this many AMS packets (requests and responses); fewer means the
+# capture lost traffic or tshark did not take the stream for AMS.
+kMinPackets = 60
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--kscfg", required=True)
@@ -66,7 +70,16 @@ def main():
                 if r.returncode != expect:
                     print(f"FAIL {' '.join(cmd[1:])}: rc {r.returncode}: {r.stderr.strip()[:300]}")
                     return 1
-            time.sleep(0.5)  # the last segments reach the capture
+            # The last segments reach the capture: wait until the file stops growing (a loaded
+            # machine writes it late), at most 10 s.
+            last, stable_since, deadline = -1, time.monotonic(), time.monotonic() + 10
+            while time.monotonic() < deadline:
+                size = os.path.getsize(pcap) if os.path.exists(pcap) else 0
+                if size != last:
+                    last, stable_since = size, time.monotonic()
+                elif time.monotonic() - stable_since >= 1.0:
+                    break
+                time.sleep(0.1)
         finally:
             if cap and cap.poll() is None:
                 cap.send_signal(signal.SIGINT)
@@ -86,10 +99,10 @@ def main():
         cmds = {l.split("\t")[0] for l in lines}
         if not {"2", "3"} <= cmds:
             bad.append(f"AMS command ids decoded: {sorted(cmds)} (Read 2 and Write 3 expected)")
-        print(f"{'ok  ' if frames.returncode == 0 and len(lines) >= 100 else 'FAIL'} tshark decodes {len(lines)} "
+        print(f"{'ok  ' if frames.returncode == 0 and len(lines) >= kMinPackets else 'FAIL'} tshark decodes {len(lines)} "
               f"packets as AMS {frames.stderr.strip()[:200]}")
         print(f"{'ok  ' if not bad else 'FAIL'} no malformed AMS frame: {len(bad)}" + ("".join("\n  " + b for b in bad[:10])))
-        return 0 if frames.returncode == 0 and len(lines) >= 100 and not bad else 1
+        return 0 if frames.returncode == 0 and len(lines) >= kMinPackets and not bad else 1
 
 
 if __name__ == "__main__":

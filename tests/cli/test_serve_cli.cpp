@@ -260,9 +260,23 @@ TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for
   for (const auto& [pos, value] : writes) {
     Run r = on(srv.uri, {"--timeout", "300", "-t", std::to_string(pos), "write", "R32", value}, 60);
     INFO("write R32 " << value << " on terminal " << pos << ": " << r.err);
-    if (r.rc == 0) last[pos] = value;
-    else CHECK(one_line_error(r));
+    if (r.rc == 0) {
+      last[pos] = value;
+    } else {
+      // One error line, after the notes of leftovers this run finished (a run before it lost the
+      // link with a terminal in register mode).
+      Run e = r;
+      while (e.err.rfind("kscfg: note: ", 0) == 0 && e.err.find('\n') != std::string::npos)
+        e.err.erase(0, e.err.find('\n') + 1);
+      CHECK(one_line_error(e));
+    }
   }
+  // A run that lost the link (three late replies in a row) may leave a terminal in register mode;
+  // the next kscfg on the port finishes it (from the dead run's journal, or as the leftover it
+  // finds). One that gets through and touches every terminal leaves the station clean.
+  bool clean = false;
+  for (int i = 0; i < 8 && !clean; ++i) clean = on(srv.uri, {"--timeout", "300", "-t", "all", "read", "R8"}, 60).rc == 0;
+  CHECK(clean);
   CHECK(srv.stop() == 0);
   kscfg::EmulatorStore store(st.state, kscfg::Catalog::standard());
   auto& station = store.station();
