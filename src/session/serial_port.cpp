@@ -100,6 +100,7 @@ SerialPort::SerialPort(Link& link, const StationLayout& layout, unsigned positio
   if (img_.reg_ctrl) outs.push_back(img_.reg_ctrl->offset);
   for (const auto& b : img_.out_data) outs.push_back(b.offset);
   if (img_.in_len) ins.push_back(img_.in_len->offset);
+  if (img_.reg_status) ins.push_back(img_.reg_status->offset);
   for (const auto& b : img_.in_data) ins.push_back(b.offset);
   auto [olo, ohi] = std::minmax_element(outs.begin(), outs.end());
   auto [ilo, ihi] = std::minmax_element(ins.begin(), ins.end());
@@ -119,6 +120,18 @@ SerialPort::SerialPort(Link& link, const StationLayout& layout, unsigned positio
     write_out();
   }
   read_in();
+  // Right after a register session (this run's type check puts the control byte back with its
+  // last poll) the terminal shows register mode until its next cycle: the register value then sits
+  // where the serial status and data bytes will be. Wait (bounded) until it shows process data.
+  auto in_register_mode = [&] {
+    return ((img_.reg_status ? in_[img_.reg_status->offset - in_lo_] : status_) & proto::kReg) != 0;
+  };
+  for (auto until = std::chrono::steady_clock::now() + opt_.timeout;
+       in_register_mode() && std::chrono::steady_clock::now() < until;) {
+    check_interrupt();
+    sleep_for_or_cancelled(std::chrono::milliseconds(1));
+    read_in();
+  }
   // A transmit request left by an earlier run (TR differs from TA) is still the terminal's to
   // take: wait for it before new data replaces the data bytes.
   tx_busy_ = !(status_ & proto::kReg) && ((ctrl_ & serial::kTR) != 0) != ((status_ & serial::kTA) != 0);
