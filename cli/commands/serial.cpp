@@ -1,15 +1,14 @@
 // kscfg serial init|send|recv|term|status|line: serial data through a serial terminal's
 // process-data handshake (library: kscfg/serial.hpp; emulated terminal: kscfg/serial_model.hpp).
+// serial term is in serial_term.cpp, serial line in serial_line.cpp.
 #include <fmt/format.h>
 #include <poll.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
-#include <map>
 #include <functional>
 #include <memory>
 #include <iostream>
@@ -29,10 +28,9 @@
 #include "kscfg/session/process_data.hpp"
 #include "kscfg/session/serial_port.hpp"
 #include "kscfg/session/session.hpp"
+#include "serial_util.hpp"
 
 namespace kscfg::cli {
-
-namespace {
 
 // The serial terminal selected by -t (default: the first serial terminal of the station).
 unsigned serial_position(Context& ctx) {
@@ -50,6 +48,20 @@ std::unique_ptr<SerialPort> open_port(Context& ctx) {
   unsigned pos = serial_position(ctx);
   return std::make_unique<SerialPort>(ctx.link(), ctx.layout(), pos, ctx.options().channel - 1, so);
 }
+
+std::string diag_text(std::uint16_t r6) {
+  std::vector<std::string> v;
+  if (r6 & serial::kDiagOverflow) v.push_back("receive FIFO overflowed, data lost");
+  if (r6 & serial::kDiagParity) v.push_back("parity error");
+  if (r6 & serial::kDiagFraming) v.push_back("framing error");
+  if (r6 & serial::kDiagOverrun) v.push_back("overrun error");
+  if (r6 & serial::kDiagFull) v.push_back("receive FIFO full");
+  std::string s;
+  for (auto& x : v) s += (s.empty() ? "" : ", ") + x;
+  return s.empty() ? "no errors" : s;
+}
+
+namespace {
 
 // {"position", "channel", "type"} of the port's terminal channel (docs/json.md).
 nlohmann::json port_json(Context& ctx, const SerialPort& port) {
@@ -83,18 +95,6 @@ Diagnostics read_diagnostics(Context& ctx, const SerialPort& port) {
   s.close();
   d.known = true;
   return d;
-}
-
-std::string diag_text(std::uint16_t r6) {
-  std::vector<std::string> v;
-  if (r6 & serial::kDiagOverflow) v.push_back("receive FIFO overflowed, data lost");
-  if (r6 & serial::kDiagParity) v.push_back("parity error");
-  if (r6 & serial::kDiagFraming) v.push_back("framing error");
-  if (r6 & serial::kDiagOverrun) v.push_back("overrun error");
-  if (r6 & serial::kDiagFull) v.push_back("receive FIFO full");
-  std::string s;
-  for (auto& x : v) s += (s.empty() ? "" : ", ") + x;
-  return s.empty() ? "no errors" : s;
 }
 
 // After a transfer: tell about BUF_F and R6 errors on stderr; never silent about lost data.
@@ -367,258 +367,6 @@ class SerialRecv : public Command {
   bool hex_ = false;
 };
 
-// Raw keyboard while the terminal runs; restored on every way out.
-class RawTty {
- public:
-  RawTty() {
-    if (!isatty(0) || tcgetattr(0, &saved_) != 0) return;
-    termios t = saved_;
-    cfmakeraw(&t);
-    t.c_oflag |= OPOST | ONLCR;  // keep our own messages readable
-    if (tcsetattr(0, TCSANOW, &t) == 0) active_ = true;
-  }
-  ~RawTty() {
-    if (active_) tcsetattr(0, TCSANOW, &saved_);
-  }
-  bool active() const { return active_; }
-
- private:
-  termios saved_{};
-  bool active_ = false;
-};
-
-// What the banner says about the line: "9600 baud, 8N1, flow control RTS/CTS", read from the
-// terminal's registers through a short register session (process data restored), or why not.
-std::string line_text(Context& ctx, const TerminalImage& t, unsigned ch) {
-  if (ch >= t.channels.size() || !t.channels[ch].window)
-    return "baud rate, frame and flow control unknown: the image maps no register window";
-  const TerminalType& type = *t.type;
-  auto param = [&](const char* name) -> const ParamDef* {
-    for (const auto& p : type.params)
-      if (p.name == name && (!p.channel || *p.channel == ch)) return &p;
-    return nullptr;
-  };
-  RegisterSession s(ctx.engine(), t, ch, ctx.session_options());
-  std::map<unsigned, std::uint16_t> regs;
-  auto value = [&](const char* name) -> std::string {
-    const ParamDef* p = param(name);
-    if (!p) return "";
-    if (!regs.count(p->reg)) regs[p->reg] = s.read(p->reg);
-    return decode_param(*p, regs[p->reg]);
-  };
-  std::string baud = value("baud"), frame = value("frame"), rts = value("rts-cts"), xs = value("xon-xoff-send"),
-              xr = value("xon-xoff-receive");
-  s.close();
-  std::vector<std::string> flow;
-  if (rts == "on") flow.push_back("RTS/CTS");
-  if (xs == "on" && xr == "on") flow.push_back("XON/XOFF");
-  else if (xs == "on") flow.push_back("XON/XOFF when sending");
-  else if (xr == "on") flow.push_back("XON/XOFF when receiving");
-  std::string f;
-  for (const auto& x : flow) f += (f.empty() ? "" : " and ") + x;
-  return fmt::format("{} baud, {}, flow control {}", baud.empty() ? "unknown" : baud, frame.empty() ? "frame unknown" : frame,
-                     f.empty() ? "none" : f);
-}
-
-class SerialTerm : public Command {
- public:
-  std::string name() const override { return "term"; }
-  std::string brief() const override { return "Interactive terminal through the serial terminal (Ctrl-] q quits)"; }
-  std::string man() const override {
-    return "A terminal program like picocom, through the bus terminal: every key goes out as it is typed (raw "
-           "mode, Ctrl\\-C included), received bytes are written to the screen as they come, and a change of the "
-           "terminal's BUF_F or IA bit is shown as a line on stderr. A banner on stderr first names the port, the "
-           "terminal, its baud rate, frame and flow control (read from its registers), the maps, the log file and "
-           "the escape key.\n"
-           ".IP\n"
-           "Ctrl\\-] is the escape key; the key after it is a command: \\fBq\\fR or \\fBx\\fR quits, \\fB?\\fR or "
-           "\\fBh\\fR lists the keys, \\fBe\\fR turns local echo on or off, \\fBs\\fR shows the handshake bits and "
-           "the bytes sent and received, \\fBb\\fR shows the banner again, and a second Ctrl\\-] sends Ctrl\\-] "
-           "itself.\n"
-           ".IP\n"
-           "\\fB\\-\\-omap\\fR maps typed bytes on their way to the line, \\fB\\-\\-imap\\fR received bytes on "
-           "their way to the screen, as in picocom (comma-separated): \\fBcrlf\\fR (CR to LF), \\fBcrcrlf\\fR (CR "
-           "to CR LF), \\fBigncr\\fR (CR dropped), \\fBlfcr\\fR (LF to CR), \\fBlfcrlf\\fR (LF to CR LF), "
-           "\\fBignlf\\fR (LF dropped), \\fBbsdel\\fR (BS to DEL), \\fBdelbs\\fR (DEL to BS). "
-           "\\fB\\-\\-echo\\fR shows typed bytes (as typed, CR as a new line). \\fB\\-\\-logfile\\fR appends "
-           "what the screen shows (received bytes after \\fB\\-\\-imap\\fR, and the echo) to \\fIFILE\\fR.\n"
-           ".IP\n"
-           "With stdin not a terminal, the bytes read from it are sent (escape keys work there too) and the "
-           "command ends when stdin is at its end and nothing has arrived for \\fB\\-\\-timeout\\fR ms. Over the "
-           "emulator the far end of the line is a loopback bridge by default (typed text comes back); see "
-           "\\fBserial line\\fR.";
-  }
-  std::vector<std::string> examples() const override {
-    return {"serial term", "-t 3 serial term --omap crlf --imap lfcrlf --echo",
-            "serial term --logfile session.log"};
-  }
-  void add_cli(CLI::App& sub) override {
-    sub.add_option("--omap", omap_, "Map typed bytes: crlf, crcrlf, igncr, lfcr, lfcrlf, ignlf, bsdel, delbs")
-        ->option_text("MAP");
-    sub.add_option("--imap", imap_, "Map received bytes (the same maps)")->option_text("MAP");
-    sub.add_option("--logfile", logfile_, "Append what the screen shows to FILE")->option_text("FILE");
-    sub.add_flag("--echo", echo_, "Show typed bytes (local echo)");
-  }
-  int run(Context& ctx) override {
-    unsigned omap = parse_serial_map(omap_, "--omap"), imap = parse_serial_map(imap_, "--imap");
-    std::unique_ptr<std::FILE, int (*)(std::FILE*)> log(nullptr, &std::fclose);
-    if (!logfile_.empty()) {
-      log.reset(std::fopen(logfile_.c_str(), "ab"));
-      if (!log)
-        throw Error(Exit::file, fmt::format("cannot open log file {}: {}", logfile_, std::strerror(errno)));
-    }
-    unsigned pos = serial_position(ctx);
-    unsigned ch = ctx.options().channel - 1;
-    std::string line = line_text(ctx, serial_terminal(ctx.layout(), pos, ch), ch);
-    auto port = open_port(ctx);
-    std::string far;
-    if (auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link())) {
-      auto& st = emu->emulated();
-      if (st.has_channel(port->terminal().position, ch))
-        if (auto* ser = st.channel(port->terminal().position, ch).serial()) far = ser->far_end_description();
-    }
-    bool echo = echo_;
-    auto banner = [&] {
-      std::string b = fmt::format("kscfg: {} on {}\r\n", port->who(), ctx.link().describe());
-      b += fmt::format("kscfg: {}; {} format, {} data bytes\r\n", line, port->image().format,
-                       port->image().out_data.size());
-      if (!far.empty()) b += fmt::format("kscfg: far end of the emulated line: {}\r\n", far);
-      b += fmt::format("kscfg: omap {}, imap {}, echo {}, log file {}\r\n", serial_map_text(omap),
-                       serial_map_text(imap), echo ? "on" : "off", logfile_.empty() ? "none" : logfile_);
-      b += "kscfg: escape key Ctrl-]: Ctrl-] q quits, Ctrl-] ? lists the keys\r\n";
-      return b;
-    };
-    RawTty tty;
-    std::cerr << banner() << std::flush;
-    std::size_t sent = 0, received = 0;
-    auto show = [&](std::span<const std::uint8_t> bytes) {
-      if (bytes.empty()) return;
-      ssize_t n = ::write(1, bytes.data(), bytes.size());
-      (void)n;
-      if (log) {
-        std::fwrite(bytes.data(), 1, bytes.size(), log.get());
-        std::fflush(log.get());
-      }
-    };
-    auto take_received = [&] {
-      auto& rx = port->received();
-      if (rx.empty()) return;
-      received += rx.size();
-      show(apply_serial_map(imap, rx));
-      rx.clear();
-    };
-    auto type = [&](std::span<const std::uint8_t> keys) {
-      if (keys.empty()) return;
-      if (echo) show(apply_serial_map(kMapCrCrLf, keys));
-      auto out = apply_serial_map(omap, keys);
-      sent += out.size();
-      port->queue(out);
-    };
-    std::uint8_t shown = port->status();
-    bool eof = false, escape = false;
-    auto last = std::chrono::steady_clock::now();
-    for (;;) {
-      if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
-      bool progress = port->poll(true);
-      take_received();
-      std::uint8_t flags = port->status() & (serial::kBufF | serial::kIA);
-      if (flags != (shown & (serial::kBufF | serial::kIA))) {
-        std::cerr << fmt::format("\r\n[kscfg: BUF_F {}, IA {}]\r\n", flags & serial::kBufF ? "on" : "off",
-                                 flags & serial::kIA ? "on" : "off");
-        shown = port->status();
-      }
-      if (progress || port->queued()) last = std::chrono::steady_clock::now();
-      if (eof && !port->queued() &&
-          std::chrono::steady_clock::now() - last > std::chrono::milliseconds(ctx.options().timeout_ms))
-        break;
-      pollfd p{0, POLLIN, 0};
-      int timeout = progress ? 0 : 1;
-      if (!eof && ::poll(&p, 1, timeout) > 0) {
-        std::uint8_t buf[256];
-        ssize_t n = ::read(0, buf, sizeof buf);
-        if (n <= 0) {
-          eof = true;
-          continue;
-        }
-        std::vector<std::uint8_t> keys;
-        for (ssize_t i = 0; i < n; ++i) {
-          std::uint8_t c = buf[i];
-          if (!escape) {
-            if (c != kEscape) {
-              keys.push_back(c);
-              continue;
-            }
-            escape = true;  // what was typed before goes out before the command runs
-            type(keys);
-            keys.clear();
-            continue;
-          }
-          escape = false;
-          switch (c) {
-            case 'q': case 'x': case 0x11: case 0x18:  // q, x, Ctrl-Q, Ctrl-X
-              type(keys);
-              finish(*port, take_received);
-              std::cerr << "\r\nkscfg: bye\r\n";
-              return 0;
-            case '?': case 'h':
-              std::cerr << "\r\n" << kEscapeHelp;
-              break;
-            case 'e':
-              echo = !echo;
-              std::cerr << fmt::format("\r\n[kscfg: echo {}]\r\n", echo ? "on" : "off");
-              break;
-            case 's':
-              std::cerr << fmt::format("\r\n[kscfg: status 0x{:02X} (BUF_F {}, IA {}); {} bytes sent, {} received, "
-                                       "{} waiting to go out]\r\n",
-                                       port->status(), port->status() & serial::kBufF ? "on" : "off",
-                                       port->status() & serial::kIA ? "on" : "off", sent, received, port->queued());
-              break;
-            case 'b':
-              std::cerr << "\r\n" << banner();
-              break;
-            case kEscape:
-              keys.push_back(c);
-              break;
-            default:
-              std::cerr << "\r\n[kscfg: no escape key " << key_name(c) << "; Ctrl-] ? lists them]\r\n";
-          }
-        }
-        type(keys);
-      } else if (eof && !progress) {
-        usleep(1000);
-      }
-    }
-    return 0;
-  }
-
- private:
-  static constexpr std::uint8_t kEscape = 0x1d;  // Ctrl-]
-  static constexpr const char* kEscapeHelp =
-      "[kscfg: escape keys, each after Ctrl-]:\r\n"
-      "  q, x    quit\r\n"
-      "  ?, h    this list\r\n"
-      "  e       local echo on/off\r\n"
-      "  s       status: handshake bits, bytes sent and received\r\n"
-      "  b       the banner again: port, baud rate, frame, flow control, maps\r\n"
-      "  Ctrl-]  send Ctrl-] itself]\r\n";
-
-  static std::string key_name(std::uint8_t c) {
-    if (c < 0x20) return fmt::format("Ctrl-{}", static_cast<char>(c + 0x40));
-    if (c < 0x7f) return fmt::format("'{}'", static_cast<char>(c));
-    return fmt::format("0x{:02X}", c);
-  }
-
-  // Typed keys already queued still go out (bounded by the send timeout).
-  template <class Take>
-  static void finish(SerialPort& port, Take& take_received) {
-    if (port.queued()) port.send({}, true);
-    take_received();
-  }
-
-  std::string omap_, imap_, logfile_;
-  bool echo_ = false;
-};
-
 class SerialStatus : public Command {
  public:
   std::string name() const override { return "status"; }
@@ -662,106 +410,6 @@ class SerialStatus : public Command {
   }
 };
 
-class SerialLine : public Command {
- public:
-  std::string name() const override { return "line"; }
-  std::string brief() const override { return "Emulator: show or set the far end of a serial terminal's line"; }
-  std::string man() const override {
-    return "Emulator only. Shows the line of the selected serial terminal (baud rate and frame from R32/R33, "
-           "far end) or sets its far end: \\fBloopback\\fR (TxD bridged to RxD, the default, as the KL6xx1-mode "
-           "seed wires its example), \\fBecho\\fR (a device that sends back every character it receives), "
-           "\\fBnone\\fR (an open line: bytes leave, nothing answers), \\fBpty\\fR or "
-           "\\fBpty:\\fR\\fILINK\\fR (a pseudo-terminal, so that a program such as picocom or a modem simulator "
-           "sits behind the emulated terminal; \\fILINK\\fR becomes a symlink to its device). The pseudo-terminal "
-           "exists while a kscfg process runs the emulator (\\fBkscfg serve\\fR, \\fBserial term\\fR). The line "
-           "moves bytes at the configured rate in emulated time: one K\\-bus cycle, one exchange of the emulator "
-           "link, is 1 ms.\n"
-           ".IP\n"
-           "\\fB\\-\\-baud\\fR \\fIN\\fR and \\fB\\-\\-frame\\fR \\fIDPS\\fR (e.g. 8E1, 7O2) give the far "
-           "end's device a UART of its own (echo, pty; a loopback bridge has none); \\fB\\-\\-match\\fR makes it "
-           "follow the terminal's R32/R33 again. When the two differ, both directions of the line run bit by "
-           "bit, and the terminal's receiver sees what a real one sees: a stop bit sampled low (framing error, "
-           "R6 bit 2), a parity bit that does not match (parity error, R6 bit 1), or a wrong character without "
-           "an error. A character with an error is lost (seed KL6001 \\(lqError handling\\(rq). \\fBserial "
-           "status\\fR shows R6; \\fBserial init\\fR clears it. \\fB\\-\\-send\\fR \\fIDATA\\fR makes the far "
-           "end send \\fIDATA\\fR (text with the escapes of \\fBserial send\\fR) in its frame, in emulated time "
-           "as the next commands run the K\\-bus.";
-  }
-  std::vector<std::string> examples() const override {
-    return {"serial line", "serial line none", "-t 3 serial line pty:/tmp/kl6031",
-            "serial line echo --baud 9600 --frame 8E1", "serial line none --frame 8E1 --send 'AC'",
-            "serial line --match"};
-  }
-  std::vector<std::string> completions() const override { return {"loopback", "echo", "none", "pty"}; }
-  void add_cli(CLI::App& sub) override {
-    sub.add_option("FAR_END", far_, "loopback, echo, none, pty or pty:LINK")->option_text("FAR_END");
-    sub.add_option("--baud", baud_, "The far end's baud rate (its own UART)")->option_text("N");
-    sub.add_option("--frame", frame_, "The far end's data bits, parity and stop bits, e.g. 8E1")
-        ->option_text("DPS");
-    sub.add_flag("--match", match_, "The far end follows the terminal's baud rate and frame again");
-    sub.add_option("--send", send_, "The far end sends DATA (text with escapes) towards the terminal")
-        ->option_text("DATA");
-  }
-  int run(Context& ctx) override {
-    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
-    if (!emu)
-      throw Error(Exit::usage, fmt::format("'kscfg serial line' works on the emulator; the port is '{}'",
-                                           ctx.options().port),
-                  "use --port emu or emu:PATH");
-    if (match_ && (!baud_.empty() || !frame_.empty()))
-      throw Error(Exit::usage, "give either --match or --baud/--frame, not both");
-    unsigned pos = serial_position(ctx);
-    unsigned ch = ctx.options().channel - 1;
-    const TerminalImage& t = serial_terminal(ctx.layout(), pos, ch);
-    ChannelModel& m = emu->emulated().channel(pos, ch);
-    SerialModel* ser = m.serial();
-    if (!ser) throw Error(Exit::internal, "emulated serial terminal without a serial model");
-    LineSettings ls = line_settings(*t.type, m.registers());
-    std::optional<LineSettings> frame = ser->far_frame();
-    if (!baud_.empty() || !frame_.empty()) {
-      LineSettings base = frame.value_or(ls);
-      frame = parse_line_settings(baud_.empty() ? std::to_string(base.baud) : baud_,
-                                  frame_.empty() ? fmt::format("{}{}{}", base.data_bits, base.parity, base.stop_bits)
-                                                 : frame_);
-    }
-    if (match_) frame.reset();
-    // A new far end first when it goes with a frame (loopback has none), the frame first when it goes.
-    if (!frame) ser->set_far_frame(frame);
-    if (!far_.empty()) ser->set_far_end(far_);
-    if (frame) ser->set_far_frame(frame);
-    if (!send_.empty()) {
-      auto bytes = parse_serial_data(send_, false);
-      ser->far_send(bytes);
-    }
-    std::string far_line = frame ? frame->describe() : "the terminal's";
-    bool differs = frame && !same_frame(*frame, ls);
-    if (ctx.json()) {
-      nlohmann::json far_frame = nullptr;
-      if (frame)
-        far_frame = {{"baud", frame->baud},
-                     {"frame", fmt::format("{}{}{}", frame->data_bits, frame->parity, frame->stop_bits)}};
-      print_json({{"position", pos}, {"channel", ctx.options().channel}, {"type", t.type->type}, {"baud", ls.baud},
-                  {"frame", fmt::format("{}{}{}", ls.data_bits, ls.parity, ls.stop_bits)},
-                  {"far_end", ser->far_end()}, {"bytes_per_second", ls.bytes_per_second()},
-                  {"tx_fifo", ser->tx_count()}, {"rx_fifo", ser->rx_count()}, {"r6", ser->diagnostics()},
-                  {"far_frame", far_frame}, {"frames_differ", differs}});
-    } else {
-      std::cout << fmt::format("terminal {} ({}): {}, at most {:.0f} bytes/s; far end {} at {}\n", pos, t.type->type,
-                               ls.describe(), ls.bytes_per_second(), ser->far_end(), far_line);
-      if (differs)
-        std::cout << "the frames differ: the terminal will see parity or framing errors (R6) or wrong bytes\n";
-      std::cout << fmt::format("send FIFO {}/{} bytes, receive FIFO {}/{} bytes, R6 {} ({})\n", ser->tx_count(),
-                               t.type->fifo_tx, ser->rx_count(), t.type->fifo_rx, hex4(ser->diagnostics()),
-                               diag_text(ser->diagnostics()));
-    }
-    return 0;
-  }
-
- private:
-  std::string far_, baud_, frame_, send_;
-  bool match_ = false;
-};
-
 class Serial : public Command {
  public:
   std::string name() const override { return "serial"; }
@@ -780,15 +428,15 @@ class Serial : public Command {
   }
   void add_cli(CLI::App&) override {}
   int run(Context&) override { return 0; }
-  std::vector<Command*> children() override { return {&init_, &send_, &recv_, &term_, &status_, &line_}; }
+  std::vector<Command*> children() override { return {&init_, &send_, &recv_, term_.get(), &status_, line_.get()}; }
 
  private:
   SerialInit init_;
   SerialSend send_;
   SerialRecv recv_;
-  SerialTerm term_;
+  std::unique_ptr<Command> term_ = make_serial_term();
   SerialStatus status_;
-  SerialLine line_;
+  std::unique_ptr<Command> line_ = make_serial_line();
 };
 
 }  // namespace

@@ -1,0 +1,206 @@
+// ModbusServer, setting up (modbus_server_impl.hpp): listening on TCP, opening the RTU line or a
+// pseudo-terminal, the server's life and what it tells (endpoint, stats), and the K-bus thread.
+#include <arpa/inet.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <pty.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstring>
+#include <nlohmann/json.hpp>
+#include <thread>
+
+#include "kscfg/base/error.hpp"
+#include "modbus_server_impl.hpp"
+
+namespace kscfg {
+
+namespace {
+
+bool is_loopback(const sockaddr_storage& sa) {
+  if (sa.ss_family == AF_INET)
+    return (ntohl(reinterpret_cast<const sockaddr_in*>(&sa)->sin_addr.s_addr) >> 24) == 127;
+  if (sa.ss_family == AF_INET6) {
+    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(&sa)->sin6_addr;
+    if (IN6_IS_ADDR_LOOPBACK(&a)) return true;
+    return IN6_IS_ADDR_V4MAPPED(&a) && a.s6_addr[12] == 127;
+  }
+  return false;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Setting up
+
+void ModbusServer::Impl::listen_tcp() {
+  addrinfo hints{};
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  hints.ai_flags = AI_PASSIVE;
+  addrinfo* res = nullptr;
+  std::string service = std::to_string(opt.port);
+  const char* node = opt.host == "*" ? nullptr : opt.host.c_str();
+  if (int e = getaddrinfo(node, service.c_str(), &hints, &res); e != 0)
+    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, gai_strerror(e)));
+  int err = 0;
+  for (addrinfo* ai = res; ai && listen_fd < 0; ai = ai->ai_next) {
+    int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
+    if (fd < 0) {
+      err = errno;
+      continue;
+    }
+    int one = 1;
+    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (::bind(fd, ai->ai_addr, ai->ai_addrlen) != 0 || ::listen(fd, SOMAXCONN) != 0) {
+      err = errno;
+      ::close(fd);
+      continue;
+    }
+    listen_fd = fd;
+  }
+  freeaddrinfo(res);
+  if (listen_fd < 0)
+    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, std::strerror(err)),
+                err == EADDRINUSE ? "another program uses that port; choose another, or port 0 for any free one"
+                : err == EACCES   ? "ports below 1024 need privileges; use a higher port"
+                                  : "");
+  sockaddr_storage sa{};
+  socklen_t sl = sizeof sa;
+  getsockname(listen_fd, reinterpret_cast<sockaddr*>(&sa), &sl);
+  bound_port = ntohs(sa.ss_family == AF_INET6 ? reinterpret_cast<sockaddr_in6*>(&sa)->sin6_port
+                                              : reinterpret_cast<sockaddr_in*>(&sa)->sin_port);
+  if (!is_loopback(sa))
+    warn(fmt::format("serving on {} port {}, which is not a loopback address: the emulator has no authentication, "
+                     "and anyone who reaches it can change its state",
+                     opt.host, bound_port));
+  // Room for the connections: raise the soft limit of open files if the hard one allows it.
+  rlimit rl{};
+  if (getrlimit(RLIMIT_NOFILE, &rl) == 0) {
+    rlim_t want = static_cast<rlim_t>(opt.max_connections) + kMaxRefusing + 32;
+    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
+      rlimit raised = rl;
+      raised.rlim_cur = rl.rlim_max == RLIM_INFINITY ? want : std::min(want, rl.rlim_max);
+      if (setrlimit(RLIMIT_NOFILE, &raised) == 0) rl = raised;
+    }
+    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
+      unsigned fit = rl.rlim_cur > kMaxRefusing + 64 ? static_cast<unsigned>(rl.rlim_cur - kMaxRefusing - 32) : 16;
+      warn(fmt::format("at most {} open files allowed: serving at most {} connections instead of {}",
+                       static_cast<unsigned long long>(rl.rlim_cur), fit, opt.max_connections));
+      opt.max_connections = fit;
+    }
+  }
+}
+
+void ModbusServer::Impl::open_rtu() {
+  int fd = -1;
+  if (opt.mode == ServeOptions::Mode::pty) {
+    char name[256] = {0};
+    int master = -1, slave = -1;
+    if (openpty(&master, &slave, name, nullptr, nullptr) != 0)
+      throw Error(Exit::link, fmt::format("cannot create a pseudo-terminal: {}", std::strerror(errno)));
+    termios t{};
+    tcgetattr(slave, &t);
+    cfmakeraw(&t);
+    tcsetattr(slave, TCSANOW, &t);
+    fcntl(master, F_SETFD, FD_CLOEXEC);
+    fcntl(slave, F_SETFD, FD_CLOEXEC);
+    fd = master;
+    pty_slave = slave;
+    pty_name = name;
+    opt.parity = 'N';  // pseudo-terminals refuse even/odd parity
+    opt.data_bits = 8;
+  } else {
+    fd = open_serial(opt.device, opt.baud, opt.parity, opt.data_bits, opt.stop_bits);
+  }
+  fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) | O_NONBLOCK);
+  Conn line;
+  line.fd = fd;
+  line.peer = opt.mode == ServeOptions::Mode::pty ? pty_name : opt.device;
+  conns.push_back(std::move(line));
+  // The end of a frame of unknown length: 3.5 characters of silence, at least a few ms (a pty
+  // or a USB adapter delivers in chunks).
+  unsigned bits = 1 + opt.data_bits + (opt.parity == 'N' ? 0 : 1) + opt.stop_bits;
+  auto t35 = std::chrono::microseconds(3500000ull * bits / std::max(opt.baud, 1u));
+  rtu_silence = std::max<Clock::duration>(t35, milliseconds(5));
+}
+
+ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt)
+    : impl_(std::make_unique<Impl>(station, std::move(opt))) {
+  Impl& I = *impl_;
+  station.kbus_cycle_us = I.opt.cycle_us;
+  ModbusRequestHandler::Options ho;
+  ho.framing = I.tcp ? ModbusFraming::tcp : ModbusFraming::rtu;
+  ho.unit = I.opt.unit;
+  ho.watchdog_ms = I.opt.watchdog_ms;
+  ho.trace = I.opt.trace;
+  I.handler.emplace(station, ho);  // checks the image against the register map
+  if (I.tcp) I.listen_tcp();
+  else I.open_rtu();
+  if (I.opt.save_state)
+    I.saver.emplace([&I] { return I.handler->with_station([](EmulatedStation& s) { return s.to_json().dump(1) + "\n"; }); },
+                    I.opt.save_state, [&I](const std::string& s) { I.warn(s); }, milliseconds(I.opt.save_delay_ms));
+  I.kbus = std::thread([&I] { I.kbus_loop(); });
+}
+
+// The resources live in Impl, so they are released also when the constructor throws half-way
+// (a port in use, a pty that cannot be opened): impl_ is a constructed member then.
+ModbusServer::Impl::~Impl() {
+  stop_kbus = true;
+  if (kbus.joinable()) kbus.join();
+  saver.reset();
+  for (auto& c : conns)
+    if (c.fd >= 0) ::close(c.fd);
+  if (listen_fd >= 0) ::close(listen_fd);
+  if (pty_slave >= 0) ::close(pty_slave);
+}
+
+ModbusServer::~ModbusServer() = default;
+
+std::string ModbusServer::endpoint() const {
+  const Impl& I = *impl_;
+  switch (I.opt.mode) {
+    case ServeOptions::Mode::tcp:
+      return I.opt.host.find(':') != std::string::npos ? fmt::format("tcp://[{}]:{}", I.opt.host, I.bound_port)
+                                                       : fmt::format("tcp://{}:{}", I.opt.host, I.bound_port);
+    case ServeOptions::Mode::pty:
+      return fmt::format("rtu:{}?parity=N", I.pty_name);
+    default:
+      return fmt::format("rtu:{}?baud={}&parity={}&data={}&stop={}", I.opt.device, I.opt.baud, I.opt.parity,
+                         I.opt.data_bits, I.opt.stop_bits);
+  }
+}
+
+ServeStats ModbusServer::stats() const {
+  std::lock_guard<std::mutex> g(impl_->stats_mu);
+  ServeStats s = impl_->st;
+  if (impl_->saver) s.saves = impl_->saver->saves();
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The K-bus: one cycle every cycle_us on its own clock; the watchdog is checked there too.
+
+void ModbusServer::Impl::kbus_loop() {
+  auto next = Clock::now();
+  while (!stop_kbus) {
+    if (handler->kbus_cycle(Clock::now())) {
+      count(&ServeStats::watchdog_expired);
+      if (saver) saver->changed();
+    }
+    count(&ServeStats::cycles);
+    next += std::chrono::microseconds(opt.cycle_us);
+    auto now = Clock::now();
+    if (next < now - milliseconds(50)) next = now;  // after a stall, do not race to catch up
+    std::this_thread::sleep_until(next);
+  }
+}
+
+}  // namespace kscfg

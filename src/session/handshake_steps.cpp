@@ -1,0 +1,226 @@
+// HandshakeAccess (session/handshake.hpp), one channel's step: plan() chooses what the next exchange
+// carries (a look, a request, a poll with a read-ahead or the control byte going back) and when,
+// result() takes what it brought (an acknowledge, a value, a request answered too early or not at all).
+#include <fmt/format.h>
+
+#include <algorithm>
+
+#include "kscfg/protocol/codec.hpp"
+#include "kscfg/session/handshake.hpp"
+
+namespace kscfg {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::microseconds;
+
+// Timing on links that pipeline (Modbus). The first poll goes out when ack_latency.hpp says; the
+// next ones every kStep (or an eighth of the estimate, or of the time since the request, whichever
+// is longest).
+constexpr microseconds kStep{250};
+// After this many read-aheads (or restores with the last poll) that came too early in a run, no
+// more speculation on that terminal.
+constexpr unsigned kMaxMisses = 3;
+
+microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
+
+}  // namespace
+
+void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& due) {
+  Program& p = *c.prog;
+  c.with_ahead = c.with_restore = c.look_with_send = false;
+  c.out_n = 0;
+  std::size_t k = p.values.size();
+  if (k == p.ops.size()) {
+    c.act = Act::close;
+    put_restore(c, false);
+    return;
+  }
+  const RegisterOp& op = p.ops[k];
+  if (!c.req) {
+    if (!c.last_status) {
+      // The status is unknown: look before trusting an acknowledge (decision 2). On a link that
+      // pipelines, a read's look goes with its request: the read part shows the status as it was.
+      if (!op.write && link_.pipelines()) {
+        put_request(c, false, op.reg, 0);
+        c.look_with_send = true;
+        c.act = Act::send;
+      } else {
+        c.act = Act::look;
+      }
+      return;
+    }
+    if (proto::is_ack(*c.last_status, op.reg)) {
+      // The status already acknowledges this register: ask for another one first, so that the
+      // acknowledge waited for is a visible change.
+      unsigned other = op.reg == 8 ? 9 : 8;
+      note_trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(c), *c.last_status, op.reg,
+                             other));
+      put_request(c, false, other, 0);
+      c.act = Act::send;
+      c.probe_next = true;
+      return;
+    }
+    put_request(c, op.write, op.reg, op.value);
+    c.act = Act::send;
+    return;
+  }
+  // A request is in the control byte: poll once its answer is due.
+  const Request& r = *c.req;
+  bool timed = link_.pipelines() && c.timing;
+  bool known = timed && r.ack.known();
+  Clock::time_point when = now;
+  if (!timed) {
+    // The emulator runs a K-bus cycle on every read: poll at once; a terminal that does not
+    // answer is not worth spinning on.
+    if (r.polls > 64) when = c.last_poll + microseconds(200);
+  } else if (r.polls == 0) {
+    when = r.sent + r.ack.first;
+  } else if (r.polls == 1 && r.ack.probe) {
+    when = r.sent + r.ack.wait;  // a probe below the estimate came too early: the usual poll next
+  } else {
+    // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the
+    // time since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
+    microseconds step = known ? std::max(kStep, r.ack.wait / 8) : kStep;
+    when = c.last_poll + std::max(step, us(c.last_poll - r.sent) / 8);
+  }
+  if (now < when) {
+    due = std::min(due, when);
+    return;
+  }
+  c.act = Act::poll;
+  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
+  bool speculate = known && !r.ack.probe && c.timing->misses < kMaxMisses;
+  if (r.polls == 0 && !r.write && !r.probe && speculate && !c.ahead) {
+    if (k + 1 < p.ops.size() && !p.ops[k + 1].write && p.ops[k + 1].reg != r.reg) {
+      put_request(c, false, p.ops[k + 1].reg, 0);  // read-ahead
+      c.with_ahead = true;
+    } else if (k + 1 == p.ops.size() && p.close_after && !c.found.leftover && c.users == 1) {
+      // The control byte goes back with the poll for the last answer when it is the only byte
+      // this work changed (a read changes nothing on the terminal: if it came too early, ask again).
+      bool only_ctrl = true;
+      for (std::size_t b = c.out_lo; b <= c.out_hi; ++b)
+        if (b != c.w.ctrl && c.shadow[b - c.out_lo] != c.saved[b - c.saved_at]) only_ctrl = false;
+      if (only_ctrl) {
+        put_restore(c, true);
+        c.with_restore = true;
+      }
+    }
+  }
+}
+
+void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
+  auto status = [&] { return c.in[c.w.status - c.in_lo]; };
+  auto value = [&] {
+    return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8));
+  };
+  Program& p = *c.prog;
+  switch (c.act) {
+    case Act::none:
+      return;
+    case Act::look:
+      c.last_status = status();
+      return;
+    case Act::close:
+      closed_now(c);
+      p.closed = true;
+      finish(c, done);
+      return;
+    case Act::send: {
+      std::uint8_t ctrl = c.shadow[c.w.ctrl - c.out_lo];
+      unsigned reg = ctrl & proto::kAddrMask;
+      bool probe = c.probe_next;
+      c.probe_next = false;
+      if (c.look_with_send && proto::is_ack(status(), reg)) {
+        // The status acknowledged this register before the request went out: no new answer can be
+        // told from it. The next plan asks for another register first.
+        c.last_status = status();
+        return;
+      }
+      const RegisterOp& op = p.ops[p.values.size()];
+      Request r = sent_request(c, !probe && op.write, reg, op.value, t);
+      r.probe = probe;
+      c.req = r;
+      c.last_status.reset();
+      return;
+    }
+    case Act::poll:
+      break;
+  }
+  c.last_poll = t;
+  Request& r = *c.req;
+  ++r.polls;
+  std::uint8_t st = status();
+  bool timed = link_.pipelines() && c.timing;
+  bool known = timed && r.ack.known();
+  if (proto::is_ack(st, r.reg)) {
+    if (!r.probe) {
+      if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout);
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
+                               r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
+                               r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls,
+                               r.polls == 1 ? "" : "s",
+                               c.timing ? fmt::format(", {} us after the request", us(t - r.sent).count()) : "",
+                               c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
+                               c.with_restore ? ", control byte restored with the poll" : ""));
+      p.values.push_back(value());
+      if (r.write && opt_.after_write) opt_.after_write(r.reg);
+      if (p.progress) p.progress(p.values.size());
+    }
+    if (c.with_restore) {
+      c.last_status.reset();  // back in process data: look again before a next request
+      closed_now(c);
+      p.closed = true;
+    } else {
+      c.last_status = st;
+    }
+    if (c.with_ahead) {
+      c.req = sent_request(c, false, p.ops[p.values.size()].reg, 0, t);
+    } else if (c.ahead) {
+      c.req = *c.ahead;
+      c.ahead.reset();
+    } else {
+      c.req.reset();
+    }
+    if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) finish(c, done);
+    return;
+  }
+  // Not answered yet: the first poll at the estimate came too early (ack_latency.hpp).
+  if (r.polls == 1 && known) ack_early(*c.timing, r.ack);
+  if (c.with_restore) {
+    // The control byte is back to what was found: the request is gone. Ask again; how much slower
+    // the terminal is is unknown (ack_replaced).
+    if (known) ack_replaced(*c.timing, opt_.timeout);
+    note_trace(fmt::format("{}: R{} not answered when the control byte went back; asking again", who(c), r.reg));
+    c.last_status = st;
+    c.req.reset();
+    return;
+  }
+  if (c.with_ahead) c.ahead = sent_request(c, false, p.ops[p.values.size() + 1].reg, 0, t);
+  if (c.ahead && proto::is_ack(st, c.ahead->reg)) {
+    // The terminal took the request written ahead before answering ours: ask again.
+    if (known) ack_replaced(*c.timing, opt_.timeout);
+    note_trace(fmt::format("{}: R{} answered before R{}; asking again", who(c), c.ahead->reg, r.reg));
+    c.last_status = st;
+    c.req.reset();
+    c.ahead.reset();
+    return;
+  }
+  if (t - r.since > opt_.timeout) {
+    std::uint8_t ctrl = proto::control_byte(r.write, r.reg);
+    if (auto why = explain_no_ack()) {
+      fail(c, *why, done);
+      return;
+    }
+    fail(c,
+         Error(Exit::timeout,
+               fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})", who(c),
+                           r.write ? "writing" : "reading", r.reg, opt_.timeout.count(), ctrl, st),
+               "check the terminal and the link, or raise --timeout"),
+         done);
+  }
+}
+
+}  // namespace kscfg
