@@ -345,7 +345,8 @@ TEST_CASE("serial send - streams stdin in bounded memory (/dev/zero)", "[serial]
   std::string text = kscfg::test::read_text(err);
   INFO("rchar " << rchar << ", VmRSS " << rss_kb << " kB; stderr: " << text);
   CHECK(!exited);                 // /dev/zero has no end
-  CHECK(rss_kb < 128 * 1024);     // bounded
+  // Bounded (under ASan its shadow memory and quarantine count too: 139 MB seen on CI's steps).
+  CHECK(rss_kb < (KSCFG_TEST_SANITIZED ? 200 : 128) * 1024);
   CHECK(rchar >= 192 * 1024);     // it read (and sent) on
   REQUIRE(WIFEXITED(status));
   CHECK(WEXITSTATUS(status) == 8);  // interrupted
