@@ -121,7 +121,8 @@ std::uint32_t AdsRequestHandler::image(const ams::Header& h, const ams::Request&
   rep.what = fmt::format("{} {} bytes at {}", r.group == adsimage::kInputs ? "inputs" : "outputs", n, r.offset);
   if (r.group != adsimage::kInputs && r.group != adsimage::kOutputs) return kBadGroup;
   if (r.offset >= adsimage::kImageBytes) return kBadOffset;
-  if (n == 0 || r.offset + n > adsimage::kImageBytes) return kBadSize;
+  // (n > size - offset, not offset + n > size: a length near 4 GiB wraps the sum around)
+  if (n == 0 || n > adsimage::kImageBytes - r.offset) return kBadSize;
   // Every telegram on port 300 retriggers the watchdog; the first write arms it.
   if (write && r.group == adsimage::kOutputs) wd_armed_ = true;
   wd_last_ = now;

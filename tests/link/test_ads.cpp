@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
 #include <thread>
 
 #include "kscfg/base/interrupt.hpp"
@@ -22,6 +23,7 @@
 #include "kscfg/link/ams.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/station/layout.hpp"
+#include "kscfg/station/station.hpp"
 
 using namespace kscfg;
 
@@ -363,4 +365,32 @@ TEST_CASE("serve --ads survives its clients: a stream that is not AMS, a frame t
   // The server still answers.
   AdsClient c = s.client();
   CHECK(c.read(adsport::kRegisters, 1, 8, 2, "R8") == std::vector<std::uint8_t>{0x71, 0x17});
+}
+
+TEST_CASE("serve --ads refuses a port-300 read whose length wraps the image bound, at once") {
+  // Found by fuzz_ams: offset 16 and a length of 0xFFFFFFFF add up to 15 in 32 bits; the server then
+  // built a 4 GiB reply (1.5 GB RSS, 14 s). It must be ADS error 0x705 (invalid size).
+  EmulatedStation station(default_station(), Catalog::standard());
+  AdsRequestHandler h(station, AdsRequestHandler::Options{});
+  const ams::NetId self{127, 0, 0, 1, 1, 1};
+  for (std::uint32_t length : {0xFFFFFFFFu, 0xFFFFFFF1u, 497u}) {
+    ams::Header hd;
+    hd.target = self;
+    hd.target_port = 300;
+    hd.source = {127, 0, 0, 254, 1, 1};
+    hd.source_port = 0x8089;
+    hd.command = ams::kRead;
+    hd.flags = ams::kFlagAdsCommand;
+    hd.invoke = 7;
+    auto frame = ams::encode(hd, ams::read_request(0xF020, 16, length));
+    auto t0 = std::chrono::steady_clock::now();
+    AdsReply r = h.handle(frame, t0, self);
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(1));
+    auto rep = ams::decode(r.frame);
+    REQUIRE(rep);
+    auto body = ams::parse_response(ams::kRead, rep->data);
+    REQUIRE(body);
+    INFO("length " << length);
+    CHECK(body->result == 0x705);
+  }
 }
