@@ -24,6 +24,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/ads_requests.hpp"
 #include "modbus_saver.hpp"
+#include "tcp_listen.hpp"
 
 namespace kscfg {
 
@@ -35,18 +36,6 @@ using std::chrono::milliseconds;
 constexpr std::size_t kMaxBuffered = 16 * 1024;  // received, not yet handled, per connection
 constexpr std::size_t kMaxUnsent = 64 * 1024;    // replies the client does not read
 constexpr unsigned kFramesPerTurn = 16;
-
-std::optional<std::uint32_t> ipv4(const sockaddr_storage& sa) {
-  if (sa.ss_family == AF_INET) return ntohl(reinterpret_cast<const sockaddr_in*>(&sa)->sin_addr.s_addr);
-  if (sa.ss_family == AF_INET6) {
-    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(&sa)->sin6_addr;
-    if (IN6_IS_ADDR_V4MAPPED(&a))
-      return (std::uint32_t{a.s6_addr[12]} << 24) | (std::uint32_t{a.s6_addr[13]} << 16) |
-             (std::uint32_t{a.s6_addr[14]} << 8) | a.s6_addr[15];
-    if (IN6_IS_ADDR_LOOPBACK(&a)) return 0x7F000001u;
-  }
-  return std::nullopt;
-}
 
 std::string peer_name(const sockaddr_storage& sa) {
   char host[INET6_ADDRSTRLEN] = "?";
@@ -121,44 +110,10 @@ struct AdsServer::Impl {
 };
 
 void AdsServer::Impl::listen_tcp() {
-  addrinfo hints{};
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_PASSIVE;
-  addrinfo* res = nullptr;
-  std::string service = std::to_string(opt.port);
-  const char* node = opt.host == "*" ? nullptr : opt.host.c_str();
-  if (int e = getaddrinfo(node, service.c_str(), &hints, &res); e != 0)
-    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, gai_strerror(e)));
-  int err = 0;
-  for (addrinfo* ai = res; ai && listen_fd < 0; ai = ai->ai_next) {
-    int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
-    if (fd < 0) {
-      err = errno;
-      continue;
-    }
-    int one = 1;
-    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    if (::bind(fd, ai->ai_addr, ai->ai_addrlen) != 0 || ::listen(fd, SOMAXCONN) != 0) {
-      err = errno;
-      ::close(fd);
-      continue;
-    }
-    listen_fd = fd;
-  }
-  freeaddrinfo(res);
-  if (listen_fd < 0)
-    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, std::strerror(err)),
-                err == EADDRINUSE ? "another program uses that port; choose another, or port 0 for any free one"
-                : err == EACCES   ? "ports below 1024 need privileges; use a higher port"
-                                  : "");
-  sockaddr_storage sa{};
-  socklen_t sl = sizeof sa;
-  getsockname(listen_fd, reinterpret_cast<sockaddr*>(&sa), &sl);
-  bound_port = ntohs(sa.ss_family == AF_INET6 ? reinterpret_cast<sockaddr_in6*>(&sa)->sin6_port
-                                              : reinterpret_cast<sockaddr_in*>(&sa)->sin_port);
-  auto a = ipv4(sa);
-  if (!a || (*a >> 24) != 127)
+  TcpListener l = kscfg::listen_tcp(opt.host, opt.port);
+  listen_fd = l.fd;
+  bound_port = l.port;
+  if (!l.loopback)
     warn(fmt::format("serving ADS on {} port {}, which is not a loopback address: the emulator has no "
                      "authentication, and anyone who reaches it can change its state",
                      opt.host, bound_port));
@@ -230,7 +185,7 @@ void AdsServer::Impl::accept_clients(Clock::time_point now) {
     sockaddr_storage local{};
     socklen_t ll = sizeof local;
     getsockname(fd, reinterpret_cast<sockaddr*>(&local), &ll);
-    c.self = ams::netid_of_ipv4(ipv4(local).value_or(0x7F000001u));
+    c.self = ams::netid_of_ipv4(ams::ipv4_of(local).value_or(0x7F000001u));
     c.last_traffic = now;
     count(&AdsServeStats::connections);
     trace(fmt::format("ads client {} connected (NetId {} here)", c.peer, ams::format_netid(c.self)));

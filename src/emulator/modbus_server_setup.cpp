@@ -19,65 +19,19 @@
 
 #include "kscfg/base/error.hpp"
 #include "modbus_server_impl.hpp"
+#include "tcp_listen.hpp"
 
 namespace kscfg {
 
-namespace {
-
-bool is_loopback(const sockaddr_storage& sa) {
-  if (sa.ss_family == AF_INET)
-    return (ntohl(reinterpret_cast<const sockaddr_in*>(&sa)->sin_addr.s_addr) >> 24) == 127;
-  if (sa.ss_family == AF_INET6) {
-    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(&sa)->sin6_addr;
-    if (IN6_IS_ADDR_LOOPBACK(&a)) return true;
-    return IN6_IS_ADDR_V4MAPPED(&a) && a.s6_addr[12] == 127;
-  }
-  return false;
-}
-
-}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Setting up
 
 void ModbusServer::Impl::listen_tcp() {
-  addrinfo hints{};
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_PASSIVE;
-  addrinfo* res = nullptr;
-  std::string service = std::to_string(opt.port);
-  const char* node = opt.host == "*" ? nullptr : opt.host.c_str();
-  if (int e = getaddrinfo(node, service.c_str(), &hints, &res); e != 0)
-    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, gai_strerror(e)));
-  int err = 0;
-  for (addrinfo* ai = res; ai && listen_fd < 0; ai = ai->ai_next) {
-    int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
-    if (fd < 0) {
-      err = errno;
-      continue;
-    }
-    int one = 1;
-    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    if (::bind(fd, ai->ai_addr, ai->ai_addrlen) != 0 || ::listen(fd, SOMAXCONN) != 0) {
-      err = errno;
-      ::close(fd);
-      continue;
-    }
-    listen_fd = fd;
-  }
-  freeaddrinfo(res);
-  if (listen_fd < 0)
-    throw Error(Exit::link, fmt::format("cannot listen on {}:{}: {}", opt.host, opt.port, std::strerror(err)),
-                err == EADDRINUSE ? "another program uses that port; choose another, or port 0 for any free one"
-                : err == EACCES   ? "ports below 1024 need privileges; use a higher port"
-                                  : "");
-  sockaddr_storage sa{};
-  socklen_t sl = sizeof sa;
-  getsockname(listen_fd, reinterpret_cast<sockaddr*>(&sa), &sl);
-  bound_port = ntohs(sa.ss_family == AF_INET6 ? reinterpret_cast<sockaddr_in6*>(&sa)->sin6_port
-                                              : reinterpret_cast<sockaddr_in*>(&sa)->sin_port);
-  if (!is_loopback(sa))
+  TcpListener l = kscfg::listen_tcp(opt.host, opt.port);
+  listen_fd = l.fd;
+  bound_port = l.port;
+  if (!l.loopback)
     warn(fmt::format("serving on {} port {}, which is not a loopback address: the emulator has no authentication, "
                      "and anyone who reaches it can change its state",
                      opt.host, bound_port));

@@ -31,18 +31,6 @@ long long ms_since(Clock::time_point t) {
   return std::chrono::duration_cast<milliseconds>(Clock::now() - t).count();
 }
 
-std::optional<std::uint32_t> ipv4_of(const sockaddr_storage& sa) {
-  if (sa.ss_family == AF_INET) return ntohl(reinterpret_cast<const sockaddr_in*>(&sa)->sin_addr.s_addr);
-  if (sa.ss_family == AF_INET6) {
-    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(&sa)->sin6_addr;
-    if (IN6_IS_ADDR_V4MAPPED(&a))
-      return (std::uint32_t{a.s6_addr[12]} << 24) | (std::uint32_t{a.s6_addr[13]} << 16) |
-             (std::uint32_t{a.s6_addr[14]} << 8) | a.s6_addr[15];
-    if (IN6_IS_ADDR_LOOPBACK(&a)) return 0x7F000001u;
-  }
-  return std::nullopt;
-}
-
 void check_interrupt() {
   if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
 }
@@ -184,7 +172,7 @@ void AdsClient::connect() {
   getpeername(fd_, reinterpret_cast<sockaddr*>(&peer), &pl);
   if (target_.source) {
     source_id_ = *target_.source;
-  } else if (auto a = ipv4_of(local)) {
+  } else if (auto a = ams::ipv4_of(local)) {
     source_id_ = ams::netid_of_ipv4(*a);
   } else {
     disconnect();
@@ -193,7 +181,7 @@ void AdsClient::connect() {
   }
   if (target_.netid) {
     target_id_ = *target_.netid;
-  } else if (auto a = ipv4_of(peer)) {
+  } else if (auto a = ams::ipv4_of(peer)) {
     target_id_ = ams::netid_of_ipv4(*a);
   } else {
     disconnect();

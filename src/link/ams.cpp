@@ -1,7 +1,9 @@
 // AMS/TCP and ADS frames (link/ams.hpp).
 #include "kscfg/link/ams.hpp"
 
+#include <arpa/inet.h>
 #include <fmt/format.h>
+#include <netinet/in.h>
 
 #include <algorithm>
 #include <charconv>
@@ -64,6 +66,18 @@ std::string format_netid(const NetId& id) {
 NetId netid_of_ipv4(std::uint32_t a) {
   return {static_cast<std::uint8_t>(a >> 24), static_cast<std::uint8_t>((a >> 16) & 0xFF),
           static_cast<std::uint8_t>((a >> 8) & 0xFF), static_cast<std::uint8_t>(a & 0xFF), 1, 1};
+}
+
+std::optional<std::uint32_t> ipv4_of(const sockaddr_storage& sa) {
+  if (sa.ss_family == AF_INET) return ntohl(reinterpret_cast<const sockaddr_in*>(&sa)->sin_addr.s_addr);
+  if (sa.ss_family == AF_INET6) {
+    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(&sa)->sin6_addr;
+    if (IN6_IS_ADDR_V4MAPPED(&a))
+      return (std::uint32_t{a.s6_addr[12]} << 24) | (std::uint32_t{a.s6_addr[13]} << 16) |
+             (std::uint32_t{a.s6_addr[14]} << 8) | a.s6_addr[15];
+    if (IN6_IS_ADDR_LOOPBACK(&a)) return 0x7F000001u;
+  }
+  return std::nullopt;
 }
 
 std::vector<std::uint8_t> encode(Header h, std::span<const std::uint8_t> data) {

@@ -21,6 +21,8 @@
 #include <string_view>
 #include <vector>
 
+#include <sys/socket.h>
+
 namespace kscfg::ams {
 
 constexpr unsigned kTcpPort = 48898;  // "The TCP port number for the ADS protocol is 48898 or 0xBF02"
@@ -58,6 +60,9 @@ using NetId = std::array<std::uint8_t, 6>;
 std::optional<NetId> parse_netid(std::string_view text);  // strict: six numbers 0..255
 std::string format_netid(const NetId& id);
 NetId netid_of_ipv4(std::uint32_t host_order_address);  // a.b.c.d -> a.b.c.d.1.1
+// The IPv4 address of a socket address, host order: IPv4, IPv4-mapped IPv6, and ::1 as 127.0.0.1;
+// nullopt for any other IPv6 address.
+std::optional<std::uint32_t> ipv4_of(const sockaddr_storage& sa);
 
 struct Header {
   NetId target{};
