@@ -37,20 +37,6 @@ constexpr std::size_t kMaxBuffered = 16 * 1024;  // received, not yet handled, p
 constexpr std::size_t kMaxUnsent = 64 * 1024;    // replies the client does not read
 constexpr unsigned kFramesPerTurn = 16;
 
-std::string peer_name(const sockaddr_storage& sa) {
-  char host[INET6_ADDRSTRLEN] = "?";
-  if (sa.ss_family == AF_INET) {
-    auto* a = reinterpret_cast<const sockaddr_in*>(&sa);
-    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
-    return fmt::format("{}:{}", host, ntohs(a->sin_port));
-  }
-  if (sa.ss_family == AF_INET6) {
-    auto* a = reinterpret_cast<const sockaddr_in6*>(&sa);
-    inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
-    return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
-  }
-  return "?";
-}
 
 struct Conn {
   int fd = -1;

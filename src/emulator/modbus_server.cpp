@@ -24,30 +24,9 @@
 
 #include "kscfg/base/error.hpp"
 #include "modbus_server_impl.hpp"
+#include "tcp_listen.hpp"
 
 namespace kscfg {
-
-namespace {
-
-std::string peer_name(const sockaddr_storage& sa) {
-  char host[INET6_ADDRSTRLEN] = "?";
-  unsigned port = 0;
-  if (sa.ss_family == AF_INET) {
-    auto* a = reinterpret_cast<const sockaddr_in*>(&sa);
-    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
-    port = ntohs(a->sin_port);
-    return fmt::format("{}:{}", host, port);
-  }
-  if (sa.ss_family == AF_INET6) {
-    auto* a = reinterpret_cast<const sockaddr_in6*>(&sa);
-    inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
-    port = ntohs(a->sin6_port);
-    return fmt::format("[{}]:{}", host, port);
-  }
-  return "?";
-}
-
-}  // namespace
 
 // ---------------------------------------------------------------------------------------------
 // Connections

@@ -59,4 +59,19 @@ TcpListener listen_tcp(const std::string& host, unsigned port) {
   return l;
 }
 
+std::string peer_name(const sockaddr_storage& sa) {
+  char host[INET6_ADDRSTRLEN] = "?";
+  if (sa.ss_family == AF_INET) {
+    auto* a = reinterpret_cast<const sockaddr_in*>(&sa);
+    inet_ntop(AF_INET, &a->sin_addr, host, sizeof host);
+    return fmt::format("{}:{}", host, ntohs(a->sin_port));
+  }
+  if (sa.ss_family == AF_INET6) {
+    auto* a = reinterpret_cast<const sockaddr_in6*>(&sa);
+    inet_ntop(AF_INET6, &a->sin6_addr, host, sizeof host);
+    return fmt::format("[{}]:{}", host, ntohs(a->sin6_port));
+  }
+  return "?";
+}
+
 }  // namespace kscfg

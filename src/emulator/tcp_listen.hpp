@@ -2,6 +2,8 @@
 #pragma once
 #include <string>
 
+struct sockaddr_storage;
+
 namespace kscfg {
 
 struct TcpListener {
@@ -13,5 +15,8 @@ struct TcpListener {
 // Listens on HOST ("*": every address) and PORT (0: any free one). Error(link) with a hint when
 // the name does not resolve or no address can be bound.
 TcpListener listen_tcp(const std::string& host, unsigned port);
+
+// "ADDR:PORT" or "[ADDR6]:PORT" of a peer, for messages; "?" for another family.
+std::string peer_name(const sockaddr_storage& sa);
 
 }  // namespace kscfg
