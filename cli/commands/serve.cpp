@@ -3,6 +3,7 @@
 
 #include <iostream>
 #include <tuple>
+#include <utility>
 
 #include "../command.hpp"
 #include "../commands.hpp"
@@ -136,40 +137,11 @@ class Serve : public Command {
       so.unit = static_cast<int>(parse_uint(unit_, 247, "unit id"));
       if (so.unit == 0) throw Error(Exit::usage, "invalid unit id 0 (broadcast); give 1..247");
     }
-    if (!cycle_.empty()) {
-      so.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
-      if (so.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
-    }
-    if (!watchdog_.empty()) so.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
+    common_options(ctx, so);
     so.faults = parse_faults(fault_);
     if (!seed_.empty()) so.seed = parse_uint(seed_, UINT64_MAX, "seed");
-    if (!max_conn_.empty()) {
-      so.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
-      if (so.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
-    }
-    if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
-
-    PortUri p = parse_port_uri(ctx.options().port);
-    if (p.scheme != "emu")
-      throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
-                  "use --port emu, emu:PATH or emu:mem");
-    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
-    EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
-    // Durable: the server saves the state soon after every change, not only when it stops.
-    if (!store.path().empty()) so.save_state = [&store](const std::string& text) { store.save_text(text); };
-    so.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
-    ServeStats st;
-    {
-      ModbusServer server(store.station(), so);
-      if (ctx.json())
-        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
-      else
-        std::cout << server.endpoint() << std::endl;
-      server.run(g_interrupted);
-      st = server.stats();
-    }
-    store.save();  // the server saved already; this writes only if something is left
+    std::string path;
+    auto st = serve_station<ModbusServer>(ctx, so, path);
     if (ctx.options().verbose || so.faults.any() || st.refused || st.timed_out || st.malformed) {
       std::string extra;
       if (st.refused) extra += fmt::format("; {} connection(s) refused (limit {})", st.refused, so.max_connections);
@@ -181,7 +153,6 @@ class Serve : public Command {
           st.requests, st.dropped, st.delayed, st.corrupted, st.busy, st.exceptions, extra,
           path.empty() ? "memory" : path);
     }
-    g_interrupted = false;  // stopping is how a server ends: exit status 0
     return 0;
   }
 
@@ -203,6 +174,51 @@ class Serve : public Command {
     return *id;
   }
 
+  // What both kinds of server take alike: the K-bus cycle, the watchdog, the connection limit, the
+  // trace and the warnings.
+  template <class Opts>
+  void common_options(Context& ctx, Opts& o) const {
+    if (!cycle_.empty()) {
+      o.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
+      if (o.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
+    }
+    if (!watchdog_.empty()) o.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
+    if (!max_conn_.empty()) {
+      o.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
+      if (o.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
+    }
+    if (ctx.options().verbose) o.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
+    o.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
+  }
+
+  // Opens the emulator state of --port, serves it until SIGINT/SIGTERM/SIGHUP, saves it and returns
+  // the server's statistics; PATH is the state file served ("" for emu:mem).
+  template <class Server, class Opts>
+  static auto serve_station(Context& ctx, Opts& o, std::string& path) -> decltype(std::declval<Server&>().stats()) {
+    PortUri p = parse_port_uri(ctx.options().port);
+    if (p.scheme != "emu")
+      throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
+                  "use --port emu, emu:PATH or emu:mem");
+    path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
+    EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
+    // Durable: the server saves the state soon after every change, not only when it stops.
+    if (!store.path().empty()) o.save_state = [&store](const std::string& text) { store.save_text(text); };
+    decltype(std::declval<Server&>().stats()) st;
+    {
+      Server server(store.station(), o);
+      if (ctx.json())
+        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
+      else
+        std::cout << server.endpoint() << std::endl;
+      server.run(g_interrupted);
+      st = server.stats();
+    }
+    store.save();         // the server saved already; this writes only if something is left
+    g_interrupted = false;  // stopping is how a server ends: exit status 0
+    return st;
+  }
+
   int run_ads(Context& ctx) {
     AdsServeOptions ao;
     std::tie(ao.host, ao.port) = host_port("--ads", ads_);
@@ -211,42 +227,15 @@ class Serve : public Command {
     if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
     if (!unit_.empty() || !fault_.empty() || !seed_.empty())
       throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
-    if (!cycle_.empty()) {
-      ao.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
-      if (ao.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
-    }
-    if (!watchdog_.empty()) ao.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
-    if (!max_conn_.empty()) {
-      ao.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
-      if (ao.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
-    }
-    if (ctx.options().verbose) ao.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
-    ao.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
-    PortUri p = parse_port_uri(ctx.options().port);
-    if (p.scheme != "emu")
-      throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
-                  "use --port emu, emu:PATH or emu:mem");
-    std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    EmulatorStore store(path, ctx.catalog());
-    if (!store.path().empty()) ao.save_state = [&store](const std::string& text) { store.save_text(text); };
-    AdsServeStats st;
-    {
-      AdsServer server(store.station(), ao);
-      if (ctx.json())
-        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
-      else
-        std::cout << server.endpoint() << std::endl;
-      server.run(g_interrupted);
-      st = server.stats();
-    }
-    store.save();
+    common_options(ctx, ao);
+    std::string path;
+    auto st = serve_station<AdsServer>(ctx, ao, path);
     if (ctx.options().verbose || st.refused || st.timed_out || st.malformed)
       std::cerr << fmt::format(
           "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} cut idle, {} slow client(s) "
           "disconnected, {} malformed; state saved to {}\n",
           st.requests, st.connections, st.refused, ao.max_connections, st.idle_cut, st.timed_out, st.malformed,
           path.empty() ? "memory" : path);
-    g_interrupted = false;
     return 0;
   }
 

@@ -148,6 +148,13 @@ TEST_CASE("the emulator state file that kscfg serve holds: a waiter names the se
                      "kscfg: error: the emulator state file " + state + " is in use by " + holder +
                      "; gave up after waiting 1 s (try again when it has finished, or wait longer with --lock-wait "
                      "SECONDS)\n");
+  // A second server on the same file, of the other kind, waits the same way (it did not, before the
+  // Modbus and ADS servers shared their start).
+  Run ads = run_kscfg({"--port", "emu:" + state, "--lock-wait", "1", "serve", "--ads", "127.0.0.1:0"});
+  CHECK(ads.rc == 11);
+  CHECK(ads.out.empty());
+  CHECK_THAT(ads.err, Catch::Contains("kscfg: error: the emulator state file " + state + " is in use by " + holder +
+                                      "; gave up after waiting 1 s"));
   Run h = run_kscfg({"serve", "--help"});
   // However the help is wrapped (the brief grew with ADS; the width follows the terminal):
   std::string flat;
