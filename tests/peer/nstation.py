@@ -31,6 +31,7 @@ class NStation:
         self.env.pop("KSCFG_PORT", None)
         self.station = self.station_file()
         self.srv = self.peer = None
+        self.uri = ""
         if kind == "serve":
             self.state_path = os.path.join(self.dir, "emu.json")
             self._local(["emu", "reset", "--station", self.station])
@@ -74,13 +75,25 @@ class NStation:
         return path
 
     def start(self):
-        """(serve) start the server on the state file; .uri is its port."""
-        self.srv = subprocess.Popen([self.kscfg_bin, "--port", "emu:" + self.state_path, "serve", "--tcp",
-                                     "127.0.0.1:0", "--watchdog-ms", "0"], stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, text=True, env=self.env)
-        self.uri = self.srv.stdout.readline().strip()
-        if not self.uri.startswith("tcp://"):
-            raise RuntimeError("kscfg serve did not start: " + self.srv.stderr.read()[-1000:])
+        """(serve) start the server on the state file; .uri is its port. A restart takes the port of
+        the first start: the coupler lock and the session journal are per port, as for a real
+        coupler that keeps its address."""
+        addr = self.uri[6:] if getattr(self, "uri", "").startswith("tcp://") else "127.0.0.1:0"
+        for _ in range(50):
+            self.srv = subprocess.Popen([self.kscfg_bin, "--port", "emu:" + self.state_path, "serve", "--tcp", addr,
+                                         "--watchdog-ms", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                        text=True, env=self.env)
+            uri = self.srv.stdout.readline().strip()
+            if uri.startswith("tcp://"):
+                self.uri = uri
+                return
+            err = self.srv.stderr.read()
+            self.srv.wait()
+            if "in use" not in err:
+                break
+            time.sleep(0.1)  # the port of the server before is not free yet
+        self.srv = None
+        raise RuntimeError("kscfg serve did not start: " + err[-1000:])
 
     def stop(self):
         """(serve) stop the server; its exit status (0 expected)."""
