@@ -380,11 +380,15 @@ Task<std::vector<std::uint16_t>> Channel::write_change(const std::vector<WriteRe
   if (!lost) co_return std::vector<std::uint16_t>(p.values.begin() + static_cast<std::ptrdiff_t>(writes), p.values.end());
   // An answer was lost (docs/design.md 6.3): from that request on, one at a time; a write whose
   // answer was lost is read before it is written again.
-  if (opt_.trace) opt_.trace(fmt::format("{}: {}; going on one request at a time", who(), lost->what()));
   for (std::size_t k = done; k < writes; ++k) {
     const RegisterOp& op = p.ops[k];
     std::optional<std::uint16_t> now;
-    if (k == done) now = co_await read(op.reg);
+    if (k == done) {
+      now = co_await read(op.reg);
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), op.reg,
+                               lost->what(), *now, *now == op.value ? "the write landed" : "writing again"));
+    }
     if (!now || *now != op.value) co_await write_checked(op.reg, op.value);
     if (lock && op.reg == proto::kCodeWordRegister) unlocked_ = op.value == proto::kCodeWord;
   }
