@@ -134,6 +134,11 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
       };
       row("backup", measure(o, *relay, {"--station", station, "backup"}, Cache::warm, tag + "-backup", o.runs));
       row("apply, baud on every terminal", apply_turns(o, *relay, station, fa, fb, tag + "-apply"));
+      // Issue 22's single-terminal targets: a warm `read R8` (scan cache kept, no --station) at most
+      // 5 requests; the apply of one changed parameter above at most 16.
+      if (n == 1 && sv.tcp)
+        row("`read R8`, warm scan cache", measure(o, *relay, {"read", "--raw", "R8"}, Cache::warm, tag + "-r8", o.runs,
+                                                  "0x1771"));
       if (sv.tcp) row("info, cold scan cache", measure(o, *relay, {"info"}, Cache::cold, tag + "-info", o.runs));
       stop(*server);
     }

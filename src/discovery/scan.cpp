@@ -438,32 +438,32 @@ class ScanDiscovery : public StationDiscovery {
   }
 
   void start() {
-    ScanHead head = read_scan_head(link_.client());
     prime();
+    // With a kept scan, the image lengths alone decide whether to take it (one request): the
+    // identification names the coupler model, not its station, and each terminal a run talks to
+    // first tells its type (R8) anyway (docs/design.md 4.6). Otherwise the identification too.
+    std::optional<ScanHead> head;
+    if (!kept_ || !cache_ || opt_.rescan || forgotten_) head = read_scan_head(link_.client());
     if (cache_ && !opt_.rescan && !forgotten_) {
       if (!cache_->lock(kLockSeconds)) {
         trace(fmt::format("the scan cache {} is locked by another kscfg; scanning without it", cache_->path()));
         cache_.reset();
       } else if (kept_) {
-        ScanHead was;
-        was.ident = kept_->ident;
-        was.ident_read = kept_->ident_read;
-        was.lengths = {kept_->complex_out_bits, kept_->complex_in_bits, kept_->digital_out_bits,
-                       kept_->digital_in_bits};
-        if (was == head) {
-          trace(fmt::format("scan of {} from the cache {} (same identification and image lengths)",
-                            link_.describe(), cache_->path()));
+        std::array<unsigned, 4> was{kept_->complex_out_bits, kept_->complex_in_bits, kept_->digital_out_bits,
+                                    kept_->digital_in_bits};
+        if (was == read_image_lengths(link_.client())) {
+          trace(fmt::format("scan of {} from the cache {} (same image lengths)", link_.describe(), cache_->path()));
           r_ = std::move(kept_);
           kept_.reset();
           // The lock stays taken while find() walks on, so two runs do not scan one coupler at once.
           return;
         }
-        trace(fmt::format("the scan cache {} is out of date (identification or image lengths differ); scanning",
-                          cache_->path()));
+        trace(fmt::format("the scan cache {} is out of date (the image lengths differ); scanning", cache_->path()));
         kept_.reset();
       }
     }
-    r_ = begin_scan(head, fmt::format("scan of {}", link_.describe()), std::nullopt);
+    if (!head) head = read_scan_head(link_.client());
+    r_ = begin_scan(*head, fmt::format("scan of {}", link_.describe()), std::nullopt);
     r_->layout = scan_layout(*r_, catalog_);
     dirty_ = true;
   }

@@ -275,7 +275,7 @@ Task<void> Channel::lock() {
   maybe_unlocked_ = false;
 }
 
-Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> changes) {
+Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> changes, bool then_close) {
   bool protected_candidate = false;
   for (const auto& c : changes) {
     check_writable(c.reg);
@@ -323,15 +323,8 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
 
   std::optional<Error> failure;
   try {
-    if (any_protected) co_await unlock();
-    for (const auto& w : change) co_await write_checked(w.reg, w.after);
-    // Relock before reading back, so that no read-back waits on a stale ack of the same register.
-    if (any_protected && !opt_.skip_unlock) co_await relock_write();
-    std::vector<unsigned> back;
-    for (const auto& w : change) back.push_back(w.reg);
     bool r31 = any_protected && !opt_.skip_unlock;
-    if (r31) back.push_back(proto::kCodeWordRegister);
-    std::vector<std::uint16_t> got = co_await read_many(back);
+    std::vector<std::uint16_t> got = co_await write_change(change, r31, then_close);
     for (std::size_t i = 0; i < change.size(); ++i)
       if (got[i] != change[i].after)
         throw Error(Exit::verify,
@@ -355,6 +348,57 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
     throw ChangeFailed(failure->code(), failure->what(), std::move(rb), who());
   }
   co_return results;
+}
+
+Task<std::vector<std::uint16_t>> Channel::write_change(const std::vector<WriteResult>& change, bool lock,
+                                                        bool then_close) {
+  // One program: code word, writes, relock, read-back of every register and R31. Relocked before
+  // reading back, so that no read-back waits on a stale ack of the same register. On a link that
+  // pipelines, each request goes out with the poll that sees the one before answered (RegisterOp::
+  // repeatable); the last poll puts the bytes back when the work ends here.
+  Program p;
+  if (lock) p.ops.push_back({true, proto::kCodeWordRegister, proto::kCodeWord, true});
+  for (const auto& w : change) p.ops.push_back({true, w.reg, w.after, true});
+  if (lock) p.ops.push_back({true, proto::kCodeWordRegister, 0, true});
+  const std::size_t writes = p.ops.size();
+  for (const auto& w : change) p.ops.push_back({false, w.reg, 0, false});
+  if (lock) p.ops.push_back({false, proto::kCodeWordRegister, 0, false});
+  if (lock) {
+    unlock_checked_ = true;  // write_masked read R31 first (or finished a leftover)
+    maybe_unlocked_ = true;
+  }
+  p.close_after = then_close && (!leftover_ || leftover_done_);
+  std::optional<Error> lost;
+  try {
+    co_await exec(p);
+  } catch (const Error& e) {
+    if (e.code() != Exit::link) throw;
+    lost = e;
+  }
+  std::size_t done = p.values.size();
+  if (lock && done > 0) unlocked_ = done < writes;
+  if (!lost) co_return std::vector<std::uint16_t>(p.values.begin() + static_cast<std::ptrdiff_t>(writes), p.values.end());
+  // An answer was lost (docs/design.md 6.3): from that request on, one at a time; a write whose
+  // answer was lost is read before it is written again.
+  for (std::size_t k = done; k < writes; ++k) {
+    const RegisterOp& op = p.ops[k];
+    std::optional<std::uint16_t> now;
+    if (k == done) {
+      now = co_await read(op.reg);
+      if (opt_.trace)
+        opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), op.reg,
+                               lost->what(), *now, *now == op.value ? "the write landed" : "writing again"));
+    }
+    if (!now || *now != op.value) co_await write_checked(op.reg, op.value);
+    if (lock && op.reg == proto::kCodeWordRegister) unlocked_ = op.value == proto::kCodeWord;
+  }
+  std::vector<unsigned> back;
+  for (std::size_t k = std::max(done, writes); k < p.ops.size(); ++k) back.push_back(p.ops[k].reg);
+  std::vector<std::uint16_t> got(p.values.begin() + static_cast<std::ptrdiff_t>(std::min(done, writes)),
+                                 p.values.end());
+  std::vector<std::uint16_t> rest = co_await read_many(back);
+  got.insert(got.end(), rest.begin(), rest.end());
+  co_return got;
 }
 
 Task<RollbackResult> Channel::roll_back(std::vector<WriteResult> changes) {

@@ -92,20 +92,22 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   c.act = Act::poll;
   // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
   bool speculate = known && !r.ack.probe && c.timing->misses < kMaxMisses;
-  if (r.polls == 0 && !r.write && !r.probe && speculate && !c.ahead) {
-    if (k + 1 < p.ops.size() && !p.ops[k + 1].write && p.ops[k + 1].reg != r.reg) {
-      put_request(c, false, p.ops[k + 1].reg, 0);  // read-ahead
+  // What the poll may replace: a read, or a write that may be done twice (asked again if the poll
+  // came too early). A write goes ahead only if the request it may replace can be done again after
+  // it: never the code word (a relock ahead would make the write before it fail).
+  bool replaceable = !r.write || op.repeatable;
+  if (r.polls == 0 && replaceable && !r.probe && speculate && !c.ahead) {
+    const RegisterOp* next = k + 1 < p.ops.size() ? &p.ops[k + 1] : nullptr;
+    if (next && next->reg != r.reg &&
+        (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
+      put_request(c, next->write, next->reg, next->value);  // read-ahead (or write-ahead)
       c.with_ahead = true;
-    } else if (k + 1 == p.ops.size() && p.close_after && !c.found.leftover && c.users == 1) {
-      // The control byte goes back with the poll for the last answer when it is the only byte
-      // this work changed (a read changes nothing on the terminal: if it came too early, ask again).
-      bool only_ctrl = true;
-      for (std::size_t b = c.out_lo; b <= c.out_hi; ++b)
-        if (b != c.w.ctrl && c.shadow[b - c.out_lo] != c.saved[b - c.saved_at]) only_ctrl = false;
-      if (only_ctrl) {
-        put_restore(c, true);
-        c.with_restore = true;
-      }
+    } else if (!next && !r.write && p.close_after && !c.found.leftover && c.users == 1) {
+      // The bytes this work changed (the control byte, the value bytes of its writes) go back with
+      // the poll for the last answer: a read changes nothing on the terminal; if it came too early,
+      // it is asked again.
+      put_restore(c, false);
+      c.with_restore = true;
     }
   }
 }
@@ -177,7 +179,8 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
       c.last_status = st;
     }
     if (c.with_ahead) {
-      c.req = sent_request(c, false, p.ops[p.values.size()].reg, 0, t);
+      const RegisterOp& n = p.ops[p.values.size()];
+      c.req = sent_request(c, n.write, n.reg, n.value, t);
     } else if (c.ahead) {
       c.req = *c.ahead;
       c.ahead.reset();
@@ -198,7 +201,10 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     c.req.reset();
     return;
   }
-  if (c.with_ahead) c.ahead = sent_request(c, false, p.ops[p.values.size() + 1].reg, 0, t);
+  if (c.with_ahead) {
+    const RegisterOp& n = p.ops[p.values.size() + 1];
+    c.ahead = sent_request(c, n.write, n.reg, n.value, t);
+  }
   if (c.ahead && proto::is_ack(st, c.ahead->reg)) {
     // The terminal took the request written ahead before answering ours: ask again.
     if (known) ack_replaced(*c.timing, opt_.timeout);

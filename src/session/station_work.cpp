@@ -32,7 +32,7 @@ Task<void> read_job(Channel& ch, ChannelReads& job, std::function<void(std::size
 Task<void> write_job(Channel& ch, ChannelChange& job) {
   std::exception_ptr err;
   try {
-    job.results = co_await ch.write_masked(job.changes);
+    job.results = co_await ch.write_masked(job.changes, true);
   } catch (...) {
     err = std::current_exception();
   }

@@ -617,6 +617,9 @@ class Coupler:
                           for i, t in enumerate(station["terminals"])]
         for spec in args.preset or []:
             self._preset(spec)
+        self.faults = {}            # (pos, channel index) -> {"ignore-write": {regs}, "deaf-write": {regs}}
+        for spec in args.fault or []:
+            self._fault(spec)
         for spec in args.digital_in or []:
             pos, _, val = spec.partition("=")
             self.terminals[int(pos) - 1].di_value = int(val, 0)
@@ -637,6 +640,21 @@ class Coupler:
             t.channels[ci].eeprom[int(reg.strip().lstrip("Rr"), 0)] = int(val, 0)
         except (ValueError, IndexError) as exc:
             raise SystemExit("bk_coupler: bad --preset %r: %s" % (spec, exc))
+
+    def _fault(self, spec):
+        # POS[.CH]:ignore-write=RN or POS[.CH]:deaf-write=RN
+        try:
+            where, assign = spec.split(":", 1)
+            kind, reg = assign.split("=", 1)
+            if kind not in ("ignore-write", "deaf-write"):
+                raise ValueError("kind must be ignore-write or deaf-write")
+            pos, _, chs = where.partition(".")
+            t = self.terminals[int(pos) - 1]
+            ci = int(chs) - 1 if chs else 0
+            t.channels[ci]  # the channel exists
+            self.faults.setdefault((t.pos, ci), {}).setdefault(kind, set()).add(int(reg.strip().lstrip("Rr"), 0))
+        except (ValueError, IndexError) as exc:
+            raise SystemExit("bk_coupler: bad --fault %r: %s" % (spec, exc))
 
     def _eeprom_log(self, term, ci, reg, value):
         k = "%d.%d.R%d" % (term.pos, ci + 1, reg)
@@ -739,17 +757,21 @@ class Coupler:
             key = ("reg", ctl, value if ctl & 0x40 else None)
         else:
             key = ("pd",)
+        fault = self.faults.get((t.pos, ci), {})
         if key != ch.key:
             ch.key = key
             # a terminal answers 1 to 3 K-bus cycles after it sees a request
             ch.delay = self.rng.randint(self.args.min_delay, self.args.max_delay)
+            if key[0] == "reg" and key[1] & 0x40 and (key[1] & 0x3F) in fault.get("deaf-write", ()):
+                ch.delay = 0        # --fault deaf-write: never answered, the status stays as it was
         if ch.delay > 0:
             ch.delay -= 1
             if ch.delay == 0:
                 ch.shown = ch.key
                 if ch.shown[0] == "reg" and ch.shown[1] & 0x40:
                     addr = ch.shown[1] & 0x3F
-                    changed = t.reg_write(ci, addr, ch.shown[2])
+                    if addr not in fault.get("ignore-write", ()):
+                        changed = t.reg_write(ci, addr, ch.shown[2])
         reg_mode = ch.shown[0] == "reg" or (reg_window and bool(ctl & 0x80))
         t.pd_cycle(ci, l, out, inp, self.cycle_s, reg_mode)
         if ch.shown[0] == "reg":
@@ -1217,6 +1239,10 @@ def main(argv=None):
     ap.add_argument("--busy", type=float, default=0.0, metavar="RATE", help="answer exception 6 at this rate")
     ap.add_argument("--slow-ms", type=int, default=0, help="delay every reply")
     ap.add_argument("--wrong-unit", action="store_true", help="answer with another unit id")
+    ap.add_argument("--fault", action="append", metavar="POS[.CH]:KIND=RN",
+                    help="a terminal that misbehaves on one register (repeatable): ignore-write=RN "
+                    "acknowledges a write of RN and keeps the old value (a read-back mismatch); "
+                    "deaf-write=RN never acknowledges a write of RN (and does not do it)")
     args = ap.parse_args(argv)
     if not args.tcp and not args.pty:
         args.tcp = "127.0.0.1:0"

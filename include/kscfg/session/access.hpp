@@ -43,6 +43,10 @@ struct RegisterOp {
   bool write = false;
   unsigned reg = 0;
   std::uint16_t value = 0;  // what a write writes
+  // A write that may be done twice (it stores a value: never a command register). On a link that
+  // pipelines, the next request may then go out with the poll for its answer; if that came too
+  // early, the write is asked again (docs/design.md 7.2).
+  bool repeatable = false;
 };
 
 // A channel's requests, run in this order; what the terminal answered. A program with no

@@ -132,7 +132,8 @@ class Channel {
                                              std::function<void(std::size_t)> progress = {});
   Task<std::uint16_t> read(unsigned reg);
   // Unlock (protected registers) -> compare -> write -> relock -> read back, as one change.
-  Task<std::vector<WriteResult>> write_masked(std::vector<MaskedChange> changes);
+  // `then_close`: the channel's work ends here (the last read-back's poll may put the bytes back).
+  Task<std::vector<WriteResult>> write_masked(std::vector<MaskedChange> changes, bool then_close = false);
   Task<void> command(unsigned reg, std::uint16_t value);
   Task<void> unlock();  // R31 = 0x1235, verified
   Task<void> lock();    // R31 = 0, verified
@@ -162,6 +163,8 @@ class Channel {
   Task<void> finish_leftover();
   Task<void> write_checked(unsigned reg, std::uint16_t value);
   Task<void> relock_write();
+  // write_masked's change as one program; returns the read-back values (the registers, then R31).
+  Task<std::vector<std::uint16_t>> write_change(const std::vector<WriteResult>& change, bool lock, bool then_close);
   bool closable_with_read() const;
 
   Engine& engine_;
