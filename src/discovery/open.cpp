@@ -53,11 +53,12 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     unsigned timeout = opt.timeout_ms;
     auto trace = opt.trace;
     link->set_discovery([raw, cat, timeout, trace]() -> std::optional<AdsImageLink::Found> {
-      AdsStation st = read_ads_station(raw->client(), *cat, timeout);
+      AdsScanOptions so;
+      so.check = false;  // table 9 and the registers that decide an image only
+      ScanResult r = scan_ads_station(raw->client(), *cat, timeout, std::move(so)).result;
       if (trace)
-        for (const auto& n : st.notes) trace("ads: " + n);
-      StationLayout L = ads_layout(raw->client(), st, *cat, timeout);
-      return AdsImageLink::Found{std::move(st.spec), std::move(L)};
+        for (const auto& n : r.notes) trace("ads: " + n);
+      return AdsImageLink::Found{std::move(r.spec), std::move(r.layout)};
     });
     return link;
   }
