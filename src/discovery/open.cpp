@@ -33,6 +33,10 @@ std::string coupler_lock_path(const ModbusTarget& t) {
   return (std::filesystem::path(lock_dir()) / (key + ".lock")).string();
 }
 
+std::string coupler_lock_path(const AdsTarget& t) {
+  return (std::filesystem::path(lock_dir()) / fmt::format("ads-{}-{}.lock", safe(t.host), t.port)).string();
+}
+
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
@@ -47,7 +51,11 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
     ao.trace = opt.trace;
-    auto link = std::make_unique<AdsImageLink>(ads_target(p, uri), ao);
+    AdsTarget target = ads_target(p, uri);
+    // One kscfg at a time on a coupler of this computer, as over Modbus: before it connects.
+    OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
+                                        opt.lock_wait);
+    auto link = std::make_unique<AdsImageLink>(target, ao, std::move(lock));
     AdsImageLink* raw = link.get();
     const Catalog* cat = &catalog;
     unsigned timeout = opt.timeout_ms;
