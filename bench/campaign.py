@@ -15,7 +15,8 @@ itself dying.
     bench/campaign.py [--kscfg build/kscfg] [--seed N] [--quick] [CAMPAIGN...]
 
 CAMPAIGN: mixed, kill9, connections, writers, durability, and issue 21's meet, kill9all, forged,
-poison (bench/campaign_sessions.py, each via serve and via the pymodbus peer) (default: all).
+poison (bench/campaign_sessions.py, each via serve and via the pymodbus peer), issue 24's adsfaults,
+adskill9, adstwo (bench/campaign_ads.py: ads:// via serve --ads and the ADS peer) (default: all).
 --quick runs a tenth. Run it under `nice -n 10`. Uses only Debian's /usr/bin/python3 (with
 python3-pymodbus for the peer) and the built kscfg.
 """
@@ -551,7 +552,7 @@ def main():
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("campaigns", nargs="*", default=["mixed", "kill9", "connections", "writers", "durability", "meet",
-                                                     "kill9all", "forged", "poison"])
+                                                     "kill9all", "forged", "poison", "adsfaults", "adskill9", "adstwo"])
     a = ap.parse_args()
     KSCFG = os.path.abspath(a.kscfg)
     q = 10 if a.quick else 1
@@ -576,6 +577,9 @@ def main():
             elif c in ("meet", "kill9all", "forged", "poison"):
                 import campaign_sessions
                 rows += campaign_sessions.run(sys.modules[__name__], c, a.seed, work, a.quick)
+            elif c in ("adsfaults", "adskill9", "adstwo"):
+                import campaign_ads
+                rows += campaign_ads.run(sys.modules[__name__], c, a.seed, work, a.quick)
             else:
                 raise SystemExit("unknown campaign " + c)
             print(f"({c}: {time.time() - t0:.0f} s)", file=sys.stderr)

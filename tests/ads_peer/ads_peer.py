@@ -150,6 +150,8 @@ class Peer:
                     chunk = conn.recv(65536)
                 except socket.timeout:
                     continue
+                except OSError:
+                    return  # reset by the client (killed, or a relay that cut it)
                 if not chunk:
                     return
                 last = time.monotonic()
@@ -167,7 +169,10 @@ class Peer:
                         continue
                     reply = self.handle(frame, me)
                     if reply:
-                        conn.sendall(reply)
+                        try:
+                            conn.sendall(reply)
+                        except OSError:
+                            return  # the client is gone
                 last = time.monotonic()
         finally:
             conn.close()
