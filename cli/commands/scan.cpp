@@ -204,7 +204,8 @@ class Scan : public Command {
         if (!t.complex) {  // over ADS, table 9 lists digital terminals too: their bits
           std::string bits;
           if (t.bits_out) bits += fmt::format("out bit {}..{}", t.out_bit, t.out_bit + t.bits_out - 1);
-          if (t.bits_in) bits += fmt::format("{}in bit {}..{}", bits.empty() ? "" : " ", t.in_bit, t.in_bit + t.bits_in - 1);
+          if (t.bits_in)
+            bits += fmt::format("{}in bit {}..{}", bits.empty() ? "" : " ", t.in_bit, t.in_bit + t.bits_in - 1);
           std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type, "-", t.format, bits);
           continue;
         }
