@@ -14,14 +14,13 @@ itself dying.
 
     bench/campaign.py [--kscfg build/kscfg] [--seed N] [--quick] [CAMPAIGN...]
 
-CAMPAIGN: mixed, kill9, connections, writers, durability, and issue 21's meet, kill9all, forged,
-poison (bench/campaign_sessions.py, each via serve and via the pymodbus peer), and issue 22's
-kill9apply12 (bench/campaign_station.py: kill -9 during an apply on 12 terminals, via serve and
-the peer) (default: all).
---quick runs a tenth. Run it under `nice -n 10`. Uses only Debian's /usr/bin/python3 (with
-python3-pymodbus for the peer) and the built kscfg.
+CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
+own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
+an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer).
+--quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
+import importlib
 import json
 import os
 import random
@@ -546,14 +545,19 @@ def campaign_durability(n, seed, work):
 # ----------------------------------------------------------------------------------------------
 
 
+# Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick)).
+ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
+             "kill9apply12": "campaign_station", **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads")}
+
+
 def main():
     global KSCFG
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kscfg", default=KSCFG)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("campaigns", nargs="*", default=["mixed", "kill9", "connections", "writers", "durability", "meet",
-                                                     "kill9all", "forged", "poison", "kill9apply12"])
+    ap.add_argument("campaigns", nargs="*",
+                    default=["mixed", "kill9", "connections", "writers", "durability", *ELSEWHERE])
     a = ap.parse_args()
     KSCFG = os.path.abspath(a.kscfg)
     q = 10 if a.quick else 1
@@ -575,12 +579,8 @@ def main():
             elif c == "durability":
                 campaign_durability(400 // q, a.seed, work)
                 continue
-            elif c in ("meet", "kill9all", "forged", "poison"):
-                import campaign_sessions
-                rows += campaign_sessions.run(sys.modules[__name__], c, a.seed, work, a.quick)
-            elif c == "kill9apply12":
-                import campaign_station
-                rows += campaign_station.run(sys.modules[__name__], a.seed, work, a.quick)
+            elif c in ELSEWHERE:
+                rows += importlib.import_module(ELSEWHERE[c]).run(sys.modules[__name__], c, a.seed, work, a.quick)
             else:
                 raise SystemExit("unknown campaign " + c)
             print(f"({c}: {time.time() - t0:.0f} s)", file=sys.stderr)

@@ -116,6 +116,6 @@ def kill9apply(C, kind, n, seed, work):
     return t
 
 
-def run(C, seed, work, quick):
+def run(C, name, seed, work, quick):
     n = 10 if quick else 100
     return [kill9apply(C, kind, n, seed, work) for kind in ("serve", "peer")]

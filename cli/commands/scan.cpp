@@ -1,5 +1,6 @@
 // kscfg scan: what a Modbus coupler reports (identification, image lengths, watchdog) and the
-// terminals found by walking its complex area; optionally written as a station file.
+// terminals found by walking its complex area, or over ADS the coupler's table 9 and each
+// terminal's R8/R9 on port 100; optionally written as a station file.
 #include <fmt/format.h>
 
 #include <filesystem>
@@ -12,6 +13,8 @@
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "../progress.hpp"
+#include "kscfg/discovery/ads_station.hpp"
+#include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg::cli {
@@ -28,7 +31,7 @@ std::optional<bool> on_off(const std::string& v, const char* what) {
 class Scan : public Command {
  public:
   std::string name() const override { return "scan"; }
-  std::string brief() const override { return "Discover the station behind a Modbus coupler"; }
+  std::string brief() const override { return "Discover the station behind a Modbus or ADS coupler"; }
   std::string man() const override {
     return "Reads a Modbus coupler's identification (0x1000..0x1006; two characters per register or one, "
            "either byte order), its image lengths in bits (0x1010..0x1013) and its watchdog settings (0x1120 "
@@ -52,11 +55,21 @@ class Scan : public Command {
            "\\fI$XDG_CACHE_HOME/kscfg/scans/\\fR with the terminals' acknowledge latencies; a later command uses "
            "it while the coupler reports the same identification and image lengths (two requests), and each "
            "terminal it talks to first tells its type (R8). When they differ, it scans again; "
-           "\\fB\\-\\-rescan\\fR forces that. \\fBscan\\fR itself always scans and replaces what is kept.";
+           "\\fB\\-\\-rescan\\fR forces that. \\fBscan\\fR itself always scans and replaces what is kept. "
+           "Over \\fBads://\\fR (ADS port 100) the identification is the coupler's ReadDeviceInfo (name and "
+           "version), the terminals are its table 9 (every terminal it found at power-on but passive ones such "
+           "as power feeds; digital terminals by bit count, shown as a catalog type with those bits, complex "
+           "ones by type number), each terminal with registers is checked by reading its R8 and R9 (R9 in "
+           "\\fB\\-\\-json\\fR as \\fBr9\\fR), the registers that decide its image are read on "
+           "every channel, all in one batch of requests in flight together, and the image lengths are those of "
+           "the layout; the watchdog is the ADS watchdog (table 100 register 14). A coupler that does not serve "
+           "table 9 is walked by terminal number (R8 of 1, 2, ... until ADS error 0x702); its terminals "
+           "without registers are then counted, not listed. No byte of the process image is touched.";
   }
   std::vector<std::string> examples() const override {
     return {"--port tcp://192.168.1.10 scan", "--port tcp://127.0.0.1:5020 scan --write station.toml",
-            "--port rtu:/dev/ttyUSB0?baud=19200 scan --complete-evaluation on", "--json --port tcp://10.0.0.5 scan"};
+            "--port rtu:/dev/ttyUSB0?baud=19200 scan --complete-evaluation on", "--json --port tcp://10.0.0.5 scan",
+            "--port ads://192.168.1.10 scan --write station.toml"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--write", write_, "Save the station found as a station file (-: stdout)")->option_text("FILE");
@@ -72,37 +85,52 @@ class Scan : public Command {
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
     if (!write_.empty()) refuse_to_replace(write_, force_);
-    auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
-    if (!link)
-      throw Error(Exit::usage, fmt::format("'kscfg scan' reads a Modbus coupler; the port is '{}'", ctx.options().port),
-                  "use --port tcp://HOST or rtu:DEVICE; 'kscfg info' shows the emulator's station");
-    std::optional<MappingSettings> settings;
-    if (ce || wa || mo) {
-      // Defaults of the coupler family, overridden: ask the coupler who it is first.
-      MappingSettings s = begin_scan(read_scan_head(link->client()), "", std::nullopt).settings;
+    auto overridden = [&](MappingSettings s) {
       if (ce) s.complete_evaluation = *ce;
       if (wa) s.word_alignment = *wa;
       if (mo) s.motorola = *mo;
-      settings = s;
-    }
+      return s;
+    };
     ScanResult r;
-    {
-      ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-      r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+    std::vector<std::optional<std::uint16_t>> r9;  // ADS only: each terminal's R9
+    bool ads = false;
+    if (auto* a = dynamic_cast<AdsImageLink*>(&ctx.link())) {
+      // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
+      AdsScanOptions so;
+      if (ce || wa || mo) so.settings = overridden;
+      so.origin = fmt::format("scan of {}", a->describe());
+      AdsScan s = scan_ads_station(a->client(), ctx.catalog(), ctx.options().timeout_ms, std::move(so));
+      r = std::move(s.result);
+      r9 = std::move(s.r9);
+      ads = true;
+    } else {
+      auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
+      if (!link)
+        throw Error(Exit::usage,
+                    fmt::format("'kscfg scan' reads a Modbus or ADS coupler; the port is '{}'", ctx.options().port),
+                    "use --port tcp://HOST, rtu:DEVICE or ads://HOST; 'kscfg info' shows the emulator's station");
+      std::optional<MappingSettings> settings;
+      // Defaults of the coupler family, overridden: ask the coupler who it is first.
+      if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(link->client()), "", std::nullopt).settings);
+      {
+        ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
+        r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+      }
+      // Later commands on this port use it (the scan cache) while the coupler reports the same
+      // identification and image lengths.
+      if (auto* d = link->discovery()) d->adopt(r);
+      // Now that the station is known: what kscfg processes that died on this port left in
+      // register mode (their journals) is finished, as by any other command (issue 21 item 2).
+      if (r.walked) (void)ctx.layout();
     }
-    // Later commands on this port use it (the scan cache) while the coupler reports the same
-    // identification and image lengths.
-    if (auto* d = link->discovery()) d->adopt(r);
-    // Now that the station is known: what kscfg processes that died on this port left in register
-    // mode (their journals) is finished, as by any other command (issue 21 item 2).
-    if (r.walked) (void)ctx.layout();
+    Link* link = &ctx.link();
     if (!write_.empty()) {
       if (!r.walked)
         throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
                     r.notes.empty() ? "" : r.notes.back());
       std::string text = fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n",
                                      link->describe(), r.ident);
-      if (r.digital_in_bits || r.digital_out_bits)
+      if (!ads && (r.digital_in_bits || r.digital_out_bits))
         text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                             r.digital_out_bits);
       text += station_to_toml(r.spec);
@@ -115,8 +143,10 @@ class Scan : public Command {
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
         // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-        terms.push_back({{"position", t.position}, {"type", t.type->type}, {"r8", i < r.r8.size() ? r.r8[i] : 0},
-                         {"image", image_json(t)}});
+        nlohmann::json term = {{"position", t.position}, {"type", t.type->type},
+                               {"r8", i < r.r8.size() ? r.r8[i] : 0}, {"image", image_json(t)}};
+        if (ads) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
+        terms.push_back(std::move(term));
       }
       print_json({{"port", link->describe()},
                   {"identification", r.ident},
@@ -152,7 +182,11 @@ class Scan : public Command {
                                r.coupler);
     std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
                              r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
-    if (!r.watchdog_preset)
+    if (ads)
+      std::cout << (r.watchdog_preset ? fmt::format("watchdog  {} ms (ADS watchdog, table 100 register 14)\n",
+                                                    *r.watchdog_preset)
+                                      : std::string("watchdog  unknown (the coupler does not serve table 100)\n"));
+    else if (!r.watchdog_preset)
       std::cout << "watchdog  unknown (the coupler does not serve 0x1120)\n";
     else
       std::cout << fmt::format("watchdog  {} ms, {}\n", *r.watchdog_preset,
@@ -167,6 +201,14 @@ class Scan : public Command {
       std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", "POS", "TYPE", "R8", "FORMAT", "IMAGE");
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
+        if (!t.complex) {  // over ADS, table 9 lists digital terminals too: their bits
+          std::string bits;
+          if (t.bits_out) bits += fmt::format("out bit {}..{}", t.out_bit, t.out_bit + t.bits_out - 1);
+          if (t.bits_in)
+            bits += fmt::format("{}in bit {}..{}", bits.empty() ? "" : " ", t.in_bit, t.in_bit + t.bits_in - 1);
+          std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type, "-", t.format, bits);
+          continue;
+        }
         std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} out {}..{} in {}..{}\n", t.position, t.type->type,
                                  i < r.r8.size() ? r.r8[i] : 0, t.format, t.out_offset, t.out_offset + t.out_size - 1,
                                  t.in_offset, t.in_offset + t.in_size - 1);

@@ -33,6 +33,10 @@ std::string coupler_lock_path(const ModbusTarget& t) {
   return (std::filesystem::path(lock_dir()) / (key + ".lock")).string();
 }
 
+std::string coupler_lock_path(const AdsTarget& t) {
+  return (std::filesystem::path(lock_dir()) / fmt::format("ads-{}-{}.lock", safe(t.host), t.port)).string();
+}
+
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
@@ -47,17 +51,22 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
     ao.trace = opt.trace;
-    auto link = std::make_unique<AdsImageLink>(ads_target(p, uri), ao);
+    AdsTarget target = ads_target(p, uri);
+    // One kscfg at a time on a coupler of this computer, as over Modbus: before it connects.
+    OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
+                                        opt.lock_wait);
+    auto link = std::make_unique<AdsImageLink>(target, ao, std::move(lock));
     AdsImageLink* raw = link.get();
     const Catalog* cat = &catalog;
     unsigned timeout = opt.timeout_ms;
     auto trace = opt.trace;
     link->set_discovery([raw, cat, timeout, trace]() -> std::optional<AdsImageLink::Found> {
-      AdsStation st = read_ads_station(raw->client(), *cat, timeout);
+      AdsScanOptions so;
+      so.check = false;  // table 9 and the registers that decide an image only
+      ScanResult r = scan_ads_station(raw->client(), *cat, timeout, std::move(so)).result;
       if (trace)
-        for (const auto& n : st.notes) trace("ads: " + n);
-      StationLayout L = ads_layout(raw->client(), st, *cat, timeout);
-      return AdsImageLink::Found{std::move(st.spec), std::move(L)};
+        for (const auto& n : r.notes) trace("ads: " + n);
+      return AdsImageLink::Found{std::move(r.spec), std::move(r.layout)};
     });
     return link;
   }

@@ -373,6 +373,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
       const ams::Header& h = frame->header;
       auto it = pending.find(h.invoke);
       if (!h.response() || it == pending.end()) {
+        ++strays_;
         if (opt_.trace)
           opt_.trace(fmt::format("ads: frame with invoke id {} ({}) ignored: no request of this run waits for it",
                                  h.invoke, h.response() ? "response" : "request"));

@@ -17,7 +17,10 @@ void check_image(std::size_t offset, std::size_t n, const char* what) {
 
 }  // namespace
 
-AdsImageLink::AdsImageLink(AdsTarget target, AdsOptions opt) : client_(std::move(target), std::move(opt)) { count(); }
+AdsImageLink::AdsImageLink(AdsTarget target, AdsOptions opt, OwnerLock lock)
+    : lock_(std::move(lock)), client_(std::move(target), std::move(opt)) {
+  count();
+}
 
 void AdsImageLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "input");

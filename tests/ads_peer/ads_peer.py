@@ -97,6 +97,8 @@ class Peer:
         self.port = self.sock.getsockname()[1]
         self.last_telegram = None
         self.image_writes = []  # (offset, bytes) of every port-300 write
+        self.table9 = True  # False: a coupler that does not serve table 9 (ADS 0x703)
+        self.log = None  # a list: (received, answered, port, group, offset) of every Read and Write (monotonic s)
         # Table 100 (BK9000 manual, "Register settings, Table 100"): IP address 172.16.17.0 and mask
         # 255.255.0.0 (the documented defaults, two bytes a register), the device name, the ADS
         # watchdog 1000 ms, Ethernet 100 Mbaud full duplex autobaud, Modbus watchdog 1000 ms and
@@ -148,6 +150,8 @@ class Peer:
                     chunk = conn.recv(65536)
                 except socket.timeout:
                     continue
+                except OSError:
+                    return  # reset by the client (killed, or a relay that cut it)
                 if not chunk:
                     return
                 last = time.monotonic()
@@ -165,7 +169,10 @@ class Peer:
                         continue
                     reply = self.handle(frame, me)
                     if reply:
-                        conn.sendall(reply)
+                        try:
+                            conn.sendall(reply)
+                        except OSError:
+                            return  # the client is gone
                 last = time.monotonic()
         finally:
             conn.close()
@@ -200,15 +207,23 @@ class Peer:
             return answer(b"", ERR_PORT)
         if cmd == CMD_DEVINFO:
             return answer(struct.pack("<IBBH16s", 0, 2, 11, 0, b"BK9000"))
+        t0 = time.monotonic()
+
+        def logged(reply, group, offset):
+            if self.log is not None:
+                with self.lock:
+                    self.log.append((t0, time.monotonic(), tport, group, offset))
+            return reply
+
         if cmd == CMD_READ and len(data) == 12:
             group, offset, n = struct.unpack_from("<III", data)
             result, out = self.read(tport, group, offset, n)
-            return answer(struct.pack("<II", result, len(out)) + out)
+            return logged(answer(struct.pack("<II", result, len(out)) + out), group, offset)
         if cmd == CMD_WRITE and len(data) >= 12:
             group, offset, n = struct.unpack_from("<III", data)
             if n != len(data) - 12:
                 return answer(struct.pack("<I", ADS_SIZE))
-            return answer(struct.pack("<I", self.write(tport, group, offset, data[12:])))
+            return logged(answer(struct.pack("<I", self.write(tport, group, offset, data[12:]))), group, offset)
         if cmd in (CMD_READ, CMD_WRITE):
             return answer(struct.pack("<I", ADS_SIZE))
         return answer(b"", ERR_CMD)
@@ -237,7 +252,7 @@ class Peer:
         with self.lock:
             if group == 0:
                 table, reg = offset >> 16, offset & 0xFFFF
-                if table not in (9, 100):
+                if table not in (9, 100) or (table == 9 and not self.table9):
                     return ADS_OFFSET, b""
                 if n != 2:
                     return ADS_SIZE, b""

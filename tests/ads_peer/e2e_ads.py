@@ -7,6 +7,7 @@ prints the time of a 48-register read, pipelined and one at a time, against the 
 per-access latency (the figures of issue 24 item 7; no assertion on time here: bench/ has those).
 """
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -99,6 +100,50 @@ def main():
               f"{r.stderr.strip()[:300]}")
         requests = peer.requests
         check(requests > 0, f"the peer served {requests} requests")
+
+        # scan over ADS: table 9 (the passive KL9100 not in it), R8/R9 of the terminals with registers.
+        peer.image_writes.clear()
+        r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        terms = [(t["position"], t["type"], t["r8"], t["r9"]) for t in j.get("terminals", [])]
+        check(terms == [(1, "KL6001", 6001, 0x3141), (2, "KL1104", 0, None), (3, "KL3022", 3022, 0x3141),
+                        (4, "KL2114", 0, None)],
+              f"scan --json: table 9's terminals with R8 and R9 read on port 100: {terms} {r.stderr.strip()[:300]}")
+        check(j.get("identification") == "BK9000 2.11.0" and j.get("coupler") == "BK9000" and j.get("matches") is True
+              and j.get("image_bits") == {"complex_out": 128, "complex_in": 128, "digital_out": 4, "digital_in": 4}
+              and j.get("watchdog") == {"preset_ms": 1000, "retrigger": None},
+              "scan --json: identification, image lengths of the layout, the ADS watchdog: "
+              f"{ {k: j.get(k) for k in ('identification', 'coupler', 'matches', 'image_bits', 'watchdog')} }")
+        check(not peer.image_writes, "scan wrote no byte of the process image")
+        st = os.path.join(env["XDG_CACHE_HOME"], "scanned.toml")
+        os.makedirs(env["XDG_CACHE_HOME"], exist_ok=True)
+        r = run([a.kscfg, "--port", uri, "scan", "--write", st, "--force"], 120)
+        check(r.returncode == 0 and "3    KL3022  3022" in r.stdout and "terminal(s) 2, 4" in r.stderr,
+              "scan: the table, digital terminals noted" + ("" if r.returncode == 0 else f": {r.stderr.strip()[:300]}"))
+        peer.numbered[2].regs[1][32] = 0x0123
+        r = run([a.kscfg, "--port", uri, "--station", st, "-t", "3", "-c", "2", "read", "--raw", "R32"], 120)
+        check(r.returncode == 0 and r.stdout == "0x0123\n",
+              f"the scanned station file: position 3 is terminal number 3, the KL3022: {r.stdout.strip()} {r.stderr.strip()[:200]}")
+        r = run([a.kscfg, "--port", uri, "-t", "all", "--json", "read", "R8"], 120)
+        check(r.returncode == 0 and r.stdout.count('"type": "KL6001"') + r.stdout.count('"type":"KL6001"') >= 1
+              and "3022" in r.stdout, f"-t all read R8 over ADS: rc {r.returncode} {r.stderr.strip()[:200]}")
+        # A coupler without table 9: walked by terminal number, the digital ones counted.
+        peer.table9 = False
+        r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        terms = [(t["position"], t["type"], t["r8"]) for t in j.get("terminals", [])]
+        check(terms == [(1, "KL6001", 6001), (2, "KL3022", 3022)] and j.get("matches") is False
+              and "2 terminal(s) without registers" in r.stderr,
+              f"scan without table 9: R8 by terminal number until 0x702: {terms}")
+        # Without table 9 and with terminals that have no registers, the station cannot be laid out:
+        # a command asks for --station (positions are not terminal numbers then).
+        r = run([a.kscfg, "--port", uri, "-t", "2", "read", "--raw", "R8"], 120)
+        check(r.returncode == 2 and r.stderr.count("\n") == 1 and "--station FILE" in r.stderr,
+              f"without table 9, a command asks for --station: rc {r.returncode} {r.stderr.strip()[:200]}")
+        r = run([a.kscfg, "--port", uri, "--station", st, "-t", "3", "read", "--raw", "R8"], 120)
+        check(r.returncode == 0 and r.stdout == "0x0BCE\n",
+              f"without table 9, with --station: position 3 is the KL3022: {r.stdout.strip()} {r.stderr.strip()[:200]}")
+        peer.table9 = True
 
         # Replies out of order (a coupler that overlaps requests): matched by invoke id only.
         peer.overlap, peer.latency = True, 0.004

@@ -2,26 +2,38 @@
 // terminal it found at power-on (complex ones by type number, digital ones by bit count and
 // direction), so no register session and no byte of the process image is needed to lay it out.
 #pragma once
+#include <functional>
 #include <optional>
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/ads_client.hpp"
+#include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
 
-struct AdsStation {
-  unsigned coupler_number = 0;  // table 9 register 0 (9000 for a BK9000)
-  std::vector<std::uint16_t> entries;  // table 9 registers 1..n
-  StationSpec spec;  // complex terminals by R8; digital terminals as a catalog type of the same bits
-  std::vector<std::string> notes;
+// The station and `kscfg scan` over ADS (docs/design.md section 4.9): what a Modbus scan reports,
+// from port 100.
+// The identification is ReadDeviceInfo's name and version; the terminals are table 9's (every
+// numbered terminal, digital ones as a catalog type of their bits), each terminal with registers
+// checked by its R8 and R9 and the registers that decide its image, all read in one batch (in
+// flight together); the image lengths are the layout's, the watchdog is table 100 register 14 (the
+// ADS watchdog). A coupler that does not serve table 9 is walked by terminal number instead: R8 of
+// terminal 1, 2, ... until the coupler has no such terminal (ADS 0x702); terminals without
+// registers are then counted, not identified (as over Modbus). The mapping settings are the
+// coupler family's defaults, passed through `settings` when given (the caller's overrides).
+struct AdsScanOptions {
+  // The whole scan (kscfg scan): ReadDeviceInfo, each terminal's R8 and R9, the ADS watchdog.
+  // false: only what lays the station out (table 9 and the registers that decide an image), as
+  // every command on an ads:// port needs it.
+  bool check = true;
+  std::function<MappingSettings(MappingSettings)> settings;
+  std::string origin;  // the station file's origin
 };
-
-// Reads table 9 (pipelined: one round trip per register, in flight together). Error(usage) for a
-// type number the catalog does not know.
-AdsStation read_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms);
-// The station laid out as the coupler maps it: the registers that decide a terminal's image
-// format (KL6001 R34, R35, ...) are read on port 100 too, in one batch.
-StationLayout ads_layout(AdsClient& client, const AdsStation& st, const Catalog& catalog, unsigned timeout_ms);
+struct AdsScan {
+  ScanResult result;
+  std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
+};
+AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt = {});
 
 }  // namespace kscfg

@@ -7,6 +7,7 @@
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
@@ -45,6 +46,9 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 // The lock file of a Modbus coupler on this computer (lock_dir()): per host, port and unit over
 // TCP; per serial device over RTU (one master on a line, whatever the unit).
 std::string coupler_lock_path(const ModbusTarget& target);
+// The lock file of an ADS coupler (per host and AMS/TCP port): two kscfg processes on one coupler
+// take turns over ADS too (docs/design.md 6.9).
+std::string coupler_lock_path(const AdsTarget& target);
 
 // Finishes what kscfg processes that died on this port left in register mode (their journals,
 // finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position

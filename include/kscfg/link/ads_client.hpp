@@ -103,6 +103,9 @@ class AdsClient {
   ams::NetId source_netid();
   std::size_t exchanges() const { return exchanges_; }  // requests sent, repeats included
   std::size_t connects() const { return connects_; }    // connections opened
+  // Replies dropped because no request of the batch waits for their invoke id (a reply that came
+  // after its request timed out, a duplicate, a coupler's mistake): counted, never fatal.
+  std::size_t strays() const { return strays_; }
 
  private:
   struct Pending;
@@ -120,7 +123,7 @@ class AdsClient {
   std::vector<std::uint8_t> in_;
   std::uint32_t next_invoke_ = 1;
   std::chrono::steady_clock::time_point last_activity_{};
-  std::size_t exchanges_ = 0, connects_ = 0;
+  std::size_t exchanges_ = 0, connects_ = 0, strays_ = 0;
 };
 
 }  // namespace kscfg

@@ -11,6 +11,7 @@
 #include <span>
 #include <string>
 
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/station/layout.hpp"
@@ -26,7 +27,9 @@ constexpr unsigned kWatchdogMs = 1000;    // outputs to the safe state after thi
 
 class AdsImageLink : public Link {
  public:
-  AdsImageLink(AdsTarget target, AdsOptions opt);
+  // `lock`: this computer's lock on the coupler (discovery/open.hpp), held until the connection
+  // has closed.
+  AdsImageLink(AdsTarget target, AdsOptions opt, OwnerLock lock = {});
   std::string describe() const override { return client_.target().uri; }
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
@@ -52,6 +55,7 @@ class AdsImageLink : public Link {
 
  private:
   void count() { exchanges_ = client_.exchanges(); }
+  OwnerLock lock_;  // declared before the client: released after it has closed
   AdsClient client_;
   std::function<std::optional<Found>()> find_;
   std::optional<Found> found_;
