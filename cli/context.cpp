@@ -38,10 +38,17 @@ Link& Context::link() {
     lo.journal = journal_;
     lo.journal_dir = state_dir() + "/sessions";
     lo.lock_wait = lock_wait();
-    link_ = open_link(opt_.port, catalog(), lo);
+    OpenedPort port = open_port_uri(opt_.port, catalog(), lo);
+    link_ = std::move(port.link);
+    discovery_ = std::move(port.discovery);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
   return *link_;
+}
+
+StationDiscovery* Context::discovery() {
+  link();
+  return discovery_.get();
 }
 
 Engine& Context::engine() {
@@ -69,7 +76,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
   // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
   // --station (checked against the image lengths it reports) or discovered by a scan.
   Link& l = link();
-  if (!opt_.station.empty() && l.discovers_layout()) {
+  if (!opt_.station.empty() && discovery_) {
     StationSpec spec = load_station_arg(opt_.station, catalog());
     StationLayout L = compute_layout(spec, catalog());
     if (auto* mb = dynamic_cast<ModbusLink*>(&l)) check_image_lengths(L, read_image_lengths(mb->client()), opt_.station);
@@ -77,8 +84,8 @@ const StationLayout& Context::layout_upto(unsigned position) {
     recover_dead_sessions_once();
     return *layout_;
   }
-  const StationLayout* found = l.layout_upto(position);
-  if (found && !opt_.station.empty() && !l.discovers_layout()) {
+  const StationLayout* found = discovery_ ? discovery_->layout_upto(position) : l.layout();
+  if (found && !opt_.station.empty() && !discovery_) {
     // The emulator lays its station out itself; a --station FILE given with it must still be a
     // readable station file (exit 7 otherwise, as over Modbus) that describes that station.
     StationLayout described = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
@@ -88,8 +95,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
                         input_name(opt_.station));
   }
   if (found) {
-    const auto* mb = dynamic_cast<ModbusLink*>(&l);
-    set_layout(*found, !mb || !mb->scan() || mb->scan()->complete);
+    set_layout(*found, !scan() || scan()->complete);
     recover_dead_sessions_once();
     if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
   } else if (!opt_.station.empty()) {
@@ -123,22 +129,19 @@ const StationLayout& Context::layout_unchecked() {
 }
 
 bool Context::layout_from_cache() const {
-  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
-  return layout_ && opt_.station.empty() && mb && mb->scan() && mb->scan()->from_cache;
+  return layout_ && opt_.station.empty() && scan() && scan()->from_cache;
 }
 
 std::optional<std::uint16_t> Context::known_r8(unsigned position) const {
   if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
-  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
-  if (opt_.station.empty() && mb && mb->scan() && !mb->scan()->from_cache && position >= 1 &&
-      position <= mb->scan()->r8.size())
-    return static_cast<std::uint16_t>(mb->scan()->r8[position - 1]);
+  if (opt_.station.empty() && scan() && !scan()->from_cache && position >= 1 && position <= scan()->r8.size())
+    return static_cast<std::uint16_t>(scan()->r8[position - 1]);
   return std::nullopt;
 }
 
 void Context::forget_layout() {
   kept_.reset();
-  if (auto* mb = dynamic_cast<ModbusLink*>(link_.get())) mb->forget_station();
+  if (discovery_) discovery_->forget();
   if (layout_) retired_.push_back(std::move(layout_));
   matched_.reset();
   layout_complete_ = false;
@@ -235,12 +238,11 @@ void Context::check_cached_terminals() {
 }
 
 const StationLayout& Context::layout_for(const StationSpec& file) {
-  auto* mb = dynamic_cast<ModbusLink*>(&link());
-  if (!mb || !opt_.station.empty()) return layout_upto(0);
+  if (!discovery() || !opt_.station.empty()) return layout_upto(0);
   if (!matched_) {
     layout_upto(0);
-    if (!mb->scan()) return *layout_;
-    matched_ = match_scan(*mb->scan(), file, catalog());
+    if (!scan()) return *layout_;
+    matched_ = match_scan(*scan(), file, catalog());
   }
   return *matched_;
 }
@@ -392,6 +394,7 @@ nlohmann::json Context::link_json() {
 
 void Context::finish() {
   kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
+  if (discovery_) discovery_->save();  // the scan cache, with the latencies learned
   if (link_) link_->commit();
 }
 

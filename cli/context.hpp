@@ -11,6 +11,7 @@
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
@@ -49,6 +50,9 @@ class Context {
   // session() shares it).
   Engine& engine();
   bool link_open() const { return link_ != nullptr; }
+  // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
+  // scan, an ADS coupler's table 9; opens the link); nullptr for the emulator.
+  StationDiscovery* discovery();
   // The whole station as laid out by the coupler: from the link, or from --station (checked
   // against the image lengths a Modbus coupler reports).
   const StationLayout& layout();
@@ -115,6 +119,8 @@ class Context {
   // Once per run, when the layout is first known: what dead kscfg processes left on this port
   // (their journals), checked against the layout, is finished before any session of this run.
   void recover_dead_sessions_once();
+  // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
+  const ScanResult* scan() const { return discovery_ ? discovery_->scan() : nullptr; }
   unsigned select_position();
   bool check_terminal(const TerminalImage& t, bool keep);
   void check_cached_terminals();
@@ -127,6 +133,7 @@ class Context {
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   std::unique_ptr<Link> link_;
+  std::unique_ptr<StationDiscovery> discovery_;  // after link_: destroyed before it
   std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
   std::unique_ptr<Engine> engine_;
   std::unique_ptr<StationLayout> layout_;

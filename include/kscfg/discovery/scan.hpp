@@ -3,11 +3,13 @@
 #include <array>
 #include <functional>
 #include <map>
+#include <memory>
 #include <vector>
 #include <optional>
 #include <string>
 
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"
@@ -64,11 +66,12 @@ struct DiscoveryOptions {
   bool rescan = false;  // ignore what the cache holds (it is replaced by the new scan)
 };
 
-// Makes `link` discover its station with a scan on first use of layout(), only as far as the
+// Discovers the station behind `link` with a scan on first use of layout(), only as far as the
 // command needs. With a cache directory, an earlier run's scan is used when the coupler reports
 // the same identification and image lengths (two requests), and a scan is kept there, with the
-// terminals' acknowledge latencies, for the next run.
-void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
-                      DiscoveryOptions opt = {});
+// terminals' acknowledge latencies, for the next run: the latencies kept are given to the link
+// here, before its first session. Refers to `link`: destroy it first.
+std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
+                                                   DiscoveryOptions opt = {});
 
 }  // namespace kscfg
