@@ -17,7 +17,7 @@
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
-#include "kscfg/link/modbus_link.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
 
@@ -79,7 +79,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
   if (!opt_.station.empty() && discovery_) {
     StationSpec spec = load_station_arg(opt_.station, catalog());
     StationLayout L = compute_layout(spec, catalog());
-    if (auto* mb = dynamic_cast<ModbusLink*>(&l)) check_image_lengths(L, read_image_lengths(mb->client()), opt_.station);
+    if (auto* mb = l.modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), opt_.station);
     set_layout(std::move(L), true);
     recover_dead_sessions_once();
     return *layout_;
@@ -388,7 +388,7 @@ std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
 nlohmann::json Context::link_json() {
   Link& l = link();
   nlohmann::json unit = nullptr;
-  if (auto* m = dynamic_cast<ModbusLink*>(&l)) unit = m->client().target().unit;
+  if (auto* m = l.modbus_registers()) unit = m->target().unit;
   return {{"port", l.describe()}, {"unit", unit}};
 }
 

@@ -72,14 +72,15 @@ class Scan : public Command {
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
     if (!write_.empty()) refuse_to_replace(write_, force_);
-    auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
-    if (!link)
+    Link* link = &ctx.link();
+    ModbusRegisters* regs = link->modbus_registers();
+    if (!regs)
       throw Error(Exit::usage, fmt::format("'kscfg scan' reads a Modbus coupler; the port is '{}'", ctx.options().port),
                   "use --port tcp://HOST or rtu:DEVICE; 'kscfg info' shows the emulator's station");
     std::optional<MappingSettings> settings;
     if (ce || wa || mo) {
       // Defaults of the coupler family, overridden: ask the coupler who it is first.
-      MappingSettings s = begin_scan(read_scan_head(link->client()), "", std::nullopt).settings;
+      MappingSettings s = begin_scan(read_scan_head(*regs), "", std::nullopt).settings;
       if (ce) s.complete_evaluation = *ce;
       if (wa) s.word_alignment = *wa;
       if (mo) s.motorola = *mo;
@@ -88,7 +89,7 @@ class Scan : public Command {
     ScanResult r;
     {
       ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-      r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+      r = scan_station(*regs, *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
     }
     // Later commands on this port use it (the scan cache) while the coupler reports the same
     // identification and image lengths.

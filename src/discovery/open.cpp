@@ -118,9 +118,9 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
 
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
                                                      std::function<const StationLayout&()> layout) {
-  if (auto* ads = dynamic_cast<AdsImageLink*>(&link)) {
+  if (auto* ads = link.ads_connection()) {
     auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
-    return std::make_unique<AdsAccess>(ads->client(), number, so.timeout, so.cancel);
+    return std::make_unique<AdsAccess>(*ads, number, so.timeout, so.cancel);
   }
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }

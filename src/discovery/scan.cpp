@@ -93,7 +93,7 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
 }
 
 
-std::array<unsigned, 4> read_image_lengths(ModbusClient& client) {
+std::array<unsigned, 4> read_image_lengths(ModbusRegisters& client) {
   auto len = client.read_optional(mbmap::kImageLengths, 4);
   if (!len)
     throw Error(Exit::link,
@@ -102,7 +102,7 @@ std::array<unsigned, 4> read_image_lengths(ModbusClient& client) {
   return {(*len)[0], (*len)[1], (*len)[2], (*len)[3]};
 }
 
-ScanHead read_scan_head(ModbusClient& client) {
+ScanHead read_scan_head(ModbusRegisters& client) {
   ScanHead h;
   if (auto id = client.read_optional(mbmap::kIdent, mbmap::kIdentRegisters)) {
     h.ident = mbmap::decode_ident(*id);
@@ -163,7 +163,7 @@ ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::opti
   return r;
 }
 
-void read_watchdog(ScanResult& r, ModbusClient& client) {
+void read_watchdog(ScanResult& r, ModbusRegisters& client) {
   if (auto v = client.read_optional(mbmap::kWatchdogPreset, 1)) r.watchdog_preset = (*v)[0];
   if (auto v = client.read_optional(mbmap::kWatchdogType, 1)) r.watchdog_type = (*v)[0];
 }
@@ -325,7 +325,7 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
   }
 }
 
-ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
+ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
                         std::optional<MappingSettings> settings, const ScanProgress& progress) {
   ScanHead head = read_scan_head(client);
   ScanResult r = begin_scan(head, fmt::format("scan of {}", link.describe()), settings);

@@ -28,9 +28,9 @@ struct ScanHead {
     return ident == o.ident && ident_read == o.ident_read && lengths == o.lengths;
   }
 };
-ScanHead read_scan_head(ModbusClient& client);
+ScanHead read_scan_head(ModbusRegisters& client);
 // Only the image lengths (one request): enough to tell whether the station changed.
-std::array<unsigned, 4> read_image_lengths(ModbusClient& client);
+std::array<unsigned, 4> read_image_lengths(ModbusRegisters& client);
 
 // A scan that knows the coupler but no terminal yet: the coupler profile named by the
 // identification (unknown: said in a note, BK9000 settings assumed, the lengths decide), the
@@ -54,10 +54,10 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
                           std::vector<std::map<unsigned, std::uint16_t>> regs);
 
 // The watchdog registers, each on its own; a register the coupler refuses stays unknown.
-void read_watchdog(ScanResult& r, ModbusClient& client);
+void read_watchdog(ScanResult& r, ModbusRegisters& client);
 
 // Everything: head, watchdog and the whole walk.
-ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
+ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
                         std::optional<MappingSettings> settings = std::nullopt, const ScanProgress& progress = {});
 
 struct DiscoveryOptions {

@@ -13,6 +13,10 @@
 
 namespace kscfg {
 
+class ModbusRegisters;  // link/modbus_client.hpp
+class AdsClient;        // link/ads_client.hpp
+class EmulatedStation;  // emulator/emulator.hpp (opaque here: the link layer never uses it)
+
 // One terminal channel's part of an image exchange (Link::transfer): output bytes to write and
 // input bytes to read; either may be empty.
 struct ImageTransfer {
@@ -92,6 +96,16 @@ class Link {
 
   // Makes the station's state durable (emulator: saves its state file). Called once at the end.
   virtual void commit() {}
+
+  // Capabilities: what callers need of one kind of link, asked for instead of a downcast (as
+  // libmodbus keeps one backend table per transport); nullptr when the link has none.
+  // A Modbus coupler's registers beyond the image (identification, image lengths, watchdog).
+  virtual ModbusRegisters* modbus_registers() { return nullptr; }
+  // An ADS coupler's AMS connection (port 100: its register tables and direct register access).
+  virtual AdsClient* ads_connection() { return nullptr; }
+  // The emulated station behind an emulator link (emu commands, the far end of a serial line,
+  // the K-bus run between samples).
+  virtual EmulatedStation* emulator() { return nullptr; }
 
   // Link exchanges so far (one request/response on a real link, also those others sent over its
   // connection, such as a scan's identification reads; one image access on the emulator).

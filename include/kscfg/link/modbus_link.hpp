@@ -75,6 +75,7 @@ class ModbusLink : public Link {
   std::size_t exchanges() const override { return client_.exchanges(); }
 
   ModbusClient& client() { return client_; }
+  ModbusRegisters* modbus_registers() override { return &client_; }
 
  private:
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
