@@ -303,14 +303,17 @@ SessionOptions Context::session_options() {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
-  if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   so.cancel = &g_interrupted;
+#ifdef KSCFG_TEST_HOOKS
+  // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).
+  if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) {
     unsigned kill_after = parse_register(e);
     so.after_write = [kill_after](unsigned reg) {
-      if (reg == kill_after) ::raise(SIGKILL);  // test hook: die as a crash would, right after the write
+      if (reg == kill_after) ::raise(SIGKILL);  // die as a crash would, right after the write
     };
   }
+#endif
   return so;
 }
 
