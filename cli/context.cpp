@@ -162,25 +162,14 @@ bool Context::check_terminal(const TerminalImage& t, bool keep) {
   }
   auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
   std::uint16_t r8 = 0;
+  std::exception_ptr failed;
   try {
     r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
-  } catch (const Error& e) {
-    // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
-    // image lengths move every window (issue 21 item 6). The station is not what was kept.
-    if (e.code() != Exit::timeout) throw;
-    s->close();
-    if (opt_.verbose)
-      trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
-                        t.position, t.type->type, e.what()));
-    checked_r8_[t.position] = 0;
-    return false;
+  } catch (const Error&) {
+    failed = std::current_exception();
   }
-  checked_r8_[t.position] = r8;
-  if (r8 != t.type->r8) {
+  if (!r8_as_kept(t, r8, failed)) {
     s->close();
-    if (opt_.verbose)
-      trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
-                        t.type->type));
     return false;
   }
   if (own) kept_ = Kept{t.position, ch, std::move(s)};
@@ -204,37 +193,37 @@ void Context::check_cached_terminals() {
     if (!jobs.empty()) {
       const StationLayout& L = *layout_;
       read_channels(engine(), L, jobs, session_options());
-      for (auto& j : jobs) {
-        const TerminalImage& t = L.terminal(j.position);
-        if (j.error) {
-          try {
-            std::rethrow_exception(j.error);
-          } catch (const Error& e) {
-            // No answer where the kept scan puts the terminal: terminals swapped for others that keep
-            // the image lengths move every window (issue 21 item 6).
-            if (e.code() != Exit::timeout) throw;
-            if (opt_.verbose)
-              trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
-                                t.position, t.type->type, e.what()));
-            checked_r8_[t.position] = 0;
-            stale = true;
-          }
-          continue;
-        }
-        checked_r8_[t.position] = j.values[0];
-        if (j.values[0] != t.type->r8) {
-          if (opt_.verbose)
-            trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position,
-                              j.values[0], t.type->type));
-          stale = true;
-        }
-      }
+      for (auto& j : jobs)
+        if (!r8_as_kept(L.terminal(j.position), j.error ? 0 : j.values[0], j.error)) stale = true;
     }
     if (!stale) return;
     bool complete = layout_complete_;
     forget_layout();
     layout_upto(complete ? 0 : 1);
   }
+}
+
+bool Context::r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error) {
+  if (error) {
+    try {
+      std::rethrow_exception(error);
+    } catch (const Error& e) {
+      // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
+      // image lengths move every window (issue 21 item 6). The station is not what was kept.
+      if (e.code() != Exit::timeout) throw;
+      if (opt_.verbose)
+        trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
+                          t.position, t.type->type, e.what()));
+      checked_r8_[t.position] = 0;
+      return false;
+    }
+  }
+  checked_r8_[t.position] = r8;
+  if (r8 == t.type->r8) return true;
+  if (opt_.verbose)
+    trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
+                      t.type->type));
+  return false;
 }
 
 const StationLayout& Context::layout_for(const StationSpec& file) {
@@ -355,6 +344,16 @@ std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
     const std::function<void(unsigned, unsigned)>& progress) {
   std::map<unsigned, std::vector<std::uint16_t>> out;
   if (positions.empty()) return out;
+  if (positions.size() == 1) {
+    // One terminal: the session that checked its type goes on.
+    auto s = session(positions[0]);
+    auto regs = regs_of(s->terminal());
+    auto total = static_cast<unsigned>(regs.size());
+    std::function<void(std::size_t)> each;
+    if (progress) each = [&](std::size_t i) { progress(static_cast<unsigned>(i), total); };
+    out[positions[0]] = s->read_then_close(regs, each);
+    return out;
+  }
   const StationLayout& L = layout_upto(*std::max_element(positions.begin(), positions.end()));
   SessionOptions so = session_options();
   unsigned ch = opt_.channel - 1;

@@ -1,6 +1,7 @@
 // What every command gets: the global options, the link, the station layout and output helpers.
 #pragma once
 #include <chrono>
+#include <exception>
 #include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -100,6 +101,8 @@ class Context {
   // station engine, session/station_work.hpp): a station costs about the exchanges of one terminal.
   // A terminal of a layout kept from an earlier run that was not checked yet has its R8 read ahead
   // with its first reads; another type drops the kept scan (Error(refused), as session() does).
+  // One terminal: its session(), which goes on from the check of its type, reads them and puts the
+  // control byte back with the last poll (`progress` then counts that terminal's registers).
   // The values by position, in the order of regs_of(). The first error in plug order is thrown.
   std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
       const std::vector<unsigned>& positions,
@@ -124,6 +127,10 @@ class Context {
   unsigned select_position();
   bool check_terminal(const TerminalImage& t, bool keep);
   void check_cached_terminals();
+  // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when
+  // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
+  // any other error is thrown.
+  bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
 
   GlobalOptions opt_;
   // Before link_: sessions left open note it at exit. It exists from the start, so that every
