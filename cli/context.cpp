@@ -17,7 +17,7 @@
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
-#include "kscfg/link/modbus_link.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
 
@@ -38,10 +38,17 @@ Link& Context::link() {
     lo.journal = journal_;
     lo.journal_dir = state_dir() + "/sessions";
     lo.lock_wait = lock_wait();
-    link_ = open_link(opt_.port, catalog(), lo);
+    OpenedPort port = open_port_uri(opt_.port, catalog(), lo);
+    link_ = std::move(port.link);
+    discovery_ = std::move(port.discovery);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
   return *link_;
+}
+
+StationDiscovery* Context::discovery() {
+  link();
+  return discovery_.get();
 }
 
 Engine& Context::engine() {
@@ -69,16 +76,16 @@ const StationLayout& Context::layout_upto(unsigned position) {
   // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
   // --station (checked against the image lengths it reports) or discovered by a scan.
   Link& l = link();
-  if (!opt_.station.empty() && l.discovers_layout()) {
+  if (!opt_.station.empty() && discovery_) {
     StationSpec spec = load_station_arg(opt_.station, catalog());
     StationLayout L = compute_layout(spec, catalog());
-    if (auto* mb = dynamic_cast<ModbusLink*>(&l)) check_image_lengths(L, read_image_lengths(mb->client()), opt_.station);
+    if (auto* mb = l.modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), opt_.station);
     set_layout(std::move(L), true);
     recover_dead_sessions_once();
     return *layout_;
   }
-  const StationLayout* found = l.layout_upto(position);
-  if (found && !opt_.station.empty() && !l.discovers_layout()) {
+  const StationLayout* found = discovery_ ? discovery_->layout_upto(position) : l.layout();
+  if (found && !opt_.station.empty() && !discovery_) {
     // The emulator lays its station out itself; a --station FILE given with it must still be a
     // readable station file (exit 7 otherwise, as over Modbus) that describes that station.
     StationLayout described = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
@@ -88,8 +95,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
                         input_name(opt_.station));
   }
   if (found) {
-    const auto* mb = dynamic_cast<ModbusLink*>(&l);
-    set_layout(*found, !mb || !mb->scan() || mb->scan()->complete);
+    set_layout(*found, !scan() || scan()->complete);
     recover_dead_sessions_once();
     if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
   } else if (!opt_.station.empty()) {
@@ -123,22 +129,19 @@ const StationLayout& Context::layout_unchecked() {
 }
 
 bool Context::layout_from_cache() const {
-  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
-  return layout_ && opt_.station.empty() && mb && mb->scan() && mb->scan()->from_cache;
+  return layout_ && opt_.station.empty() && scan() && scan()->from_cache;
 }
 
 std::optional<std::uint16_t> Context::known_r8(unsigned position) const {
   if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
-  const auto* mb = dynamic_cast<const ModbusLink*>(link_.get());
-  if (opt_.station.empty() && mb && mb->scan() && !mb->scan()->from_cache && position >= 1 &&
-      position <= mb->scan()->r8.size())
-    return static_cast<std::uint16_t>(mb->scan()->r8[position - 1]);
+  if (opt_.station.empty() && scan() && !scan()->from_cache && position >= 1 && position <= scan()->r8.size())
+    return static_cast<std::uint16_t>(scan()->r8[position - 1]);
   return std::nullopt;
 }
 
 void Context::forget_layout() {
   kept_.reset();
-  if (auto* mb = dynamic_cast<ModbusLink*>(link_.get())) mb->forget_station();
+  if (discovery_) discovery_->forget();
   if (layout_) retired_.push_back(std::move(layout_));
   matched_.reset();
   layout_complete_ = false;
@@ -159,25 +162,14 @@ bool Context::check_terminal(const TerminalImage& t, bool keep) {
   }
   auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
   std::uint16_t r8 = 0;
+  std::exception_ptr failed;
   try {
     r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
-  } catch (const Error& e) {
-    // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
-    // image lengths move every window (issue 21 item 6). The station is not what was kept.
-    if (e.code() != Exit::timeout) throw;
-    s->close();
-    if (opt_.verbose)
-      trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
-                        t.position, t.type->type, e.what()));
-    checked_r8_[t.position] = 0;
-    return false;
+  } catch (const Error&) {
+    failed = std::current_exception();
   }
-  checked_r8_[t.position] = r8;
-  if (r8 != t.type->r8) {
+  if (!r8_as_kept(t, r8, failed)) {
     s->close();
-    if (opt_.verbose)
-      trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
-                        t.type->type));
     return false;
   }
   if (own) kept_ = Kept{t.position, ch, std::move(s)};
@@ -201,31 +193,8 @@ void Context::check_cached_terminals() {
     if (!jobs.empty()) {
       const StationLayout& L = *layout_;
       read_channels(engine(), L, jobs, session_options());
-      for (auto& j : jobs) {
-        const TerminalImage& t = L.terminal(j.position);
-        if (j.error) {
-          try {
-            std::rethrow_exception(j.error);
-          } catch (const Error& e) {
-            // No answer where the kept scan puts the terminal: terminals swapped for others that keep
-            // the image lengths move every window (issue 21 item 6).
-            if (e.code() != Exit::timeout) throw;
-            if (opt_.verbose)
-              trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
-                                t.position, t.type->type, e.what()));
-            checked_r8_[t.position] = 0;
-            stale = true;
-          }
-          continue;
-        }
-        checked_r8_[t.position] = j.values[0];
-        if (j.values[0] != t.type->r8) {
-          if (opt_.verbose)
-            trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position,
-                              j.values[0], t.type->type));
-          stale = true;
-        }
-      }
+      for (auto& j : jobs)
+        if (!r8_as_kept(L.terminal(j.position), j.error ? 0 : j.values[0], j.error)) stale = true;
     }
     if (!stale) return;
     bool complete = layout_complete_;
@@ -234,13 +203,35 @@ void Context::check_cached_terminals() {
   }
 }
 
+bool Context::r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error) {
+  if (error) {
+    try {
+      std::rethrow_exception(error);
+    } catch (const Error& e) {
+      // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
+      // image lengths move every window (issue 21 item 6). The station is not what was kept.
+      if (e.code() != Exit::timeout) throw;
+      if (opt_.verbose)
+        trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
+                          t.position, t.type->type, e.what()));
+      checked_r8_[t.position] = 0;
+      return false;
+    }
+  }
+  checked_r8_[t.position] = r8;
+  if (r8 == t.type->r8) return true;
+  if (opt_.verbose)
+    trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
+                      t.type->type));
+  return false;
+}
+
 const StationLayout& Context::layout_for(const StationSpec& file) {
-  auto* mb = dynamic_cast<ModbusLink*>(&link());
-  if (!mb || !opt_.station.empty()) return layout_upto(0);
+  if (!discovery() || !opt_.station.empty()) return layout_upto(0);
   if (!matched_) {
     layout_upto(0);
-    if (!mb->scan()) return *layout_;
-    matched_ = match_scan(*mb->scan(), file, catalog());
+    if (!scan()) return *layout_;
+    matched_ = match_scan(*scan(), file, catalog());
   }
   return *matched_;
 }
@@ -301,14 +292,17 @@ SessionOptions Context::session_options() {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
-  if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   so.cancel = &g_interrupted;
+#ifdef KSCFG_TEST_HOOKS
+  // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).
+  if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) {
     unsigned kill_after = parse_register(e);
     so.after_write = [kill_after](unsigned reg) {
-      if (reg == kill_after) ::raise(SIGKILL);  // test hook: die as a crash would, right after the write
+      if (reg == kill_after) ::raise(SIGKILL);  // die as a crash would, right after the write
     };
   }
+#endif
   return so;
 }
 
@@ -350,6 +344,16 @@ std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
     const std::function<void(unsigned, unsigned)>& progress) {
   std::map<unsigned, std::vector<std::uint16_t>> out;
   if (positions.empty()) return out;
+  if (positions.size() == 1) {
+    // One terminal: the session that checked its type goes on.
+    auto s = session(positions[0]);
+    auto regs = regs_of(s->terminal());
+    auto total = static_cast<unsigned>(regs.size());
+    std::function<void(std::size_t)> each;
+    if (progress) each = [&](std::size_t i) { progress(static_cast<unsigned>(i), total); };
+    out[positions[0]] = s->read_then_close(regs, each);
+    return out;
+  }
   const StationLayout& L = layout_upto(*std::max_element(positions.begin(), positions.end()));
   SessionOptions so = session_options();
   unsigned ch = opt_.channel - 1;
@@ -386,12 +390,13 @@ std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
 nlohmann::json Context::link_json() {
   Link& l = link();
   nlohmann::json unit = nullptr;
-  if (auto* m = dynamic_cast<ModbusLink*>(&l)) unit = m->client().target().unit;
+  if (auto* m = l.modbus_registers()) unit = m->target().unit;
   return {{"port", l.describe()}, {"unit", unit}};
 }
 
 void Context::finish() {
   kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
+  if (discovery_) discovery_->save();  // the scan cache, with the latencies learned
   if (link_) link_->commit();
 }
 

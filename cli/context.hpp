@@ -1,6 +1,7 @@
 // What every command gets: the global options, the link, the station layout and output helpers.
 #pragma once
 #include <chrono>
+#include <exception>
 #include <functional>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -11,6 +12,7 @@
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
@@ -49,6 +51,9 @@ class Context {
   // session() shares it).
   Engine& engine();
   bool link_open() const { return link_ != nullptr; }
+  // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
+  // scan, an ADS coupler's table 9; opens the link); nullptr for the emulator.
+  StationDiscovery* discovery();
   // The whole station as laid out by the coupler: from the link, or from --station (checked
   // against the image lengths a Modbus coupler reports).
   const StationLayout& layout();
@@ -96,6 +101,8 @@ class Context {
   // station engine, session/station_work.hpp): a station costs about the exchanges of one terminal.
   // A terminal of a layout kept from an earlier run that was not checked yet has its R8 read ahead
   // with its first reads; another type drops the kept scan (Error(refused), as session() does).
+  // One terminal: its session(), which goes on from the check of its type, reads them and puts the
+  // control byte back with the last poll (`progress` then counts that terminal's registers).
   // The values by position, in the order of regs_of(). The first error in plug order is thrown.
   std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
       const std::vector<unsigned>& positions,
@@ -115,9 +122,15 @@ class Context {
   // Once per run, when the layout is first known: what dead kscfg processes left on this port
   // (their journals), checked against the layout, is finished before any session of this run.
   void recover_dead_sessions_once();
+  // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
+  const ScanResult* scan() const { return discovery_ ? discovery_->scan() : nullptr; }
   unsigned select_position();
   bool check_terminal(const TerminalImage& t, bool keep);
   void check_cached_terminals();
+  // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when
+  // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
+  // any other error is thrown.
+  bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
 
   GlobalOptions opt_;
   // Before link_: sessions left open note it at exit. It exists from the start, so that every
@@ -127,6 +140,7 @@ class Context {
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   std::unique_ptr<Link> link_;
+  std::unique_ptr<StationDiscovery> discovery_;  // after link_: destroyed before it
   std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
   std::unique_ptr<Engine> engine_;
   std::unique_ptr<StationLayout> layout_;

@@ -1,6 +1,7 @@
 # Checks that the library's layers only include downwards (src/README.md draws the picture).
 # Usage: cmake -DROOT=<source dir> -P check_layers.cmake
-# Fails (FATAL_ERROR) naming every file that includes a header of a layer it may not use.
+# Fails (FATAL_ERROR) naming every file that includes a header of a layer it may not use, and
+# every dynamic_cast of a link in the library or the CLI.
 # Run at configure time and as the CTest test "layers", so an upward include breaks the build.
 
 include(${CMAKE_CURRENT_LIST_DIR}/layers.cmake)
@@ -43,7 +44,21 @@ foreach(f IN LISTS libfiles)
   endforeach()
 endforeach()
 
+# Nothing downcasts a link (docs/design.md section 1.1): a caller asks the Link for a capability
+# (modbus_registers(), ads_connection(), emulator()) instead of casting to a concrete link or to
+# what one holds.
+file(GLOB_RECURSE castfiles ${ROOT}/src/*.cpp ${ROOT}/src/*.hpp ${ROOT}/include/*.hpp ${ROOT}/cli/*.cpp
+     ${ROOT}/cli/*.hpp)
+foreach(f IN LISTS castfiles)
+  file(STRINGS ${f} lines REGEX "dynamic_cast[ \t]*<[^>]*(Link|ModbusClient|ModbusRegisters|AdsClient|EmulatedStation)[ \t]*[&*]")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    string(STRIP "${line}" line)
+    list(APPEND violations "${rel}: a downcast of a link (ask the Link for a capability instead): ${line}")
+  endforeach()
+endforeach()
+
 if(violations)
   list(JOIN violations "\n  " text)
-  message(FATAL_ERROR "upward include(s), see src/README.md for the layers:\n  ${text}")
+  message(FATAL_ERROR "upward include(s) or link downcast(s), see src/README.md for the layers:\n  ${text}")
 endif()

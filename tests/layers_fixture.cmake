@@ -1,6 +1,6 @@
 # Builds a small tree in which the link layer includes the session layer, runs the layer check on
 # it and fails unless the check fails naming that include; then checks that the same tree without
-# the upward include passes.
+# the upward include passes, and that a downcast of a link in the CLI fails it too.
 file(REMOVE_RECURSE ${WORK})
 file(WRITE ${WORK}/include/kscfg/session/session.hpp "#pragma once\n")
 file(WRITE ${WORK}/include/kscfg/base/error.hpp "#pragma once\n")
@@ -16,4 +16,17 @@ file(WRITE ${WORK}/src/link/bad.cpp "#include \"kscfg/base/error.hpp\"\n")
 execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the layer check failed a tree without upward includes:\n${err}")
+endif()
+file(WRITE ${WORK}/cli/bad.cpp "void f(Link& l) {\n  if (auto* m = dynamic_cast<ModbusLink*>(&l)) m->client();\n}\n")
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
+if(rc EQUAL 0)
+  message(FATAL_ERROR "the layer check passed a tree in which the CLI downcasts a link")
+endif()
+if(NOT err MATCHES "cli/bad.cpp: a downcast of a link")
+  message(FATAL_ERROR "the layer check failed without naming the link downcast:\n${err}")
+endif()
+file(WRITE ${WORK}/cli/bad.cpp "void f(Link& l) {\n  if (auto* m = l.modbus_registers()) m->target();\n}\n")
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "the layer check failed a tree that asks a link for a capability:\n${err}")
 endif()

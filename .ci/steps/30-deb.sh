@@ -19,6 +19,7 @@ build=${KSCFG_DEB_BUILD:-build-deb}
 launcher=()
 if command -v ccache >/dev/null; then launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache); fi
 cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=None -DCMAKE_INSTALL_PREFIX=/usr -DKSCFG_TESTS=OFF -DKSCFG_BENCH=OFF \
+  -DKSCFG_TEST_HOOKS=OFF \
   "${launcher[@]}" \
   -DCMAKE_CXX_FLAGS="$(dpkg-buildflags --get CXXFLAGS) $(dpkg-buildflags --get CPPFLAGS)" \
   -DCMAKE_EXE_LINKER_FLAGS="$(dpkg-buildflags --get LDFLAGS)" >/dev/null
@@ -55,6 +56,11 @@ test "$(command -v kscfg)" = /usr/bin/kscfg
 file -L /usr/bin/kscfg | grep -q ', stripped' || { echo "30-deb: /usr/bin/kscfg is not stripped" >&2; exit 1; }
 state=$(mktemp -d)
 XDG_STATE_HOME="$state" /usr/bin/kscfg info
+# No test hooks in the package (CMake option KSCFG_TEST_HOOKS): a test build would SIGKILL itself
+# after this write (exit 137) or skip the code word; the packaged kscfg writes and exits 0.
+rc=0
+XDG_STATE_HOME="$state" KSCFG_TEST_KILL_AFTER=R32 KSCFG_TEST_NO_UNLOCK=1 /usr/bin/kscfg write R32 7 || rc=$?
+if [ "$rc" -ne 0 ]; then echo "30-deb: the packaged kscfg obeys a test hook (write R32 exit $rc)" >&2; exit 1; fi
 rm -rf "$state"
 man -w kscfg
 man -w 5 kscfg-station

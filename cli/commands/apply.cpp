@@ -23,10 +23,10 @@ namespace {
 // The coupler's identification registers (0x1000..), when the link is a Modbus coupler that
 // answers them; "" otherwise (a backup records it, it never fails for it).
 std::string coupler_identification(Context& ctx) {
-  auto* m = dynamic_cast<ModbusLink*>(&ctx.link());
+  auto* m = ctx.link().modbus_registers();
   if (!m) return {};
   try {
-    auto regs = m->client().read(mbmap::kIdent, mbmap::kIdentRegisters);
+    auto regs = m->read(mbmap::kIdent, mbmap::kIdentRegisters);
     return mbmap::decode_ident(std::span<const std::uint16_t>(regs.data(), mbmap::kIdentRegisters));
   } catch (const Error&) {
     return {};

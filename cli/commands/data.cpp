@@ -376,7 +376,7 @@ class Data : public Command {
  private:
   int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, std::size_t count,
            std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold, const ForcePlan* plan) {
-    auto* emu = dynamic_cast<EmulatorLink*>(&link);
+    EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
@@ -420,8 +420,8 @@ class Data : public Command {
       auto now = std::chrono::steady_clock::now();
       if (emu) {
         auto us = std::chrono::duration_cast<std::chrono::microseconds>(now - last).count();
-        auto cycles = std::min<long long>(us / std::max(1u, emu->emulated().kbus_cycle_us), 100000);
-        for (long long i = 0; i < cycles; ++i) emu->emulated().cycle();
+        auto cycles = std::min<long long>(us / std::max(1u, emu->kbus_cycle_us), 100000);
+        for (long long i = 0; i < cycles; ++i) emu->cycle();
       }
       last = now;
     }

@@ -32,25 +32,19 @@ class Dump : public Command {
     for (unsigned r = 0; r < 48; ++r) all[r] = r;
     std::vector<nlohmann::json> docs;
     ProgressBar bar(ctx, "dump", 48 * positions.size());
-    if (positions.size() == 1) {
-      // One terminal: the session that checked its type goes on.
-      auto s = ctx.session(positions[0]);
-      auto v = s->read_then_close(
-          all, [&](std::size_t r) { bar.update(r, fmt::format("terminal {} R{}", positions[0], r)); });
-      bar.finish();
-      docs.push_back(dump_one(ctx, s->terminal(), v));
-    } else {
-      // Several: every terminal's handshake at once (the station engine).
-      std::string which = fmt::format("terminals {}", fmt::join(positions, ","));
-      if (which.size() > 24) which = fmt::format("{} terminals", positions.size());
-      auto values = ctx.read_terminals(
-          positions, [&](const TerminalImage&) { return all; },
-          [&](unsigned done, unsigned) { bar.update(done, which); });
-      bar.finish();
-      unsigned ch = ctx.options().channel - 1;
-      for (unsigned pos : positions)
-        docs.push_back(dump_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), values.at(pos)));
-    }
+    // Every terminal's handshake at once (the station engine); one terminal goes on from the check
+    // of its type, its progress by register.
+    std::string which = fmt::format("terminals {}", fmt::join(positions, ","));
+    if (which.size() > 24) which = fmt::format("{} terminals", positions.size());
+    auto values = ctx.read_terminals(
+        positions, [&](const TerminalImage&) { return all; },
+        [&](unsigned done, unsigned) {
+          bar.update(done, positions.size() == 1 ? fmt::format("terminal {} R{}", positions[0], done) : which);
+        });
+    bar.finish();
+    unsigned ch = ctx.options().channel - 1;
+    for (unsigned pos : positions)
+      docs.push_back(dump_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), values.at(pos)));
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }

@@ -74,9 +74,9 @@ class EmuFault : public Command {
   }
   int run(Context& ctx) override {
     (void)state_path(ctx);
-    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
+    EmulatedStation* emu = ctx.link().emulator();
     if (!emu) throw Error(Exit::usage, "'kscfg emu fault' works on the emulator");
-    EmulatedStation& st = emu->emulated();
+    EmulatedStation& st = *emu;
     if (!delay_.empty()) st.response_delay = static_cast<unsigned>(parse_uint(delay_, 1000, "delay"));
     unsigned selected = ctx.terminal_given() ? ctx.terminal_position() : 0;
     auto channels = [&]() {
@@ -144,9 +144,9 @@ class EmuEncoder : public Command {
   }
   int run(Context& ctx) override {
     (void)state_path(ctx);
-    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
+    EmulatedStation* emu = ctx.link().emulator();
     if (!emu) throw Error(Exit::usage, "'kscfg emu encoder' works on the emulator");
-    EmulatedStation& st = emu->emulated();
+    EmulatedStation& st = *emu;
     unsigned pos = ctx.options().terminal;
     if (!pos)
       for (const auto& t : st.layout().terminals)

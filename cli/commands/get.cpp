@@ -49,26 +49,17 @@ class Get : public Command {
       throw Error(Exit::usage, fmt::format("no terminal selected by -t {} has {}", ctx.options().selection.text,
                                            names_.front()));
     std::vector<nlohmann::json> docs;
-    // Several terminals: every terminal's handshake at once (the station engine).
-    std::map<unsigned, std::vector<std::uint16_t>> read;
-    if (work.size() > 1) {
-      std::vector<unsigned> positions;
-      std::map<unsigned, std::vector<unsigned>> regs;
-      for (const auto& [pos, params] : work) {
-        positions.push_back(pos);
-        regs[pos] = param_registers(params);
-      }
-      read = ctx.read_terminals(positions, [&](const TerminalImage& t) { return regs.at(t.position); });
-    }
+    // Every terminal's handshake at once (the station engine); one terminal goes on from the check
+    // of its type.
+    std::vector<unsigned> positions;
+    std::map<unsigned, std::vector<unsigned>> regs;
     for (const auto& [pos, params] : work) {
-      std::vector<ParamValue> vals;
-      if (work.size() > 1) {
-        vals = decode_params(*ctx.layout_upto(pos).terminal(pos).type, params, read.at(pos));
-      } else {
-        auto s = ctx.session(pos);
-        vals = read_params(*s, params);
-        s->close();
-      }
+      positions.push_back(pos);
+      regs[pos] = param_registers(params);
+    }
+    auto read = ctx.read_terminals(positions, [&](const TerminalImage& t) { return regs.at(t.position); });
+    for (const auto& [pos, params] : work) {
+      std::vector<ParamValue> vals = decode_params(*ctx.layout_upto(pos).terminal(pos).type, params, read.at(pos));
       if (ctx.json()) {
         nlohmann::json values = nlohmann::json::object();
         for (const auto& v : vals) values[v.param->name] = param_json(v.value);

@@ -48,18 +48,12 @@ class Read : public Command {
         throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
                                                ctx.layout_upto(positions.front()).terminal(positions.front()).type->type));
     std::vector<nlohmann::json> docs;
-    if (positions.size() == 1) {
-      // One terminal: the session that checked its type goes on.
-      auto s = ctx.session(positions[0]);
-      auto vals = s->read_then_close(regs);
-      docs.push_back(read_one(ctx, s->terminal(), regs, vals));
-    } else {
-      // Several: every terminal's handshake at once (the station engine).
-      auto values = ctx.read_terminals(positions, [&](const TerminalImage&) { return regs; });
-      unsigned ch = ctx.options().channel - 1;
-      for (unsigned pos : positions)
-        docs.push_back(read_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), regs, values.at(pos)));
-    }
+    // Every terminal's handshake at once (the station engine); one terminal goes on from the check
+    // of its type.
+    auto values = ctx.read_terminals(positions, [&](const TerminalImage&) { return regs; });
+    unsigned ch = ctx.options().channel - 1;
+    for (unsigned pos : positions)
+      docs.push_back(read_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), regs, values.at(pos)));
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }

@@ -94,36 +94,36 @@ class Scan : public Command {
     ScanResult r;
     std::vector<std::optional<std::uint16_t>> r9;  // ADS only: each terminal's R9
     bool ads = false;
-    if (auto* a = dynamic_cast<AdsImageLink*>(&ctx.link())) {
+    Link* link = &ctx.link();
+    if (AdsClient* a = link->ads_connection()) {
       // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
       AdsScanOptions so;
       if (ce || wa || mo) so.settings = overridden;
-      so.origin = fmt::format("scan of {}", a->describe());
-      AdsScan s = scan_ads_station(a->client(), ctx.catalog(), ctx.options().timeout_ms, std::move(so));
+      so.origin = fmt::format("scan of {}", link->describe());
+      AdsScan s = scan_ads_station(*a, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
       r = std::move(s.result);
       r9 = std::move(s.r9);
       ads = true;
     } else {
-      auto* link = dynamic_cast<ModbusLink*>(&ctx.link());
-      if (!link)
+      ModbusRegisters* regs = link->modbus_registers();
+      if (!regs)
         throw Error(Exit::usage,
                     fmt::format("'kscfg scan' reads a Modbus or ADS coupler; the port is '{}'", ctx.options().port),
                     "use --port tcp://HOST, rtu:DEVICE or ads://HOST; 'kscfg info' shows the emulator's station");
       std::optional<MappingSettings> settings;
       // Defaults of the coupler family, overridden: ask the coupler who it is first.
-      if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(link->client()), "", std::nullopt).settings);
+      if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(*regs), "", std::nullopt).settings);
       {
         ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-        r = scan_station(link->client(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+        r = scan_station(*regs, *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
       }
       // Later commands on this port use it (the scan cache) while the coupler reports the same
       // identification and image lengths.
-      if (auto* d = link->discovery()) d->adopt(r);
+      if (auto* d = ctx.discovery()) d->adopt(r);
       // Now that the station is known: what kscfg processes that died on this port left in
       // register mode (their journals) is finished, as by any other command (issue 21 item 2).
       if (r.walked) (void)ctx.layout();
     }
-    Link* link = &ctx.link();
     if (!write_.empty()) {
       if (!r.walked)
         throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),

@@ -58,7 +58,7 @@ class SerialLine : public Command {
         ->option_text("DATA");
   }
   int run(Context& ctx) override {
-    auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link());
+    EmulatedStation* emu = ctx.link().emulator();
     if (!emu)
       throw Error(Exit::usage, fmt::format("'kscfg serial line' works on the emulator; the port is '{}'",
                                            ctx.options().port),
@@ -68,7 +68,7 @@ class SerialLine : public Command {
     unsigned pos = serial_position(ctx);
     unsigned ch = ctx.options().channel - 1;
     const TerminalImage& t = serial_terminal(ctx.layout(), pos, ch);
-    ChannelModel& m = emu->emulated().channel(pos, ch);
+    ChannelModel& m = emu->channel(pos, ch);
     SerialModel* ser = m.serial();
     if (!ser) throw Error(Exit::internal, "emulated serial terminal without a serial model");
     LineSettings ls = line_settings(*t.type, m.registers());

@@ -133,8 +133,8 @@ class SerialTerm : public Command {
     std::string line = line_text(ctx, serial_terminal(ctx.layout(), pos, ch), ch);
     auto port = open_port(ctx);
     std::string far;
-    if (auto* emu = dynamic_cast<EmulatorLink*>(&ctx.link())) {
-      auto& st = emu->emulated();
+    if (EmulatedStation* emu = ctx.link().emulator()) {
+      auto& st = *emu;
       if (st.has_channel(port->terminal().position, ch))
         if (auto* ser = st.channel(port->terminal().position, ch).serial()) far = ser->far_end_description();
     }

@@ -55,23 +55,15 @@ class Show : public Command {
     auto positions = ctx.terminal_positions();
     bool several = ctx.several_terminals();
     std::vector<Row> rows;
-    if (positions.size() == 1) {
-      // One terminal: the session that checked its type goes on.
-      auto s = ctx.session(positions[0]);
-      auto params = params_of(s->terminal(), s->channel());
-      auto vals = read_params(*s, params);
-      s->close();
-      docs.push_back(show_one(ctx, s->terminal(), s->channel(), vals, rows));
-    } else {
-      // Several: every terminal's handshake at once (the station engine).
-      unsigned ch = ctx.options().channel - 1;
-      auto values = ctx.read_terminals(
-          positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
-      for (unsigned pos : positions) {
-        const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
-        auto params = params_of(t, ch);
-        docs.push_back(show_one(ctx, t, ch, decode_params(*t.type, params, values.at(pos)), rows));
-      }
+    // Every terminal's handshake at once (the station engine); one terminal goes on from the check
+    // of its type.
+    unsigned ch = ctx.options().channel - 1;
+    auto values = ctx.read_terminals(
+        positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
+    for (unsigned pos : positions) {
+      const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
+      auto params = params_of(t, ch);
+      docs.push_back(show_one(ctx, t, ch, decode_params(*t.type, params, values.at(pos)), rows));
     }
     if (ctx.json()) {
       print_json_terminals(ctx, docs);

@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 
 namespace kscfg {
 
@@ -49,12 +50,12 @@ void remove_stale_temporaries(const std::string& path) {
   }
 }
 
-void write_file_atomic(const std::string& path, const std::string& content) {
+void write_file_atomic(const std::string& path, const std::string& content, bool replace_link) {
   auto fail = [&](const std::string& what) {
     throw Error(Exit::file, fmt::format("cannot write '{}': {}: {}", path, what, std::strerror(errno)));
   };
-  // A symbolic link stays one: its target is what gets replaced.
-  std::string target = resolve_link(path);
+  // A symbolic link stays one: its target is what gets replaced (unless the link itself is).
+  std::string target = replace_link ? path : resolve_link(path);
   std::string tmp = target + fmt::format(".tmp.{}", ::getpid());
   int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) fail("create");
@@ -133,8 +134,40 @@ std::string read_input_file(const std::string& path, std::string_view what, std:
   }
 }
 
+RegularFile read_regular_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
+  RegularFile r;
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0) return r;  // none
+  r.exists = true;
+  if (!S_ISREG(st.st_mode)) {
+    r.refused = S_ISLNK(st.st_mode)    ? "is a symbolic link"
+                : S_ISFIFO(st.st_mode) ? "is a FIFO"
+                : S_ISDIR(st.st_mode)  ? "is a directory"
+                                       : "is not a regular file";
+    return r;
+  }
+  if (static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
+    r.refused = fmt::format("has {} bytes, more than a {} has ({} KiB at most)", st.st_size, what, max_bytes / 1024);
+    return r;
+  }
+  int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    r.refused = fmt::format("cannot be read ({})", std::strerror(errno));
+    return r;
+  }
+  try {
+    struct stat now {};
+    if (::fstat(fd, &now) != 0 || !S_ISREG(now.st_mode) || now.st_ino != st.st_ino) r.refused = "changed while it was opened";
+    else r.text = read_input_fd(fd, what, path, max_bytes);
+  } catch (const Error& e) {
+    r.refused = fmt::format("cannot be read ({})", e.what());
+  }
+  ::close(fd);
+  return r;
+}
+
 int lock_file(const std::string& path, double timeout_s) {
-  int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK, 0644);
   if (fd < 0)
     throw Error(Exit::file, fmt::format("cannot open the lock file '{}': {}", path, std::strerror(errno)));
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
@@ -148,7 +181,10 @@ int lock_file(const std::string& path, double timeout_s) {
       ::close(fd);
       throw Error(Exit::file, fmt::format("'{}' is locked by another kscfg for more than {:g} s", path, timeout_s));
     }
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(5))) {
+      ::close(fd);
+      throw Error(Exit::interrupted, fmt::format("interrupted while waiting for the lock '{}'", path));
+    }
   }
   return fd;
 }

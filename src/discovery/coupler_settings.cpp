@@ -3,9 +3,9 @@
 
 #include <fmt/format.h>
 
-#include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/ads_registers.hpp"
-#include "kscfg/link/modbus_link.hpp"
+#include "kscfg/link/modbus_client.hpp"
 
 namespace kscfg {
 
@@ -18,7 +18,7 @@ constexpr const char* kTable100Page = "https://infosys.beckhoff.com/content/1033
 // Beckhoff coupler tables, "Table 9".
 constexpr const char* kTable9Page = "https://infosys.beckhoff.com/content/1033/bk11x0_bk1250/2180705419.html";
 
-CouplerSettings modbus_settings(ModbusClient& c) {
+CouplerSettings modbus_settings(ModbusRegisters& c) {
   CouplerSettings s{"modbus", {}};
   auto reg = [&](std::uint16_t addr, const char* name, auto describe) {
     CouplerSetting st{name, "not served", std::nullopt, fmt::format("Modbus 0x{:04X}", addr), kModbusPage};
@@ -78,8 +78,8 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
 }  // namespace
 
 CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms) {
-  if (auto* m = dynamic_cast<ModbusLink*>(&link)) return modbus_settings(m->client());
-  if (auto* a = dynamic_cast<AdsImageLink*>(&link)) return ads_settings(a->client(), timeout_ms);
+  if (auto* m = link.modbus_registers()) return modbus_settings(*m);
+  if (auto* a = link.ads_connection()) return ads_settings(*a, timeout_ms);
   throw Error(Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator",
                                        link.describe()),
               "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");

@@ -26,6 +26,40 @@ std::string safe(const std::string& s) {
   return o;
 }
 
+// The station behind an ADS coupler: its table 9 over port 100, read once, on first use.
+class AdsDiscovery : public StationDiscovery {
+ public:
+  AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
+               std::function<void(const std::string&)> trace)
+      : link_(link), catalog_(catalog), timeout_ms_(timeout_ms), trace_(std::move(trace)) {}
+
+  const StationLayout* layout_upto(unsigned) override {
+    if (!searched_) {
+      searched_ = true;
+      AdsScanOptions so;
+      so.check = false;  // table 9 and the registers that decide an image only
+      ScanResult r = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so)).result;
+      if (trace_)
+        for (const auto& n : r.notes) trace_("ads: " + n);
+      found_ = Found{std::move(r.spec), std::move(r.layout)};
+    }
+    return found_ ? &found_->layout : nullptr;
+  }
+  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
+
+ private:
+  struct Found {
+    StationSpec spec;
+    StationLayout layout;
+  };
+  AdsImageLink& link_;
+  const Catalog& catalog_;
+  unsigned timeout_ms_;
+  std::function<void(const std::string&)> trace_;
+  std::optional<Found> found_;
+  bool searched_ = false;
+};
+
 }  // namespace
 
 std::string coupler_lock_path(const ModbusTarget& t) {
@@ -37,11 +71,11 @@ std::string coupler_lock_path(const AdsTarget& t) {
   return (std::filesystem::path(lock_dir()) / fmt::format("ads-{}-{}.lock", safe(t.host), t.port)).string();
 }
 
-std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
+OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    return std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait);
+    return {std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait), nullptr};
   }
   if (p.scheme == "ads") {
     // ADS (BK9000 family, BC/BX controllers): the image over port 300, the station from the
@@ -56,19 +90,8 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
                                         opt.lock_wait);
     auto link = std::make_unique<AdsImageLink>(target, ao, std::move(lock));
-    AdsImageLink* raw = link.get();
-    const Catalog* cat = &catalog;
-    unsigned timeout = opt.timeout_ms;
-    auto trace = opt.trace;
-    link->set_discovery([raw, cat, timeout, trace]() -> std::optional<AdsImageLink::Found> {
-      AdsScanOptions so;
-      so.check = false;  // table 9 and the registers that decide an image only
-      ScanResult r = scan_ads_station(raw->client(), *cat, timeout, std::move(so)).result;
-      if (trace)
-        for (const auto& n : r.notes) trace("ads: " + n);
-      return AdsImageLink::Found{std::move(r.spec), std::move(r.layout)};
-    });
-    return link;
+    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace);
+    return {std::move(link), std::move(discovery)};
   }
   // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
   // timeout is tried twice more, so a silent coupler is reported within about --timeout.
@@ -94,15 +117,19 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
     opt.journal->open(opt.journal_dir, port_key(link->client().target()));
     so.journal = opt.journal;
   }
-  discover_by_scan(*link, catalog, so, d);
-  return link;
+  auto discovery = discover_by_scan(*link, catalog, so, d);
+  return {std::move(link), std::move(discovery)};
+}
+
+std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
+  return open_port_uri(uri, catalog, opt).link;
 }
 
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
                                                      std::function<const StationLayout&()> layout) {
-  if (auto* ads = dynamic_cast<AdsImageLink*>(&link)) {
+  if (auto* ads = link.ads_connection()) {
     auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
-    return std::make_unique<AdsAccess>(ads->client(), number, so.timeout, so.cancel);
+    return std::make_unique<AdsAccess>(*ads, number, so.timeout, so.cancel);
   }
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }

@@ -93,7 +93,7 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
 }
 
 
-std::array<unsigned, 4> read_image_lengths(ModbusClient& client) {
+std::array<unsigned, 4> read_image_lengths(ModbusRegisters& client) {
   auto len = client.read_optional(mbmap::kImageLengths, 4);
   if (!len)
     throw Error(Exit::link,
@@ -102,7 +102,7 @@ std::array<unsigned, 4> read_image_lengths(ModbusClient& client) {
   return {(*len)[0], (*len)[1], (*len)[2], (*len)[3]};
 }
 
-ScanHead read_scan_head(ModbusClient& client) {
+ScanHead read_scan_head(ModbusRegisters& client) {
   ScanHead h;
   if (auto id = client.read_optional(mbmap::kIdent, mbmap::kIdentRegisters)) {
     h.ident = mbmap::decode_ident(*id);
@@ -163,7 +163,7 @@ ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::opti
   return r;
 }
 
-void read_watchdog(ScanResult& r, ModbusClient& client) {
+void read_watchdog(ScanResult& r, ModbusRegisters& client) {
   if (auto v = client.read_optional(mbmap::kWatchdogPreset, 1)) r.watchdog_preset = (*v)[0];
   if (auto v = client.read_optional(mbmap::kWatchdogType, 1)) r.watchdog_type = (*v)[0];
 }
@@ -325,7 +325,7 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
   }
 }
 
-ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
+ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
                         std::optional<MappingSettings> settings, const ScanProgress& progress) {
   ScanHead head = read_scan_head(client);
   ScanResult r = begin_scan(head, fmt::format("scan of {}", link.describe()), settings);
@@ -345,20 +345,19 @@ class ScanDiscovery : public StationDiscovery {
     if (!opt_.cache_dir.empty()) cache_.emplace(opt_.cache_dir, link.client().target());
   }
 
-  const ScanResult* find(unsigned upto) override {
-    if (!r_) start();
-    if (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto)) {
-      std::size_t before = r_->spec.terminals.size();
-      walk(*r_, link_, catalog_, so_, upto);
-      if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;
-      save();
-    }
-    if (cache_) cache_->unlock();
-    return &*r_;
+  const StationLayout* layout_upto(unsigned upto) override {
+    found_ = find(upto);
+    if (!found_->walked) return nullptr;
+    return &found_->layout;
   }
+
+  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
+
+  const ScanResult* scan() const override { return found_; }
 
   void forget() override {
     trace("the scan does not describe the station any more; scanning again");
+    found_ = nullptr;
     r_.reset();
     kept_.reset();
     forgotten_ = true;
@@ -372,7 +371,9 @@ class ScanDiscovery : public StationDiscovery {
     save();
   }
 
-  void prime() noexcept override {
+  // What is kept for this port without asking the coupler (acknowledge latencies, given to the
+  // link), also for commands that never scan (--station): before the link's first session.
+  void prime() noexcept {
     if (primed_ || !cache_) return;
     primed_ = true;
     try {
@@ -433,6 +434,19 @@ class ScanDiscovery : public StationDiscovery {
  private:
   static constexpr double kLockSeconds = 10;
 
+  // Terminals 1..upto at least (0: all of them): what is known so far.
+  const ScanResult* find(unsigned upto) {
+    if (!r_) start();
+    if (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto)) {
+      std::size_t before = r_->spec.terminals.size();
+      walk(*r_, link_, catalog_, so_, upto);
+      if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;
+      save();
+    }
+    if (cache_) cache_->unlock();
+    return &*r_;
+  }
+
   void trace(const std::string& s) const {
     if (so_.trace) so_.trace(s);
   }
@@ -475,6 +489,7 @@ class ScanDiscovery : public StationDiscovery {
   std::optional<ScanCache> cache_;
   std::optional<ScanResult> r_;     // this run's
   std::optional<ScanResult> kept_;  // the cache's, not used (yet) in this run
+  const ScanResult* found_ = nullptr;  // what layout_upto() found last (until forget())
   std::map<unsigned, std::chrono::microseconds> saved_wait_;
   std::set<unsigned> saved_suspect_;
   bool dirty_ = false, forgotten_ = false, primed_ = false;
@@ -482,8 +497,11 @@ class ScanDiscovery : public StationDiscovery {
 
 }  // namespace
 
-void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so, DiscoveryOptions opt) {
-  link.set_discovery(std::make_unique<ScanDiscovery>(link, catalog, so, std::move(opt)));
+std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
+                                                   DiscoveryOptions opt) {
+  auto d = std::make_unique<ScanDiscovery>(link, catalog, so, std::move(opt));
+  d->prime();
+  return d;
 }
 
 }  // namespace kscfg

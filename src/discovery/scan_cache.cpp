@@ -1,23 +1,15 @@
 #include "kscfg/discovery/scan_cache.hpp"
 
-#include <fcntl.h>
 #include <fmt/format.h>
-#include <sys/file.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
-#include <cerrno>
 #include <cstdlib>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
-#include <thread>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/discovery/scan.hpp"
 
 namespace kscfg {
@@ -60,17 +52,11 @@ bool ScanCache::lock(double timeout_s) {
   if (lock_fd_ >= 0) return true;
   std::error_code ec;
   fs::create_directories(fs::path(path_).parent_path(), ec);
-  int fd = ::open((path_ + ".lock").c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK, 0644);
-  if (fd < 0) return false;
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
-    if ((errno != EWOULDBLOCK && errno != EINTR) || std::chrono::steady_clock::now() > deadline ||
-        !sleep_for_or_cancelled(std::chrono::milliseconds(5))) {
-      ::close(fd);
-      return false;
-    }
+  try {
+    lock_fd_ = lock_file(path_ + ".lock", timeout_s);
+  } catch (const Error&) {
+    return false;  // held longer, interrupted, or no lock file to be had: go on without the cache
   }
-  lock_fd_ = fd;
   return true;
 }
 
@@ -168,32 +154,10 @@ std::optional<CachedScan> ScanCache::load(const Catalog& catalog,
   };
   try {
     // Looked at before it is opened: a FIFO would block open(), a device or a link lead anywhere.
-    struct stat st {};
-    if (::lstat(path_.c_str(), &st) != 0) return std::nullopt;  // none yet
-    if (!S_ISREG(st.st_mode))
-      return ignored(S_ISLNK(st.st_mode)    ? "is a symbolic link"
-                     : S_ISFIFO(st.st_mode) ? "is a FIFO"
-                     : S_ISDIR(st.st_mode)  ? "is a directory"
-                                            : "is not a regular file");
-    if (static_cast<std::uintmax_t>(st.st_size) > kMaxBytes)
-      return ignored(fmt::format("has {} bytes, more than a scan cache has ({} KiB at most)", st.st_size,
-                                 kMaxBytes / 1024));
-    int fd = ::open(path_.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0) return ignored(fmt::format("cannot be read ({})", std::strerror(errno)));
-    std::string text;
-    try {
-      struct stat now {};
-      if (::fstat(fd, &now) != 0 || !S_ISREG(now.st_mode) || now.st_ino != st.st_ino) {
-        ::close(fd);
-        return ignored("changed while it was opened");
-      }
-      text = read_input_fd(fd, "scan cache", path_, kMaxBytes);
-    } catch (const Error& e) {
-      ::close(fd);
-      return ignored(fmt::format("cannot be read ({})", e.what()));
-    }
-    ::close(fd);
-    json j = json::parse(text);
+    RegularFile f = read_regular_file(path_, "scan cache", kMaxBytes);
+    if (!f.exists) return std::nullopt;  // none yet
+    if (!f.refused.empty()) return ignored(f.refused);
+    json j = json::parse(f.text);
     if (j.value("format", 0) != kFormat) return ignored("is of another format");
     CachedScan c;
     for (auto it = j.at("ack_wait_us").begin(); it != j.at("ack_wait_us").end(); ++it) {
@@ -225,23 +189,9 @@ bool ScanCache::store(const CachedScan& c) const noexcept {
     if (!c.ack_suspect.empty()) j["ack_suspect"] = c.ack_suspect;
     std::error_code ec;
     fs::create_directories(fs::path(path_).parent_path(), ec);
-    // Written beside and renamed over: a reader sees the old entry or the new one, never half of
-    // one. Not fsynced: a cache lost in a crash is scanned again.
-    std::string tmp = fmt::format("{}.tmp.{}", path_, ::getpid());
-    {
-      std::ofstream f(tmp, std::ios::trunc);
-      f << j.dump(1) << '\n';
-      f.close();
-      if (!f) {
-        fs::remove(tmp, ec);
-        return false;
-      }
-    }
-    fs::rename(tmp, path_, ec);
-    if (ec) {
-      fs::remove(tmp, ec);
-      return false;
-    }
+    // Written beside, fsynced and renamed over: a reader sees the old entry or the new one, never
+    // half of one. A symbolic link put where the entry goes is replaced, never written through.
+    write_file_atomic(path_, j.dump(1) + "\n", true);
     return true;
   } catch (...) {
     return false;

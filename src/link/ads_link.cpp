@@ -71,13 +71,4 @@ void AdsImageLink::pause(unsigned poll_number) {
   std::this_thread::sleep_for(std::chrono::microseconds(poll_number > 20 ? 2000 : 500));
 }
 
-const StationLayout* AdsImageLink::layout_upto(unsigned) {
-  if (!searched_ && find_) {
-    searched_ = true;
-    found_ = find_();
-    count();
-  }
-  return found_ ? &found_->layout : nullptr;
-}
-
 }  // namespace kscfg

@@ -27,10 +27,6 @@ static void check_image(std::size_t offset, std::size_t n, const char* what) {
 }
 
 ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
-  if (discovery_ && !primed_) {
-    primed_ = true;
-    discovery_->prime();
-  }
   auto it = timings_.find(position);
   if (it == timings_.end()) {
     // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
@@ -204,28 +200,6 @@ void ModbusLink::pause(unsigned poll_number) {
   // Early polls come quickly; a terminal that needs long gets polled less often.
   unsigned us = client_.options().poll_us * (poll_number > 20 ? 4 : 1);
   std::this_thread::sleep_for(std::chrono::microseconds(us));
-}
-
-const StationLayout* ModbusLink::layout_upto(unsigned position) {
-  if (!discovery_) return nullptr;
-  scan_ = discovery_->find(position);
-  count();
-  if (!scan_ || !scan_->walked) return nullptr;
-  return &scan_->layout;
-}
-
-void ModbusLink::forget_station() {
-  scan_ = nullptr;
-  if (discovery_) discovery_->forget();
-}
-
-void ModbusLink::commit() {
-  if (discovery_) discovery_->save();
-}
-
-const StationSpec* ModbusLink::station() {
-  if (!layout()) return nullptr;
-  return &scan_->spec;
 }
 
 std::optional<Error> ModbusLink::explain_no_ack() {

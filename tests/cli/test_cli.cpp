@@ -83,6 +83,7 @@ TEST_CASE("the terminal is locked and out of register mode after a command", "[c
 
 TEST_CASE("a write the terminal refuses is caught by the read-back (verify exit code)", "[cli]") {
   Emu emu;
+#if KSCFG_TEST_HOOKS  // KSCFG_TEST_NO_UNLOCK: a build for tests (tests/CMakeLists.txt)
   auto env = emu.env;
   env["KSCFG_TEST_NO_UNLOCK"] = "1";
   Run r = run_kscfg({"write", "R32", "0x0007"}, env);
@@ -91,12 +92,25 @@ TEST_CASE("a write the terminal refuses is caught by the read-back (verify exit 
   CHECK_THAT(r.err, Catch::Contains("reads back 0x0006"));
   CHECK(r.out.empty());
   CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
+#endif
   // The emulator's fault injection gives the same result through the normal path.
   REQUIRE(emu({"emu", "fault", "-t", "1", "--ignore-write", "R33"}).rc == 0);
   CHECK(emu({"write", "R33", "4"}).rc == 6);
   REQUIRE(emu({"emu", "fault", "--clear"}).rc == 0);
   CHECK(emu({"write", "R33", "4"}).rc == 0);
 }
+
+#if !KSCFG_TEST_HOOKS
+TEST_CASE("a kscfg built without test hooks ignores KSCFG_TEST_KILL_AFTER and KSCFG_TEST_NO_UNLOCK", "[cli]") {
+  Emu emu;
+  auto env = emu.env;
+  env["KSCFG_TEST_KILL_AFTER"] = "R32";
+  env["KSCFG_TEST_NO_UNLOCK"] = "1";
+  Run r = run_kscfg({"write", "R32", "0x0007"}, env);
+  CHECK(r.rc == 0);  // neither killed after the write nor refused for a missing code word
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0007\n");
+}
+#endif
 
 TEST_CASE("a silent terminal gives a timeout error within the timeout", "[cli]") {
   Emu emu;

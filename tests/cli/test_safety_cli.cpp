@@ -245,6 +245,7 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
 // ---------------------------------------------------------------------------------------------
 // Issue 11 item 3: a crashed session's leftovers.
 
+#if KSCFG_TEST_HOOKS  // used by the cases that need KSCFG_TEST_KILL_AFTER
 namespace {
 
 // Output word 0x0800 of a Modbus coupler: image bytes 0 (low) and 1 (high).
@@ -257,6 +258,7 @@ std::uint8_t output_byte(const std::string& uri, std::size_t offset) {
 std::uint8_t output_byte0(const std::string& uri) { return output_byte(uri, 0); }
 
 }  // namespace
+#endif
 
 TEST_CASE("emulator: a terminal left in register mode and unlocked is finished by the next command",
           "[safety][recovery]") {
@@ -307,6 +309,7 @@ struct Served {
   }
 };
 
+#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves nothing behind the next command",
           "[safety][recovery][serve]") {
   Station st;
@@ -335,7 +338,9 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
   CHECK_THAT(w2.err, Catch::Contains("was already unlocked (R31 = 0x1235) when this session began"));
   CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
 }
+#endif
 
+#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is finished by the next command on "
           "any terminal",
           "[safety][recovery][serve][journal]") {
@@ -363,6 +368,7 @@ TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is 
   std::error_code ec;
   CHECK(std::filesystem::is_empty(st.dir.file("xdg") + "/kscfg/sessions", ec));
 }
+#endif
 
 // ---------------------------------------------------------------------------------------------
 // Issue 11 item 4: rollback that reads, against kscfg serve dropping replies.

@@ -216,6 +216,7 @@ TEST_CASE("kill -9 of every command kind in register mode: the next command on a
   CHECK(fs::is_empty(kscfg::test::kscfg_state_dir() + "/sessions", ec));
 }
 
+#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("forged or stale journals: acted on only where an entry describes the station (its terminal's type, "
           "register window and control byte)",
           "[sessions][journal][serve]") {
@@ -265,6 +266,7 @@ TEST_CASE("forged or stale journals: acted on only where an entry describes the 
     if (b < 16 || b > 19) CHECK(after[b] == before[b]);
   CHECK(c.all_locked());
 }
+#endif
 
 namespace {
 

@@ -1,5 +1,7 @@
 // The scan cache: what a scan learned, kept between runs; a broken or foreign entry is no entry.
 #include <catch2/catch.hpp>
+#include <sys/stat.h>
+
 #include <filesystem>
 #include <fstream>
 
@@ -98,4 +100,42 @@ TEST_CASE("scan cache: the lock is bounded", "[scan]") {
   CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
   a.unlock();
   CHECK(b.lock(1));
+}
+
+TEST_CASE("scan cache: a link where the entry goes is replaced, never written through, a lock path that is no file "
+          "is refused", "[scan]") {
+  namespace fs = std::filesystem;
+  const Catalog& cat = Catalog::standard();
+  test::TempDir dir;
+  ScanCache a(dir.path, target("tcp://10.0.0.7"));
+  fs::create_directories(fs::path(a.path()).parent_path());
+  std::string victim = dir.file("victim");
+  test::write_text(victim, "keep me\n");
+  fs::create_symlink(victim, a.path());
+  std::vector<std::string> notes;
+  CHECK_FALSE(a.load(cat, [&](const std::string& s) { notes.push_back(s); }));  // a link is no entry
+  REQUIRE(notes.size() == 1);
+  CHECK_THAT(notes[0], Catch::Contains("is a symbolic link"));
+  CachedScan c;
+  c.scan = sample(cat);
+  REQUIRE(a.store(c));
+  CHECK(test::read_text(victim) == "keep me\n");
+  CHECK_FALSE(fs::is_symlink(a.path()));
+  CHECK(a.load(cat));
+  // A killed writer's temporary beside the entry is removed by the next store.
+  std::string stale = a.path() + ".tmp.999999999";
+  test::write_text(stale, "{");
+  REQUIRE(a.store(c));
+  CHECK_FALSE(fs::exists(stale));
+  // A FIFO at the lock path never blocks the open; a link there is refused (not followed).
+  ScanCache b(dir.path, target("tcp://10.0.0.8"));
+  REQUIRE(::mkfifo((b.path() + ".lock").c_str(), 0644) == 0);
+  auto t0 = std::chrono::steady_clock::now();
+  (void)b.lock(0.2);
+  CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
+  b.unlock();
+  ScanCache d(dir.path, target("tcp://10.0.0.9"));
+  fs::create_symlink(victim, d.path() + ".lock");
+  CHECK_FALSE(d.lock(0.2));
+  CHECK(test::read_text(victim) == "keep me\n");
 }

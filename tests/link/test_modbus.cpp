@@ -42,6 +42,8 @@ struct Served {
     lo.timeout_ms = timeout_ms;
     return open_link(server->endpoint() + query, Catalog::standard(), lo);
   }
+  // The link with the scan that finds the station behind it.
+  OpenedPort port() { return open_port_uri(server->endpoint(), Catalog::standard(), LinkOptions{}); }
 };
 
 std::string error_of(const std::function<void()>& f, Exit* code = nullptr) {
@@ -182,8 +184,9 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
   // Exchange counts depend on timing (the server's K-bus runs on its own clock): the bounds here
   // are generous so a loaded machine does not fail them; bench/bench_modbus measures the figures.
   Served s;
-  auto link = s.link();
-  const StationLayout& L = *link->layout();  // scanned
+  auto port = s.port();
+  auto& link = port.link;
+  const StationLayout& L = *port.discovery->layout();  // scanned
   REQUIRE(L.terminals.size() == 4);
   CHECK(L.terminals[0].type->type == "KL6001");
   CHECK(L.terminals[2].type->type == "KL6031");
@@ -231,8 +234,9 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
 TEST_CASE("read_then_close puts the control byte back with the last poll, or asks again when that was early",
           "[modbus]") {
   Served s;
-  auto link = s.link();
-  const StationLayout& L = *link->layout();
+  auto port = s.port();
+  auto& link = port.link;
+  const StationLayout& L = *port.discovery->layout();
   auto* m = dynamic_cast<ModbusLink*>(link.get());
   REQUIRE(m);
   std::size_t ctrl = L.terminals[0].channels[0].window->ctrl;
@@ -273,8 +277,9 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
 
 TEST_CASE("writes through the Modbus link are verified and relocked", "[modbus]") {
   Served s;
-  auto link = s.link();
-  const StationLayout& L = *link->layout();
+  auto port = s.port();
+  auto& link = port.link;
+  const StationLayout& L = *port.discovery->layout();
   {
     RegisterSession ses(*link, register_terminal(L, 2, 0), 0);
     auto w = ses.write(32, 0x0021);
@@ -320,8 +325,9 @@ TEST_CASE("RTU over a pseudo-terminal pair", "[modbus]") {
   Served s(o);
   CHECK_THAT(s.server->endpoint(), Catch::StartsWith("rtu:/dev/pts/"));
   {
-    auto link = s.link();
-    const StationLayout& L = *link->layout();
+    auto port = s.port();
+    auto& link = port.link;
+    const StationLayout& L = *port.discovery->layout();
     RegisterSession ses(*link, register_terminal(L, 3, 0), 0);
     CHECK(ses.read(8) == 6031);
     CHECK(ses.read(9) == s.station.channel(3, 0).read_register(9));

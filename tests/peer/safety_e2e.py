@@ -177,4 +177,16 @@ def c_baud(ctx):
 
 
 if __name__ == "__main__":
-    sys.exit(e2e.main())
+    # A kscfg built without the test hooks (CMake option KSCFG_TEST_HOOKS) cannot kill itself after
+    # a write: the crash cases are left out, and a run that passes the others reports skipped (77).
+    hooks = "--no-test-hooks" not in sys.argv
+    left_out = []
+    if not hooks:
+        sys.argv.remove("--no-test-hooks")
+        left_out = [c["name"] for c in e2e.CASES if c["name"].startswith("crash-")]
+        e2e.CASES[:] = [c for c in e2e.CASES if not c["name"].startswith("crash-")]
+    rc = e2e.main()
+    if rc == 0 and left_out:
+        print("skipped (kscfg built without KSCFG_TEST_HOOKS): %s" % ", ".join(left_out))
+        rc = 77
+    sys.exit(rc)

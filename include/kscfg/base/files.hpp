@@ -7,10 +7,12 @@
 namespace kscfg {
 
 // Writes `content` to a temporary file beside `path`, fsyncs it and renames it over `path`.
-// A symbolic link stays one: the file it points to is replaced (beside it). Temporary files that
-// a killed kscfg left beside the target (`NAME.tmp.PID` of a process that is gone) are removed.
+// A symbolic link stays one: the file it points to is replaced (beside it); with `replace_link`,
+// a link at `path` is replaced by the file instead and what it pointed to is left alone (a cache
+// that kscfg alone writes). Temporary files that a killed kscfg left beside the target
+// (`NAME.tmp.PID` of a process that is gone) are removed.
 // Throws Error(Exit::file) naming the path and the reason.
-void write_file_atomic(const std::string& path, const std::string& content);
+void write_file_atomic(const std::string& path, const std::string& content, bool replace_link = false);
 
 // Removes the NAME.tmp.PID files beside `path` (its link target) whose writer is gone: what a kill -9
 // between create and rename leaves. write_file_atomic calls it after each write; the emulator
@@ -32,8 +34,22 @@ std::string read_input_file(const std::string& path, std::string_view what,
 std::string read_input_fd(int fd, std::string_view what, std::string_view name,
                           std::size_t max_bytes = kMaxInputFileBytes);
 
-// Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds.
-// Returns the descriptor; closing it releases the lock. Throws Error(Exit::file).
+// A file kscfg keeps for itself (a cache) read only when it is a regular file of at most
+// `max_bytes`: looked at before it is opened (so that a FIFO cannot block the open, and a symbolic
+// link, a device or a directory is never followed or read) and checked again once open.
+struct RegularFile {
+  bool exists = false;  // something is at the path
+  std::string text;     // the file, when `refused` is empty and it exists
+  // Why it was not read, words that follow its path: "is a FIFO", "is a symbolic link",
+  // "has N bytes, more than a WHAT has (K KiB at most)", "cannot be read (reason)", ...
+  std::string refused;
+};
+RegularFile read_regular_file(const std::string& path, std::string_view what, std::size_t max_bytes);
+
+// Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds (less
+// when the interrupt flag is set: Error(Exit::interrupted)). A symbolic link or a FIFO at `path`
+// is refused, never followed or waited on. Returns the descriptor; closing it releases the lock.
+// Throws Error(Exit::file).
 int lock_file(const std::string& path, double timeout_s);
 
 // Line `line` (1-based) of `text`, for error messages that show the offending line.

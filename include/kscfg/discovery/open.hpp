@@ -7,6 +7,7 @@
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
@@ -35,6 +36,15 @@ struct LinkOptions {
   LockWait lock_wait;
 };
 
+// A port opened: its link, and how the station behind it is found when the link cannot tell it.
+struct OpenedPort {
+  std::unique_ptr<Link> link;
+  // A Modbus coupler's scan, an ADS coupler's table 9; nullptr when the link knows its station
+  // (the emulator: Link::layout()). Refers to `link`, and is destroyed before it.
+  std::unique_ptr<StationDiscovery> discovery;
+};
+OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
+// The link alone, for callers that never need a station the link cannot tell (no discovery).
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
 
 // The register access of the port behind `link` (session/access.hpp): direct access over ADS port

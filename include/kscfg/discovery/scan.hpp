@@ -3,11 +3,13 @@
 #include <array>
 #include <functional>
 #include <map>
+#include <memory>
 #include <vector>
 #include <optional>
 #include <string>
 
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"
@@ -26,9 +28,9 @@ struct ScanHead {
     return ident == o.ident && ident_read == o.ident_read && lengths == o.lengths;
   }
 };
-ScanHead read_scan_head(ModbusClient& client);
+ScanHead read_scan_head(ModbusRegisters& client);
 // Only the image lengths (one request): enough to tell whether the station changed.
-std::array<unsigned, 4> read_image_lengths(ModbusClient& client);
+std::array<unsigned, 4> read_image_lengths(ModbusRegisters& client);
 
 // A scan that knows the coupler but no terminal yet: the coupler profile named by the
 // identification (unknown: said in a note, BK9000 settings assumed, the lengths decide), the
@@ -52,10 +54,10 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
                           std::vector<std::map<unsigned, std::uint16_t>> regs);
 
 // The watchdog registers, each on its own; a register the coupler refuses stays unknown.
-void read_watchdog(ScanResult& r, ModbusClient& client);
+void read_watchdog(ScanResult& r, ModbusRegisters& client);
 
 // Everything: head, watchdog and the whole walk.
-ScanResult scan_station(ModbusClient& client, Link& link, const Catalog& catalog, const SessionOptions& so,
+ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
                         std::optional<MappingSettings> settings = std::nullopt, const ScanProgress& progress = {});
 
 struct DiscoveryOptions {
@@ -64,11 +66,12 @@ struct DiscoveryOptions {
   bool rescan = false;  // ignore what the cache holds (it is replaced by the new scan)
 };
 
-// Makes `link` discover its station with a scan on first use of layout(), only as far as the
+// Discovers the station behind `link` with a scan on first use of layout(), only as far as the
 // command needs. With a cache directory, an earlier run's scan is used when the coupler reports
 // the same identification and image lengths (two requests), and a scan is kept there, with the
-// terminals' acknowledge latencies, for the next run.
-void discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
-                      DiscoveryOptions opt = {});
+// terminals' acknowledge latencies, for the next run: the latencies kept are given to the link
+// here, before its first session. Refers to `link`: destroy it first.
+std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
+                                                   DiscoveryOptions opt = {});
 
 }  // namespace kscfg

@@ -145,6 +145,7 @@ class EmulatorLink : public Link {
   const StationSpec* station() override { return &station_->spec(); }
   void commit() override;
   EmulatedStation& emulated() { return *station_; }
+  EmulatedStation* emulator() override { return station_; }
   EmulatorStore* store() { return store_.get(); }
 
  private:

@@ -39,27 +39,16 @@ class AdsImageLink : public Link {
   void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
                                  std::span<std::uint8_t> dst) override;
   void pause(unsigned poll_number) override;
-  bool discovers_layout() const override { return true; }
-  const StationLayout* layout() override { return layout_upto(0); }
-  const StationLayout* layout_upto(unsigned position) override;
-  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
   AckTiming* ack_timing(unsigned position) override { return &timings_[position]; }
+  std::size_t exchanges() const override { return client_.exchanges(); }
 
   AdsClient& client() { return client_; }
-  // How layout() finds the station (discovery/ads_station.hpp: the coupler's table 9 over port 100).
-  struct Found {
-    StationSpec spec;
-    StationLayout layout;
-  };
-  void set_discovery(std::function<std::optional<Found>()> find) { find_ = std::move(find); }
+  AdsClient* ads_connection() override { return &client_; }
 
  private:
   void count() { exchanges_ = client_.exchanges(); }
   OwnerLock lock_;  // declared before the client: released after it has closed
   AdsClient client_;
-  std::function<std::optional<Found>()> find_;
-  std::optional<Found> found_;
-  bool searched_ = false;
   std::map<unsigned, AckTiming> timings_;
 };
 

@@ -13,6 +13,10 @@
 
 namespace kscfg {
 
+class ModbusRegisters;  // link/modbus_client.hpp
+class AdsClient;        // link/ads_client.hpp
+class EmulatedStation;  // emulator/emulator.hpp (opaque here: the link layer never uses it)
+
 // One terminal channel's part of an image exchange (Link::transfer): output bytes to write and
 // input bytes to read; either may be empty.
 struct ImageTransfer {
@@ -79,20 +83,11 @@ class Link {
   // Default: each output span written, then one read covering every input span.
   virtual void transfer(std::span<const ImageTransfer> t);
 
-  // True when layout() would have to discover the station by asking the device (Modbus scan);
-  // a station file given by the user is then preferred.
-  virtual bool discovers_layout() const { return false; }
-
-  // The station behind the link as the coupler laid it out, when the link knows it
-  // (the emulator does; a Modbus link learns it from a station file or a scan).
+  // The station behind the link as the coupler laid it out, when the link itself knows it (the
+  // emulator). A coupler's station is found above the link (discovery/station_discovery.hpp: a
+  // Modbus scan, an ADS coupler's table 9) or given by a station file.
   // The pointer stays valid as long as the link.
   virtual const StationLayout* layout() { return nullptr; }
-  // As layout(), but a link that discovers its station may stop once terminals 1..position are
-  // known (position 0: all of them).
-  virtual const StationLayout* layout_upto(unsigned position) {
-    (void)position;
-    return layout();
-  }
   virtual const StationSpec* station() { return nullptr; }
 
   // A terminal did not acknowledge: the link may know a cause beyond the terminal (a coupler
@@ -102,8 +97,19 @@ class Link {
   // Makes the station's state durable (emulator: saves its state file). Called once at the end.
   virtual void commit() {}
 
-  // Link exchanges so far (one request/response on a real link; one image access on the emulator).
-  std::size_t exchanges() const { return exchanges_; }
+  // Capabilities: what callers need of one kind of link, asked for instead of a downcast (as
+  // libmodbus keeps one backend table per transport); nullptr when the link has none.
+  // A Modbus coupler's registers beyond the image (identification, image lengths, watchdog).
+  virtual ModbusRegisters* modbus_registers() { return nullptr; }
+  // An ADS coupler's AMS connection (port 100: its register tables and direct register access).
+  virtual AdsClient* ads_connection() { return nullptr; }
+  // The emulated station behind an emulator link (emu commands, the far end of a serial line,
+  // the K-bus run between samples).
+  virtual EmulatedStation* emulator() { return nullptr; }
+
+  // Link exchanges so far (one request/response on a real link, also those others sent over its
+  // connection, such as a scan's identification reads; one image access on the emulator).
+  virtual std::size_t exchanges() const { return exchanges_; }
 
  protected:
   std::size_t exchanges_ = 0;

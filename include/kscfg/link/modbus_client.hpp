@@ -81,18 +81,29 @@ struct ModbusOptions {
   std::function<void(const std::string&)> trace;
 };
 
+// A Modbus coupler's registers beyond its process image (identification 0x1000.., image lengths
+// 0x1010.., watchdog 0x1120..): what callers above a Link ask of a Modbus coupler
+// (Link::modbus_registers()). The ModbusClient of a ModbusLink is one.
+class ModbusRegisters {
+ public:
+  virtual ~ModbusRegisters() = default;
+  virtual std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count) = 0;
+  // As read(), but a register the coupler does not serve (exception 2, illegal data address) is
+  // not an error: std::nullopt. For optional registers (docs/design.md section 4).
+  virtual std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count) = 0;
+  virtual const ModbusTarget& target() const = 0;
+};
+
 // One Modbus connection with bounded retries; every failure is an Error(Exit::link) in one line.
-class ModbusClient {
+class ModbusClient : public ModbusRegisters {
  public:
   ModbusClient(ModbusTarget target, ModbusOptions opt);
-  ~ModbusClient();
+  ~ModbusClient() override;
   ModbusClient(const ModbusClient&) = delete;
   ModbusClient& operator=(const ModbusClient&) = delete;
 
-  std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count);
-  // As read(), but a register the coupler does not serve (exception 2, illegal data address) is
-  // not an error: std::nullopt. For optional registers (docs/design.md section 4).
-  std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count);
+  std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count) override;
+  std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count) override;
   void write(std::uint16_t addr, std::span<const std::uint16_t> values);
   // FC23: writes first, then reads, in one exchange.
   std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
@@ -104,7 +115,7 @@ class ModbusClient {
   // instead of trying every register for seconds. Empty while the link lives.
   const std::string& dead() const { return dead_; }
 
-  const ModbusTarget& target() const { return target_; }
+  const ModbusTarget& target() const override { return target_; }
   const ModbusOptions& options() const { return opt_; }
   std::size_t exchanges() const { return exchanges_; }  // requests sent, retries included
   std::size_t retried() const { return retried_; }

@@ -42,24 +42,6 @@ struct ScanResult {
   std::vector<std::string> notes;
 };
 
-// How a ModbusLink finds its station (discovery/scan.hpp implements it: a scan runs register
-// sessions, which live above this layer).
-class StationDiscovery {
- public:
-  virtual ~StationDiscovery() = default;
-  // Terminals 1..upto at least (0: all of them); what is known so far, or nullptr.
-  virtual const ScanResult* find(unsigned upto) = 0;
-  // The station is not what was found (a terminal reports another type): find it again.
-  virtual void forget() = 0;
-  // Keeps what was learned for the next run (the scan cache); never throws.
-  virtual void save() noexcept = 0;
-  // A whole scan made elsewhere (kscfg scan) replaces what was found, and is kept.
-  virtual void adopt(const ScanResult& r) = 0;
-  // What is kept for this port without asking the coupler (acknowledge latencies), also for
-  // commands that never scan (--station). Called by the link before it first needs a latency.
-  virtual void prime() noexcept = 0;
-};
-
 class ModbusLink : public Link {
  public:
   // `lock`: this computer's lock of the coupler (owner_lock.hpp), taken before the client connects
@@ -76,18 +58,13 @@ class ModbusLink : public Link {
   // gap is bridged only where its bytes cost less line time than a request of their own.
   void transfer(std::span<const ImageTransfer> t) override;
   void pause(unsigned poll_number) override;
-  bool discovers_layout() const override { return true; }
-  // Discovers the station on first use (the discovery set below, a scan); nullptr when there is
-  // none or it cannot identify the terminals.
-  const StationLayout* layout() override { return layout_upto(0); }
-  const StationLayout* layout_upto(unsigned position) override;
-  const StationSpec* station() override;
   std::optional<Error> explain_no_ack() override;
 
   AckTiming* ack_timing(unsigned position) override;
   // Learned acknowledge latencies by terminal position (for the scan cache).
   const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
-  // A latency kept from an earlier run; `suspect`: it may be too long (ack_latency.hpp).
+  // A latency kept from an earlier run (discovery gives the scan cache's before the first session);
+  // `suspect`: it may be too long (ack_latency.hpp).
   void set_ack_wait(unsigned position, std::chrono::microseconds wait, bool suspect = false) {
     timings_[position].wait = wait;
     timings_[position].suspect = suspect;
@@ -95,16 +72,10 @@ class ModbusLink : public Link {
 
   // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).
   bool other_masters_possible() const override { return true; }
+  std::size_t exchanges() const override { return client_.exchanges(); }
 
   ModbusClient& client() { return client_; }
-  // How layout() finds the station: set by discovery/open.hpp.
-  void set_discovery(std::unique_ptr<StationDiscovery> d) { discovery_ = std::move(d); }
-  StationDiscovery* discovery() { return discovery_.get(); }
-  // What discovery found so far (nullptr: nothing yet).
-  const ScanResult* scan() const { return scan_; }
-  // The station found is out of date: the next layout() finds it again.
-  void forget_station();
-  void commit() override;
+  ModbusRegisters* modbus_registers() override { return &client_; }
 
  private:
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
@@ -115,12 +86,9 @@ class ModbusLink : public Link {
 
   OwnerLock lock_;  // taken before the client connects, released after it has closed
   ModbusClient client_;
-  std::unique_ptr<StationDiscovery> discovery_;
   std::vector<int> out_cache_;  // output image bytes as the coupler holds them, -1 unknown
   std::optional<std::pair<std::size_t, std::size_t>> last_written_;  // offset and size of the last write
-  const ScanResult* scan_ = nullptr;
   std::map<unsigned, AckTiming> timings_;
-  bool primed_ = false;
 };
 
 }  // namespace kscfg
