@@ -90,6 +90,10 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
                                         opt.lock_wait);
     auto link = std::make_unique<AdsImageLink>(target, ao, std::move(lock));
+    // Channels unlocked over port 100 are noted in the session journal of this coupler, so that the
+    // next kscfg relocks what a killed one left (session/ads_access.hpp).
+    if (opt.journal && !opt.journal_dir.empty())
+      opt.journal->open(opt.journal_dir, fmt::format("ads-{}-{}", safe(target.host), target.port));
     auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace);
     return {std::move(link), std::move(discovery)};
   }
@@ -129,13 +133,22 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
                                                      std::function<const StationLayout&()> layout) {
   if (auto* ads = link.ads_connection()) {
     auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
-    return std::make_unique<AdsAccess>(*ads, number, so.timeout, so.cancel);
+    return std::make_unique<AdsAccess>(*ads, number, so);
   }
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }
 
 void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
+  if (link.ads_connection()) {
+    // Direct access: the channels a dead kscfg unlocked over port 100.
+    auto access = open_register_access(link, so, [&]() -> const StationLayout& { return layout_upto(0); });
+    finish_dead_direct_sessions(*access, so, [&](unsigned position) -> const TerminalImage* {
+      const StationLayout& L = layout_upto(position);
+      return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
+    });
+    return;
+  }
   auto fits = [&](const SessionJournal::Entry& e) {
     const StationLayout& L = layout_upto(e.position);
     if (e.position < 1 || e.position > L.terminals.size()) return false;

@@ -5,15 +5,37 @@
 #include <algorithm>
 
 #include "kscfg/link/ams.hpp"
+#include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
 
-AdsAccess::AdsAccess(AdsClient& client, std::function<unsigned(unsigned)> number, std::chrono::milliseconds timeout,
-                     const std::atomic<bool>* cancel)
+AdsAccess::AdsAccess(AdsClient& client, std::function<unsigned(unsigned)> number, const SessionOptions& so)
     : client_(client),
-      regs_(client, static_cast<unsigned>(timeout.count())),
+      regs_(client, static_cast<unsigned>(so.timeout.count())),
       number_(std::move(number)),
-      cancel_(cancel) {}
+      cancel_(so.cancel),
+      journal_(so.journal),
+      after_write_(so.after_write) {}
+
+ChannelFound AdsAccess::found(ChannelKey key) const {
+  ChannelFound f;
+  if (auto it = chans_.find(key); it != chans_.end() && it->second.dead_pid) {
+    f.dead_pid = it->second.dead_pid;
+    f.dead_unlocked = true;
+  }
+  return f;
+}
+
+void AdsAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) { chans_.at(key).dead_pid = pid; }
+
+void AdsAccess::leave(ChannelKey key, Chan& c) noexcept {
+  if (!c.journaled || !journal_) return;
+  c.journaled = false;
+  try {
+    journal_->leave(key.position, key.channel);
+  } catch (...) {
+  }
+}
 
 void AdsAccess::open(const TerminalImage& t, unsigned channel) {
   ChannelKey key{t.position, channel};
@@ -86,6 +108,12 @@ std::vector<Program*> AdsAccess::advance() {
       if (op.write && i > k) break;
       adsreg::RegisterAccess::Address a = c.addr;
       a.reg = op.reg;
+      // Noted before the code word goes out: a kill -9 from here on leaves the entry.
+      if (op.write && op.reg == proto::kCodeWordRegister && op.value == proto::kCodeWord && !c.journaled &&
+          journal_) {
+        journal_->enter_direct(key.position, key.channel);
+        c.journaled = journal_->enabled();
+      }
       calls.push_back(op.write ? regs_.write_call(a, op.value) : regs_.read_call(a));
       sent.push_back({&c, i});
       if (op.write) break;
@@ -99,6 +127,7 @@ std::vector<Program*> AdsAccess::advance() {
   } catch (const Error& e) {
     // Nothing is known of the requests in flight: every program that sent one is told (a write's
     // register is read back by the rules above the seam before it is written again).
+    for (const auto& s : sent) s.chan->unsure = true;
     for (const auto& s : sent)
       if (s.chan->prog) {
         s.chan->prog->error = e;
@@ -113,11 +142,18 @@ std::vector<Program*> AdsAccess::advance() {
     if (p.values.size() != sent[i].op) continue;  // an earlier answer of this run failed
     const RegisterOp& op = p.ops[sent[i].op];
     if (auto err = regs_.reply_error(replies[i], calls[i], !op.write)) {
+      if (op.write) c.unsure = true;
       p.error = *err;
       finish(c);
       continue;
     }
     p.values.push_back(op.write ? op.value : ams::get16(replies[i].data.data()));
+    if (op.write && after_write_) after_write_(op.reg);
+    // Locked again (the rules above read R31 back): nothing left for a next kscfg to relock.
+    if (op.write && op.reg == proto::kCodeWordRegister && op.value != proto::kCodeWord) {
+      c.unsure = false;
+      leave(p.key, c);
+    }
     if (p.progress) p.progress(p.values.size());
     if (p.values.size() == p.ops.size() && !p.close_after) finish(c);
   }
@@ -127,10 +163,20 @@ std::vector<Program*> AdsAccess::advance() {
 void AdsAccess::close_now(ChannelKey key) noexcept {
   auto it = chans_.find(key);
   if (it == chans_.end()) return;
-  if (--it->second.users == 0) chans_.erase(it);
-  else it->second.prog = nullptr;
+  if (--it->second.users == 0) {
+    // Its work ended with every request answered (an unlock meant to stay, or a relock that did
+    // not take, which the rules above reported): the entry goes. A request left unanswered keeps it.
+    if (!it->second.unsure) leave(key, it->second);
+    chans_.erase(it);
+  } else {
+    it->second.prog = nullptr;
+  }
 }
 
-void AdsAccess::close_all() noexcept { chans_.clear(); }
+void AdsAccess::close_all() noexcept {
+  for (auto& [key, c] : chans_)
+    if (!c.unsure) leave(key, c);
+  chans_.clear();
+}
 
 }  // namespace kscfg

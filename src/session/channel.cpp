@@ -89,7 +89,31 @@ Task<void> Channel::begin() {
     dead_pid_ = f.dead_pid;
     maybe_unlocked_ = true;  // relock at the end whatever happens
     co_await finish_leftover();
+  } else if (f.dead_unlocked && !dead_unlocked_) {
+    dead_unlocked_ = true;
+    dead_pid_ = f.dead_pid;
+    co_await finish_dead_unlock();
   }
+}
+
+Task<void> Channel::finish_dead_unlock() {
+  // Direct access has no register mode to find: R31 says whether the dead process's code word is
+  // still there. Anything else (locked, or another value) is not touched.
+  std::uint16_t v = co_await read(proto::kCodeWordRegister);
+  if (v != proto::kCodeWord) {
+    if (opt_.trace)
+      opt_.trace(fmt::format("{}: R31 reads 0x{:04X}; kscfg process {} had unlocked it, it is locked again", who(), v,
+                      dead_pid_));
+    co_return;
+  }
+  maybe_unlocked_ = true;  // relock at the end whatever happens
+  co_await write_checked(proto::kCodeWordRegister, 0);
+  std::uint16_t after = co_await read(proto::kCodeWordRegister);
+  if (after == 0) maybe_unlocked_ = false;
+  note(fmt::format("note: {} was left unlocked (R31 = 0x1235) by kscfg process {}, which ended without relocking it; "
+                   "{}",
+                   who(), dead_pid_,
+                   after == 0 ? "locked again, R31 reads 0x0000" : fmt::format("R31 still reads 0x{:04X}", after)));
 }
 
 Task<void> Channel::finish_leftover() {
@@ -124,7 +148,7 @@ Task<void> Channel::finish_leftover() {
 
 Task<bool> Channel::finish_dead() {
   co_await begin();
-  bool was = leftover_.has_value();
+  bool was = leftover_.has_value() || dead_unlocked_;
   co_await close();
   co_return was;
 }

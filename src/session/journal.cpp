@@ -145,6 +145,14 @@ void SessionJournal::enter(const Entry& e) {
   last_ctrl_[{e.position, e.channel}] = -1;
 }
 
+void SessionJournal::enter_direct(unsigned position, unsigned channel) {
+  if (!enabled()) return;
+  append(fmt::format("u {} {}\n", position, channel));
+  if (!enabled()) return;
+  ++open_;
+  last_ctrl_[{position, channel}] = -1;
+}
+
 void SessionJournal::control(unsigned position, unsigned channel, std::uint8_t ctrl) {
   if (!enabled() || fd_ < 0) return;
   auto it = last_ctrl_.find({position, channel});
@@ -174,6 +182,15 @@ std::vector<SessionJournal::Entry> SessionJournal::parse_open(std::string_view t
     if (line[0] == '+') {
       Entry e;
       if (parse_entry(std::string(rest), e)) open[{e.position, e.channel}] = std::move(e);
+    } else if (line[0] == 'u') {
+      auto w = words(rest, 3);
+      std::size_t p = 0, c = 0;
+      if (w.size() != 2 || !number(w[0], p) || !number(w[1], c) || p == 0 || p > 1024 || c > 256) continue;
+      Entry e;
+      e.position = static_cast<unsigned>(p);
+      e.channel = static_cast<unsigned>(c);
+      e.direct = true;
+      open[{e.position, e.channel}] = std::move(e);
     } else if (line[0] == '-' || line[0] == '>') {
       auto w = words(rest, 3);
       std::size_t p = 0, c = 0;

@@ -21,6 +21,12 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     bool done = true;
     try {
       for (const auto& e : d.open) {
+        if (e.direct) {
+          trace(fmt::format("journal of kscfg process {}: an entry of direct register access (ADS) for terminal {} "
+                            "in the journal of an image link; not touched",
+                            d.pid, e.position));
+          continue;
+        }
         // A session of a scan that had not identified the terminal yet (a type no catalog has) is
         // finished as one of an unknown type: only R31 and the control byte are touched.
         const TerminalType* type = catalog.find(e.type);
@@ -71,6 +77,43 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
           // have: not this station) will not.
           if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
           trace(fmt::format("finishing terminal {} left by kscfg process {}: {}", e.position, d.pid, err.what()));
+        }
+      }
+    } catch (...) {
+      SessionJournal::release(d, false);
+      throw;
+    }
+    SessionJournal::release(d, done);
+  }
+}
+
+void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal) {
+  if (!so.journal || !so.journal->enabled()) return;
+  auto trace = [&](const std::string& s) {
+    if (so.trace) so.trace(s);
+  };
+  for (auto& d : so.journal->claim_dead()) {
+    bool done = true;
+    try {
+      for (const auto& e : d.open) {
+        try {
+          const TerminalImage* t = e.direct ? terminal(e.position) : nullptr;
+          if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
+            trace(fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
+                              "of this station; not touched",
+                              d.pid, e.position, e.channel + 1));
+            continue;
+          }
+          Engine engine(access);
+          Channel ch(engine, *t, e.channel, so);
+          access.adopt_dead(ch.key(), e, d.pid);
+          engine.wait(ch.finish_dead());
+        } catch (const Error& err) {
+          if (err.code() == Exit::interrupted) throw;
+          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
+          trace(fmt::format("finishing terminal {} left unlocked by kscfg process {}: {}", e.position, d.pid,
+                            err.what()));
         }
       }
     } catch (...) {

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/session/journal.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
@@ -78,6 +79,9 @@ struct ChannelFound {
   std::optional<std::uint8_t> leftover;
   // The process that left it, when a session journal names it (0: unknown).
   long dead_pid = 0;
+  // Direct register access: that dead process's journal says it wrote the code word to this
+  // channel and never relocked it (SessionJournal::Entry::direct). The caller checks R31.
+  bool dead_unlocked = false;
 };
 
 class RegisterAccess {
@@ -109,6 +113,10 @@ class RegisterAccess {
   virtual void close_now(ChannelKey key) noexcept = 0;
   // Every open channel, closed at once as close_now() does (the end of a run). Never throws.
   virtual void close_all() noexcept = 0;
+
+  // An open channel left by a dead process, as its journal's entry `e` says (recovery.cpp): what
+  // found() then reports (the handshake also restores the bytes that session found).
+  virtual void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) = 0;
 
   // A terminal did not acknowledge: a cause beyond the terminal that the access knows (e.g. the
   // coupler's watchdog has switched the outputs off), to report instead.

@@ -1,7 +1,11 @@
 // AdsAccess: direct register access over ADS port 100 (docs/design.md section 7), the second
 // implementation of the register-access seam (access.hpp). The coupler reads and writes a
 // terminal's registers itself: no handshake, no byte of the process image touched, so nothing is
-// saved, put back or noted in a session journal, and a PLC that owns the image is never disturbed.
+// saved or put back, and a PLC that owns the image is never disturbed. The session journal notes
+// each channel the code word is written to, before it goes out, and leaves it once the channel is
+// locked again or its work ended with every request answered: a kscfg killed in between leaves
+// the entry, and the next kscfg on this coupler relocks the channel if R31 still holds the code
+// word (recovery.cpp; a deliberate 'kscfg unlock' that finished stays unlocked).
 // The safety rules above the seam (session/channel.hpp) are the same as over the handshake.
 //
 // Every advance() sends the next requests of every channel at once on the one connection (invoke
@@ -12,12 +16,14 @@
 #include <chrono>
 #include <functional>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/session/access.hpp"
+#include "kscfg/session/channel.hpp"
 
 namespace kscfg {
 
@@ -25,12 +31,13 @@ class AdsAccess final : public RegisterAccess {
  public:
   // `number(position)`: the terminal's number on port 100 (adsreg::terminal_number; 0: it has
   // none). `timeout` per request (raised to the manual's minimum for register reads).
-  AdsAccess(AdsClient& client, std::function<unsigned(unsigned position)> number, std::chrono::milliseconds timeout,
-            const std::atomic<bool>* cancel = nullptr);
+  // From `so`: the timeout, cancellation, the journal and the after-write hook.
+  AdsAccess(AdsClient& client, std::function<unsigned(unsigned position)> number, const SessionOptions& so);
 
   std::string describe() const override { return client_.target().uri; }
   void open(const TerminalImage& t, unsigned channel) override;
-  ChannelFound found(ChannelKey) const override { return {}; }
+  ChannelFound found(ChannelKey key) const override;
+  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) override;
   void submit(Program& p) override;
   std::vector<Program*> advance() override;
   bool busy() const override;
@@ -43,11 +50,17 @@ class AdsAccess final : public RegisterAccess {
     adsreg::RegisterAccess::Address addr;  // terminal number and channel; the register per request
     unsigned users = 1;
     Program* prog = nullptr;
+    bool journaled = false;  // the journal has its "u" entry open
+    bool unsure = false;     // a request of it went unanswered: the entry stays at the end
+    long dead_pid = 0;       // adopt_dead()
   };
+  void leave(ChannelKey key, Chan& c) noexcept;
   AdsClient& client_;
   adsreg::RegisterAccess regs_;
   std::function<unsigned(unsigned)> number_;
   const std::atomic<bool>* cancel_;
+  std::shared_ptr<SessionJournal> journal_;
+  std::function<void(unsigned reg)> after_write_;
   std::map<ChannelKey, Chan> chans_;
 };
 

@@ -161,6 +161,7 @@ class Channel {
   Task<void> exec(Program& p);  // runs p on this channel; throws its error
   Task<void> begin();           // the channel ready; a leftover finished
   Task<void> finish_leftover();
+  Task<void> finish_dead_unlock();
   Task<void> write_checked(unsigned reg, std::uint16_t value);
   Task<void> relock_write();
   // write_masked's change as one program; returns the read-back values (the registers, then R31).
@@ -175,6 +176,7 @@ class Channel {
   std::optional<std::uint8_t> leftover_;  // the control byte found with REG set
   bool leftover_done_ = false;
   long dead_pid_ = 0;
+  bool dead_unlocked_ = false;  // direct access: a dead process's journal says it unlocked this channel
   bool unlocked_ = false, maybe_unlocked_ = false, unlock_checked_ = false;
   unsigned shield_ = 0;  // > 0: clean-up, runs after cancellation too
   std::optional<std::uint16_t> expect_r8_;

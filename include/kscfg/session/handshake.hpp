@@ -80,7 +80,7 @@ class HandshakeAccess final : public RegisterAccess {
 
   // Journal entries of a dead process: the channel's process-data bytes as that session found them
   // (restored instead of the idle bytes a leftover gets), and the process named in notes.
-  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid);
+  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) override;
 
   const HandshakeOptions& options() const { return opt_; }
 

@@ -19,6 +19,9 @@
 //   + POS CH CTRL STATUS OUT_LO OUT_HI IN_LO IN_HI SAVED_AT SAVEDHEX TYPE   entered (register window)
 //   > POS CH XX                                   the control byte goes to 0xXX (written before it is sent)
 //   - POS CH                                      left: the process-data bytes are back
+//   u POS CH                                      direct register access (ADS port 100, no image
+//                                                 bytes): the code word goes to R31 (written
+//                                                 before it is sent); "- POS CH" once relocked
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -44,6 +47,9 @@ class SessionJournal {
     // The last control bytes it wrote, the latest last (at most two: a kill -9 between the line and
     // the exchange leaves the one before on the coupler). Empty: it never wrote one.
     std::vector<std::uint8_t> ctrl;
+    // An entry of direct register access ("u"): the process wrote the code word to this channel
+    // and had not relocked it. No window, no saved bytes, no type.
+    bool direct = false;
   };
   // Longest journal read; a journal holds a few lines, more is not one of ours.
   static constexpr std::size_t kMaxJournalBytes = 256 * 1024;
@@ -71,6 +77,9 @@ class SessionJournal {
   // The control byte of an entered channel goes to `ctrl` (noted only when it changes).
   void control(unsigned position, unsigned channel, std::uint8_t ctrl);
   void leave(unsigned position, unsigned channel);
+  // Direct register access (no image bytes): before the code word goes to R31 of a channel. Left
+  // with leave() once it is locked again.
+  void enter_direct(unsigned position, unsigned channel);
   const std::string& why() const { return why_; }
 
   // The journals of this port whose processes are gone, each locked until release(). Journals of

@@ -86,4 +86,11 @@ class RegisterSession {
 void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
                           const std::function<bool(const SessionJournal::Entry&)>& fits = {});
 
+// The same for direct register access (ADS port 100, AdsAccess): each channel a dead process's
+// journal says it unlocked ("u" entries) is relocked through `access` when R31 still holds the code
+// word, with a note. `terminal(position)`: the station's terminal there (nullptr: none; the entry
+// is then not this station's and dropped untouched). Never throws but Error(interrupted).
+void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal);
+
 }  // namespace kscfg
