@@ -1,7 +1,8 @@
 // libFuzzer: the session journal's parser (session/journal.hpp; issue 21 item 3). Any text gives
 // the open entries within the parser's limits, and nothing else: positions 1..1024, channels up to
 // 256, image offsets below 512, at most 512 saved bytes and two control bytes per entry; an entry
-// written with format_entry() reads back the same. Nothing throws.
+// written with format_entry() reads back the same; an entry of direct access ("u") has nothing but
+// its position and channel. Nothing throws.
 #include <cstdint>
 #include <string_view>
 
@@ -13,10 +14,15 @@ using kscfg::SessionJournal;
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   std::string_view text(reinterpret_cast<const char*>(data), size);
   auto open = SessionJournal::parse_open(text);
-  FUZZ_CHECK(open.size() <= size / 20 + 1);  // an entry line has more than 20 characters
+  FUZZ_CHECK(open.size() <= size / 6 + 1);  // an entry line has at least 6 characters ("u 1 0\n")
   for (const auto& e : open) {
     FUZZ_CHECK(e.position >= 1 && e.position <= 1024);
     FUZZ_CHECK(e.channel <= 256);
+    if (e.direct) {
+      // Direct register access ("u POS CH"): no type, window or saved bytes.
+      FUZZ_CHECK(e.type.empty() && e.saved.empty() && e.saved_at == 0);
+      continue;
+    }
     FUZZ_CHECK(!e.type.empty() && e.type.size() <= 64);
     FUZZ_CHECK(e.saved.size() <= 512 && e.ctrl.size() <= 2);
     const auto& w = e.window;

@@ -125,6 +125,11 @@ TEST_CASE("session journal: the open entries of a journal's text, with the last 
   CHECK(open[1].position == 4);
   CHECK(open[1].channel == 1);
   CHECK(open[1].ctrl.empty());  // it never wrote a control byte: nothing of it to finish
+  // Direct register access (ADS): "u POS CH" opens an entry with nothing but its place; "-" closes it.
+  auto direct = SessionJournal::parse_open("u 1 0\nu 2 0\n- 2 0\nu 0 1\nu 5 300\nu 4 1 x\n> 1 0 88\nu 7 3\nu 9 0");
+  REQUIRE(direct.size() == 2);
+  CHECK((direct[0].direct && direct[0].position == 1 && direct[0].channel == 0 && direct[0].type.empty()));
+  CHECK((direct[1].direct && direct[1].position == 7 && direct[1].channel == 3));
   std::string big(SessionJournal::kMaxJournalBytes + 100, '\n');
   big.replace(big.size() - 60, 45, "+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 88\n");
   CHECK(SessionJournal::parse_open(big).empty());  // beyond the limit: not looked at
