@@ -332,6 +332,7 @@ def adskill9(C, kind, n, seed, work):
         spans[op] = max(time.monotonic() - t0, 0.02)
     tg.stop(t)
     half = 0
+    relocked = 0  # channels the read after a kill locked again from the dead process's journal
     outcomes = {"old": 0, "new": 0, "mixed": 0}
     for i in range(n):
         op = rnd.choice(["write", "apply", "backup"])
@@ -356,6 +357,7 @@ def adskill9(C, kind, n, seed, work):
         t.add("tried")
         pos = tg.pos[typ]
         rc, out, err = tg.kscfg(uri, ["-t", str(pos), "read", "--raw", "R33" if typ == "KL6001" else "R36"])
+        relocked += err.count("was left unlocked (R31 = 0x1235) by kscfg process")
         left = unlocked(tg)
         tg.stop(t)
         res = C.outcome(rc, err)
@@ -378,6 +380,7 @@ def adskill9(C, kind, n, seed, work):
     if half:
         t.note(f"{half} apply(s) killed between the two channels' writes: one channel new, one old")
     t.note(f"writes and applies killed: {outcomes['old']} left old, {outcomes['new']} new, {outcomes['mixed']} mixed")
+    t.note(f"{relocked} channel(s) a killed kscfg had left unlocked locked again by the next read (journal)")
     tg.close()
     return t
 
