@@ -406,8 +406,11 @@ std::string station_to_toml(const StationSpec& spec) {
     std::string comment = i < spec.comments.size() && !spec.comments[i].empty() ? toml_comment(spec.comments[i]) : "";
     out += fmt::format("\n[[terminal]]\n{}type = {}\n", comment, toml_string(t.type));
     if (t.position) out += fmt::format("position = {}\n", t.position);
-    if (t.channels.size() == 1) {
-      channel_toml(out, t.channels[0]);  // one channel: its settings under [[terminal]]
+    // Only channel 1 configured (an empty [[terminal.channel]] after it configures nothing): its
+    // settings under [[terminal]], as they read back.
+    if (!t.channels.empty() &&
+        std::all_of(t.channels.begin() + 1, t.channels.end(), [](const ChannelSpec& c) { return c.empty(); })) {
+      channel_toml(out, t.channels[0]);
       continue;
     }
     // Several channels: each configured one in its own table, named by number (order carries no

@@ -126,6 +126,15 @@ TEST_CASE("station file: what station_to_toml writes reads back as the same stat
   CHECK(station_to_toml(back) == text);
 }
 
+TEST_CASE("station file: channel 1 under [[terminal]] and an empty [[terminal.channel]] after it write as they read "
+          "back (found by fuzz_station)",
+          "[station][channels]") {
+  auto s = parse("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL3022\"\nR37 = 0x0001\n[[terminal.channel]]\n");
+  std::string text = station_to_toml(s);
+  CHECK(text == "coupler = \"BK9000\"\n\n[[terminal]]\ntype = \"KL3022\"\nR37 = 0x0001\n");
+  CHECK(station_to_toml(parse(text)) == text);
+}
+
 TEST_CASE("station file: names with quotes, backslashes and control characters are escaped", "[station]") {
   CHECK(toml_string("KL\"6001") == "\"KL\\\"6001\"");
   CHECK(toml_string("a\\b\n\t\x01") == "\"a\\\\b\\n\\t\\u0001\"");
