@@ -11,72 +11,27 @@
 
 namespace kscfg {
 
-void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
+namespace {
+
+// Each open entry of each dead journal of this port, handed to `finish`. An error other than an
+// interrupt is traced ("finishing terminal N LEFT by kscfg process P: ..."); one of the line (link,
+// timeout) may pass next time and keeps the journal, anything else (an address the coupler does not
+// have: not this station) will not. A journal is released once its entries were tried.
+void each_dead_entry(const SessionOptions& so, const char* left,
+                     const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish) {
   if (!so.journal || !so.journal->enabled()) return;
-  auto trace = [&](const std::string& s) {
-    if (so.trace) so.trace(s);
-  };
   for (auto& d : so.journal->claim_dead()) {
     bool done = true;
     try {
       for (const auto& e : d.open) {
-        if (e.direct) {
-          trace(fmt::format("journal of kscfg process {}: an entry of direct register access (ADS) for terminal {} "
-                            "in the journal of an image link; not touched",
-                            d.pid, e.position));
-          continue;
-        }
-        // A session of a scan that had not identified the terminal yet (a type no catalog has) is
-        // finished as one of an unknown type: only R31 and the control byte are touched.
-        const TerminalType* type = catalog.find(e.type);
-        TerminalType unknown;
-        if (!type || !type->has_registers || e.channel >= type->channels) {
-          unknown.type = "type unknown";
-          unknown.has_registers = true;
-          unknown.channels = e.channel + 1;
-          type = &unknown;
-        }
-        const RegisterWindow& w = e.window;
         try {
-          // A journal is input like any other (issue 21 item 3): its entry must describe the terminal
-          // at that position of this station (its type and register window), or nothing is touched.
-          if (fits && !fits(e)) {
-            trace(fmt::format("journal of kscfg process {}: terminal {} ({}) with control byte at output byte {} "
-                              "is not this station's; not touched",
-                              d.pid, e.position, e.type, w.ctrl));
-            continue;
-          }
-          // Only a terminal that shows register mode now, in its control byte and in the status byte
-          // that answers it, with a control byte the dead session wrote: otherwise it was finished
-          // already, or it is not that session's (another master's), and nothing is touched.
-          std::uint8_t ctrl = 0, status = 0;
-          link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-          link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
-          if (!(ctrl & proto::kReg) || !(status & proto::kReg)) continue;
-          if (std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
-            trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
-                              "process did not write last; not touched",
-                              d.pid, e.position, ctrl));
-            continue;
-          }
-          TerminalImage t;
-          t.position = e.position;
-          t.type = type;
-          t.complex = true;
-          t.channels.resize(e.channel + 1);
-          t.channels[e.channel].window = w;
-          HandshakeAccess access(link, handshake_options(so));
-          Engine engine(access);
-          Channel ch(engine, t, e.channel, so);
-          access.adopt_dead(ch.key(), e, d.pid);
-          engine.wait(ch.finish_dead());
+          finish(d, e);
         } catch (const Error& err) {
           if (err.code() == Exit::interrupted) throw;
-          // A line that failed may work next time; anything else (an address the coupler does not
-          // have: not this station) will not.
           if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
-          trace(fmt::format("finishing terminal {} left by kscfg process {}: {}", e.position, d.pid, err.what()));
+          if (so.trace)
+            so.trace(fmt::format("finishing terminal {} {} by kscfg process {}: {}", e.position, left, d.pid,
+                                 err.what()));
         }
       }
     } catch (...) {
@@ -87,41 +42,82 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
   }
 }
 
-void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
-                                 const std::function<const TerminalImage*(unsigned position)>& terminal) {
-  if (!so.journal || !so.journal->enabled()) return;
+}  // namespace
+
+void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
   };
-  for (auto& d : so.journal->claim_dead()) {
-    bool done = true;
-    try {
-      for (const auto& e : d.open) {
-        try {
-          const TerminalImage* t = e.direct ? terminal(e.position) : nullptr;
-          if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
-            trace(fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
-                              "of this station; not touched",
-                              d.pid, e.position, e.channel + 1));
-            continue;
-          }
-          Engine engine(access);
-          Channel ch(engine, *t, e.channel, so);
-          access.adopt_dead(ch.key(), e, d.pid);
-          engine.wait(ch.finish_dead());
-        } catch (const Error& err) {
-          if (err.code() == Exit::interrupted) throw;
-          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
-          trace(fmt::format("finishing terminal {} left unlocked by kscfg process {}: {}", e.position, d.pid,
-                            err.what()));
-        }
-      }
-    } catch (...) {
-      SessionJournal::release(d, false);
-      throw;
+  each_dead_entry(so, "left", [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
+    if (e.direct) {
+      trace(fmt::format("journal of kscfg process {}: an entry of direct register access (ADS) for terminal {} "
+                        "in the journal of an image link; not touched",
+                        d.pid, e.position));
+      return;
     }
-    SessionJournal::release(d, done);
-  }
+    // A session of a scan that had not identified the terminal yet (a type no catalog has) is
+    // finished as one of an unknown type: only R31 and the control byte are touched.
+    const TerminalType* type = catalog.find(e.type);
+    TerminalType unknown;
+    if (!type || !type->has_registers || e.channel >= type->channels) {
+      unknown.type = "type unknown";
+      unknown.has_registers = true;
+      unknown.channels = e.channel + 1;
+      type = &unknown;
+    }
+    const RegisterWindow& w = e.window;
+    // A journal is input like any other (issue 21 item 3): its entry must describe the terminal
+    // at that position of this station (its type and register window), or nothing is touched.
+    if (fits && !fits(e)) {
+      trace(fmt::format("journal of kscfg process {}: terminal {} ({}) with control byte at output byte {} "
+                        "is not this station's; not touched",
+                        d.pid, e.position, e.type, w.ctrl));
+      return;
+    }
+    // Only a terminal that shows register mode now, in its control byte and in the status byte
+    // that answers it, with a control byte the dead session wrote: otherwise it was finished
+    // already, or it is not that session's (another master's), and nothing is touched.
+    std::uint8_t ctrl = 0, status = 0;
+    link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
+    link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
+    if (!(ctrl & proto::kReg) || !(status & proto::kReg)) return;
+    if (std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
+      trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
+                        "process did not write last; not touched",
+                        d.pid, e.position, ctrl));
+      return;
+    }
+    TerminalImage t;
+    t.position = e.position;
+    t.type = type;
+    t.complex = true;
+    t.channels.resize(e.channel + 1);
+    t.channels[e.channel].window = w;
+    HandshakeAccess access(link, handshake_options(so));
+    Engine engine(access);
+    Channel ch(engine, t, e.channel, so);
+    access.adopt_dead(ch.key(), e, d.pid);
+    engine.wait(ch.finish_dead());
+  });
+}
+
+void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal) {
+  each_dead_entry(so, "left unlocked", [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
+    const TerminalImage* t = e.direct ? terminal(e.position) : nullptr;
+    if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
+      if (so.trace)
+        so.trace(fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
+                             "of this station; not touched",
+                             d.pid, e.position, e.channel + 1));
+      return;
+    }
+    Engine engine(access);
+    Channel ch(engine, *t, e.channel, so);
+    access.adopt_dead(ch.key(), e, d.pid);
+    engine.wait(ch.finish_dead());
+  });
 }
 
 }  // namespace kscfg
