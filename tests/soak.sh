@@ -65,6 +65,11 @@ for i in $(seq 1 "$rounds"); do
     failed=$(grep -E '^\s+[0-9]+ - ' "$logs/round-$i.log" | sed 's/^ *[0-9]* - //' | paste -sd ';' -)
     failures+=("round $i: $failed")
     echo "soak: round $i/$rounds FAILED ($((SECONDS - t)) s): $failed (log: $logs/round-$i.log)"
+    # What each failed test printed, so that a CI log that keeps only stdout says why (at most 200
+    # lines a round).
+    awk '/^ *[0-9]+\/[0-9]+ Test +#[0-9]+: .*\*\*\*(Failed|Timeout|Exception)/ { on = 1; print; next }
+         /^ *[0-9]+\/[0-9]+ Test +#[0-9]+: / || /^ +Start +[0-9]+: / { on = 0 }
+         on { print }' "$logs/round-$i.log" | head -n 200 | sed 's/^/soak:   | /'
   fi
 done
 echo "soak: $passed of $rounds rounds passed under load (stress-ng --cpu $cpus) in $((SECONDS - start)) s"
