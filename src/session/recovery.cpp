@@ -6,6 +6,7 @@
 #include <algorithm>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/interrupt.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -15,8 +16,9 @@ namespace {
 
 // Each open entry of each dead journal of this port, handed to `finish`. An error other than an
 // interrupt is traced ("finishing terminal N LEFT by kscfg process P: ..."); one of the line (link,
-// timeout) may pass next time and keeps the journal, anything else (an address the coupler does not
-// have: not this station) will not. A journal is released once its entries were tried.
+// timeout) may pass next time and keeps the journal, with a warning (also without -v: the terminal
+// may be left as the dead process left it); anything else (an address the coupler does not have:
+// not this station) will not. A journal is released once its entries were tried.
 void each_dead_entry(const SessionOptions& so, const char* left,
                      const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish) {
   if (!so.journal || !so.journal->enabled()) return;
@@ -28,10 +30,16 @@ void each_dead_entry(const SessionOptions& so, const char* left,
           finish(d, e);
         } catch (const Error& err) {
           if (err.code() == Exit::interrupted) throw;
-          if (err.code() == Exit::link || err.code() == Exit::timeout) done = false;
-          if (so.trace)
-            so.trace(fmt::format("finishing terminal {} {} by kscfg process {}: {}", e.position, left, d.pid,
-                                 err.what()));
+          std::string what =
+              fmt::format("finishing terminal {} {} by kscfg process {}: {}", e.position, left, d.pid, err.what());
+          if (err.code() == Exit::link || err.code() == Exit::timeout) {
+            // Not finished, and this run goes on: said on stderr, not only with -v.
+            done = false;
+            if (so.notice) so.notice("warning: " + what + "; the next kscfg on this port tries again (session journal)");
+            else if (so.trace) so.trace(what);
+          } else if (so.trace) {
+            so.trace(what);
+          }
         }
       }
     } catch (...) {
@@ -40,6 +48,25 @@ void each_dead_entry(const SessionOptions& so, const char* left,
     }
     SessionJournal::release(d, done);
   }
+}
+
+// The status byte of `w` once it shows REG, read again every millisecond up to the ack timeout;
+// Error(timeout) when it does not (the journal stays: the next run tries again).
+void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ctrl, const SessionOptions& so,
+                            const std::string& what) {
+  auto start = std::chrono::steady_clock::now();
+  std::uint8_t status = 0;
+  for (;;) {
+    link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
+    if (status & proto::kReg) return;
+    if (std::chrono::steady_clock::now() - start > so.timeout) break;
+    static const std::atomic<bool> never{false};
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(1), so.cancel ? *so.cancel : never))
+      throw Error(Exit::interrupted, "interrupted");
+  }
+  throw Error(Exit::timeout, fmt::format("{} does not take control byte 0x{:02X}: its status byte reads 0x{:02X}, "
+                                         "not register mode, after {} ms",
+                                         what, ctrl, status, so.timeout.count()));
 }
 
 }  // namespace
@@ -78,16 +105,20 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     // Only a terminal that shows register mode now, in its control byte and in the status byte
     // that answers it, with a control byte the dead session wrote: otherwise it was finished
     // already, or it is not that session's (another master's), and nothing is touched.
-    std::uint8_t ctrl = 0, status = 0;
+    std::uint8_t ctrl = 0;
     link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-    link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
-    if (!(ctrl & proto::kReg) || !(status & proto::kReg)) return;
+    if (!(ctrl & proto::kReg)) return;
     if (std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
       trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
                         "process did not write last; not touched",
                         d.pid, e.position, ctrl));
       return;
     }
+    // A process killed right after its first request leaves a control byte the terminal has not
+    // taken yet: the status byte shows REG a K-bus cycle or two later (more on a loaded coupler).
+    // Waited for as any acknowledge, up to the timeout; taken for finished, it would stay in
+    // register mode with its journal gone.
+    wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
     TerminalImage t;
     t.position = e.position;
     t.type = type;
