@@ -384,3 +384,21 @@ TEST_CASE("peeks ride with an exchange: over TCP anywhere, over RTU only inside 
     CHECK_FALSE(c_far);
   }
 }
+
+TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on the coupler, also one still learning",
+          "[modbus][ack]") {
+  Served s;
+  auto link = s.link();
+  Link::AckTiming* t1 = link->ack_timing(1);
+  REQUIRE(t1);
+  CHECK(t1->wait.count() == 0);  // nothing known: learn
+  // Terminal 1 timed one acknowledge of 1.5 ms (a cold scan reads too few registers to finish learning).
+  t1->samples = 1;
+  t1->longest = std::chrono::microseconds(1500);
+  Link::AckTiming* t2 = link->ack_timing(2);
+  CHECK(t2->wait == std::chrono::microseconds(1500));
+  CHECK(t2->suspect);  // a guess: probed below
+  // A learned wait counts as it is.
+  t1->wait = std::chrono::microseconds(3000);
+  CHECK(link->ack_timing(3)->wait == std::chrono::microseconds(3000));
+}
