@@ -8,6 +8,7 @@ namespace kscfg {
 void Link::transfer(std::span<const ImageTransfer> t) {
   std::size_t lo = SIZE_MAX, hi = 0;
   for (const auto& x : t) {
+    if (x.peek) continue;  // not carried: this default has no exchange to add it to
     if (!x.out.empty()) write_outputs(x.out_offset, x.out);
     if (!x.in.empty()) {
       lo = std::min(lo, x.in_offset);
@@ -19,7 +20,7 @@ void Link::transfer(std::span<const ImageTransfer> t) {
   std::vector<std::uint8_t> in(hi - lo);
   read_inputs(lo, in);
   for (const auto& x : t)
-    if (!x.in.empty()) std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - lo), x.in.size(), x.in.begin());
+    if (!x.peek && !x.in.empty()) std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - lo), x.in.size(), x.in.begin());
 }
 
 }  // namespace kscfg

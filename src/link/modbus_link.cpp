@@ -30,9 +30,11 @@ ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
   auto it = timings_.find(position);
   if (it == timings_.end()) {
     // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
-    // may be too long (probed below).
+    // may be too long (probed below). One still learning counts with the longest acknowledge it
+    // timed: a cold scan reads only a few registers of each terminal, too few to finish learning,
+    // and every terminal of the walk would otherwise poll from 500 us again.
     AckTiming t;
-    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait);
+    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
     t.suspect = t.wait.count() > 0;
     it = timings_.emplace(position, t).first;
   }
@@ -127,8 +129,8 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
   // shorter than this is cheaper to carry than a request of its own. Over TCP a request costs a
   // round trip: every transfer that fits goes in one.
   const std::size_t bridge = client_.target().tcp ? SIZE_MAX : 24;
-  std::vector<std::size_t> order(t.size());
-  for (std::size_t i = 0; i < t.size(); ++i) order[i] = i;
+  std::vector<std::size_t> order, peeks;
+  for (std::size_t i = 0; i < t.size(); ++i) (t[i].peek ? peeks : order).push_back(i);
   auto lo_of = [&](std::size_t i) {
     return std::min(t[i].out.empty() ? SIZE_MAX : t[i].out_offset, t[i].in.empty() ? SIZE_MAX : t[i].in_offset);
   };
@@ -159,6 +161,18 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
       }
       w = w2;
       r = r2;
+    }
+    // Peeks ride along where they cost nothing: over TCP anywhere within the read limit (a request
+    // costs a round trip, not its bytes), over RTU only inside the span read anyway.
+    std::vector<std::size_t> rode;
+    for (std::size_t& i : peeks) {
+      if (i == SIZE_MAX || t[i].in.empty()) continue;
+      Span r2 = r;
+      r2.add(t[i].in_offset, t[i].in.size());
+      if (r2.words() > mbmap::kMaxRead || (bridge != SIZE_MAX && r2.words() != r.words())) continue;
+      r = r2;
+      rode.push_back(i);
+      i = SIZE_MAX;
     }
     std::vector<std::uint8_t> out;
     if (!w.empty()) {
@@ -191,6 +205,11 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
       const ImageTransfer& x = t[order[k]];
       if (!x.in.empty())
         std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - r.lo), x.in.size(), x.in.begin());
+    }
+    for (std::size_t i : rode) {
+      const ImageTransfer& x = t[i];
+      std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - r.lo), x.in.size(), x.in.begin());
+      if (x.carried) *x.carried = true;
     }
     g = end;
   }

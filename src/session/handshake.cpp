@@ -352,6 +352,24 @@ std::vector<Program*> HandshakeAccess::advance() {
     }
     xs.push_back(x);
   }
+  // Channels waiting for an answer that is not due yet: their status bytes go with this exchange
+  // where the link carries them at no cost. An answer there is taken at once, so terminals whose
+  // answers came at different times (a coupler with random latency, a probe) meet again in one
+  // exchange instead of each polling on its own (docs/design.md section 7).
+  std::vector<Chan*> peeks;
+  if (link_.pipelines())
+    for (auto& [k, c] : chans_) {
+      c.peeked = false;
+      if (!c.prog || c.act != Act::none || !c.req || !c.ready || c.closed) continue;
+      c.in.assign(c.in_hi - c.in_lo + 1, 0);
+      ImageTransfer x;
+      x.in_offset = c.in_lo;
+      x.in = c.in;
+      x.peek = true;
+      x.carried = &c.peeked;
+      xs.push_back(x);
+      peeks.push_back(&c);
+    }
   auto t = Clock::now();
   // Clean-up after SIGINT/SIGTERM (only shielded programs left) exchanges as if there were no
   // interrupt, so that the link does not cut its waits short; a second signal still does
@@ -369,6 +387,8 @@ std::vector<Program*> HandshakeAccess::advance() {
     return done;
   }
   for (Chan* c : act) result(*c, t, done);
+  for (Chan* c : peeks)
+    if (c->peeked && c->prog && c->req) peek_result(*c, t, done);
   return done;
 }
 

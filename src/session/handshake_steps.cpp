@@ -112,6 +112,15 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   }
 }
 
+void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
+  // Not a poll: a status that does not answer yet changes nothing (no count, no timing, no
+  // timeout); one that does is taken as this request's first poll would take it.
+  if (!proto::is_ack(c.in[c.w.status - c.in_lo], c.req->reg)) return;
+  c.act = Act::poll;
+  note_trace(fmt::format("{}: R{} answered, seen with another terminal's exchange", who(c), c.req->reg));
+  result(c, t, done);
+}
+
 void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
   auto status = [&] { return c.in[c.w.status - c.in_lo]; };
   auto value = [&] {

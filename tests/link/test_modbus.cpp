@@ -343,3 +343,62 @@ TEST_CASE("RTU over a pseudo-terminal pair", "[modbus]") {
   CHECK(code == Exit::link);
   CHECK_THAT(e, Catch::Contains("refuses parity E"));
 }
+
+TEST_CASE("peeks ride with an exchange: over TCP anywhere, over RTU only inside the span read anyway, never alone",
+          "[modbus][peek]") {
+  for (auto mode : {ServeOptions::Mode::tcp, ServeOptions::Mode::pty}) {
+    ServeOptions o;
+    o.mode = mode;
+    Served s(o);
+    auto link = s.link();
+    bool tcp = mode == ServeOptions::Mode::tcp;
+    INFO((tcp ? "TCP" : "RTU"));
+    const auto& in = s.station.inputs();
+    // A read of input bytes 0..1 (terminal 1's status), a peek inside that span and one at byte 40.
+    std::vector<std::uint8_t> a(2), inside(1, 0xEE), far(2, 0xEE);
+    bool c_inside = false, c_far = false;
+    std::vector<ImageTransfer> xs(3);
+    xs[0].in_offset = 0;
+    xs[0].in = a;
+    xs[1].in_offset = 1;
+    xs[1].in = inside;
+    xs[1].peek = true;
+    xs[1].carried = &c_inside;
+    xs[2].in_offset = 40;
+    xs[2].in = far;
+    xs[2].peek = true;
+    xs[2].carried = &c_far;
+    std::size_t before = link->exchanges();
+    link->transfer(xs);
+    CHECK(link->exchanges() - before == 1);
+    CHECK(c_inside);
+    CHECK(inside[0] == in[1]);
+    CHECK(c_far == tcp);
+    CHECK(far == (tcp ? std::vector<std::uint8_t>{in[40], in[41]} : std::vector<std::uint8_t>(2, 0xEE)));
+    // Peeks alone make no exchange.
+    c_inside = c_far = false;
+    before = link->exchanges();
+    link->transfer(std::span<const ImageTransfer>(xs.data() + 1, 2));
+    CHECK(link->exchanges() == before);
+    CHECK_FALSE(c_inside);
+    CHECK_FALSE(c_far);
+  }
+}
+
+TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on the coupler, also one still learning",
+          "[modbus][ack]") {
+  Served s;
+  auto link = s.link();
+  Link::AckTiming* t1 = link->ack_timing(1);
+  REQUIRE(t1);
+  CHECK(t1->wait.count() == 0);  // nothing known: learn
+  // Terminal 1 timed one acknowledge of 1.5 ms (a cold scan reads too few registers to finish learning).
+  t1->samples = 1;
+  t1->longest = std::chrono::microseconds(1500);
+  Link::AckTiming* t2 = link->ack_timing(2);
+  CHECK(t2->wait == std::chrono::microseconds(1500));
+  CHECK(t2->suspect);  // a guess: probed below
+  // A learned wait counts as it is.
+  t1->wait = std::chrono::microseconds(3000);
+  CHECK(link->ack_timing(3)->wait == std::chrono::microseconds(3000));
+}

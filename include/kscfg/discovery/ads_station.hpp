@@ -7,6 +7,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/ads_client.hpp"
+#include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 

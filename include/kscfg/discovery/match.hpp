@@ -5,6 +5,7 @@
 #include <string>
 
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"

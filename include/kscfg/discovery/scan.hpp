@@ -10,6 +10,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
+#include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"

@@ -13,6 +13,7 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/link/modbus_client.hpp"
+#include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg {

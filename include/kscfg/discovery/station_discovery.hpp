@@ -8,7 +8,7 @@
 
 namespace kscfg {
 
-struct ScanResult;  // discovery/scan.hpp
+struct ScanResult;  // discovery/scan_result.hpp
 
 class StationDiscovery {
  public:

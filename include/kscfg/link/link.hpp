@@ -24,6 +24,11 @@ struct ImageTransfer {
   std::span<const std::uint8_t> out;
   std::size_t in_offset = 0;
   std::span<std::uint8_t> in;
+  // A read the link may carry where it costs nothing (a terminal's status looked at while it waits
+  // for an answer, with another terminal's exchange): never an exchange of its own. The link sets
+  // *carried when it read it; a peek has no out bytes.
+  bool peek = false;
+  bool* carried = nullptr;
 };
 
 class Link {

@@ -119,6 +119,7 @@ class HandshakeAccess final : public RegisterAccess {
     Act act = Act::none;
     bool with_ahead = false, with_restore = false, look_with_send = false;
     bool probe_next = false;  // the request being sent is decision 2's other register
+    bool peeked = false;      // its status came with another channel's exchange (ImageTransfer::peek)
     std::vector<std::uint8_t> in;
     std::size_t out_at = 0, out_n = 0;
   };
@@ -145,6 +146,8 @@ class HandshakeAccess final : public RegisterAccess {
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
+  // A status that came with another channel's exchange: taken if it answers the request.
+  void peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
   void finish(Chan& c, std::vector<Program*>& done);
   void fail(Chan& c, Error e, std::vector<Program*>& done);
   void put_request(Chan& c, bool write, unsigned reg, std::uint16_t value);

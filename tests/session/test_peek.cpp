@@ -1,0 +1,139 @@
+// The station engine's peeks (ImageTransfer::peek): a terminal waiting for an answer looks at its
+// status with another terminal's exchange, so terminals that answer at different speeds do not
+// each poll on their own. Against a scripted coupler whose K-bus runs one cycle per exchange and
+// carries terminal 2's control byte two exchanges late (a slower terminal), and against the Modbus
+// link's span rules (TCP carries a peek anywhere, RTU only inside the span it reads anyway).
+#include <catch2/catch.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <deque>
+#include <map>
+
+#include "kscfg/emulator/emulator.hpp"
+#include "kscfg/session/engine.hpp"
+#include "kscfg/session/handshake.hpp"
+#include "kscfg/session/session.hpp"
+#include "kscfg/session/station_work.hpp"
+#include "kscfg/station/station.hpp"
+
+using namespace kscfg;
+
+namespace {
+
+const Catalog& cat() { return Catalog::standard(); }
+
+// A pipelining coupler in one process: a read shows the inputs of the last K-bus cycle, then the
+// writes reach the terminals and one cycle runs. The bytes of `slow_range` reach the terminals
+// `lag` exchanges late.
+class ScriptedCoupler : public Link {
+ public:
+  ScriptedCoupler(EmulatedStation& st, std::pair<std::size_t, std::size_t> slow_range, unsigned lag)
+      : st_(st), master_(st.outputs()), slow_(slow_range), lag_(lag) {}
+  std::string describe() const override { return "scripted coupler"; }
+  bool pipelines() const override { return true; }
+  AckTiming* ack_timing(unsigned position) override { return &timing_[position]; }
+  void read_inputs(std::size_t o, std::span<std::uint8_t> d) override {
+    std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(o), d.size(), d.begin());
+    exchange();
+  }
+  void read_outputs(std::size_t o, std::span<std::uint8_t> d) override {
+    std::copy_n(master_.begin() + static_cast<std::ptrdiff_t>(o), d.size(), d.begin());
+  }
+  void write_outputs(std::size_t o, std::span<const std::uint8_t> s) override {
+    std::copy(s.begin(), s.end(), master_.begin() + static_cast<std::ptrdiff_t>(o));
+    exchange();
+  }
+  void transfer(std::span<const ImageTransfer> t) override {
+    for (const auto& x : t)
+      if (!x.out.empty()) std::copy(x.out.begin(), x.out.end(), master_.begin() + static_cast<std::ptrdiff_t>(x.out_offset));
+    for (const auto& x : t) {
+      if (x.in.empty()) continue;
+      std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(x.in_offset), x.in.size(), x.in.begin());
+      if (x.carried) *x.carried = true;
+    }
+    exchange();
+  }
+  std::size_t exchanges_seen = 0;
+  void expect(unsigned position, std::chrono::microseconds wait) { timing_[position].wait = wait; }
+
+ private:
+  void exchange() {
+    ++exchanges_seen;
+    history_.push_back(master_);
+    if (history_.size() > lag_ + 1) history_.pop_front();
+    auto& out = st_.outputs();
+    for (std::size_t b = 0; b < out.size(); ++b)
+      out[b] = b >= slow_.first && b < slow_.second ? history_.front()[b] : master_[b];
+    st_.cycle();
+  }
+  EmulatedStation& st_;
+  std::vector<std::uint8_t> master_;
+  std::pair<std::size_t, std::size_t> slow_;
+  unsigned lag_;
+  std::deque<std::vector<std::uint8_t>> history_;
+  std::map<unsigned, AckTiming> timing_;
+};
+
+}  // namespace
+
+TEST_CASE("a terminal that answers later is seen with the other terminal's exchanges, not polled on its own",
+          "[session][engine][peek]") {
+  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+                                   "type = \"KL6001\"\n[[terminal]]\ntype = \"KL9010\"\n",
+                                   "test", cat());
+  EmulatedStation st(spec, cat());
+  const TerminalImage& t2 = st.layout().terminal(2);
+  ScriptedCoupler link(st, {t2.out_offset, t2.out_offset + t2.out_size}, 2);
+  // As kept from an earlier run: terminal 1 answers in a fraction of a millisecond, terminal 2 was
+  // once slow. Its own first poll is due long after terminal 1's exchanges have shown its answer,
+  // however loaded the machine.
+  link.expect(1, std::chrono::microseconds(300));
+  link.expect(2, std::chrono::milliseconds(200));
+  std::vector<std::string> trace;
+  SessionOptions so;
+  so.trace = [&](const std::string& s) { trace.push_back(s); };
+  HandshakeAccess access(link, handshake_options(so));
+  Engine engine(access);
+  std::vector<unsigned> regs{8, 9, 32, 33, 34, 35};
+  std::vector<ChannelReads> jobs{{1, 0, regs, 6001, {}, {}}, {2, 0, regs, 6001, {}, {}}};
+  read_channels(engine, st.layout(), jobs, so);
+  for (auto& j : jobs) {
+    INFO("terminal " << j.position);
+    REQUIRE_FALSE(j.error);
+    REQUIRE(j.values.size() == regs.size());
+    for (std::size_t k = 0; k < regs.size(); ++k) CHECK(j.values[k] == st.channel(j.position, 0).read_register(regs[k]));
+  }
+  auto seen = std::count_if(trace.begin(), trace.end(), [](const std::string& s) {
+    return s.find("terminal 2 (KL6001): R") != std::string::npos &&
+           s.find("answered, seen with another terminal's exchange") != std::string::npos;
+  });
+  std::string all;
+  for (const auto& s : trace) all += s + "\n";
+  INFO(all);
+  CHECK(seen >= 1);
+  // Both control bytes written back to process-data mode (terminal 2 sees it two exchanges later).
+  for (unsigned pos : {1u, 2u}) {
+    std::uint8_t ctrl = 0xFF;
+    link.read_outputs(st.layout().terminal(pos).out_offset, std::span<std::uint8_t>(&ctrl, 1));
+    CHECK((ctrl & 0x80) == 0);
+  }
+}
+
+TEST_CASE("the default link never carries a peek, and never makes an exchange for one", "[session][peek]") {
+  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n", "test", cat());
+  EmulatedStation st(spec, cat());
+  EmulatorLink link(st);
+  std::vector<std::uint8_t> in(2, 0xEE);
+  bool carried = false;
+  ImageTransfer x;
+  x.in_offset = 0;
+  x.in = in;
+  x.peek = true;
+  x.carried = &carried;
+  std::size_t before = link.exchanges();
+  link.transfer(std::span<const ImageTransfer>(&x, 1));
+  CHECK_FALSE(carried);
+  CHECK(in == std::vector<std::uint8_t>(2, 0xEE));
+  CHECK(link.exchanges() == before);
+}
