@@ -60,8 +60,9 @@ std::string Channel::who() const {
 }
 
 void Channel::note(const std::string& s) const {
+  // Said once: with -v the trace goes to the same stderr as the notice.
   if (opt_.notice) opt_.notice(s);
-  if (opt_.trace) opt_.trace(s);
+  else if (opt_.trace) opt_.trace(s);
 }
 
 Task<void> Channel::exec(Program& p) {
