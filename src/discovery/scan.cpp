@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <memory>
+#include <optional>
 #include <set>
 
 #include "kscfg/base/error.hpp"
@@ -218,8 +219,12 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
     std::vector<RegisterWindow> cands{*pa.window};
     if (pb.window && !same_window(*pb.window, *pa.window)) cands.push_back(*pb.window);
     std::vector<std::uint16_t> values;
+    // One session for R8 and, when the terminal answered through the window probed, the registers
+    // that decide its image: the channel's bytes are saved and put back once, the last with the
+    // poll for the last answer.
+    std::optional<RegisterSession> probe_session(std::in_place, link, t, 0, so);
     {
-      RegisterSession s(link, t, 0, so);
+      RegisterSession& s = *probe_session;
       try {
         std::uint16_t first = s.read(8);
         values.push_back(first);
@@ -241,7 +246,6 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
                                 out, e.what()),
                     "check the coupler's mapping settings, or describe the station with --station");
       }
-      s.close();
     }
     const TerminalType* type = nullptr;
     RegisterWindow win = cands[0];
@@ -252,6 +256,7 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
         r8 = values[i];
       }
     if (!type) {
+      probe_session.reset();
       std::string seen = fmt::format("{}", values[0]);
       if (values.size() > 1)
         seen += fmt::format(" (input bytes {}), or {} (input bytes {})", bytes_text(cands[0].in_lo, cands[0].in_hi),
@@ -279,11 +284,17 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
         if (ch >= lt.channels.size() || !lt.channels[ch].window) break;
         ti = lt;
       }
-      RegisterSession s(link, ti, ch, so);
-      auto values = s.read_many(mregs);
+      std::vector<std::uint16_t> values;
+      if (ch == 0 && probe_session && same_window(win, *pa.window)) {
+        values = probe_session->read_then_close(mregs);
+      } else {
+        probe_session.reset();
+        RegisterSession s(link, ti, ch, so);
+        values = s.read_then_close(mregs);
+      }
       for (std::size_t i = 0; i < mregs.size(); ++i) r.regs.back()[ch][mregs[i]] = values[i];
-      s.close();
     }
+    probe_session.reset();
     // The terminal's layout from what it holds must put the window where it answered.
     {
       StationLayout L = scan_layout(r, catalog);
