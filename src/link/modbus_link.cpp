@@ -164,14 +164,15 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
     }
     // Peeks ride along where they cost nothing: over TCP anywhere within the read limit (a request
     // costs a round trip, not its bytes), over RTU only inside the span read anyway.
-    std::vector<std::size_t> rode;
+    std::vector<std::size_t> group(order.begin() + static_cast<std::ptrdiff_t>(g),
+                                   order.begin() + static_cast<std::ptrdiff_t>(end));
     for (std::size_t& i : peeks) {
       if (i == SIZE_MAX || t[i].in.empty()) continue;
       Span r2 = r;
       r2.add(t[i].in_offset, t[i].in.size());
       if (r2.words() > mbmap::kMaxRead || (bridge != SIZE_MAX && r2.words() != r.words())) continue;
       r = r2;
-      rode.push_back(i);
+      group.push_back(i);
       i = SIZE_MAX;
     }
     std::vector<std::uint8_t> out;
@@ -201,13 +202,9 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
     if (!w.empty() && !r.empty()) write_outputs_read_inputs(w.lo, out, r.lo, in);
     else if (!w.empty()) write_outputs(w.lo, out);
     else if (!r.empty()) read_inputs(r.lo, in);
-    for (std::size_t k = g; k < end; ++k) {
-      const ImageTransfer& x = t[order[k]];
-      if (!x.in.empty())
-        std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - r.lo), x.in.size(), x.in.begin());
-    }
-    for (std::size_t i : rode) {
+    for (std::size_t i : group) {  // the group's transfers, then the peeks it carried
       const ImageTransfer& x = t[i];
+      if (x.in.empty()) continue;
       std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - r.lo), x.in.size(), x.in.begin());
       if (x.carried) *x.carried = true;
     }
