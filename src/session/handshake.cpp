@@ -389,6 +389,7 @@ std::vector<Program*> HandshakeAccess::advance() {
   for (Chan* c : act) result(*c, t, done);
   for (Chan* c : peeks)
     if (c->peeked && c->prog && c->req) peek_result(*c, t, done);
+  align_first_polls(t);
   return done;
 }
 

@@ -22,6 +22,9 @@ constexpr microseconds kStep{250};
 // After this many read-aheads (or restores with the last poll) that came too early in a run, no
 // more speculation on that terminal.
 constexpr unsigned kMaxMisses = 3;
+// align_first_polls(): a terminal's first poll waits for the others' up to this many times its own
+// estimate.
+constexpr unsigned kAlignSpread = 4;
 
 microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseconds>(d); }
 
@@ -112,10 +115,42 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   }
 }
 
+void HandshakeAccess::align_first_polls(Clock::time_point sent) {
+  // Terminals of one coupler share its K-bus cycle, so their answers come after about the same
+  // time; each estimate is learned on its own, though, and where answers take one or two cycles at
+  // random the estimates spread. Polled each at its own estimate, a terminal whose answer was seen
+  // first (at its poll, or in a peek) sent its next request in an exchange of its own, and the
+  // station fell out of step. Polled together at the latest estimate, every poll can carry its
+  // terminal's next request (read-ahead) and the station moves as one. A terminal waits at most
+  // kAlignSpread times its own estimate: a much slower one (another type, a terminal busy with its
+  // EEPROM) does not hold the others back. Probes (a poll below the estimate on purpose) and
+  // terminals still learning keep their own times.
+  if (!link_.pipelines()) return;
+  std::vector<Request*> group;
+  for (auto& [k, c] : chans_)
+    if (c.prog && c.req && c.req->sent == sent && c.req->polls == 0 && c.req->ack.known() && !c.req->ack.probe)
+      group.push_back(&*c.req);
+  if (group.size() < 2) return;
+  std::vector<microseconds> firsts;
+  for (const Request* r : group) firsts.push_back(r->ack.first);
+  for (Request* r : group) {
+    const microseconds own = r->ack.first;
+    for (microseconds f : firsts)
+      if (f > r->ack.first && f <= kAlignSpread * own) r->ack.first = f;
+  }
+}
+
 void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
   // Not a poll: a status that does not answer yet changes nothing (no count, no timing, no
   // timeout); one that does is taken as this request's first poll would take it.
-  if (!proto::is_ack(c.in[c.w.status - c.in_lo], c.req->reg)) return;
+  if (!proto::is_ack(c.in[c.w.status - c.in_lo], c.req->reg)) {
+    // Once its first poll found nothing, a channel polls again a step after its last look: a peek
+    // that shows no answer is such a look, so a terminal polls on its own only when no other
+    // terminal's exchange went by. Its timeout is still judged by a poll of its own, and so is a
+    // request written ahead (the terminal may have taken that one first: only a poll asks again).
+    if (c.req->polls > 0 && !c.ahead && t - c.req->since <= opt_.timeout) c.last_poll = t;
+    return;
+  }
   c.act = Act::poll;
   note_trace(fmt::format("{}: R{} answered, seen with another terminal's exchange", who(c), c.req->reg));
   result(c, t, done);

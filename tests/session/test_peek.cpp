@@ -28,8 +28,9 @@ const Catalog& cat() { return Catalog::standard(); }
 // `lag` exchanges late.
 class ScriptedCoupler : public Link {
  public:
-  ScriptedCoupler(EmulatedStation& st, std::pair<std::size_t, std::size_t> slow_range, unsigned lag)
-      : st_(st), master_(st.outputs()), slow_(slow_range), lag_(lag) {}
+  ScriptedCoupler(EmulatedStation& st, std::pair<std::size_t, std::size_t> slow_range, unsigned lag,
+                  unsigned cycles = 1)
+      : st_(st), master_(st.outputs()), slow_(slow_range), lag_(lag), cycles_(cycles), history_(lag, st.outputs()) {}
   std::string describe() const override { return "scripted coupler"; }
   bool pipelines() const override { return true; }
   AckTiming* ack_timing(unsigned position) override { return &timing_[position]; }
@@ -65,12 +66,13 @@ class ScriptedCoupler : public Link {
     auto& out = st_.outputs();
     for (std::size_t b = 0; b < out.size(); ++b)
       out[b] = b >= slow_.first && b < slow_.second ? history_.front()[b] : master_[b];
-    st_.cycle();
+    for (unsigned i = 0; i < cycles_; ++i) st_.cycle();
   }
   EmulatedStation& st_;
   std::vector<std::uint8_t> master_;
   std::pair<std::size_t, std::size_t> slow_;
   unsigned lag_;
+  unsigned cycles_;
   std::deque<std::vector<std::uint8_t>> history_;
   std::map<unsigned, AckTiming> timing_;
 };
@@ -136,4 +138,60 @@ TEST_CASE("the default link never carries a peek, and never makes an exchange fo
   CHECK_FALSE(carried);
   CHECK(in == std::vector<std::uint8_t>(2, 0xEE));
   CHECK(link.exchanges() == before);
+}
+
+TEST_CASE("terminals whose requests went out together are first polled together, so each poll carries the next "
+          "request", "[session][engine][peek]") {
+  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+                                   "type = \"KL6001\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+                                   "type = \"KL9010\"\n",
+                                   "test", cat());
+  EmulatedStation st(spec, cat());
+  // Two K-bus cycles per exchange: an answer is there at the next exchange, however soon; terminal
+  // 3 sees its control byte twelve exchanges late.
+  const TerminalImage& t3 = st.layout().terminal(3);
+  ScriptedCoupler link(st, {t3.out_offset, t3.out_offset + t3.out_size}, 12, 2);
+  // Estimates as a coupler whose terminals answer in one or two cycles at random leaves them:
+  // spread, but within kAlignSpread of each other. Terminal 3 is far slower and keeps its own.
+  link.expect(1, std::chrono::microseconds(1000));
+  link.expect(2, std::chrono::microseconds(2500));
+  link.expect(3, std::chrono::milliseconds(500));
+  std::vector<std::string> trace;
+  SessionOptions so;
+  so.timeout = std::chrono::milliseconds(5000);
+  so.trace = [&](const std::string& s) { trace.push_back(s); };
+  HandshakeAccess access(link, handshake_options(so));
+  Engine engine(access);
+  std::vector<unsigned> regs{8, 9, 32, 33, 34, 35, 36, 37};
+  std::vector<ChannelReads> jobs{{1, 0, regs, 6001, {}, {}}, {2, 0, regs, 6001, {}, {}}, {3, 0, {8}, 6001, {}, {}}};
+  read_channels(engine, st.layout(), jobs, so);
+  std::string all;
+  for (const auto& s : trace) all += s + "\n";
+  INFO(all);
+  for (auto& j : jobs) {
+    INFO("terminal " << j.position);
+    REQUIRE_FALSE(j.error);
+    REQUIRE(j.values.size() == (j.position == 3 ? 1u : regs.size()));
+    for (std::size_t k = 0; k < j.values.size(); ++k)
+      CHECK(j.values[k] == st.channel(j.position, 0).read_register(regs[k]));
+  }
+  // Terminal 1 is polled with terminal 2 at 2.5 ms, not at its own 1 ms (where it would find its
+  // answer and terminal 2's would be seen in a peek, leaving terminal 2's next request to an
+  // exchange of its own): every answer of both but the last is fetched by the poll that carried the
+  // next request, and neither is ever seen in a peek.
+  auto count = [&](const std::string& a, const std::string& b) {
+    return std::count_if(trace.begin(), trace.end(), [&](const std::string& s) {
+      return s.find(a) != std::string::npos && s.find(b) != std::string::npos;
+    });
+  };
+  for (std::string t : {"terminal 1 (KL6001): ", "terminal 2 (KL6001): "}) {
+    CHECK(count(t + "R", "seen with another terminal's exchange") == 0);
+    CHECK(count(t + "read", "requested ahead") == static_cast<long>(regs.size()) - 1);
+  }
+  // Terminal 3 (500 ms) does not hold them back: both are done before its answer.
+  auto at = [&](const std::string& a) {
+    return std::find_if(trace.begin(), trace.end(), [&](const std::string& s) { return s.find(a) != std::string::npos; });
+  };
+  CHECK(at("terminal 1 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));
+  CHECK(at("terminal 2 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));
 }

@@ -146,6 +146,9 @@ class HandshakeAccess final : public RegisterAccess {
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
+  // The requests that went out in the exchange at `sent` are first polled together, at the latest
+  // of their estimates (docs/design.md section 7.2).
+  void align_first_polls(Clock::time_point sent);
   // A status that came with another channel's exchange: taken if it answers the request.
   void peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
   void finish(Chan& c, std::vector<Program*>& done);
