@@ -7,8 +7,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <deque>
-#include <map>
 
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/engine.hpp"
@@ -16,66 +14,14 @@
 #include "kscfg/session/session.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "kscfg/station/station.hpp"
+#include "scripted_coupler.hpp"
 
 using namespace kscfg;
+using kscfg::test::ScriptedCoupler;
 
 namespace {
 
 const Catalog& cat() { return Catalog::standard(); }
-
-// A pipelining coupler in one process: a read shows the inputs of the last K-bus cycle, then the
-// writes reach the terminals and one cycle runs. The bytes of `slow_range` reach the terminals
-// `lag` exchanges late.
-class ScriptedCoupler : public Link {
- public:
-  ScriptedCoupler(EmulatedStation& st, std::pair<std::size_t, std::size_t> slow_range, unsigned lag,
-                  unsigned cycles = 1)
-      : st_(st), master_(st.outputs()), slow_(slow_range), lag_(lag), cycles_(cycles), history_(lag, st.outputs()) {}
-  std::string describe() const override { return "scripted coupler"; }
-  bool pipelines() const override { return true; }
-  AckTiming* ack_timing(unsigned position) override { return &timing_[position]; }
-  void read_inputs(std::size_t o, std::span<std::uint8_t> d) override {
-    std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(o), d.size(), d.begin());
-    exchange();
-  }
-  void read_outputs(std::size_t o, std::span<std::uint8_t> d) override {
-    std::copy_n(master_.begin() + static_cast<std::ptrdiff_t>(o), d.size(), d.begin());
-  }
-  void write_outputs(std::size_t o, std::span<const std::uint8_t> s) override {
-    std::copy(s.begin(), s.end(), master_.begin() + static_cast<std::ptrdiff_t>(o));
-    exchange();
-  }
-  void transfer(std::span<const ImageTransfer> t) override {
-    for (const auto& x : t)
-      if (!x.out.empty()) std::copy(x.out.begin(), x.out.end(), master_.begin() + static_cast<std::ptrdiff_t>(x.out_offset));
-    for (const auto& x : t) {
-      if (x.in.empty()) continue;
-      std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(x.in_offset), x.in.size(), x.in.begin());
-      if (x.carried) *x.carried = true;
-    }
-    exchange();
-  }
-  std::size_t exchanges_seen = 0;
-  void expect(unsigned position, std::chrono::microseconds wait) { timing_[position].wait = wait; }
-
- private:
-  void exchange() {
-    ++exchanges_seen;
-    history_.push_back(master_);
-    if (history_.size() > lag_ + 1) history_.pop_front();
-    auto& out = st_.outputs();
-    for (std::size_t b = 0; b < out.size(); ++b)
-      out[b] = b >= slow_.first && b < slow_.second ? history_.front()[b] : master_[b];
-    for (unsigned i = 0; i < cycles_; ++i) st_.cycle();
-  }
-  EmulatedStation& st_;
-  std::vector<std::uint8_t> master_;
-  std::pair<std::size_t, std::size_t> slow_;
-  unsigned lag_;
-  unsigned cycles_;
-  std::deque<std::vector<std::uint8_t>> history_;
-  std::map<unsigned, AckTiming> timing_;
-};
 
 }  // namespace
 
