@@ -93,13 +93,15 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
     return;
   }
   c.act = Act::poll;
-  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes.
-  bool speculate = known && !r.ack.probe && c.timing->misses < kMaxMisses;
+  // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes. The poll at the
+  // estimate (the first, or the one after a probe that found nothing) may.
+  bool at_estimate = r.polls == 0 ? !r.ack.probe : r.polls == 1 && r.ack.probe;
+  bool speculate = known && at_estimate && c.timing->misses < kMaxMisses;
   // What the poll may replace: a read, or a write that may be done twice (asked again if the poll
   // came too early). A write goes ahead only if the request it may replace can be done again after
   // it: never the code word (a relock ahead would make the write before it fail).
   bool replaceable = !r.write || op.repeatable;
-  if (r.polls == 0 && replaceable && !r.probe && speculate && !c.ahead) {
+  if (replaceable && !r.probe && speculate && !c.ahead) {
     const RegisterOp* next = k + 1 < p.ops.size() ? &p.ops[k + 1] : nullptr;
     if (next && next->reg != r.reg &&
         (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {

@@ -141,3 +141,30 @@ TEST_CASE("terminals whose requests went out together are first polled together,
   CHECK(at("terminal 1 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));
   CHECK(at("terminal 2 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));
 }
+
+TEST_CASE("after a probe that found nothing, the poll at the estimate carries the next request", "[session][peek]") {
+  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n", "test", cat());
+  EmulatedStation st(spec, cat());
+  const TerminalImage& t1 = st.layout().terminal(1);
+  // The terminal sees its control byte one exchange late: a probe (the first poll, at half the
+  // estimate) finds nothing, the poll at the estimate finds the answer.
+  ScriptedCoupler link(st, {t1.out_offset, t1.out_offset + t1.out_size}, 1, 2);
+  link.expect(1, std::chrono::microseconds(2000));
+  link.ack_timing(1)->suspect = true;  // a guess: probed below
+  std::vector<std::string> trace;
+  SessionOptions so;
+  so.trace = [&](const std::string& s) { trace.push_back(s); };
+  HandshakeAccess access(link, handshake_options(so));
+  Engine engine(access);
+  std::vector<ChannelReads> jobs{{1, 0, {8, 9}, 6001, {}, {}}};
+  read_channels(engine, st.layout(), jobs, so);
+  std::string all;
+  for (const auto& s : trace) all += s + "\n";
+  INFO(all);
+  REQUIRE_FALSE(jobs[0].error);
+  CHECK(jobs[0].values == std::vector<std::uint16_t>{6001, st.channel(1, 0).read_register(9)});
+  CHECK(std::count_if(trace.begin(), trace.end(), [](const std::string& s) {
+          return s.find("read  R8 ") != std::string::npos && s.find("2 polls") != std::string::npos &&
+                 s.find("R9 requested ahead") != std::string::npos;
+        }) == 1);
+}

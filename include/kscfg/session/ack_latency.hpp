@@ -7,7 +7,8 @@
 //  - learned from the first acknowledges of a terminal (the longest of three, polled from 500 us);
 //  - never longer than the ack timeout (--timeout): a longer one would only make a read sleep past
 //    it; one kept from an earlier run that is longer is no estimate at all and is learned again;
-//  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
+//  - up when an answer shows only on a later poll: to what it took, at most twice the wait before
+//    (suspect, unless a probe just missed and the answer came at most a quarter past the wait);
 //    an eighth up when a request written ahead replaced the one waited for (how much slower the
 //    terminal was is unknown there);
 //  - down as fast as up: a wait that went up (or was guessed, or kept from an earlier run at a

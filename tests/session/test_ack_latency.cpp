@@ -1,0 +1,53 @@
+// The acknowledge estimate (session/ack_latency.hpp): what one answer does to it.
+#include <catch2/catch.hpp>
+
+#include <chrono>
+
+#include "kscfg/session/ack_latency.hpp"
+
+using namespace kscfg;
+using std::chrono::microseconds;
+using std::chrono::milliseconds;
+
+namespace {
+
+Link::AckTiming suspect_at(microseconds wait) {
+  Link::AckTiming t;
+  t.wait = wait;
+  t.suspect = true;  // guessed (a terminal seeded from another's estimate): probed below
+  return t;
+}
+
+}  // namespace
+
+TEST_CASE("ack latency: a probe that found nothing, then an answer a little past the wait: measured, trusted",
+          "[ack]") {
+  Link::AckTiming t = suspect_at(microseconds(1860));
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE(p.probe);
+  CHECK(p.first == microseconds(930));
+  ack_seen(t, p, 2, microseconds(1940), milliseconds(1000));  // not at half; at 1.94 ms
+  CHECK(t.wait == microseconds(1940));
+  CHECK_FALSE(t.suspect);
+  // The next request is polled at the wait, not probed again (and may be read ahead).
+  CHECK_FALSE(ack_plan(t, milliseconds(1000)).probe);
+}
+
+TEST_CASE("ack latency: far past the wait after a probe stays suspect (a slow moment, not the terminal)", "[ack]") {
+  Link::AckTiming t = suspect_at(microseconds(1000));
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE(p.probe);
+  ack_seen(t, p, 3, microseconds(5000), milliseconds(1000));
+  CHECK(t.wait == microseconds(2000));  // at most twice the wait
+  CHECK(t.suspect);
+}
+
+TEST_CASE("ack latency: an answer past the wait without a probe stays suspect", "[ack]") {
+  Link::AckTiming t;
+  t.wait = microseconds(1000);
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE_FALSE(p.probe);
+  ack_seen(t, p, 2, microseconds(1100), milliseconds(1000));
+  CHECK(t.wait == microseconds(1100));
+  CHECK(t.suspect);
+}
