@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <map>
 #include <memory>
 #include <optional>
 #include <set>
@@ -169,6 +170,46 @@ void read_watchdog(ScanResult& r, ModbusRegisters& client) {
   if (auto v = client.read_optional(mbmap::kWatchdogType, 1)) r.watchdog_type = (*v)[0];
 }
 
+namespace {
+
+// Stations come in runs of one type. A terminal after one that answered through window `win` of
+// type `prev` is read as one more of them: R8 and prev's registers that decide the image in one
+// program through the same kind of window (reads change nothing on a terminal), each request sent
+// with the poll for the one before, the control byte back with the last. Taken only when R8 names
+// a one-channel type decided by those same registers and its layout from them puts its window
+// where it answered; otherwise nothing is kept and the terminal is walked as before.
+bool walk_as_before(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, TerminalImage t,
+                    const TerminalType& prev, const RegisterWindow& win) {
+  std::vector<unsigned> guess = mapping_registers(prev);
+  if (guess.empty()) return false;
+  t.channels[0].window = win;
+  std::vector<unsigned> regs{8};
+  regs.insert(regs.end(), guess.begin(), guess.end());
+  std::vector<std::uint16_t> got;
+  try {
+    RegisterSession s(link, t, 0, so);
+    got = s.read_then_close(regs);
+  } catch (const Error& e) {
+    if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
+    return false;  // walked as before, which names what does not answer
+  }
+  const TerminalType* type = catalog.find_by_number(got[0]);
+  if (!type || type->channels != 1 || mapping_registers(*type) != guess) return false;
+  std::vector<std::map<unsigned, std::uint16_t>> held(1);
+  held[0][8] = got[0];
+  for (std::size_t i = 0; i < guess.size(); ++i) held[0][guess[i]] = got[i + 1];
+  add_scanned_terminal(r, *type, got[0], std::move(held));
+  StationLayout L = scan_layout(r, catalog);
+  const TerminalImage& lt = L.terminal(t.position);
+  if (!lt.channels.empty() && lt.channels[0].window && same_window(*lt.channels[0].window, win)) return true;
+  r.regs.pop_back();
+  r.r8.pop_back();
+  r.spec.terminals.pop_back();
+  return false;
+}
+
+}  // namespace
+
 void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto,
           const ScanProgress& progress) {
   if (!r.walked || r.complete) return;
@@ -176,6 +217,8 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
   const ImageFormat probe = probe_format();
   MappingSettings unaligned = r.settings;
   unaligned.word_alignment = false;
+  const TerminalType* prev_type = nullptr;  // the terminal walked last, and its window's kind
+  bool prev_aligned = true;
   for (unsigned guard = 0; guard < 64; ++guard) {
     r.layout = scan_layout(r, catalog);
     std::size_t out = r.layout.complex_out, in = r.layout.complex_in;
@@ -218,6 +261,10 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
     t.channels.push_back(pa);
     std::vector<RegisterWindow> cands{*pa.window};
     if (pb.window && !same_window(*pb.window, *pa.window)) cands.push_back(*pb.window);
+    if (prev_type) {
+      const RegisterWindow& like = prev_aligned || cands.size() == 1 ? cands[0] : cands[1];
+      if (walk_as_before(r, link, catalog, so, t, *prev_type, like)) continue;
+    }
     std::vector<std::uint16_t> values;
     // One session for R8 and, when the terminal answered through the window probed, the registers
     // that decide its image: the channel's bytes are saved and put back once, the last with the
@@ -325,6 +372,8 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
     r.r8.pop_back();
     r.spec.terminals.pop_back();
     add_scanned_terminal(r, *type, r8, std::move(regs));
+    prev_type = type;
+    prev_aligned = same_window(win, cands[0]);
   }
   r.layout = scan_layout(r, catalog);
   if (r.complete) {
