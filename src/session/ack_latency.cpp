@@ -48,16 +48,15 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
       return;
     }
     t.suspect = false;  // not at half: the wait is about right
+    // And the poll at the wait found it: the wait is confirmed, kept as it is. (Raising it to what
+    // that poll took would add the poll's own round trip every time: a ratchet.)
+    if (poll == 2) return;
   }
   if (poll > 1 && took > p.wait) {
     // Slower than the wait: up to what it took, at most twice the wait (one slow answer on a
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
-    // Right after a probe that said so (the answer not at half), an answer at most a quarter
-    // later than the wait is the terminal's latency measured, not a slow moment: trusted, so the
-    // next requests can be read ahead instead of probing again (a terminal seeded from another's
-    // estimate on a cold scan probed and came in just late on every register).
     t.wait = std::min({took, 2 * p.wait, cap});
-    t.suspect = !(p.probe && took <= p.wait + p.wait / 4);
+    t.suspect = true;
   }
 }
 

@@ -7,15 +7,15 @@
 //  - learned from the first acknowledges of a terminal (the longest of three, polled from 500 us);
 //  - never longer than the ack timeout (--timeout): a longer one would only make a read sleep past
 //    it; one kept from an earlier run that is longer is no estimate at all and is learned again;
-//  - up when an answer shows only on a later poll: to what it took, at most twice the wait before
-//    (suspect, unless a probe just missed and the answer came at most a quarter past the wait);
+//  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
 //    an eighth up when a request written ahead replaced the one waited for (how much slower the
 //    terminal was is unknown there);
 //  - down as fast as up: a wait that went up (or was guessed, or kept from an earlier run at a
 //    quarter of the timeout or more) is `suspect`, and the next first poll is a probe at half of it
 //    (a plain poll, never one that writes). A probe that finds the answer halves the wait (to what
 //    it took) and the next request probes again; one that does not ends the suspicion (the usual
-//    poll at the wait follows, one exchange more). Every kProbeEvery-th request probes anyway.
+//    poll at the wait follows, one exchange more, and may carry a read-ahead); when that poll finds
+//    the answer the wait is confirmed and kept as it is. Every kProbeEvery-th request probes anyway.
 // The scan cache keeps the wait and whether it is suspect; --rescan starts from nothing.
 //
 // A station engine (issue 22) that runs several terminals' handshakes at once uses the same
