@@ -264,8 +264,13 @@ def forged(C, kind, n, work):
         for what, pid, acts_on, text in cases:
             t.add("tried")
             # Terminal 3 unlocked in register mode by a kscfg of another computer (no journal here).
-            subprocess.run([C.KSCFG, "--port", cp.uri, "-t", "3", "write", "R31", "0x1235"], env=env_other,
-                           capture_output=True)
+            setup = subprocess.run([C.KSCFG, "--port", cp.uri, "-t", "3", "write", "R31", "0x1235"], env=env_other,
+                                   capture_output=True)
+            if setup.returncode != -9:
+                # A kscfg without the test hooks writes R31 and ends: terminal 3 stays unlocked by that
+                # deliberate write, and every round would count it as left unlocked.
+                sys.exit(f"forged: {C.KSCFG} ignored KSCFG_TEST_KILL_AFTER (exit {setup.returncode}): "
+                         "build it with -DKSCFG_TEST_HOOKS=ON (the README's test build) for this campaign")
             _, _, before = cp.snapshot()
             with open(os.path.join(sessions, f"{cp.key}.{pid}-{i}.sessions"), "w") as f:
                 f.write(text)
