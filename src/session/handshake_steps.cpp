@@ -143,8 +143,9 @@ void HandshakeAccess::align_first_polls(Clock::time_point sent) {
 }
 
 void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
-  // Not a poll: a status that does not answer yet changes nothing (no count, no timing, no
-  // timeout); one that does is taken as this request's first poll would take it.
+  // Not a poll: a status that does not answer yet counts no poll, times nothing and judges no
+  // timeout (it only moves a repeat poll, below); one that does is taken as this request's first
+  // poll would take it.
   if (!proto::is_ack(c.in[c.w.status - c.in_lo], c.req->reg)) {
     // Once its first poll found nothing, a channel polls again a step after its last look: a peek
     // that shows no answer is such a look, so a terminal polls on its own only when no other

@@ -149,7 +149,8 @@ class HandshakeAccess final : public RegisterAccess {
   // The requests that went out in the exchange at `sent` are first polled together, at the latest
   // of their estimates (docs/design.md section 7.2).
   void align_first_polls(Clock::time_point sent);
-  // A status that came with another channel's exchange: taken if it answers the request.
+  // A status that came with another channel's exchange: taken if it answers the request; if not, it
+  // counts as the look a repeat poll waits after.
   void peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
   void finish(Chan& c, std::vector<Program*>& done);
   void fail(Chan& c, Error e, std::vector<Program*>& done);
