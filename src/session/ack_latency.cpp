@@ -37,14 +37,19 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
     if (++t.samples >= kLearnSamples) t.wait = std::min(t.longest, cap);
     return;
   }
+  if (t.slow.count() > 0 && ++t.slow_age >= kSlowFor) t.slow = microseconds(0);
   if (poll == 1 && !p.probe) ++t.streak;
   if (p.probe) {
     t.streak = 0;
     ++t.probes;
     if (poll == 1) {
-      // The answer was there at half the wait: the wait was too long. Down, and probe again.
+      // The answer was there at half the wait: this one was faster than the wait. Down, by at most a
+      // quarter and not below the slowest recent answer, and probe again; if the wait stays where it
+      // is, it is as low as the answers seen allow: no longer suspect.
       ++t.probe_hits;
-      t.wait = std::max(took, microseconds(1));
+      microseconds lower = std::max({took, t.slow, p.wait - p.wait / 4, microseconds(1)});
+      if (lower >= p.wait) t.suspect = false;
+      t.wait = std::min(lower, p.wait);
       return;
     }
     t.suspect = false;  // not at half: the wait is about right
@@ -57,6 +62,8 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
     t.wait = std::min({took, 2 * p.wait, cap});
     t.suspect = true;
+    t.slow = std::max(t.slow, t.wait);
+    t.slow_age = 0;
   }
 }
 
@@ -68,7 +75,10 @@ void ack_early(Link::AckTiming& t, const AckPlan& p) {
 
 void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout) {
   // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
-  if (t.wait.count() > 0) t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
+  if (t.wait.count() <= 0) return;
+  t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
+  t.slow = std::max(t.slow, t.wait);  // that answer came after the wait: the probes stay above it
+  t.slow_age = 0;
 }
 
 bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {

@@ -54,3 +54,64 @@ TEST_CASE("ack latency: an answer past the wait without a probe stays suspect", 
   CHECK(t.wait == microseconds(1100));
   CHECK(t.suspect);
 }
+
+TEST_CASE("ack latency: a probe that finds the answer lowers the wait by at most a quarter", "[ack]") {
+  Link::AckTiming t = suspect_at(microseconds(4000));
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE(p.probe);
+  // One fast answer (the terminal answered in the cycle that saw the request) is one sample.
+  ack_seen(t, p, 1, microseconds(700), milliseconds(1000));
+  CHECK(t.wait == microseconds(3000));
+  CHECK(t.suspect);  // still coming down: the next request probes again
+  CHECK(ack_plan(t, milliseconds(1000)).probe);
+}
+
+TEST_CASE("ack latency: after an answer past the wait, a probe never lowers the wait below it", "[ack]") {
+  Link::AckTiming t;
+  t.wait = microseconds(3000);
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE_FALSE(p.probe);
+  ack_early(t, p);
+  ack_seen(t, p, 2, microseconds(4200), milliseconds(1000));  // answered after two cycles
+  CHECK(t.wait == microseconds(4200));
+  REQUIRE(t.suspect);
+  // The probe at half finds a fast answer: the slow one seen stands, the wait stays and is trusted.
+  AckPlan q = ack_plan(t, milliseconds(1000));
+  REQUIRE(q.probe);
+  ack_seen(t, q, 1, microseconds(2100), milliseconds(1000));
+  CHECK(t.wait == microseconds(4200));
+  CHECK_FALSE(t.suspect);
+  CHECK_FALSE(ack_plan(t, milliseconds(1000)).probe);
+}
+
+TEST_CASE("ack latency: the slowest answer is forgotten after kSlowFor acknowledges", "[ack]") {
+  Link::AckTiming t;
+  t.wait = microseconds(2000);
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  ack_early(t, p);
+  ack_seen(t, p, 2, microseconds(3000), milliseconds(1000));
+  REQUIRE(t.slow == microseconds(3000));
+  for (unsigned i = 0; i < kSlowFor; ++i) {
+    AckPlan q = ack_plan(t, milliseconds(1000));
+    ack_seen(t, q, q.probe ? 2 : 1, t.wait, milliseconds(1000));
+  }
+  CHECK(t.slow == microseconds(0));
+  // And then a probe that finds the answer lowers the wait again.
+  t.suspect = true;
+  AckPlan q = ack_plan(t, milliseconds(1000));
+  REQUIRE(q.probe);
+  ack_seen(t, q, 1, microseconds(1500), milliseconds(1000));
+  CHECK(t.wait == microseconds(2250));
+}
+
+TEST_CASE("ack latency: a request written ahead that replaced the one waited for keeps the wait up", "[ack]") {
+  Link::AckTiming t;
+  t.wait = microseconds(4000);
+  ack_replaced(t, milliseconds(1000));
+  CHECK(t.wait == microseconds(4500));
+  CHECK(t.slow == microseconds(4500));
+  t.suspect = true;
+  AckPlan q = ack_plan(t, milliseconds(1000));
+  ack_seen(t, q, 1, microseconds(1000), milliseconds(1000));
+  CHECK(t.wait == microseconds(4500));
+}

@@ -64,6 +64,9 @@ class Link {
     unsigned streak = 0;                // first polls at `wait` that found the answer since the last probe
     unsigned probes = 0;                // polls below `wait` (this run), and how many found the answer
     unsigned probe_hits = 0;
+    std::chrono::microseconds slow{0};  // the slowest recent answer that came after the wait (this run):
+                                        // a probe never lowers the wait below it (ack_latency.hpp)
+    unsigned slow_age = 0;              // acknowledges since `slow` was last raised
   };
   virtual AckTiming* ack_timing(unsigned position) {
     (void)position;

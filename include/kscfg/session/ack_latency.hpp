@@ -10,12 +10,17 @@
 //  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
 //    an eighth up when a request written ahead replaced the one waited for (how much slower the
 //    terminal was is unknown there);
-//  - down as fast as up: a wait that went up (or was guessed, or kept from an earlier run at a
-//    quarter of the timeout or more) is `suspect`, and the next first poll is a probe at half of it
-//    (a plain poll, never one that writes). A probe that finds the answer halves the wait (to what
-//    it took) and the next request probes again; one that does not ends the suspicion (the usual
-//    poll at the wait follows, one exchange more, and may carry a read-ahead); when that poll finds
-//    the answer the wait is confirmed and kept as it is. Every kProbeEvery-th request probes anyway.
+//  - down, in steps: a wait that went up (or was guessed, or kept from an earlier run at a quarter
+//    of the timeout or more) is `suspect`, and the next first poll is a probe at half of it (a plain
+//    poll, never one that writes). A probe that finds the answer lowers the wait to what it took,
+//    but by at most a quarter and never below the slowest recent answer that came after the wait
+//    (`slow`, forgotten after kSlowFor acknowledges); the next request probes again unless the wait
+//    stayed where it was. A probe that does not find the answer ends the suspicion (the usual poll
+//    at the wait follows, one exchange more, and may carry a read-ahead); when that poll finds the
+//    answer the wait is confirmed and kept as it is. Every kProbeEvery-th request probes anyway.
+//    The wait has to cover the slowest answers, not the typical one: where a terminal answers after
+//    one or two bus cycles at random, one probe that found the answer at half is one fast sample,
+//    and a wait lowered to it makes every other read-ahead come too early (issue 22).
 // The scan cache keeps the wait and whether it is suspect; --rescan starts from nothing.
 //
 // A station engine (issue 22) that runs several terminals' handshakes at once uses the same
@@ -51,6 +56,7 @@ void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout);
 bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
 bool ack_suspect_when_kept(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
 constexpr unsigned kProbeEvery = 32;
+constexpr unsigned kSlowFor = 2 * kProbeEvery;
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const Link::AckTiming& t);
 
