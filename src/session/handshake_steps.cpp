@@ -123,22 +123,31 @@ void HandshakeAccess::align_first_polls(Clock::time_point sent) {
   // random the estimates spread. Polled each at its own estimate, a terminal whose answer was seen
   // first (at its poll, or in a peek) sent its next request in an exchange of its own, and the
   // station fell out of step. Polled together at the latest estimate, every poll can carry its
-  // terminal's next request (read-ahead) and the station moves as one. A terminal waits at most
+  // terminal's next request (read-ahead) and the station moves as one. A terminal out of step (it
+  // was asked again, or its answer was seen early in a peek) sent its request in an exchange of its
+  // own: the first polls of the others still waiting move to its first poll too, or it to theirs,
+  // so that the station is back in step at the next exchange. A terminal waits at most
   // kAlignSpread times its own estimate: a much slower one (another type, a terminal busy with its
   // EEPROM) does not hold the others back. Probes (a poll below the estimate on purpose) and
   // terminals still learning keep their own times.
   if (!link_.pipelines()) return;
   std::vector<Request*> group;
+  bool fresh = false;
   for (auto& [k, c] : chans_)
-    if (c.prog && c.req && c.req->sent == sent && c.req->polls == 0 && c.req->ack.known() && !c.req->ack.probe)
+    if (c.prog && c.req && c.req->polls == 0 && c.req->ack.known() && !c.req->ack.probe) {
       group.push_back(&*c.req);
-  if (group.size() < 2) return;
-  std::vector<microseconds> firsts;
-  for (const Request* r : group) firsts.push_back(r->ack.first);
+      fresh = fresh || c.req->sent == sent;
+    }
+  if (group.size() < 2 || !fresh) return;
+  std::vector<Clock::time_point> dues;
+  for (const Request* r : group) dues.push_back(r->sent + r->ack.first);
   for (Request* r : group) {
-    const microseconds own = r->ack.first;
-    for (microseconds f : firsts)
-      if (f > r->ack.first && f <= kAlignSpread * own) r->ack.first = f;
+    const Clock::time_point own = r->sent + r->ack.first;
+    const Clock::time_point limit = r->sent + kAlignSpread * r->ack.wait;
+    Clock::time_point to = own;
+    for (Clock::time_point d : dues)
+      if (d > to && d <= limit) to = d;
+    r->ack.first = std::chrono::duration_cast<microseconds>(to - r->sent);
   }
 }
 

@@ -146,8 +146,8 @@ class HandshakeAccess final : public RegisterAccess {
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
-  // The requests that went out in the exchange at `sent` are first polled together, at the latest
-  // of their estimates (docs/design.md section 7.2).
+  // After requests went out in the exchange at `sent`, the first polls still waiting go out
+  // together, at the latest of their due times within reach (docs/design.md section 7.2).
   void align_first_polls(Clock::time_point sent);
   // A status that came with another channel's exchange: taken if it answers the request; if not, it
   // counts as the look a repeat poll waits after.
