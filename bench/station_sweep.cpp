@@ -1,4 +1,4 @@
-// The station-size sweep (issue 22): stations of 1, 2, 4, 8 and 16 KL6001 behind `kscfg serve` and
+// The station-size sweep (issue 22): stations of 1, 2, 4, 8, 12 and 16 KL6001 behind `kscfg serve` and
 // behind the pymodbus peer, over Modbus TCP and RTU, each case a whole kscfg process:
 //  * backup of the station (--station FILE);
 //  * apply of one parameter on every terminal (the baud rate, 19200 and 9600 in turn, so that every
@@ -119,7 +119,7 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
   for (const auto& sv : servers) {
     if (!o.only.empty() && o.only != "station" && sv.name.find(o.only) == std::string::npos) continue;
     std::map<std::string, Stats> one;  // the 1-terminal figures of this server, by case
-    for (unsigned n : {1u, 2u, 4u, 8u, 16u}) {
+    for (unsigned n : {1u, 2u, 4u, 8u, 12u, 16u}) {
       std::string tag = fmt::format("st-{}-{}-{}", sv.peer ? "peer" : "serve", sv.tcp ? "tcp" : "rtu", n);
       std::string station = write_file(o, tag + ".toml", station_text(n, sv.tcp));
       std::string fa = write_file(o, tag + "-a.toml", station_text(n, sv.tcp, "baud = 19200\n"));
