@@ -13,6 +13,12 @@ constexpr microseconds kProbeFloor{500};
 
 microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
 
+// An answer came after the wait, which now stands at t.wait: the probes stay above it for a while.
+void slow_seen(Link::AckTiming& t) {
+  t.slow = std::max(t.slow, t.wait);
+  t.slow_age = 0;
+}
+
 }  // namespace
 
 AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
@@ -62,8 +68,7 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
     t.wait = std::min({took, 2 * p.wait, cap});
     t.suspect = true;
-    t.slow = std::max(t.slow, t.wait);
-    t.slow_age = 0;
+    slow_seen(t);
   }
 }
 
@@ -77,8 +82,7 @@ void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout) {
   // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
   if (t.wait.count() <= 0) return;
   t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
-  t.slow = std::max(t.slow, t.wait);  // that answer came after the wait: the probes stay above it
-  t.slow_age = 0;
+  slow_seen(t);
 }
 
 bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {

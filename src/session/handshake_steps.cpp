@@ -142,9 +142,8 @@ void HandshakeAccess::align_first_polls(Clock::time_point sent) {
   std::vector<Clock::time_point> dues;
   for (const Request* r : group) dues.push_back(r->sent + r->ack.first);
   for (Request* r : group) {
-    const Clock::time_point own = r->sent + r->ack.first;
     const Clock::time_point limit = r->sent + kAlignSpread * r->ack.wait;
-    Clock::time_point to = own;
+    Clock::time_point to = r->sent + r->ack.first;
     for (Clock::time_point d : dues)
       if (d > to && d <= limit) to = d;
     r->ack.first = std::chrono::duration_cast<microseconds>(to - r->sent);
