@@ -30,12 +30,13 @@ ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
   auto it = timings_.find(position);
   if (it == timings_.end()) {
     // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
-    // may be too long (probed below). One still learning counts with the longest acknowledge it
-    // timed: a cold scan reads only a few registers of each terminal, too few to finish learning,
-    // and every terminal of the walk would otherwise poll from 500 us again.
+    // may be too long (probed after its first acknowledges, session/ack_latency.hpp). One still
+    // learning counts with the longest acknowledge it timed: a cold scan reads only a few registers
+    // of each terminal, too few to finish learning, and every terminal of the walk would otherwise
+    // poll from 500 us again.
     AckTiming t;
     for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
-    t.suspect = t.wait.count() > 0;
+    t.suspect = t.guessed = t.wait.count() > 0;
     it = timings_.emplace(position, t).first;
   }
   return &it->second;

@@ -28,7 +28,9 @@ AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
     return p;
   }
   p.wait = std::min(t.wait, cap_of(timeout));
-  p.probe = (t.suspect || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
+  // A wait guessed from another terminal is probed only after its first acknowledges (kGuessTrusted).
+  const bool suspect = t.suspect && !(t.guessed && t.acks < kGuessTrusted);
+  p.probe = (suspect || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
   p.first = p.probe ? p.wait / 2 : p.wait;
   return p;
 }

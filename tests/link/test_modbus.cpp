@@ -397,7 +397,8 @@ TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on
   t1->longest = std::chrono::microseconds(1500);
   Link::AckTiming* t2 = link->ack_timing(2);
   CHECK(t2->wait == std::chrono::microseconds(1500));
-  CHECK(t2->suspect);  // a guess: probed below
+  CHECK(t2->suspect);  // a guess: probed below, after its first acknowledges
+  CHECK(t2->guessed);
   // A learned wait counts as it is.
   t1->wait = std::chrono::microseconds(3000);
   CHECK(link->ack_timing(3)->wait == std::chrono::microseconds(3000));

@@ -14,7 +14,7 @@ namespace {
 Link::AckTiming suspect_at(microseconds wait) {
   Link::AckTiming t;
   t.wait = wait;
-  t.suspect = true;  // guessed (a terminal seeded from another's estimate): probed below
+  t.suspect = true;  // raised, or kept from an earlier run at a quarter of the timeout: probed below
   return t;
 }
 
@@ -114,4 +114,30 @@ TEST_CASE("ack latency: a request written ahead that replaced the one waited for
   AckPlan q = ack_plan(t, milliseconds(1000));
   ack_seen(t, q, 1, microseconds(1000), milliseconds(1000));
   CHECK(t.wait == microseconds(4500));
+}
+
+TEST_CASE("ack latency: a wait guessed from another terminal goes unprobed for its first acknowledges, then is probed",
+          "[ack]") {
+  Link::AckTiming t = suspect_at(microseconds(2000));
+  t.guessed = true;  // a terminal seeded from another's estimate (ModbusLink::ack_timing)
+  for (unsigned i = 0; i < kGuessTrusted; ++i) {
+    AckPlan p = ack_plan(t, milliseconds(1000));
+    REQUIRE_FALSE(p.probe);  // a cold scan's R8, R34, R35: polled at the guess, no exchange spent on a probe
+    CHECK(p.first == microseconds(2000));
+    ack_seen(t, p, 1, microseconds(2050), milliseconds(1000));
+  }
+  CHECK(t.suspect);  // still a guess: nothing came below it
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  CHECK(p.probe);  // now it may come down
+  CHECK(p.first == microseconds(1000));
+}
+
+TEST_CASE("ack latency: a guessed wait that is too short is raised at once, as any other", "[ack]") {
+  Link::AckTiming t = suspect_at(microseconds(1000));
+  t.guessed = true;
+  AckPlan p = ack_plan(t, milliseconds(1000));
+  REQUIRE_FALSE(p.probe);
+  ack_seen(t, p, 2, microseconds(1700), milliseconds(1000));
+  CHECK(t.wait == microseconds(1700));
+  CHECK(t.suspect);
 }

@@ -56,6 +56,8 @@ class Link {
   struct AckTiming {
     std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
     bool suspect = false;               // `wait` may be too long (raised, or guessed): probe below it
+    bool guessed = false;               // `wait` was taken from another terminal of the coupler (this run):
+                                        // the first acknowledges go at it unprobed (ack_latency.hpp)
     unsigned samples = 0;               // acknowledges timed while learning (this run)
     std::chrono::microseconds longest{0};  // longest latency timed while learning
     bool missed = false;                // a poll at `wait` came too early (this run)

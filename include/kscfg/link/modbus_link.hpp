@@ -45,6 +45,7 @@ class ModbusLink : public Link {
   void set_ack_wait(unsigned position, std::chrono::microseconds wait, bool suspect = false) {
     timings_[position].wait = wait;
     timings_[position].suspect = suspect;
+    timings_[position].guessed = false;
   }
 
   // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).

@@ -21,6 +21,12 @@
 //    The wait has to cover the slowest answers, not the typical one: where a terminal answers after
 //    one or two bus cycles at random, one probe that found the answer at half is one fast sample,
 //    and a wait lowered to it makes every other read-ahead come too early (issue 22).
+// A terminal not timed yet starts from the slowest wait known on its coupler (the terminals share
+// its K-bus cycle). That guess is suspect, but its first kGuessTrusted requests go at it unprobed: a
+// cold scan reads R8, R34 and R35 of each terminal in turn, and a probe on the first of them missed
+// on every terminal of a station of one type, an exchange per terminal for nothing. A guess that is
+// too short shows at the first poll and is raised as above; one that is too long costs time on those
+// requests only, and the probe after them brings it down.
 // The scan cache keeps the wait and whether it is suspect; --rescan starts from nothing.
 //
 // A station engine (issue 22) that runs several terminals' handshakes at once uses the same
@@ -56,6 +62,7 @@ void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout);
 bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
 bool ack_suspect_when_kept(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
 constexpr unsigned kProbeEvery = 32;
+constexpr unsigned kGuessTrusted = 3;
 constexpr unsigned kSlowFor = 2 * kProbeEvery;
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const Link::AckTiming& t);
