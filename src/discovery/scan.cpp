@@ -172,6 +172,13 @@ void read_watchdog(ScanResult& r, ModbusRegisters& client) {
 
 namespace {
 
+Error silent_terminal(std::size_t out, const Error& e) {
+  return Error(e.code(),
+               fmt::format("scan: the terminal whose control byte would be output byte {} does not answer: {}", out,
+                           e.what()),
+               "check the coupler's mapping settings, or describe the station with --station");
+}
+
 // Stations come in runs of one type. A terminal after one that answered through window `win` of
 // type `prev` is read as one more of them: R8 and prev's registers that decide the image in one
 // program through the same kind of window (reads change nothing on a terminal), each request sent
@@ -186,11 +193,15 @@ bool walk_as_before(ScanResult& r, Link& link, const Catalog& catalog, const Ses
   std::vector<unsigned> regs{8};
   regs.insert(regs.end(), guess.begin(), guess.end());
   std::vector<std::uint16_t> got;
+  std::size_t answered = 0;  // registers of `regs` answered before a failure
   try {
     RegisterSession s(link, t, 0, so);
-    got = s.read_then_close(regs);
+    got = s.read_then_close(regs, [&](std::size_t i) { answered = std::max(answered, i + 1); });
   } catch (const Error& e) {
     if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
+    // R8 not acknowledged at all: the status byte is where the walk as before would look too
+    // (both windows start with it), so asking again there would only wait out the timeout twice.
+    if (e.code() == Exit::timeout && answered == 0) throw silent_terminal(t.out_offset, e);
     return false;  // walked as before, which names what does not answer
   }
   const TerminalType* type = catalog.find_by_number(got[0]);
@@ -288,10 +299,7 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
       } catch (const Error& e) {
         s.close();
         if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
-        throw Error(e.code(),
-                    fmt::format("scan: the terminal whose control byte would be output byte {} does not answer: {}",
-                                out, e.what()),
-                    "check the coupler's mapping settings, or describe the station with --station");
+        throw silent_terminal(out, e);
       }
     }
     const TerminalType* type = nullptr;

@@ -110,3 +110,44 @@ TEST_CASE("the scan's walk: a guess of the registers that decide an image that d
   CHECK(r8_reads(4) == 2);
   CHECK(r8_reads(5) == 2);
 }
+
+TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, not again as before",
+          "[scan][walk]") {
+  // Terminal 3 is mute. It is read as one more KL6001 after terminal 2; its status byte is where the
+  // walk as before would look too, so a timeout there ends the walk with its error at once (before,
+  // the walk as before sent R8 again and waited out the timeout a second time).
+  StationSpec spec = parse_station(
+      "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL6001\"\n"
+      "[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL9010\"\n",
+      "test", cat());
+  EmulatedStation st(spec, cat());
+  const StationLayout& L = st.layout();
+  st.channel(3, 0).faults.mute = true;
+  ScriptedCoupler link(st, {0, 0}, 0, 2);
+  for (const auto& t : L.terminals) link.expect(t.position, std::chrono::microseconds(300));
+  const std::size_t ctrl3 = L.terminal(3).out_offset;
+  unsigned r8_requests = 0;  // exchanges that put an R8 request into terminal 3's control byte
+  std::uint8_t last = 0;
+  link.on_exchange = [&](const std::vector<std::uint8_t>& out) {
+    if (out[ctrl3] == 0x88 && last != 0x88) ++r8_requests;
+    last = out[ctrl3];
+  };
+  ScanHead h;
+  h.ident = "BK9000";
+  h.ident_read = true;
+  h.lengths = {static_cast<unsigned>(8 * L.complex_out), static_cast<unsigned>(8 * L.complex_in),
+               static_cast<unsigned>(L.digital_out_bits), static_cast<unsigned>(L.digital_in_bits)};
+  ScanResult r = begin_scan(h, "test", std::nullopt);
+  SessionOptions so;
+  so.timeout = std::chrono::milliseconds(40);
+  try {
+    walk(r, link, cat(), so);
+    FAIL("the walk went past a mute terminal");
+  } catch (const Error& e) {
+    CHECK(e.code() == Exit::timeout);
+    CHECK_THAT(e.what(), Catch::Contains(fmt::format("output byte {} does not answer", ctrl3)));
+    CHECK_THAT(e.what(), Catch::Contains("R8"));
+  }
+  CHECK(r8_requests == 1);
+  CHECK(r.spec.terminals.size() == 2);  // the two before it, found
+}

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <deque>
+#include <functional>
 #include <map>
 #include <utility>
 #include <vector>
@@ -45,11 +46,13 @@ class ScriptedCoupler : public Link {
     exchange();
   }
   std::size_t exchanges_seen = 0;
+  std::function<void(const std::vector<std::uint8_t>&)> on_exchange;  // the outputs as each exchange leaves them
   void expect(unsigned position, std::chrono::microseconds wait) { timing_[position].wait = wait; }
 
  private:
   void exchange() {
     ++exchanges_seen;
+    if (on_exchange) on_exchange(master_);
     history_.push_back(master_);
     if (history_.size() > lag_ + 1) history_.pop_front();
     auto& out = st_.outputs();
