@@ -27,6 +27,16 @@ struct Walked {
   std::vector<std::string> trace;
 };
 
+// What a BK9000 with this station reports before the walk: its identification and image lengths.
+ScanHead head_of(const StationLayout& L) {
+  ScanHead h;
+  h.ident = "BK9000";
+  h.ident_read = true;
+  h.lengths = {static_cast<unsigned>(8 * L.complex_out), static_cast<unsigned>(8 * L.complex_in),
+               static_cast<unsigned>(L.digital_out_bits), static_cast<unsigned>(L.digital_in_bits)};
+  return h;
+}
+
 Walked walk_station(const std::string& text) {
   StationSpec spec = parse_station(text, "test", cat());
   EmulatedStation st(spec, cat());
@@ -35,12 +45,7 @@ Walked walk_station(const std::string& text) {
   // latency known: the walk's exchanges do not depend on the machine's speed.
   ScriptedCoupler link(st, {0, 0}, 0, 2);
   for (const auto& t : L.terminals) link.expect(t.position, std::chrono::microseconds(300));
-  ScanHead h;
-  h.ident = "BK9000";
-  h.ident_read = true;
-  h.lengths = {static_cast<unsigned>(8 * L.complex_out), static_cast<unsigned>(8 * L.complex_in),
-               static_cast<unsigned>(L.digital_out_bits), static_cast<unsigned>(L.digital_in_bits)};
-  Walked w{begin_scan(h, "test", std::nullopt), 0, {}};
+  Walked w{begin_scan(head_of(L), "test", std::nullopt), 0, {}};
   SessionOptions so;
   so.trace = [&](const std::string& s) { w.trace.push_back(s); };
   walk(w.r, link, cat(), so);
@@ -132,12 +137,7 @@ TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, no
     if (out[ctrl3] == 0x88 && last != 0x88) ++r8_requests;
     last = out[ctrl3];
   };
-  ScanHead h;
-  h.ident = "BK9000";
-  h.ident_read = true;
-  h.lengths = {static_cast<unsigned>(8 * L.complex_out), static_cast<unsigned>(8 * L.complex_in),
-               static_cast<unsigned>(L.digital_out_bits), static_cast<unsigned>(L.digital_in_bits)};
-  ScanResult r = begin_scan(h, "test", std::nullopt);
+  ScanResult r = begin_scan(head_of(L), "test", std::nullopt);
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(40);
   try {
