@@ -53,7 +53,7 @@ class Coupler:
             self.peer = peerproc.Peer(["--tcp", "127.0.0.1:0", "--dump-state", self.dump, "--watchdog-ms", "0",
                                        "--station", ",".join(STATION)])
             self.uri = self.peer.endpoint
-        self.key = "tcp-" + self.uri[6:].replace(":", "-") + "-unit1"
+        self.key = "ip-" + self.uri[6:].replace(":", "-") + "-unit1"  # station_key (link/coupler_key.hpp)
 
     def kscfg(self, args, timeout=120):
         t0 = time.monotonic()

@@ -11,6 +11,7 @@
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/ads_access.hpp"
@@ -19,12 +20,6 @@
 namespace kscfg {
 
 namespace {
-
-std::string safe(const std::string& s) {
-  std::string o;
-  for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
-  return o;
-}
 
 // The station behind an ADS coupler: its table 9 over port 100, read once, on first use.
 class AdsDiscovery : public StationDiscovery {
@@ -63,12 +58,11 @@ class AdsDiscovery : public StationDiscovery {
 }  // namespace
 
 std::string coupler_lock_path(const ModbusTarget& t) {
-  std::string key = t.tcp ? port_key(t) : fmt::format("rtu-{}", safe(t.device));
-  return (std::filesystem::path(lock_dir()) / (key + ".lock")).string();
+  return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
 }
 
 std::string coupler_lock_path(const AdsTarget& t) {
-  return (std::filesystem::path(lock_dir()) / fmt::format("ads-{}-{}.lock", safe(t.host), t.port)).string();
+  return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
 }
 
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
@@ -93,7 +87,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     // Channels unlocked over port 100 are noted in the session journal of this coupler, so that the
     // next kscfg relocks what a killed one left (session/ads_access.hpp).
     if (opt.journal && !opt.journal_dir.empty())
-      opt.journal->open(opt.journal_dir, fmt::format("ads-{}-{}", safe(target.host), target.port));
+      opt.journal->open(opt.journal_dir, station_key(target));
     auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace);
     return {std::move(link), std::move(discovery)};
   }
@@ -118,7 +112,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   d.rescan = opt.rescan;
   so.notice = opt.notice;  // e.g. a dead session's register mode, finished by the scan's session
   if (opt.journal && !opt.journal_dir.empty()) {
-    opt.journal->open(opt.journal_dir, port_key(link->client().target()));
+    opt.journal->open(opt.journal_dir, station_key(link->client().target()));
     so.journal = opt.journal;
   }
   auto discovery = discover_by_scan(*link, catalog, so, d);

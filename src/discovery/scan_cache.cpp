@@ -11,6 +11,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/scan.hpp"
+#include "kscfg/link/coupler_key.hpp"
 
 namespace kscfg {
 
@@ -20,12 +21,6 @@ using nlohmann::json;
 namespace {
 
 constexpr int kFormat = 1;
-
-std::string safe(const std::string& s) {
-  std::string o;
-  for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
-  return o;
-}
 
 }  // namespace
 
@@ -37,13 +32,8 @@ std::string default_cache_dir() {
   return (base / "kscfg").string();
 }
 
-std::string port_key(const ModbusTarget& t) {
-  return t.tcp ? fmt::format("tcp-{}-{}-unit{}", safe(t.host), t.port, t.unit)
-               : fmt::format("rtu-{}-unit{}", safe(t.device), t.unit);
-}
-
 ScanCache::ScanCache(std::string dir, const ModbusTarget& t) : dir_(std::move(dir)) {
-  path_ = (fs::path(dir_) / "scans" / (port_key(t) + ".json")).string();
+  path_ = (fs::path(dir_) / "scans" / (station_key(t) + ".json")).string();
 }
 
 ScanCache::~ScanCache() { unlock(); }

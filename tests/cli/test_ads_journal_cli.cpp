@@ -17,7 +17,7 @@ std::size_t journals(const std::string& dir) {
   std::size_t n = 0;
   std::error_code ec;
   for (fs::directory_iterator it(dir, ec); !ec && it != fs::directory_iterator(); it.increment(ec))
-    if (it->path().filename().string().rfind("ads-", 0) == 0) ++n;
+    if (it->path().filename().string().find("-ads.") != std::string::npos) ++n;  // KEY-ads.PID-TIME.sessions
   return n;
 }
 

@@ -65,7 +65,10 @@ struct Coupler {
     srv = std::make_unique<Server>(state, a, dir.file("serve.err"));
   }
   std::string uri() const { return srv->uri; }
-  std::string key() const { return "tcp-" + srv->host_port().replace(srv->host_port().find(':'), 1, "-") + "-unit1"; }
+  // The coupler's identity (link/coupler_key.hpp): its address and, off port 502, its port.
+  std::string key() const { return "ip-" + srv->host_port().replace(srv->host_port().find(':'), 1, "-"); }
+  // The station behind it at unit 1: its journals' and scan cache's key.
+  std::string station() const { return key() + "-unit1"; }
   std::vector<std::string> args(std::vector<std::string> a) const {
     a.insert(a.begin(), {"--port", uri()});
     return a;
@@ -323,7 +326,7 @@ TEST_CASE("forged or stale journals: acted on only where an entry describes the 
   std::string saved(48, '0');  // terminal 3's 24 output bytes as a dead session found them
   saved.replace(4, 4, "4142");
   auto forge = [&](const std::string& id, const std::string& text) {
-    write_text(sessions + "/" + c.key() + "." + id + ".sessions", text);
+    write_text(sessions + "/" + c.station() + "." + id + ".sessions", text);
   };
   // Terminal 3's window under position 1; the right window with another type; the right terminal
   // with a control byte its process did not write; terminal 2, which is not in register mode.
@@ -452,7 +455,7 @@ TEST_CASE("poisoned scan caches (a latency beyond the timeout, a FIFO, a link to
           "[sessions][cache][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
-  std::string cache = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/" + c.key() + ".json";
+  std::string cache = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/" + c.station() + ".json";
   auto good = nlohmann::json::parse(read_text(cache));
   auto j = good;
   j["ack_wait_us"]["1"] = 4000LL * 1000 * 1000;  // 4000 s
@@ -492,7 +495,7 @@ TEST_CASE("kept acknowledge latencies: --rescan forgets them, a suspect one come
           "[sessions][latency][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
-  std::string cache = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/" + c.key() + ".json";
+  std::string cache = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/" + c.station() + ".json";
   auto set_wait = [&](long long us) {
     auto j = nlohmann::json::parse(read_text(cache));
     j["ack_wait_us"]["3"] = us;
@@ -513,7 +516,7 @@ TEST_CASE("terminals swapped for others that keep the image lengths: the kept sc
           "[sessions][cache][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
-  std::string old_key = c.key();
+  std::string old_key = c.station();
   std::string scans = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/";
   c.srv.reset();
   // KL6031, KL6001, KL5101, KL3022 in place of KL6001, KL5101, KL6031, KL3022: the same lengths.
@@ -523,7 +526,7 @@ TEST_CASE("terminals swapped for others that keep the image lengths: the kept sc
                                          "type = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
   REQUIRE(run_kscfg({"--port", "emu:" + c.state, "emu", "reset", "--station", c.dir.file("swapped.toml")}).rc == 0);
   c.start();
-  fs::copy_file(scans + old_key + ".json", scans + c.key() + ".json");  // the same coupler, as kept
+  fs::copy_file(scans + old_key + ".json", scans + c.station() + ".json");  // the same coupler, as kept
   Run r = c({"-v", "-t", "3", "read", "--raw", "R8"});
   CHECK(r.rc == 0);
   CHECK(r.out == "0x13ED\n");  // KL5101 at position 3 now

@@ -53,11 +53,12 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
                                                      std::function<const StationLayout&()> layout);
 
-// The lock file of a Modbus coupler on this computer (lock_dir()): per host, port and unit over
-// TCP; per serial device over RTU (one master on a line, whatever the unit).
+// The lock file of a coupler on this computer (lock_dir()), one per coupler identity
+// (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
+// unit) and ADS (port 48898) to one coupler, a serial device and every link to it take one lock,
+// and two kscfg processes on one coupler take turns (docs/design.md 6.9). Error(Exit::link) when
+// the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
-// The lock file of an ADS coupler (per host and AMS/TCP port): two kscfg processes on one coupler
-// take turns over ADS too (docs/design.md 6.9).
 std::string coupler_lock_path(const AdsTarget& target);
 
 // Finishes what kscfg processes that died on this port left in register mode (their journals,

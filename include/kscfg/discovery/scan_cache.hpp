@@ -1,5 +1,6 @@
-// What a scan of a Modbus coupler learned, kept between runs per port and unit id:
-// $XDG_CACHE_HOME/kscfg/scans/<port>.json (written atomically; a lock file serialises the
+// What a scan of a Modbus coupler learned, kept between runs per coupler and unit id:
+// $XDG_CACHE_HOME/kscfg/scans/KEY.json (KEY: station_key(), link/coupler_key.hpp: one file
+// whatever name the coupler was reached by) (written atomically; a lock file serialises the
 // kscfg processes that scan the same coupler). Any run may find it out of date: it is validated
 // against the identification and image lengths the coupler reports, and replaced when they
 // differ.
@@ -20,9 +21,6 @@ namespace kscfg {
 
 // $XDG_CACHE_HOME/kscfg (or ~/.cache/kscfg, /tmp/kscfg-cache).
 std::string default_cache_dir();
-
-// A file name for a port and unit: "tcp-HOST-PORT-unitN" or "rtu-DEVICE-unitN".
-std::string port_key(const ModbusTarget& target);
 
 struct CachedScan {
   std::optional<ScanResult> scan;  // none when only latencies are known (commands with --station)

@@ -1,0 +1,43 @@
+// A coupler's identity on this computer, whatever name it was reached by (issue 32 item 1,
+// docs/design.md 6.9): the one key behind its lock file, its session journals and its scan cache.
+//
+// Hosts are keyed by their numeric address (getaddrinfo): `localhost`, `127.0.0.1` and any other
+// name of one address are one key. A name with several addresses is keyed by the lowest IPv4
+// address (numerically; an IPv4-mapped IPv6 address counts as IPv4), or, with no IPv4 address, by
+// the lowest IPv6 address (bytewise). Beckhoff couplers speak IPv4 only, so a name's IPv4 address is
+// the coupler's. A name that does not resolve is Error(Exit::link), as the connect would say.
+//
+// Modbus TCP on the standard port 502 and ADS on the standard AMS/TCP port 48898 of one address
+// are one coupler (a BK9000 answers both), keyed by the address alone: "ip-10.0.3.11". The Modbus
+// unit id is not part of it: a BK9000 is one coupler whatever unit a request names, and the units
+// of a Modbus gateway take turns, which is safe. On any other port (a `kscfg serve` on a high port,
+// the test suite's many serves side by side on 127.0.0.1) the key is address and port,
+// "ip-127.0.0.1-5020": only one listener can have a port, so the protocol need not be in it.
+//
+// A serial device is keyed by its real path (realpath: a /dev/serial/by-id/ link and its target
+// are one key), whatever the unit: one master at a time on a line. "rtu-_dev_ttyUSB0".
+#pragma once
+#include <string>
+
+#include "kscfg/link/ads_client.hpp"
+#include "kscfg/link/modbus_client.hpp"
+
+namespace kscfg {
+
+// The numeric address that keys `host` (the rule above): "127.0.0.1", "::1", "fe80::1%eth0".
+// Resolved once per process and host. Error(Exit::link) when the name does not resolve.
+std::string host_key_address(const std::string& host);
+
+// The coupler's identity, usable as a file name: "ip-ADDR" (standard ports), "ip-ADDR-PORT",
+// "rtu-DEVICE". Modbus TCP and ADS to one coupler give one key.
+std::string coupler_key(const ModbusTarget& target);
+std::string coupler_key(const AdsTarget& target);
+
+// The station behind a Modbus coupler at its unit id (scan caches and session journals are kept
+// per unit, decision 24): "ip-10.0.3.11-unit1", "rtu-_dev_ttyUSB0-unit3".
+std::string station_key(const ModbusTarget& target);
+// The session journals of direct register access over ADS (their entries are of another kind than
+// a Modbus session's, docs/design.md 6.2): "ip-10.0.3.11-ads".
+std::string station_key(const AdsTarget& target);
+
+}  // namespace kscfg

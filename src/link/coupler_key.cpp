@@ -1,0 +1,123 @@
+#include "kscfg/link/coupler_key.hpp"
+
+#include <arpa/inet.h>
+#include <fmt/format.h>
+#include <net/if.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+
+#include <array>
+#include <cctype>
+#include <climits>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <optional>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/ams.hpp"
+
+namespace kscfg {
+
+namespace {
+
+constexpr unsigned kModbusPort = 502;
+
+std::string safe(const std::string& s) {
+  std::string o;
+  for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
+  return o;
+}
+
+std::string resolve(const std::string& host) {
+  addrinfo hints{}, *res = nullptr;
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  if (int rc = getaddrinfo(host.c_str(), nullptr, &hints, &res); rc != 0)
+    throw Error(Exit::link, fmt::format("cannot resolve host '{}': {}", host, gai_strerror(rc)),
+                "check the host name or give an IP address");
+  std::optional<std::uint32_t> v4;  // host order, the lowest
+  std::optional<std::pair<std::array<unsigned char, 16>, std::uint32_t>> v6;  // bytes and scope, the lowest
+  for (addrinfo* ai = res; ai; ai = ai->ai_next) {
+    if (ai->ai_family == AF_INET) {
+      std::uint32_t a = ntohl(reinterpret_cast<const sockaddr_in*>(ai->ai_addr)->sin_addr.s_addr);
+      if (!v4 || a < *v4) v4 = a;
+    } else if (ai->ai_family == AF_INET6) {
+      const auto* s6 = reinterpret_cast<const sockaddr_in6*>(ai->ai_addr);
+      if (IN6_IS_ADDR_V4MAPPED(&s6->sin6_addr)) {
+        std::uint32_t a = 0;
+        std::memcpy(&a, s6->sin6_addr.s6_addr + 12, 4);
+        a = ntohl(a);
+        if (!v4 || a < *v4) v4 = a;
+        continue;
+      }
+      std::pair<std::array<unsigned char, 16>, std::uint32_t> b;
+      std::memcpy(b.first.data(), s6->sin6_addr.s6_addr, 16);
+      b.second = s6->sin6_scope_id;
+      if (!v6 || b < *v6) v6 = b;
+    }
+  }
+  freeaddrinfo(res);
+  char text[INET6_ADDRSTRLEN + IF_NAMESIZE + 2] = {};
+  if (v4) {
+    in_addr a{};
+    a.s_addr = htonl(*v4);
+    inet_ntop(AF_INET, &a, text, sizeof text);
+    return text;
+  }
+  if (v6) {
+    in6_addr a{};
+    std::memcpy(a.s6_addr, v6->first.data(), 16);
+    inet_ntop(AF_INET6, &a, text, sizeof text);
+    std::string out = text;
+    if (v6->second != 0) {  // a link-local address is one per interface
+      char name[IF_NAMESIZE] = {};
+      out += "%" + std::string(if_indextoname(v6->second, name) ? name : std::to_string(v6->second).c_str());
+    }
+    return out;
+  }
+  throw Error(Exit::link, fmt::format("cannot resolve host '{}': no IPv4 or IPv6 address", host),
+              "check the host name or give an IP address");
+}
+
+std::string ip_key(const std::string& host, unsigned port, unsigned standard) {
+  std::string a = safe(host_key_address(host));
+  return port == standard ? "ip-" + a : fmt::format("ip-{}-{}", a, port);
+}
+
+}  // namespace
+
+std::string host_key_address(const std::string& host) {
+  static std::mutex m;
+  static std::map<std::string, std::string> known;
+  {
+    std::lock_guard<std::mutex> g(m);
+    if (auto it = known.find(host); it != known.end()) return it->second;
+  }
+  std::string a = resolve(host);
+  std::lock_guard<std::mutex> g(m);
+  return known.emplace(host, a).first->second;
+}
+
+std::string coupler_key(const ModbusTarget& t) {
+  if (t.tcp) return ip_key(t.host, t.port, kModbusPort);
+  // The device as the kernel knows it; one that is not there (yet) by its absolute path, and its
+  // open says what is wrong.
+  std::error_code ec;
+  std::filesystem::path real = std::filesystem::canonical(t.device, ec);
+  if (ec) real = std::filesystem::weakly_canonical(std::filesystem::absolute(t.device, ec), ec);
+  if (ec) real = t.device;
+  return "rtu-" + safe(real.string());
+}
+
+std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
+
+std::string station_key(const ModbusTarget& t) { return fmt::format("{}-unit{}", coupler_key(t), t.unit); }
+
+std::string station_key(const AdsTarget& t) { return coupler_key(t) + "-ads"; }
+
+}  // namespace kscfg

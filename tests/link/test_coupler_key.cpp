@@ -1,0 +1,77 @@
+// A coupler's identity whatever name reaches it (issue 32 item 1, link/coupler_key.hpp): every
+// spelling of one address is one key, Modbus TCP on 502 and ADS on 48898 of one address are one
+// coupler, other ports keep theirs, a serial device is its real path.
+#include "kscfg/link/coupler_key.hpp"
+
+#include <catch2/catch.hpp>
+#include <filesystem>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/link/port_uri.hpp"
+#include "support.hpp"
+
+using namespace kscfg;
+namespace fs = std::filesystem;
+
+namespace {
+
+ModbusTarget mb(const std::string& uri) { return modbus_target(parse_port_uri(uri), uri); }
+AdsTarget ads(const std::string& uri) { return ads_target(parse_port_uri(uri), uri); }
+
+// A path as a key spells it.
+std::string spelled(std::string s) {
+  for (char& c : s)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.' && c != '-') c = '_';
+  return s;
+}
+
+}  // namespace
+
+TEST_CASE("coupler keys: every spelling of one address is one key, standard Modbus and ADS ports one coupler",
+          "[link][lock]") {
+  CHECK(host_key_address("127.0.0.1") == "127.0.0.1");
+  CHECK(host_key_address("localhost") == "127.0.0.1");  // its IPv4 address, though ::1 may come first
+  CHECK(host_key_address("::ffff:127.0.0.1") == "127.0.0.1");
+  CHECK(host_key_address("::1") == "::1");
+  CHECK(host_key_address("0x7f.1") == "127.0.0.1");  // inet_aton's spellings resolve as well
+
+  CHECK(coupler_key(mb("tcp://localhost")) == "ip-127.0.0.1");
+  CHECK(coupler_key(mb("tcp://127.0.0.1:502?unit=7")) == "ip-127.0.0.1");  // a BK9000 is one whatever unit
+  CHECK(coupler_key(ads("ads://localhost")) == "ip-127.0.0.1");             // 48898: the same coupler
+  CHECK(coupler_key(ads("ads://127.0.0.1:48898?netid=127.0.0.1.1.1")) == "ip-127.0.0.1");
+  // Off the standard ports: the port too (the suite's serves side by side on 127.0.0.1).
+  CHECK(coupler_key(mb("tcp://localhost:5020")) == "ip-127.0.0.1-5020");
+  CHECK(coupler_key(mb("tcp://127.0.0.1:5020")) == "ip-127.0.0.1-5020");
+  CHECK(coupler_key(mb("tcp://127.0.0.1:5021")) == "ip-127.0.0.1-5021");
+  CHECK(coupler_key(ads("ads://localhost:5020")) == "ip-127.0.0.1-5020");
+  CHECK(coupler_key(ads("ads://127.0.0.1:502")) == "ip-127.0.0.1-502");     // ADS on Modbus's port: not standard
+  CHECK(coupler_key(mb("tcp://127.0.0.1:48898")) == "ip-127.0.0.1-48898");
+  CHECK(coupler_key(mb("tcp://[::1]:502")) == "ip-__1");
+  // The stations behind it: per unit over Modbus (decision 24), ADS's journals apart.
+  CHECK(station_key(mb("tcp://localhost:5020")) == "ip-127.0.0.1-5020-unit1");
+  CHECK(station_key(mb("tcp://127.0.0.1?unit=3")) == "ip-127.0.0.1-unit3");
+  CHECK(station_key(ads("ads://localhost")) == "ip-127.0.0.1-ads");
+
+  try {
+    (void)coupler_key(mb("tcp://no-such-host.invalid"));
+    FAIL("resolved");
+  } catch (const Error& e) {
+    CHECK(e.code() == Exit::link);
+    CHECK_THAT(e.what(), Catch::StartsWith("cannot resolve host 'no-such-host.invalid': "));
+  }
+  CHECK_THROWS_AS(coupler_key(ads("ads://no-such-host.invalid")), Error);
+}
+
+TEST_CASE("coupler keys: a serial device and a link to it are one key, whatever the unit", "[link][lock]") {
+  test::TempDir d;
+  test::write_text(d.file("ttyX"), "");
+  fs::create_symlink(d.file("ttyX"), d.file("by-id-link"));
+  fs::create_symlink("by-id-link", d.file("link-to-link"));
+  std::string real = "rtu-" + spelled(fs::canonical(d.file("ttyX")).string());
+  CHECK(coupler_key(mb("rtu:" + d.file("ttyX"))) == real);
+  CHECK(coupler_key(mb("rtu:" + d.file("by-id-link") + "?unit=5")) == real);
+  CHECK(coupler_key(mb("rtu:" + d.file("link-to-link"))) == real);
+  CHECK(station_key(mb("rtu:" + d.file("by-id-link") + "?unit=5")) == real + "-unit5");
+  // A device that is not there is keyed by its path (its open then says what is wrong).
+  CHECK(coupler_key(mb("rtu:" + d.file("gone"))) == "rtu-" + spelled(fs::canonical(d.path).string() + "/gone"));
+}
