@@ -19,13 +19,25 @@ namespace {
 // timeout) may pass next time and keeps the journal, with a warning (also without -v: the terminal
 // may be left as the dead process left it); anything else (an address the coupler does not have:
 // not this station) will not. A journal is released once its entries were tried.
-void each_dead_entry(const SessionOptions& so, const char* left,
+// Only entries of its own kind (`direct`: ADS port 100; else the image handshake) are handed on: a
+// journal that names a channel of the other kind stays for a kscfg of that kind (its keys are
+// apart, link/coupler_key.hpp; an older kscfg's journal might not be), never dropped untouched.
+void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
                      const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish) {
   if (!so.journal || !so.journal->enabled()) return;
   for (auto& d : so.journal->claim_dead()) {
     bool done = true;
     try {
       for (const auto& e : d.open) {
+        if (e.direct != direct) {
+          done = false;
+          if (so.trace)
+            so.trace(fmt::format("journal of kscfg process {}: terminal {} channel {} {} over {}; kept for a kscfg "
+                                 "over {}",
+                                 d.pid, e.position, e.channel + 1, e.direct ? "left unlocked" : "left in register mode",
+                                 e.direct ? "ADS" : "Modbus", e.direct ? "ads://" : "tcp:// or rtu:"));
+          continue;
+        }
         try {
           finish(d, e);
         } catch (const Error& err) {
@@ -76,13 +88,7 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
   };
-  each_dead_entry(so, "left", [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
-    if (e.direct) {
-      trace(fmt::format("journal of kscfg process {}: an entry of direct register access (ADS) for terminal {} "
-                        "in the journal of an image link; not touched",
-                        d.pid, e.position));
-      return;
-    }
+  each_dead_entry(so, "left", false, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
     // A session of a scan that had not identified the terminal yet (a type no catalog has) is
     // finished as one of an unknown type: only R31 and the control byte are touched.
     const TerminalType* type = catalog.find(e.type);
@@ -135,8 +141,8 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
 
 void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal) {
-  each_dead_entry(so, "left unlocked", [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
-    const TerminalImage* t = e.direct ? terminal(e.position) : nullptr;
+  each_dead_entry(so, "left unlocked", true, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
+    const TerminalImage* t = terminal(e.position);
     if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
       if (so.trace)
         so.trace(fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
