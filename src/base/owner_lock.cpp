@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <pwd.h>
 #include <signal.h>
 #include <sys/file.h>
 #include <sys/stat.h>
@@ -36,6 +37,37 @@ std::string printable(std::string_view s, std::size_t max) {
 
 bool alive(long pid) { return pid > 0 && (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM); }
 
+// "mallory (uid 1001)", or "uid 1001" for a uid without a name.
+std::string user_text(uid_t uid) {
+  struct passwd pw {}, *found = nullptr;
+  char buf[1024];
+  if (::getpwuid_r(uid, &pw, buf, sizeof buf, &found) == 0 && found && found->pw_name)
+    return fmt::format("{} (uid {})", printable(found->pw_name, 64), uid);
+  return fmt::format("uid {}", uid);
+}
+
+// What a name that is not a lock file is: "a symbolic link".
+std::string kind_of(const struct stat& st) {
+  if (S_ISLNK(st.st_mode)) return "a symbolic link";
+  if (S_ISDIR(st.st_mode)) return "a directory";
+  if (S_ISFIFO(st.st_mode)) return "a FIFO";
+  if (S_ISSOCK(st.st_mode)) return "a socket";
+  if (S_ISCHR(st.st_mode) || S_ISBLK(st.st_mode)) return "a device";
+  if (S_ISREG(st.st_mode) && st.st_nlink > 1) return fmt::format("a file with {} hard links", st.st_nlink);
+  return "not a regular file";
+}
+
+bool lock_file_shape(const struct stat& st) { return S_ISREG(st.st_mode) && st.st_nlink <= 1; }
+
+// In a directory every user may write (/run/lock/kscfg), anyone may plant a name: it is refused,
+// with whose it is, so that an administrator knows whom to ask (issue 32 item 6).
+[[noreturn]] void refuse(const std::string& path, const std::string& what, const struct stat& st) {
+  throw Error(Exit::file,
+              fmt::format("the lock file {} of {} is {} owned by {}, not a kscfg lock", path, what, kind_of(st),
+                          user_text(st.st_uid)),
+              "remove it, or ask its owner to");
+}
+
 std::optional<LockHolder> parse_record(const std::string& text) {
   auto nl = text.find('\n');
   if (nl == std::string::npos || nl == 0 || nl > 12) return std::nullopt;
@@ -54,11 +86,30 @@ std::optional<LockHolder> parse_record(const std::string& text) {
   return h;
 }
 
+// The record of the file open at `fd`, trusted only when its process belongs to the file's owner:
+// a file (0644) is written by its owner alone, and no one can name another user's process as the
+// holder of a coupler. A file of another user also names that user.
 std::optional<LockHolder> read_record(int fd) {
+  struct stat st {}, proc {};
+  if (::fstat(fd, &st) != 0) return std::nullopt;
   char buf[kMaxRecord];
   ssize_t n = ::pread(fd, buf, sizeof buf, 0);
   if (n <= 0) return std::nullopt;
-  return parse_record(std::string(buf, static_cast<std::size_t>(n)));
+  auto h = parse_record(std::string(buf, static_cast<std::size_t>(n)));
+  if (!h || ::stat(fmt::format("/proc/{}", h->pid).c_str(), &proc) != 0 || proc.st_uid != st.st_uid)
+    return std::nullopt;
+  if (st.st_uid != ::geteuid()) h->user = user_text(st.st_uid);
+  return h;
+}
+
+// Who holds the file open at `fd`, for messages: its record, or "another kscfg process" (with the
+// owner of a file of another user: its holder, or who can tell).
+std::string holder_of(int fd) {
+  if (auto h = read_record(fd)) return h->text();
+  struct stat st {};
+  if (::fstat(fd, &st) == 0 && st.st_uid != ::geteuid())
+    return fmt::format("another kscfg process (lock file owned by {})", user_text(st.st_uid));
+  return "another kscfg process";
 }
 
 std::string seconds(std::chrono::milliseconds ms) { return fmt::format("{:g} s", ms.count() / 1000.0); }
@@ -66,7 +117,9 @@ std::string seconds(std::chrono::milliseconds ms) { return fmt::format("{:g} s",
 }  // namespace
 
 std::string LockHolder::text() const {
-  return command.empty() ? fmt::format("kscfg process {}", pid) : fmt::format("kscfg process {} ({})", pid, command);
+  std::string t =
+      command.empty() ? fmt::format("kscfg process {}", pid) : fmt::format("kscfg process {} ({})", pid, command);
+  return user.empty() ? t : t + " of " + user;
 }
 
 std::string own_command_line() {
@@ -100,7 +153,13 @@ std::string lock_dir() {
   if (::stat("/run/lock", &st) == 0 && S_ISDIR(st.st_mode) && ::access("/run/lock", W_OK | X_OK) == 0) {
     const char* dir = "/run/lock/kscfg";
     if (::mkdir(dir, 01777) == 0) ::chmod(dir, 01777);
-    if (::stat(dir, &st) == 0 && S_ISDIR(st.st_mode) && ::access(dir, W_OK | X_OK) == 0) return dir;
+    // Never through a link another user planted in /run/lock.
+    if (::lstat(dir, &st) == 0 && !S_ISDIR(st.st_mode))
+      throw Error(Exit::file,
+                  fmt::format("the lock directory {} is {} owned by {}, not kscfg's", dir, kind_of(st),
+                              user_text(st.st_uid)),
+                  "remove it, or ask its owner to; or set KSCFG_LOCK_DIR");
+    if (S_ISDIR(st.st_mode) && ::access(dir, W_OK | X_OK) == 0) return dir;
   }
   return (std::filesystem::path(state_dir()) / "locks").string();
 }
@@ -128,7 +187,9 @@ void OwnerLock::release() noexcept {
 }
 
 std::optional<LockHolder> OwnerLock::holder(const std::string& path) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_CLOEXEC | O_NONBLOCK);
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0 || !lock_file_shape(st)) return std::nullopt;
+  int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) return std::nullopt;
   auto h = read_record(fd);
   ::close(fd);
@@ -144,28 +205,29 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
   bool said = false;
   for (;;) {
     // Never through a symbolic link, never anything but a regular file: in a directory every user
-    // may write, a link planted there must not make kscfg write its record into another file.
-    bool writable = true;
-    int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC, 0644);
-    if (fd < 0 && (errno == EACCES || errno == EPERM)) {
-      writable = false;  // another user's lock file: lock it, record nothing
-      fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+    // may write, a name planted there must not make kscfg write its record into another file, open
+    // a device, or wait on a FIFO. Looked at before it is opened (a device is not even opened),
+    // and what was opened looked at again.
+    struct stat st {};
+    if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) refuse(path, what, st);
+    int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY, 0644);
+    if (fd < 0 && (errno == EACCES || errno == EPERM))  // another user's lock file: lock it, record nothing
+      fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+    if (fd < 0) {
+      int e = errno;
+      if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) refuse(path, what, st);
+      throw Error(Exit::file, fmt::format("cannot open the lock file '{}' of {}: {}", path, what, std::strerror(e)));
     }
-    if (fd < 0)
-      throw Error(Exit::file,
-                  fmt::format("cannot open the lock file '{}' of {}: {}", path, what, std::strerror(errno)));
-    struct stat st {}, dst {};
-    if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_nlink > 1) {
+    if (::fstat(fd, &st) != 0 || !lock_file_shape(st)) {
       ::close(fd);
-      throw Error(Exit::file, fmt::format("the lock file '{}' of {} is not a plain file", path, what),
-                  "remove it; kscfg makes a new one");
+      refuse(path, what, st);
     }
-    // In a directory shared by all users (sticky, like /run/lock/kscfg) the next user must be able
-    // to record itself in a file this user made.
-    if (writable && st.st_uid == ::geteuid() && ::stat(dir.empty() ? "." : dir.c_str(), &dst) == 0 &&
-        (dst.st_mode & S_ISVTX) && (dst.st_mode & S_IWOTH) && (st.st_mode & 0777) != 0666 &&
-        ::fchmod(fd, 0666) != 0) {
-      // not ours to change after all: the next user records nothing
+    // Only a file of this user takes its record (one of another user, left by a kill -9, or
+    // planted, is locked as it is); made 0644 whatever the umask: read by every user, written by
+    // its owner alone.
+    const bool writable = st.st_uid == ::geteuid() && (::fcntl(fd, F_GETFL) & O_ACCMODE) == O_RDWR;
+    if (writable && (st.st_mode & 07777) != 0644 && ::fchmod(fd, 0644) != 0) {
+      // a file system without modes: nothing to keep
     }
     for (;;) {
       if (::flock(fd, LOCK_EX | LOCK_NB) == 0) break;
@@ -175,10 +237,7 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
         throw Error(Exit::file, fmt::format("cannot lock '{}' ({}): {}", path, what, std::strerror(e)));
       }
       auto waited = std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start);
-      auto holder_text = [&] {
-        auto h = read_record(fd);
-        return h ? h->text() : std::string("another kscfg process");
-      };
+      auto holder_text = [&] { return holder_of(fd); };
       if (!said && waited >= w.say_after && w.waiting) {
         said = true;
         w.waiting(fmt::format("waiting for {}: {} is using it (up to {} in all, --lock-wait)", what, holder_text(),

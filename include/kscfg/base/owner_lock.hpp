@@ -6,6 +6,13 @@
 // for it can say who it waits for ("kscfg process 4242 (kscfg -t 1 write R32 7)") after a moment,
 // and does not wait in silence. The wait is bounded; a SIGINT or SIGTERM ends it at once.
 //
+// The lock file is a regular file of mode 0644, opened without following links and without
+// blocking: a name that is anything else (a link, FIFO, directory, device planted in the shared lock
+// directory) is refused naming its owner (issue 32 item 6). Only the file's owner writes the record;
+// a record is believed only when its process belongs to the file's owner, so no user can make
+// kscfg name another user's process as the holder. A lock file another user left (its kscfg was
+// killed) is locked read-only, without a record.
+//
 // The lock goes with the descriptor: a holder that dies (kill -9, a crash) frees it at once. A
 // holder that lets go removes the file first (while it still holds the lock); a waiter that then
 // gets the lock of the removed file opens the name again, so two processes never hold two files
@@ -25,7 +32,8 @@ namespace kscfg {
 struct LockHolder {
   long pid = 0;
   std::string command;  // its command line, words joined by spaces (bounded, printable)
-  // "kscfg process 4242 (kscfg -t 1 write R32 7)"
+  std::string user;     // "alice (uid 1000)" when the lock file is another user's; empty if ours
+  // "kscfg process 4242 (kscfg -t 1 write R32 7)", "... of alice (uid 1000)"
   std::string text() const;
 };
 
@@ -51,7 +59,8 @@ class OwnerLock {
   // Takes the lock on `path` (created, with its directory, when missing), waiting as `w` says.
   // `what` names the thing in messages: "the coupler at tcp://10.0.3.11:502 unit 1". Throws
   // Error(Exit::busy) naming the holder when the wait ends, Error(Exit::interrupted) when
-  // cancelled, Error(Exit::file) when the file cannot be opened or locked at all.
+  // cancelled, Error(Exit::file) when the file cannot be opened or locked at all, or its name is
+  // not a regular file (named with its owner).
   static OwnerLock acquire(const std::string& path, const std::string& what, const LockWait& w);
 
   // Drops the lock (the holder record is cleared first). Never throws.
@@ -68,7 +77,8 @@ class OwnerLock {
 };
 
 // Where the coupler locks live: $KSCFG_LOCK_DIR if set, else /run/lock/kscfg (shared by every user
-// of the computer: two engineers on one coupler take turns too), else $XDG_STATE_HOME/kscfg/locks.
+// of the computer, mode 1777: two engineers on one coupler take turns too), else
+// $XDG_STATE_HOME/kscfg/locks. Error(Exit::file) when /run/lock/kscfg is not a directory (a link).
 std::string lock_dir();
 
 // This process's command line as LockHolder::command shows it (read from /proc/self/cmdline).

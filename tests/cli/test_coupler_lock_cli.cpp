@@ -1,0 +1,196 @@
+// Issue 32 items 1 and 6, end to end against `kscfg serve`: one lock per coupler whatever name
+// reaches it (localhost and 127.0.0.1 over Modbus TCP and ADS, a serial device and a link to it),
+// and a lock directory every user may write in that no user can use to block or fool kscfg (a
+// planted link, FIFO or directory is refused naming its owner; lock files 0644; another user's
+// lock file locked without trusting or rewriting its record).
+#include <pwd.h>
+#include <signal.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <filesystem>
+#include <fmt/format.h>
+#include <functional>
+#include <memory>
+
+#include "support.hpp"
+
+using namespace kscfg::test;
+namespace fs = std::filesystem;
+
+namespace {
+
+const char* const kStation =
+    "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
+    "type = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\n"
+    "type = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+
+// A `kscfg serve` of a fresh emulated station (watchdog off).
+struct Served {
+  TempDir dir;
+  std::string state = dir.file("emu.json");
+  std::unique_ptr<Server> srv;
+  explicit Served(const std::vector<std::string>& args) {
+    REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
+    write_text(dir.file("station.toml"), kStation);
+    std::vector<std::string> a = args;
+    if (args.front() != "--pty") a.insert(a.end(), {"--watchdog-ms", "0"});
+    srv = std::make_unique<Server>(state, a, dir.file("serve.err"));
+  }
+  std::string port() const { return srv->uri.substr(srv->uri.rfind(':') + 1); }
+};
+
+std::string lock_file(const std::string& key) { return kscfg_lock_dir() + "/" + key + ".lock"; }
+
+// A kscfg that holds the coupler until told to stop (data's live view), once its lock names it.
+std::unique_ptr<Child> holder(const std::vector<std::string>& port_args, const std::string& lock) {
+  std::vector<std::string> a = port_args;
+  a.push_back("data");
+  auto c = std::make_unique<Child>(a);
+  const std::string pid = std::to_string(c->pid) + "\n";
+  REQUIRE(wait_for([&] { return read_text(lock).rfind(pid, 0) == 0; }));
+  REQUIRE(wait_for([&] { return !c->out().empty(); }));  // its live view runs: a Ctrl-C ends it with 0
+  return c;
+}
+
+std::string user_of(uid_t uid) {
+  if (const passwd* p = ::getpwuid(uid)) return fmt::format("{} (uid {})", p->pw_name, uid);
+  return fmt::format("uid {}", uid);
+}
+
+}  // namespace
+
+TEST_CASE("two names of one Modbus TCP coupler take one lock: a kscfg through localhost waits for one through "
+          "127.0.0.1 and names it",
+          "[sessions][lock][serve]") {
+  Served s({"--tcp", "127.0.0.1:0"});
+  const std::string by_address = "tcp://127.0.0.1:" + s.port(), by_name = "tcp://localhost:" + s.port();
+  auto first = holder({"--port", by_address}, lock_file("ip-127.0.0.1-" + s.port()));
+  std::string who = fmt::format("kscfg process {} (kscfg --port {} data)", first->pid, by_address);
+  for (const std::string& uri : {by_name, by_name + "?unit=3", by_address + "?unit=0"}) {
+    INFO(uri);
+    Run r = run_kscfg({"--port", uri, "--lock-wait", "0.5", "read", "--raw", "R8"});
+    CHECK(r.rc == 11);
+    CHECK_THAT(r.err, Catch::Contains("kscfg: error: the coupler at ") && Catch::Contains(" is in use by " + who));
+    CHECK(r.out.empty());
+  }
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+  // Then the other name has it (and reaches the coupler: localhost's IPv4 address).
+  Run r = run_kscfg({"--port", by_name, "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 0);
+  CHECK(r.out == "0x1771\n");  // KL6001
+}
+
+TEST_CASE("two names of one ADS coupler take one lock: ads://localhost waits for ads://127.0.0.1",
+          "[sessions][lock][serve][ads]") {
+  Served s({"--ads", "127.0.0.1:0"});
+  const std::string by_address = "ads://127.0.0.1:" + s.port(), by_name = "ads://localhost:" + s.port();
+  auto first = holder({"--port", by_address}, lock_file("ip-127.0.0.1-" + s.port()));
+  Run r = run_kscfg({"--port", by_name, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 11);
+  CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
+                                                by_address)));
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+  r = run_kscfg({"--port", by_name, "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 0);
+  CHECK(r.out == "0x1771\n");  // KL6001
+}
+
+TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][serve][rtu]") {
+  Served s({"--pty"});
+  REQUIRE(s.srv->uri.rfind("rtu:", 0) == 0);
+  std::string uri = s.srv->uri.substr(4), device = uri.substr(0, uri.find('?')), query = uri.substr(device.size());
+  fs::create_symlink(device, s.dir.file("usb-Beckhoff-if00"));
+  std::string real = fs::canonical(device).string();
+  for (char& c : real)
+    if (c == '/') c = '_';
+  auto first = holder({"--port", s.srv->uri, "--station", s.dir.file("station.toml")}, lock_file("rtu-" + real));
+  Run r = run_kscfg({"--port", "rtu:" + s.dir.file("usb-Beckhoff-if00") + query, "--station",
+                     s.dir.file("station.toml"), "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 11);
+  CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port '{}' --station",
+                                                first->pid, s.srv->uri)));
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+}
+
+TEST_CASE("a lock name planted as a link, FIFO or directory is refused at once naming its owner; lock files are "
+          "0644 whatever the umask",
+          "[sessions][lock][serve]") {
+  Served s({"--tcp", "127.0.0.1:0"});
+  const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
+  fs::create_directories(kscfg_lock_dir());
+  write_text(s.dir.file("victim"), "precious\n");
+  const uid_t other = 65534;  // nobody
+  struct Plant {
+    std::string kind;
+    std::function<void()> make;
+  };
+  std::vector<Plant> plants{
+      {"a symbolic link", [&] { fs::create_symlink(s.dir.file("victim"), lock); }},
+      {"a symbolic link", [&] { fs::create_symlink(s.dir.file("nowhere"), lock); }},  // dangling
+      {"a FIFO", [&] { REQUIRE(::mkfifo(lock.c_str(), 0666) == 0); }},
+      {"a directory", [&] { fs::create_directory(lock); }},
+      {"a file with 2 hard links", [&] { fs::create_hard_link(s.dir.file("victim"), lock); }},
+  };
+  for (const auto& p : plants) {
+    INFO(p.kind);
+    p.make();
+    REQUIRE(::lchown(lock.c_str(), other, other) == 0);
+    auto t0 = std::chrono::steady_clock::now();
+    Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "5", "read", "--raw", "R8"}, {}, 20);
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(3));  // no wait, no hang
+    CHECK(r.rc == 7);
+    CHECK(one_line_error(r));
+    CHECK(r.err == "kscfg: error: the lock file " + lock + " of the coupler at " + s.srv->host_port() +
+                       " unit 1 is " + p.kind + " owned by " + user_of(other) +
+                       ", not a kscfg lock (remove it, or ask its owner to)\n");
+    fs::remove(lock);
+  }
+  CHECK(read_text(s.dir.file("victim")) == "precious\n");  // nothing written through a link
+
+  // Made 0644 whatever the umask (and an older kscfg's 0666 file of this user too).
+  mode_t before = ::umask(0);
+  auto first = holder({"--port", s.srv->uri}, lock);
+  ::umask(before);
+  struct stat st {};
+  REQUIRE(::stat(lock.c_str(), &st) == 0);
+  CHECK((st.st_mode & 07777) == 0644);
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+  write_text(lock, "");
+  ::chmod(lock.c_str(), 0666);
+  first = holder({"--port", s.srv->uri}, lock);
+  REQUIRE(::stat(lock.c_str(), &st) == 0);
+  CHECK((st.st_mode & 07777) == 0644);
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+}
+
+TEST_CASE("another user's lock file is locked as it is: its record neither trusted nor rewritten, its owner named",
+          "[sessions][lock][serve]") {
+  Served s({"--tcp", "127.0.0.1:0"});
+  const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
+  fs::create_directories(kscfg_lock_dir());
+  // Left by a kill -9 of another user's kscfg, or planted: a record naming a live process that is
+  // not that user's (this test's own).
+  const std::string forged = std::to_string(::getpid()) + "\nkscfg --port tcp://elsewhere data\n";
+  write_text(lock, forged);
+  REQUIRE(::chown(lock.c_str(), 65534, 65534) == 0);
+  REQUIRE(::chmod(lock.c_str(), 0644) == 0);
+  Child first({"--port", s.srv->uri, "data"});
+  REQUIRE(wait_for([&] { return !first.out().empty(); }));  // its live view: it holds the coupler
+  Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "0.5", "read", "--raw", "R8"});
+  CHECK(r.rc == 11);
+  CHECK_THAT(r.err, Catch::EndsWith(" is in use by another kscfg process (lock file owned by " + user_of(65534) +
+                                    "); gave up after waiting 0.5 s (try again when it has finished, or wait longer "
+                                    "with --lock-wait SECONDS)\n"));
+  CHECK(r.err.find(std::to_string(::getpid())) == std::string::npos);
+  CHECK(read_text(lock) == forged);  // not this user's to write
+  first.signal(SIGINT);
+  CHECK(first.wait() == 0);
+}
