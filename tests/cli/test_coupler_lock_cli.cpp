@@ -118,7 +118,7 @@ TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][se
   CHECK(first->wait() == 0);
 }
 
-TEST_CASE("a lock name planted as a link, FIFO or directory is refused at once naming its owner; lock files are "
+TEST_CASE("a lock name planted as a link, FIFO or directory is refused at once naming its owner, lock files are "
           "0644 whatever the umask",
           "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
