@@ -324,11 +324,14 @@ std::string generate_manpage(const App& a) {
        "terminal's bytes are put back, with a note on stderr; an entry that does not match is left alone. A kscfg on "
        "another computer keeps its journal there: what it leaves is finished by the next session on that terminal "
        "once its control byte stayed unchanged for the timeout, or by the coupler's watchdog.\n"
-       ".TP\n.I /run/lock/kscfg/PORT.lock\nThe lock of a Modbus coupler (per host, port and unit; per device on "
-       "RTU) that one kscfg holds while it uses the coupler, with its PID and command line, so that another one "
-       "waits (\\fB\\-\\-lock\\-wait\\fR) and names it; removed when it is let go. Shared by every user of the "
+       ".TP\n.I /run/lock/kscfg/COUPLER.lock\nThe lock of a coupler that one kscfg holds while it uses the "
+       "coupler, with its PID and command line, so that another one waits (\\fB\\-\\-lock\\-wait\\fR) and names "
+       "it; removed when it is let go. One per coupler whatever name reaches it: a host by its address "
+       "(localhost and 127.0.0.1 are one), Modbus TCP on port 502 with any unit and ADS on port 48898 of one address "
+       "are one coupler, other ports add the port, a serial device is its real path. Shared by every user of the "
        "computer (\\fB$KSCFG_LOCK_DIR\\fR, else \\fB$XDG_STATE_HOME/kscfg/locks\\fR when /run/lock is not "
-       "writable).\n";
+       "writable): lock files are mode 0644, and a name there that is not a plain file (a link, FIFO or directory) "
+       "is refused with exit status 7, naming its owner.\n";
   m << ".SH SEE ALSO\n.BR kscfg\\-station (5),\n.BR kscfg\\-catalog (5)\n";
   return m.str();
 }
