@@ -20,7 +20,9 @@ int main(int argc, char** argv) {
   double secs = argc > 1 ? std::atof(argv[1]) : 2.0;
   EmulatedStation st(default_station(), Catalog::standard());
   EmulatorLink link(st);
-  RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0);
+  HandshakeAccess access(link, handshake_options({}));
+  Engine engine(access);
+  RegisterSession s(engine, register_terminal(st.layout(), 1, 0), 0);
   // Alternate registers, as a dump does (no stale-ack detours).
   std::size_t n = 0;
   auto start = clk::now();

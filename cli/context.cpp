@@ -34,12 +34,16 @@ Link& Context::link() {
     if (opt_.verbose) lo.trace = [this](const std::string& s) { trace(s); };
     lo.cache_dir = default_cache_dir();
     lo.rescan = opt_.rescan;
-    lo.notice = session_options().notice;
     lo.journal = journal_;
     lo.journal_dir = state_dir() + "/sessions";
     lo.lock_wait = lock_wait();
+    lo.session = session_options();
+    // ADS: terminals are numbered on port 100 from the station this command uses (--station too).
+    lo.layout = [this]() -> const StationLayout& { return layout(); };
     OpenedPort port = open_port_uri(opt_.port, catalog(), lo);
     link_ = std::move(port.link);
+    access_ = std::move(port.access);
+    engine_ = std::move(port.engine);
     discovery_ = std::move(port.discovery);
     if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
   }
@@ -52,10 +56,7 @@ StationDiscovery* Context::discovery() {
 }
 
 Engine& Context::engine() {
-  if (!engine_) {
-    access_ = open_register_access(link(), session_options(), [this]() -> const StationLayout& { return layout(); });
-    engine_ = std::make_unique<Engine>(*access_);
-  }
+  link();  // the port's one access and engine come with it (open_port_uri)
   return *engine_;
 }
 
@@ -112,7 +113,7 @@ void Context::recover_dead_sessions_once() {
   recovered_ = true;
   // The layout of the whole station may be needed (an entry beyond what this command walked): a
   // nested layout_upto() scans on, and does not come back here.
-  kscfg::recover_dead_sessions(link(), catalog(), session_options(),
+  kscfg::recover_dead_sessions(engine(), link(), catalog(), session_options(),
                                [this](unsigned upto) -> const StationLayout& { return layout_upto(upto); });
 }
 

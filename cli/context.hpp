@@ -47,8 +47,8 @@ class Context {
 
   // The link named by --port (opened on first use).
   Link& link();
-  // The station engine over the link's register access (whole-station work runs on it, and every
-  // session() shares it).
+  // The station engine over the port's one register access (open_port_uri: whole-station work,
+  // every session(), the scan, the online map and journal recovery run on it).
   Engine& engine();
   bool link_open() const { return link_ != nullptr; }
   // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
@@ -140,9 +140,9 @@ class Context {
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   std::unique_ptr<Link> link_;
-  std::unique_ptr<StationDiscovery> discovery_;  // after link_: destroyed before it
   std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
   std::unique_ptr<Engine> engine_;
+  std::unique_ptr<StationDiscovery> discovery_;  // after engine_: destroyed before it
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
   bool layout_complete_ = false;

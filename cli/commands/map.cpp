@@ -130,7 +130,7 @@ class Map : public Command {
       CouplerProfile base = coupler_profile(spec.coupler);
       if (coupler_.empty()) base.defaults = current.settings;  // what the coupler uses now
       MappingSettings s = resolve_settings(base, ce, mo, wa);
-      OnlineMap m = map_online(ctx.link(), current, spec, cat, s, ctx.session_options());
+      OnlineMap m = map_online(ctx.engine(), current, spec, cat, s, ctx.session_options());
       L = std::move(m.layout);
       // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
       // they give another layout than the one the coupler uses now, the map shows what is in effect

@@ -115,7 +115,7 @@ class Scan : public Command {
       if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(*regs), "", std::nullopt).settings);
       {
         ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-        r = scan_station(*regs, *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
+        r = scan_station(*regs, ctx.engine(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
       }
       // Later commands on this port use it (the scan cache) while the coupler reports the same
       // identification and image lengths.

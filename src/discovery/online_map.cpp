@@ -10,7 +10,7 @@
 
 namespace kscfg {
 
-OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
+OnlineMap map_online(Engine& engine, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
                      const MappingSettings& settings, const SessionOptions& opt) {
   if (current.terminals.size() != spec.terminals.size())
     throw Error(Exit::usage, fmt::format("the station description has {} terminals, the coupler's layout {}",
@@ -32,7 +32,7 @@ OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec
                                       regs.front()));
         continue;
       }
-      RegisterSession s(link, t, ch, opt);
+      RegisterSession s(engine, t, ch, opt);
       auto values = s.read_many(regs);
       for (std::size_t i = 0; i < regs.size(); ++i) {
         read[{pos, ch}][regs[i]] = values[i];

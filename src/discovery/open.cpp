@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <optional>
 
+#include "kscfg/base/error.hpp"
 #include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
@@ -55,6 +56,15 @@ class AdsDiscovery : public StationDiscovery {
   bool searched_ = false;
 };
 
+// The options of the port's access and of discovery's sessions (LinkOptions::session).
+SessionOptions port_session(const LinkOptions& opt) {
+  SessionOptions so = opt.session;
+  so.timeout = std::chrono::milliseconds(opt.timeout_ms);
+  if (!so.trace) so.trace = opt.trace;
+  if (!so.journal) so.journal = opt.journal;
+  return so;
+}
+
 }  // namespace
 
 std::string coupler_lock_path(const ModbusTarget& t) {
@@ -69,7 +79,10 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    return {std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait), nullptr};
+    OpenedPort port{std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait), nullptr, nullptr, nullptr};
+    port.access = open_register_access(*port.link, port_session(opt), {});
+    port.engine = std::make_unique<Engine>(*port.access);
+    return port;
   }
   if (p.scheme == "ads") {
     // ADS (BK9000 family, BC/BX controllers): the image over port 300, the station from the
@@ -89,7 +102,19 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     if (opt.journal && !opt.journal_dir.empty())
       opt.journal->open(opt.journal_dir, station_key(target));
     auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace);
-    return {std::move(link), std::move(discovery)};
+    OpenedPort port{std::move(link), nullptr, nullptr, nullptr};
+    SessionOptions so = port_session(opt);
+    std::function<const StationLayout&()> layout = opt.layout;
+    if (!layout)
+      layout = [d = discovery.get()]() -> const StationLayout& {
+        const StationLayout* L = d->layout();
+        if (!L) throw Error(Exit::usage, "the station behind the ADS coupler is unknown", "give --station FILE");
+        return *L;
+      };
+    port.access = open_register_access(*port.link, so, std::move(layout));
+    port.engine = std::make_unique<Engine>(*port.access);
+    port.discovery = std::move(discovery);
+    return port;
   }
   // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
   // timeout is tried twice more, so a silent coupler is reported within about --timeout.
@@ -104,19 +129,20 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
                                       opt.lock_wait);
   auto link = std::make_unique<ModbusLink>(target, mo, std::move(lock));
-  SessionOptions so;
-  so.timeout = std::chrono::milliseconds(mo.ack_timeout_ms);
-  so.trace = mo.trace;
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
-  so.notice = opt.notice;  // e.g. a dead session's register mode, finished by the scan's session
-  if (opt.journal && !opt.journal_dir.empty()) {
+  if (opt.journal && !opt.journal_dir.empty())
     opt.journal->open(opt.journal_dir, station_key(link->client().target()));
-    so.journal = opt.journal;
-  }
-  auto discovery = discover_by_scan(*link, catalog, so, d);
-  return {std::move(link), std::move(discovery)};
+  // The scan's sessions run on the port's engine, with its options (a notice: e.g. a dead
+  // session's register mode, finished by the scan's session).
+  SessionOptions so = port_session(opt);
+  ModbusLink& ml = *link;
+  OpenedPort port{std::move(link), nullptr, nullptr, nullptr};
+  port.access = open_register_access(ml, so, {});
+  port.engine = std::make_unique<Engine>(*port.access);
+  port.discovery = discover_by_scan(ml, *port.engine, catalog, so, d);
+  return port;
 }
 
 std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
@@ -132,12 +158,11 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }
 
-void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
   if (link.ads_connection()) {
     // Direct access: the channels a dead kscfg unlocked over port 100.
-    auto access = open_register_access(link, so, [&]() -> const StationLayout& { return layout_upto(0); });
-    finish_dead_direct_sessions(*access, so, [&](unsigned position) -> const TerminalImage* {
+    finish_dead_direct_sessions(engine, so, [&](unsigned position) -> const TerminalImage* {
       const StationLayout& L = layout_upto(position);
       return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
     });
@@ -156,7 +181,7 @@ void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOpti
     return e.type == t.type->type && j.ctrl == w.ctrl && j.status == w.status && j.out_lo == w.out_lo &&
            j.out_hi == w.out_hi && j.in_lo == w.in_lo && j.in_hi == w.in_hi;
   };
-  finish_dead_sessions(link, catalog, so, fits);
+  finish_dead_sessions(engine, link, catalog, so, fits);
 }
 
 }  // namespace kscfg

@@ -185,7 +185,7 @@ Error silent_terminal(std::size_t out, const Error& e) {
 // with the poll for the one before, the control byte back with the last. Taken only when R8 names
 // a one-channel type decided by those same registers and its layout from them puts its window
 // where it answered; otherwise nothing is kept and the terminal is walked as before.
-bool walk_as_before(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, TerminalImage t,
+bool walk_as_before(ScanResult& r, Engine& engine, const Catalog& catalog, const SessionOptions& so, TerminalImage t,
                     const TerminalType& prev, const RegisterWindow& win) {
   std::vector<unsigned> guess = mapping_registers(prev);
   if (guess.empty()) return false;
@@ -195,7 +195,7 @@ bool walk_as_before(ScanResult& r, Link& link, const Catalog& catalog, const Ses
   std::vector<std::uint16_t> got;
   std::size_t answered = 0;  // registers of `regs` answered before a failure
   try {
-    RegisterSession s(link, t, 0, so);
+    RegisterSession s(engine, t, 0, so);
     got = s.read_then_close(regs, [&](std::size_t i) { answered = std::max(answered, i + 1); });
   } catch (const Error& e) {
     if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
@@ -221,8 +221,8 @@ bool walk_as_before(ScanResult& r, Link& link, const Catalog& catalog, const Ses
 
 }  // namespace
 
-void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto,
-          const ScanProgress& progress) {
+void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
+          unsigned upto, const ScanProgress& progress) {
   if (!r.walked || r.complete) return;
   std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   const ImageFormat probe = probe_format();
@@ -274,13 +274,13 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
     if (pb.window && !same_window(*pb.window, *pa.window)) cands.push_back(*pb.window);
     if (prev_type) {
       const RegisterWindow& like = prev_aligned || cands.size() == 1 ? cands[0] : cands[1];
-      if (walk_as_before(r, link, catalog, so, t, *prev_type, like)) continue;
+      if (walk_as_before(r, engine, catalog, so, t, *prev_type, like)) continue;
     }
     std::vector<std::uint16_t> values;
     // One session for R8 and, when the terminal answered through the window probed, the registers
     // that decide its image: the channel's bytes are saved and put back once, the last with the
     // poll for the last answer.
-    std::optional<RegisterSession> probe_session(std::in_place, link, t, 0, so);
+    std::optional<RegisterSession> probe_session(std::in_place, engine, t, 0, so);
     {
       RegisterSession& s = *probe_session;
       try {
@@ -344,7 +344,7 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
         values = probe_session->read_then_close(mregs);
       } else {
         probe_session.reset();
-        RegisterSession s(link, ti, ch, so);
+        RegisterSession s(engine, ti, ch, so);
         values = s.read_then_close(mregs);
       }
       for (std::size_t i = 0; i < mregs.size(); ++i) r.regs.back()[ch][mregs[i]] = values[i];
@@ -393,13 +393,14 @@ void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOption
   }
 }
 
-ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
-                        std::optional<MappingSettings> settings, const ScanProgress& progress) {
+ScanResult scan_station(ModbusRegisters& client, Engine& engine, Link& link, const Catalog& catalog,
+                        const SessionOptions& so, std::optional<MappingSettings> settings,
+                        const ScanProgress& progress) {
   ScanHead head = read_scan_head(client);
   ScanResult r = begin_scan(head, fmt::format("scan of {}", link.describe()), settings);
   read_watchdog(r, client);
   r.layout = scan_layout(r, catalog);
-  walk(r, link, catalog, so, 0, progress);
+  walk(r, engine, link, catalog, so, 0, progress);
   return r;
 }
 
@@ -408,8 +409,8 @@ namespace {
 // A scan found once per run, and (with a cache directory) kept between runs.
 class ScanDiscovery : public StationDiscovery {
  public:
-  ScanDiscovery(ModbusLink& link, const Catalog& catalog, SessionOptions so, DiscoveryOptions opt)
-      : link_(link), catalog_(catalog), so_(std::move(so)), opt_(std::move(opt)) {
+  ScanDiscovery(ModbusLink& link, Engine& engine, const Catalog& catalog, SessionOptions so, DiscoveryOptions opt)
+      : link_(link), engine_(engine), catalog_(catalog), so_(std::move(so)), opt_(std::move(opt)) {
     if (!opt_.cache_dir.empty()) cache_.emplace(opt_.cache_dir, link.client().target());
   }
 
@@ -507,7 +508,7 @@ class ScanDiscovery : public StationDiscovery {
     if (!r_) start();
     if (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto)) {
       std::size_t before = r_->spec.terminals.size();
-      walk(*r_, link_, catalog_, so_, upto);
+      walk(*r_, engine_, link_, catalog_, so_, upto);
       if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;
       save();
     }
@@ -551,6 +552,7 @@ class ScanDiscovery : public StationDiscovery {
   }
 
   ModbusLink& link_;
+  Engine& engine_;  // the port's (its access the handshake over link_)
   const Catalog& catalog_;
   SessionOptions so_;
   DiscoveryOptions opt_;
@@ -565,9 +567,9 @@ class ScanDiscovery : public StationDiscovery {
 
 }  // namespace
 
-std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
-                                                   DiscoveryOptions opt) {
-  auto d = std::make_unique<ScanDiscovery>(link, catalog, so, std::move(opt));
+std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, Engine& engine, const Catalog& catalog,
+                                                   const SessionOptions& so, DiscoveryOptions opt) {
+  auto d = std::make_unique<ScanDiscovery>(link, engine, catalog, so, std::move(opt));
   d->prime();
   return d;
 }

@@ -83,7 +83,7 @@ void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ct
 
 }  // namespace
 
-void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                           const std::function<bool(const SessionJournal::Entry&)>& fits) {
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
@@ -131,15 +131,13 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     t.complex = true;
     t.channels.resize(e.channel + 1);
     t.channels[e.channel].window = w;
-    HandshakeAccess access(link, handshake_options(so));
-    Engine engine(access);
     Channel ch(engine, t, e.channel, so);
-    access.adopt_dead(ch.key(), e, d.pid);
+    engine.access().adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
   });
 }
 
-void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
+void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal) {
   each_dead_entry(so, "left unlocked", true, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
     const TerminalImage* t = terminal(e.position);
@@ -150,9 +148,8 @@ void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& s
                              d.pid, e.position, e.channel + 1));
       return;
     }
-    Engine engine(access);
     Channel ch(engine, *t, e.channel, so);
-    access.adopt_dead(ch.key(), e, d.pid);
+    engine.access().adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
   });
 }

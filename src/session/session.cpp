@@ -21,21 +21,6 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   return h;
 }
 
-namespace {
-
-Engine& own_engine(std::unique_ptr<HandshakeAccess>& access, std::unique_ptr<Engine>& engine, Link& link,
-                   const SessionOptions& so) {
-  access = std::make_unique<HandshakeAccess>(link, handshake_options(so));
-  engine = std::make_unique<Engine>(*access);
-  return *engine;
-}
-
-}  // namespace
-
-RegisterSession::RegisterSession(Link& link, const TerminalImage& terminal, unsigned channel, SessionOptions opt)
-    : engine_(own_engine(own_access_, own_engine_, link, opt)),
-      ch_(std::make_unique<Channel>(engine_, terminal, channel, std::move(opt))) {}
-
 RegisterSession::RegisterSession(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt)
     : engine_(engine), ch_(std::make_unique<Channel>(engine_, terminal, channel, std::move(opt))) {}
 

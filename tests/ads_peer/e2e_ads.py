@@ -115,6 +115,21 @@ def main():
               "scan --json: identification, image lengths of the layout, the ADS watchdog: "
               f"{ {k: j.get(k) for k in ('identification', 'coupler', 'matches', 'image_bits', 'watchdog')} }")
         check(not peer.image_writes, "scan wrote no byte of the process image")
+        # map --online reads the mapping registers through the port's one register access, port 100
+        # (issue 33 item 1): the peer's image answers process data only (no register mode), and
+        # not one byte of it is written.
+        peer.image_writes.clear()
+        peer.log = []
+        r = run([a.kscfg, "--port", uri, "--json", "map", "--online"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        got = {(x["position"], x["register"]): x["value"] for x in j.get("registers_read", [])}
+        check(r.returncode == 0 and got.get((1, 34)) == 3 and got.get((1, 35)) == 3,
+              f"map --online over ADS: KL6001 R34/R35 read on port 100: rc {r.returncode} {got} {r.stderr.strip()[:300]}")
+        check(not peer.image_writes, f"map --online wrote no byte of the process image: {peer.image_writes[:3]}")
+        check(any(p == 100 and g == 1 and o == 34 for _, _, p, g, o in peer.log)
+              and not any(p == 300 for _, _, p, _, _ in peer.log),
+              "map --online: R34 of terminal number 1 asked on port 100, nothing on port 300")
+        peer.log = None
         st = os.path.join(env["XDG_CACHE_HOME"], "scanned.toml")
         os.makedirs(env["XDG_CACHE_HOME"], exist_ok=True)
         r = run([a.kscfg, "--port", uri, "scan", "--write", st, "--force"], 120)

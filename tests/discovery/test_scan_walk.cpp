@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "../session/own_access.hpp"
 #include "../session/scripted_coupler.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/emulator/emulator.hpp"
@@ -48,7 +49,8 @@ Walked walk_station(const std::string& text) {
   Walked w{begin_scan(head_of(L), "test", std::nullopt), 0, {}};
   SessionOptions so;
   so.trace = [&](const std::string& s) { w.trace.push_back(s); };
-  walk(w.r, link, cat(), so);
+  HandshakeEngine port(link, so);
+  walk(w.r, port.own_engine, link, cat(), so);
   w.exchanges = link.exchanges_seen;
   // What the walk found lays the station out as the coupler does.
   REQUIRE(w.r.complete);
@@ -141,7 +143,8 @@ TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, no
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(40);
   try {
-    walk(r, link, cat(), so);
+    HandshakeEngine port(link, so);
+    walk(r, port.own_engine, link, cat(), so);
     FAIL("the walk went past a mute terminal");
   } catch (const Error& e) {
     CHECK(e.code() == Exit::timeout);

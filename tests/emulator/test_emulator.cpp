@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/session/session.hpp"
@@ -67,7 +68,7 @@ TEST_CASE("a request is answered after the configured number of K-bus cycles", "
     EmulatedStation st(default_station(), Catalog::standard());
     st.response_delay = delay;
     EmulatorLink link(st);
-    RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(st.layout(), 1, 0), 0);
     std::size_t before = link.exchanges();
     CHECK(s.read(8) == 6001);
     // The channel's output bytes saved, one look at the status, the control byte write, then
@@ -93,7 +94,7 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
   std::string path = dir.file("state/emu.json");
   {
     EmulatorLink link(path, Catalog::standard());
-    RegisterSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
     s.write(32, 7);
     s.close();
     link.commit();
@@ -135,7 +136,7 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   {
     EmulatorLink link(path, Catalog::standard());
     kl5101_at = link.layout()->terminal(2).in_offset;
-    RegisterSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
     s.write_all({{34, 0x0001}, {35, 5}});  // standard format, 5 data bytes
     s.close();
     link.commit();

@@ -5,6 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../session/own_access.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/parameters.hpp"
@@ -362,7 +363,7 @@ TEST_CASE("KL5101: counting goes on during register communication", "[encoder]")
   e.m().far.speed_hz = 250;  // one count a cycle
   e.cycle(10);
   std::uint16_t before = e.counter();
-  RegisterSession s(e.link, e.st.layout().terminal(1), 0, {});
+  ImageSession s(e.link, e.st.layout().terminal(1), 0, {});
   CHECK(s.read(8) == 5101);
   CHECK(s.read(32) == 0x2200);
   s.close();

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <random>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/session/serial_port.hpp"
@@ -330,7 +331,7 @@ TEST_CASE("BUF_F at the R18 level, overflow in R6, nothing lost silently", "[ser
   CHECK(b.regs()[6] == (serial::kDiagFull | serial::kDiagOverflow));
   // R6 reads the same through the register interface.
   {
-    RegisterSession s(b.link, b.term(), 0);
+    ImageSession s(b.link, b.term(), 0);
     CHECK(s.read(6) == 0x11);
     CHECK(s.read(1) == 128);
   }
@@ -409,7 +410,7 @@ TEST_CASE("errors: not a serial terminal, silent far end, init not acknowledged,
   b.st.channel(1, 0).faults.mute = false;
   // XOFF from the partner with XON/XOFF when sending: the send FIFO fills and TA stops following.
   {
-    RegisterSession s(b.link, b.term(), 0);
+    ImageSession s(b.link, b.term(), 0);
     s.write(34, 0x000B);  // RTS/CTS, alternative format, XON/XOFF when sending
   }
   const std::uint8_t xoff[] = {serial::kXOFF};
@@ -433,7 +434,7 @@ TEST_CASE("register access between transfers keeps the handshake (standard forma
     port.send(std::span(data).first(100), true);
   }
   {
-    RegisterSession s(b.link, b.term(), 0);
+    ImageSession s(b.link, b.term(), 0);
     CHECK(s.read(8) == 6001);
     (void)s.read(1);
   }

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <thread>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/open.hpp"
@@ -193,7 +194,7 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
   std::vector<std::string> trace;
   SessionOptions so;
   so.trace = [&](const std::string& t) { trace.push_back(t); };
-  RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
+  ImageSession ses(*link, register_terminal(L, 1, 0), 0, so);
   CHECK(ses.read(8) == 6001);
   // Scattered reads: request, then the answer; never a request for a register not asked for.
   // (How many polls an answer takes depends on the load: bench/bench_modbus counts exchanges.)
@@ -254,7 +255,7 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
   SECTION("the terminal has answered when the poll goes out: three exchanges in all") {
     // Far longer than the server's 1 ms K-bus cycle, so the answer is there even on a loaded machine.
     m->set_ack_wait(1, std::chrono::milliseconds(200));
-    RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    ImageSession ses(*link, register_terminal(L, 1, 0), 0, so);
     std::size_t before = link->exchanges();
     auto v = ses.read_then_close({10});  // a register the scan did not read: no stale acknowledge
     CHECK(v.at(0) == s.station.channel(1, 0).read_register(10));
@@ -265,7 +266,7 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
   }
   SECTION("the poll came too early: the restore replaced the request, which is asked again") {
     m->set_ack_wait(1, std::chrono::microseconds(1));
-    RegisterSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    ImageSession ses(*link, register_terminal(L, 1, 0), 0, so);
     auto v = ses.read_then_close({32, 8});
     CHECK(v.at(0) == s.station.channel(1, 0).read_register(32));
     CHECK(v.at(1) == 6001);
@@ -281,7 +282,7 @@ TEST_CASE("writes through the Modbus link are verified and relocked", "[modbus]"
   auto& link = port.link;
   const StationLayout& L = *port.discovery->layout();
   {
-    RegisterSession ses(*link, register_terminal(L, 2, 0), 0);
+    ImageSession ses(*link, register_terminal(L, 2, 0), 0);
     auto w = ses.write(32, 0x0021);
     CHECK(w.changed);
     CHECK(ses.read(32) == 0x0021);
@@ -328,7 +329,7 @@ TEST_CASE("RTU over a pseudo-terminal pair", "[modbus]") {
     auto port = s.port();
     auto& link = port.link;
     const StationLayout& L = *port.discovery->layout();
-    RegisterSession ses(*link, register_terminal(L, 3, 0), 0);
+    ImageSession ses(*link, register_terminal(L, 3, 0), 0);
     CHECK(ses.read(8) == 6031);
     CHECK(ses.read(9) == s.station.channel(3, 0).read_register(9));
     // While the link holds the port, another open is refused as busy.

@@ -107,7 +107,7 @@ TEST_CASE("every type and channel: backup, diff, factory reset, restore give bac
     CHECK_FALSE(same.changes());
 
     for (unsigned ch = 0; ch < type.channels; ++ch) {
-      RegisterSession s(link, register_terminal(layout, 1, ch), ch, so);
+      RegisterSession s(engine, register_terminal(layout, 1, ch), ch, so);
       factory_reset(s, reset_plan(type));
       s.close();
     }

@@ -8,6 +8,7 @@
 #include <catch2/catch.hpp>
 #include <filesystem>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/journal.hpp"
 #include "kscfg/session/session.hpp"
@@ -185,7 +186,7 @@ TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the
   die_with(dir, {entry_for(st.layout(), 3, found)});
   std::vector<std::string> notes;
   SessionOptions so = next_kscfg(dir, notes);
-  finish_dead_sessions(link, cat(), so);
+  finish_dead_sessions(HandshakeEngine(link, so).engine(), link, cat(), so);
   REQUIRE(notes.size() == 1);
   CHECK_THAT(notes[0], Catch::Contains("terminal 3 (KL6031) was left in register mode (control byte 0xDF) by kscfg "
                                        "process "));
@@ -198,7 +199,7 @@ TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the
   // Done: the dead journal is gone, and this process's own (recovery) entry was left again.
   CHECK(so.journal->claim_dead().empty());
   notes.clear();
-  finish_dead_sessions(link, cat(), so);
+  finish_dead_sessions(HandshakeEngine(link, so).engine(), link, cat(), so);
   CHECK(notes.empty());
   so.journal.reset();
   CHECK(files_in(dir) == 0);
@@ -217,7 +218,8 @@ TEST_CASE("a dead kscfg's journal entry whose terminal is not in register mode, 
   auto with_reg = st.outputs();
   std::vector<std::string> notes;
   SessionOptions so = next_kscfg(dir, notes);
-  finish_dead_sessions(link, cat(), so, [](const SessionJournal::Entry& e) { return e.position != 1; });
+  finish_dead_sessions(HandshakeEngine(link, so).engine(), link, cat(), so,
+                       [](const SessionJournal::Entry& e) { return e.position != 1; });
   CHECK(notes.empty());
   CHECK(st.outputs() == with_reg);
   CHECK(st.channel(3, 0).unlocked());  // not this recovery's business: the next session on it says so

@@ -7,6 +7,7 @@
 #include <catch2/catch.hpp>
 #include <filesystem>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/journal.hpp"
 #include "kscfg/session/session.hpp"
@@ -68,7 +69,7 @@ TEST_CASE("a dead journal's entry of the other kind (ADS unlock, image register 
   // An ADS kscfg's unlock, found by a Modbus run: kept, the station untouched.
   die_with(dir, "ip-127.0.0.1-unit1", true);
   auto before = st.outputs();
-  finish_dead_sessions(link, Catalog::standard(), so);
+  finish_dead_sessions(HandshakeEngine(link, so).engine(), link, Catalog::standard(), so);
   CHECK(st.outputs() == before);
   CHECK(files_in(dir) == 1);
   REQUIRE(traced.size() == 1);
@@ -81,8 +82,8 @@ TEST_CASE("a dead journal's entry of the other kind (ADS unlock, image register 
   die_with(dir2, "ip-127.0.0.1-unit1", false);
   traced.clear();
   bool asked = false;
-  HandshakeAccess access(link, handshake_options(so));
-  finish_dead_direct_sessions(access, so, [&](unsigned) -> const TerminalImage* {
+  HandshakeEngine port(link, so);
+  finish_dead_direct_sessions(port.own_engine, so, [&](unsigned) -> const TerminalImage* {
     asked = true;
     return nullptr;
   });

@@ -4,6 +4,7 @@
 
 #include <chrono>
 
+#include "../session/own_access.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/station/layout.hpp"
@@ -65,7 +66,7 @@ TEST_CASE("golden vector: reading R8 of a KL3022 on a BK2000 (seed KL6001/KL5101
     const TerminalImage& t = register_terminal(st.layout(), 1, 0);
     // The BK2000 maps CT/ST, an unused byte, then the word: bytes 0..3 of channel 1.
     REQUIRE(t.channels[0].window->ctrl == 0);
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     std::uint16_t v = s.transact(false, 8, 0);
     CHECK(v == 3022);
     CHECK(st.outputs()[0] == 0x88);
@@ -88,7 +89,7 @@ TEST_CASE("golden vector: writing 0x1235 to R31 sends 0xDF and accepts 0x9F", "[
   for (bool motorola : {true, false}) {
     EmulatedStation st(bk2000(motorola), cat);
     EmulatorLink link(st);
-    RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(st.layout(), 1, 0), 0);
     s.transact(true, 31, 0x1235);
     const auto& out = st.outputs();
     CHECK(out[0] == 0xDF);
@@ -169,7 +170,7 @@ TEST_CASE("session accepts an ack with bit 6 set (status equal to the control by
   link.echo_bit6 = true;
   link.regs[31] = 0;
   TerminalImage t = scripted_terminal();
-  RegisterSession s(link, t, 0);
+  ImageSession s(link, t, 0);
   s.transact(true, 31, 0x1235);
   CHECK(link.regs[31] == 0x1235);
   CHECK(link.in[0] == 0xDF);
@@ -187,7 +188,7 @@ TEST_CASE("stale ack: the session forces a visible change before trusting an ack
   link.in[2] = 0x34;
   link.in[3] = 0x12;
   TerminalImage t = scripted_terminal();
-  RegisterSession s(link, t, 0);
+  ImageSession s(link, t, 0);
   CHECK(s.read(31) == 0);  // not the stale 0x1234
   // Another register was addressed before R31, so the terminal saw a new request for R31.
   REQUIRE(link.requests.size() >= 2);
@@ -203,7 +204,7 @@ TEST_CASE("bounded wait: a silent terminal times out with terminal, register and
   TerminalImage t = scripted_terminal();
   SessionOptions o;
   o.timeout = std::chrono::milliseconds(150);
-  RegisterSession s(link, t, 0, o);
+  ImageSession s(link, t, 0, o);
   auto start = std::chrono::steady_clock::now();
   try {
     s.read(32);
@@ -231,7 +232,7 @@ TEST_CASE("data bytes travel with (never after) the control byte", "[protocol][s
     }
   } link;
   TerminalImage t = scripted_terminal();
-  RegisterSession s(link, t, 0);
+  ImageSession s(link, t, 0);
   s.transact(true, 32, 0xBEEF);
   bool seen = false;
   for (const auto& snap : link.snapshots) {
@@ -254,7 +255,7 @@ TEST_CASE("session restores the process-data bytes on close, after errors and on
 
   SECTION("normal close") {
     {
-      RegisterSession s(link, t, 0);
+      ImageSession s(link, t, 0);
       CHECK(s.read(8) == 3022);
       CHECK(st.outputs()[0] == 0x88);
     }
@@ -264,7 +265,7 @@ TEST_CASE("session restores the process-data bytes on close, after errors and on
     {
       SessionOptions o;
       o.timeout = std::chrono::milliseconds(100);
-      RegisterSession s(link, t, 0, o);
+      ImageSession s(link, t, 0, o);
       s.unlock();
       CHECK(st.channel(1, 0).unlocked());
       st.channel(1, 0).faults.mute = true;
@@ -279,7 +280,7 @@ TEST_CASE("session restores the process-data bytes on close, after errors and on
     {
       SessionOptions so;
       so.cancel = &cancel;
-      RegisterSession s(link, t, 0, so);
+      ImageSession s(link, t, 0, so);
       s.unlock();
       cancel = true;
       try {
@@ -302,7 +303,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
   const TerminalImage& t = register_terminal(st.layout(), 1, 0);  // KL6001
 
   SECTION("protected register is written and relocked") {
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     auto r = s.write(32, 0x0007);
     CHECK(r.changed);
     CHECK(r.before == 0x0006);
@@ -310,7 +311,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
     CHECK_FALSE(st.channel(1, 0).unlocked());
   }
   SECTION("a mask changes only its bits (read-modify-write in the session)") {
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     auto r = s.write(34, 0x0000, 0x0001);  // R34 = 0x0003: clear rts-cts, keep alternative-format
     CHECK(r.before == 0x0003);
     CHECK(r.after == 0x0002);
@@ -321,7 +322,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
     std::vector<std::string> trace;
     SessionOptions o;
     o.trace = [&](const std::string& l) { trace.push_back(l); };
-    RegisterSession s(link, t, 0, o);
+    ImageSession s(link, t, 0, o);
     std::size_t before = link.exchanges();
     auto r = s.write(32, 0x0006);
     CHECK_FALSE(r.changed);
@@ -334,7 +335,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
   SECTION("without the code word the read-back catches the refused write") {
     SessionOptions o;
     o.skip_unlock = true;
-    RegisterSession s(link, t, 0, o);
+    ImageSession s(link, t, 0, o);
     try {
       s.write(32, 0x0007);
       FAIL("no verify error");
@@ -345,7 +346,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
     CHECK(st.channel(1, 0).registers()[32] == 0x0006);
   }
   SECTION("ROM and extended registers are refused before anything is sent") {
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     std::size_t before = link.exchanges();
     try {
       s.write(8, 1);
@@ -363,7 +364,7 @@ TEST_CASE("write: unlock, compare, write, relock, verify", "[protocol][session]"
   }
   SECTION("a failed multi-register change is rolled back") {
     st.channel(1, 0).faults.ignore_writes.insert(33);
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     try {
       s.write_all({{32, 0x0005}, {33, 0x0004}});
       FAIL("no error");

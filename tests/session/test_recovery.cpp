@@ -6,6 +6,7 @@
 
 #include <functional>
 
+#include "../session/own_access.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/provision/provision.hpp"
@@ -54,7 +55,7 @@ TEST_CASE("a session that finds REG set finishes the dead session: relock, proce
     Notes notes;
     const TerminalImage& t = register_terminal(st.layout(), 1, 0);
     {
-      RegisterSession s(link, t, 0, notes.options());
+      ImageSession s(link, t, 0, notes.options());
       CHECK(s.read(32) == 0x0006);
       s.close();
     }
@@ -73,7 +74,7 @@ TEST_CASE("a session that finds REG set finishes the dead session: relock, proce
     CHECK_FALSE(st.channel(1, 0).unlocked());  // and the old request did not run again
     // The next session finds nothing to finish.
     Notes again;
-    RegisterSession s2(link, t, 0, again.options());
+    ImageSession s2(link, t, 0, again.options());
     CHECK(s2.read(31) == 0);
     s2.close();
     CHECK(again.lines.empty());
@@ -85,7 +86,7 @@ TEST_CASE("a writing session that finds the terminal unlocked says so and locks 
   EmulatorLink link(st);
   st.channel(1, 0).write_register(31, 0x1235);  // REG clear: 'kscfg unlock' or a tool's leftover
   Notes notes;
-  RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0, notes.options());
+  ImageSession s(link, register_terminal(st.layout(), 1, 0), 0, notes.options());
   CHECK(s.write(32, 7).changed);
   s.close();
   REQUIRE(notes.lines.size() == 1);
@@ -165,7 +166,7 @@ TEST_CASE("a lost reply is read before deciding: the write landed, or it is writ
     std::vector<std::string> trace;
     SessionOptions so;
     so.trace = [&](const std::string& s) { trace.push_back(s); };
-    RegisterSession s(link, t, 0, so);
+    ImageSession s(link, t, 0, so);
     auto r = s.write_all({{32, 7}, {33, 4}});
     s.close();
     CHECK(link.lost == 1);
@@ -204,7 +205,7 @@ TEST_CASE("rollback restores from what the terminal holds and says what it verif
       }
       return FaultLink::Act::pass;
     };
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     try {
       s.write(32, 7);
       FAIL("no error");
@@ -232,7 +233,7 @@ TEST_CASE("rollback restores from what the terminal holds and says what it verif
       if (writes(c, w, 33)) down = true;
       return down ? FaultLink::Act::lose_request : FaultLink::Act::pass;
     };
-    RegisterSession s(link, t, 0);
+    ImageSession s(link, t, 0);
     try {
       s.write_all({{32, 7}, {33, 4}});
       FAIL("no error");
@@ -255,7 +256,7 @@ TEST_CASE("rollback restores from what the terminal holds and says what it verif
     EmulatedStation st(default_station(), cat());
     EmulatorLink link(st);
     st.channel(1, 0).faults.ignore_writes.insert(33);
-    RegisterSession s(link, register_terminal(st.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(st.layout(), 1, 0), 0);
     try {
       s.write_all({{32, 7}, {33, 4}});
       FAIL("no error");

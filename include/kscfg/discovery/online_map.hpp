@@ -1,12 +1,13 @@
 // The online map: the station laid out from the mapping registers its terminals hold now, read
-// through a link.
+// through the port's register access (the process-image handshake, or ADS port 100: no image
+// byte is touched there).
 #pragma once
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/link/link.hpp"
+#include "kscfg/session/engine.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
@@ -25,7 +26,7 @@ struct OnlineMap {
   std::vector<RegisterReading> readings;
   std::vector<std::string> notes;
 };
-OnlineMap map_online(Link& link, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
+OnlineMap map_online(Engine& engine, const StationLayout& current, const StationSpec& spec, const Catalog& catalog,
                      const MappingSettings& settings, const SessionOptions& opt);
 
 }  // namespace kscfg

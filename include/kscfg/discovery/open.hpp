@@ -1,5 +1,6 @@
-// Opening a port URI: the emulator (emu, emu:PATH, emu:mem) or a Modbus coupler (tcp://, rtu:),
-// with the scan that discovers the station behind a Modbus coupler.
+// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:) or an
+// ADS coupler (ads://), with the port's one register access and engine, and the discovery that
+// finds the station behind a coupler (a Modbus scan, an ADS coupler's table 9).
 #pragma once
 #include <functional>
 #include <memory>
@@ -12,6 +13,7 @@
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
+#include "kscfg/session/engine.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/journal.hpp"
 #include "kscfg/session/session.hpp"
@@ -23,7 +25,6 @@ struct LinkOptions {
   std::function<void(const std::string&)> trace;  // -v: link-level events (retries of a Modbus link)
   std::string cache_dir;  // Modbus: keep scans here between runs (scan_cache.hpp); empty: no cache
   bool rescan = false;    // Modbus: scan even when the cache holds a valid scan
-  std::function<void(const std::string&)> notice;  // what the scan's sessions must tell the user (SessionOptions)
   // Modbus with a journal directory ($XDG_STATE_HOME/kscfg/sessions): the journal is opened there
   // for this port; the sessions this process leaves open if it dies are noted in it
   // (journal.hpp). What dead kscfg processes left is finished by recover_dead_sessions() once the
@@ -34,13 +35,26 @@ struct LinkOptions {
   // kscfg of this computer holds (owner_lock.hpp): the link is opened only once it is free, and
   // holds it until it closes.
   LockWait lock_wait;
+  // The options of the port's register access and of every session discovery runs on it
+  // (cancellation, notices, test hooks); its timeout is timeout_ms, its journal `journal`, its
+  // trace `trace` when it has none.
+  SessionOptions session;
+  // ADS: the station whose terminals the access numbers on port 100 (the command's: a station file
+  // or the discovery's); empty: the discovery's.
+  std::function<const StationLayout&()> layout;
 };
 
-// A port opened: its link, and how the station behind it is found when the link cannot tell it.
+// A port opened: its link, its one register access and engine, and how the station behind it is
+// found when the link cannot tell it. Every register operation on the port (commands, the scan,
+// the online map, journal recovery, the lock-out guard) runs on `engine`: one access per port, so a
+// channel's bytes are saved and put back once however many users it has, and over ADS no register
+// request ever goes through the process image (docs/design.md 1.2).
 struct OpenedPort {
   std::unique_ptr<Link> link;
+  std::unique_ptr<RegisterAccess> access;  // open_register_access(); refers to `link`
+  std::unique_ptr<Engine> engine;          // over `access`
   // A Modbus coupler's scan, an ADS coupler's table 9; nullptr when the link knows its station
-  // (the emulator: Link::layout()). Refers to `link`, and is destroyed before it.
+  // (the emulator: Link::layout()). Refers to `link` and `engine`, and is destroyed before them.
   std::unique_ptr<StationDiscovery> discovery;
 };
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
@@ -49,7 +63,7 @@ std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, 
 
 // The register access of the port behind `link` (session/access.hpp): direct access over ADS port
 // 100 for an ads:// port, its terminals numbered on port 100 from `layout()` (the station the
-// command uses); the process-image handshake otherwise.
+// command uses); the process-image handshake otherwise. open_port_uri() makes the port's one.
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
                                                      std::function<const StationLayout&()> layout);
 
@@ -65,8 +79,9 @@ std::string coupler_lock_path(const AdsTarget& target);
 // finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position
 // must have its type and register window (a scan's entry, whose type no catalog has, its control
 // and status byte).
-// `layout_upto(n)` gives the station's terminals 1..n at least. Never throws but Error(interrupted).
-void recover_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+// `layout_upto(n)` gives the station's terminals 1..n at least. Runs on the port's `engine`.
+// Never throws but Error(interrupted).
+void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto);
 
 }  // namespace kscfg

@@ -43,9 +43,11 @@ ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::opti
 using ScanProgress = std::function<void(unsigned done, unsigned total, const std::string& what)>;
 
 // Walks the complex area on from where `r` stopped, reading each terminal's R8 and the registers
-// that decide its image, until terminals 1..upto are known (upto 0: the whole area).
-void walk(ScanResult& r, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto = 0,
-          const ScanProgress& progress = {});
+// that decide its image, until terminals 1..upto are known (upto 0: the whole area). The register
+// work runs on the port's `engine` (its access the process-image handshake over `link`; the walk
+// also reads `link`'s input bytes where a terminal may answer through either of two windows).
+void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
+          unsigned upto = 0, const ScanProgress& progress = {});
 
 // The layout of the terminals in `r` (registers as read, type defaults elsewhere); the digital
 // bits and whole image sizes from the coupler's image lengths.
@@ -58,8 +60,9 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
 void read_watchdog(ScanResult& r, ModbusRegisters& client);
 
 // Everything: head, watchdog and the whole walk.
-ScanResult scan_station(ModbusRegisters& client, Link& link, const Catalog& catalog, const SessionOptions& so,
-                        std::optional<MappingSettings> settings = std::nullopt, const ScanProgress& progress = {});
+ScanResult scan_station(ModbusRegisters& client, Engine& engine, Link& link, const Catalog& catalog,
+                        const SessionOptions& so, std::optional<MappingSettings> settings = std::nullopt,
+                        const ScanProgress& progress = {});
 
 struct DiscoveryOptions {
   // Where scans are kept between runs (scan_cache.hpp); empty: nowhere, every run scans.
@@ -71,8 +74,9 @@ struct DiscoveryOptions {
 // command needs. With a cache directory, an earlier run's scan is used when the coupler reports
 // the same identification and image lengths (two requests), and a scan is kept there, with the
 // terminals' acknowledge latencies, for the next run: the latencies kept are given to the link
-// here, before its first session. Refers to `link`: destroy it first.
-std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, const Catalog& catalog, const SessionOptions& so,
-                                                   DiscoveryOptions opt = {});
+// here, before its first session. Its sessions run on the port's `engine` (open_port_uri).
+// Refers to `link` and `engine`: destroy it first.
+std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, Engine& engine, const Catalog& catalog,
+                                                   const SessionOptions& so, DiscoveryOptions opt = {});
 
 }  // namespace kscfg

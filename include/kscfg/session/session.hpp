@@ -26,9 +26,10 @@ HandshakeOptions handshake_options(const SessionOptions& so);
 
 class RegisterSession {
  public:
-  // On an access of its own: the process-image handshake over `link`.
-  RegisterSession(Link& link, const TerminalImage& terminal, unsigned channel, SessionOptions opt = {});
-  // On a shared engine (its access may be any, e.g. direct register access).
+  // On the port's engine (its one register access: the process-image handshake, or ADS port 100;
+  // discovery/open.hpp open_port_uri). There is no session with an access of its own: two accesses
+  // on one port would each save and restore a channel's bytes, and over ADS the handshake would
+  // write into the output image.
   RegisterSession(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt = {});
   ~RegisterSession();
   RegisterSession(const RegisterSession&) = delete;
@@ -71,26 +72,25 @@ class RegisterSession {
   Engine& engine() { return engine_; }
 
  private:
-  std::unique_ptr<HandshakeAccess> own_access_;
-  std::unique_ptr<Engine> own_engine_;
   Engine& engine_;
   std::unique_ptr<Channel> ch_;
 };
 
 // Finishes the sessions that kscfg processes on this link's port left open when they died
-// (journal.hpp): each terminal of a dead journal that is still in register mode (REG in its control
+// (journal.hpp), on the port's engine (its access the process-image handshake over `link`, whose
+// image bytes are read to tell whether a terminal is still in register mode): each terminal of a dead journal that is still in register mode (REG in its control
 // and its status byte) is relocked and put back to process data, with a note. A journal is dropped
 // once dealt with; one whose terminal did not answer stays for the next run. `fits` (when given)
 // says whether an entry's window lies inside the image the coupler has now; one that does not is
 // not this station's and is dropped untouched. Never throws but Error(interrupted).
-void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
+void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                           const std::function<bool(const SessionJournal::Entry&)>& fits = {});
 
 // The same for direct register access (ADS port 100, AdsAccess): each channel a dead process's
-// journal says it unlocked ("u" entries) is relocked through `access` when R31 still holds the code
-// word, with a note. `terminal(position)`: the station's terminal there (nullptr: none; the entry
+// journal says it unlocked ("u" entries) is relocked through the port's engine (its access
+// AdsAccess) when R31 still holds the code word, with a note. `terminal(position)`: the station's terminal there (nullptr: none; the entry
 // is then not this station's and dropped untouched). Never throws but Error(interrupted).
-void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
+void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal);
 
 }  // namespace kscfg
