@@ -12,7 +12,7 @@
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/modbus_link.hpp"
-#include "kscfg/session/lockout.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "../progress.hpp"
 #include "provision_util.hpp"
 
@@ -41,32 +41,6 @@ unsigned backup_keep(std::optional<unsigned> keep) {
   return 20;
 }
 
-// Raw registers of a station file (R32 = 0x00FF) hold what the catalog documents for them, as set
-// and write demand (issue 23 item 6): refused with status 5, unless --force.
-void check_raw_registers(const StationSpec& spec, const Catalog& catalog, bool force) {
-  std::string bad;
-  for (std::size_t i = 0; i < spec.terminals.size(); ++i) {
-    const TerminalSpec& ts = spec.terminals[i];
-    const TerminalType* type = catalog.find(ts.type);
-    if (!type) continue;
-    for (unsigned ch = 0; ch < ts.channels.size(); ++ch)
-      for (const auto& [reg, value] : ts.channels[ch].registers) {
-        std::string why = undocumented_value(*type, reg, value, ch);
-        if (why.empty()) continue;
-        auto line = ts.channels[ch].register_lines.find(reg);
-        bad += fmt::format("{}{}{}: terminal {} ({}){}: R{} = 0x{:04X}: {}", bad.empty() ? "" : "; ",
-                           spec.origin.empty() ? "the station file" : spec.origin,
-                           line != ts.channels[ch].register_lines.end() ? fmt::format(":{}", line->second) : "", i + 1,
-                           type->type, type->channels > 1 ? fmt::format(" channel {}", ch + 1) : "", reg, value, why);
-      }
-  }
-  if (bad.empty()) return;
-  if (!force)
-    throw Error(Exit::refused, "refused: " + bad + "; nothing was written",
-                "'kscfg catalog TYPE' lists the documented values; --force writes them anyway");
-  std::cerr << "kscfg: warning: --force: writing values the catalog does not document: " << bad << '\n';
-}
-
 }  // namespace
 
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
@@ -74,7 +48,6 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
-  check_raw_registers(want, ctx.catalog(), force);  // before anything is read: nothing to undo
   // A partial file (position = N): the station's other terminals are left alone.
   if (want.partial()) want = expand_partial(want, ctx.layout());
   const StationLayout& layout = ctx.layout_for(want);
@@ -83,6 +56,13 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     ProgressBar bar(ctx, what + ": reading", 0);  // on a terminal only (progress.hpp)
     plan = make_plan(ctx.engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
   }
+  // The one verdict on this change (session/verdict.hpp), the same for --dry-run (and so for the
+  // Ansible module's check mode), diff and station check: refused with status 5 before anything is
+  // written, unless --force.
+  Verdict verdict;
+  if (plan.changes())
+    verdict = enforce_verdict(&ctx.engine(), layout, ctx.catalog(), ctx.session_options(),
+                              planned_writes(plan, &want, &ctx.catalog()), force);
   if (dry_run || !plan.changes()) {
     if (ctx.json()) {
       print_json(provision_json(ctx, plan, dry_run, ""));
@@ -91,7 +71,6 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     }
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
-  LockoutReport rep = guard_lockout(ctx.engine(), layout, ctx.catalog(), ctx.session_options(), planned_writes(plan), force);
   BackupInfo info;
   info.coupler = layout.coupler;
   nlohmann::json lj = ctx.link_json();
@@ -112,7 +91,7 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   std::cerr << "kscfg: undo with: " << r.undo << '\n';
-  if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
+  if (std::string n = next_start_note(verdict.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
   if (ctx.options().verbose)
     for (const auto& old : r.rotated) ctx.trace("removed old backup " + old);
   if (ctx.json()) {
@@ -145,9 +124,14 @@ class Apply : public ApplyCommand {
            "register this run wrote is restored and the exit status says why. Running apply twice changes "
            "nothing the second time. Exit status: 0 no change needed, 10 changed, other: failure (nothing "
            "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "
-           "A plan that would leave a terminal without its register window at the coupler's next start "
-           "(see \\fBwrite\\fR) is refused with status 5 before anything is written; \\fB\\-\\-force\\fR "
-           "applies it anyway.";
+           "A plan with a value the catalog does not document for its register (a raw \\fBR32 = 0x00FF\\fR on "
+           "a KL6001), with settings that go together left apart (KL6031 \\fBimage\\-size\\fR and "
+           "\\fBextended\\-image\\fR) or that would leave a terminal without its register window at the "
+           "coupler's next start (see \\fBwrite\\fR) is refused with status 5 before anything is written, "
+           "with \\fB\\-\\-dry\\-run\\fR too (so Ansible's check mode fails as the real run would); "
+           "\\fBdiff\\fR, \\fBset\\fR, \\fBwrite\\fR and \\fBstation check\\fR refuse the same change "
+           "with the same message. \\fB\\-\\-force\\fR applies it anyway (with \\fB\\-\\-dry\\-run\\fR: "
+           "shows the plan).";
   }
   std::vector<std::string> examples() const override {
     return {"apply line3.toml", "apply --dry-run line3.toml", "--port tcp://10.0.0.5 --json apply line3.toml"};

@@ -7,6 +7,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "../progress.hpp"
 #include "provision_util.hpp"
 
@@ -55,8 +56,12 @@ class Diff : public Command {
     return "Reads the registers and parameters that the station file \\fIFILE\\fR configures (named "
            "parameters and/or raw registers per terminal) from the connected station and prints, per "
            "terminal, every parameter and register that differs as old \\-> new. The file's terminals must "
-           "match the station's types and positions. Exit status 0: no differences; 1: differences; other: "
-           "failure. \\fB\\-\\-json\\fR gives a \\fBchanged\\fR flag per terminal and overall.";
+           "match the station's types and positions. Differences that \\fBapply\\fR would refuse (a value the "
+           "catalog does not document, settings that go together left apart, a terminal that would lose its "
+           "register window; see \\fBwrite\\fR) are refused here too, with status 5 and the message "
+           "\\fBapply\\fR gives. Exit status 0: no differences; 1: differences; 5: differences apply would "
+           "refuse; other: failure. \\fB\\-\\-json\\fR gives a \\fBchanged\\fR flag per terminal and "
+           "overall.";
   }
   std::vector<std::string> examples() const override { return {"diff line3.toml", "--json diff line3.toml"}; }
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
@@ -64,10 +69,15 @@ class Diff : public Command {
     StationSpec want = load_station_arg(file_, ctx.catalog());
     if (want.partial()) want = expand_partial(want, ctx.layout());  // position = N: only those
     Plan plan;
+    const StationLayout& layout = ctx.layout_for(want);
     {
       ProgressBar bar(ctx, "diff: reading", 0);  // on a terminal only (progress.hpp)
-      plan = make_plan(ctx.engine(), ctx.layout_for(want), want, ctx.catalog(), ctx.session_options(), bar.callback());
+      plan = make_plan(ctx.engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
     }
+    // A difference that apply would refuse is refused here too, with the same text (status 5).
+    if (plan.changes())
+      enforce_verdict(&ctx.engine(), layout, ctx.catalog(), ctx.session_options(),
+                      planned_writes(plan, &want, &ctx.catalog()), false);
     if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);
     else std::cout << "no differences\n";

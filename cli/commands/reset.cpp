@@ -7,7 +7,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/session/lockout.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -53,9 +53,9 @@ class Reset : public Command {
     unsigned chan = ctx.options().channel - 1;
     (void)register_terminal(ctx.layout(), pos, chan);
     std::vector<PlannedWrite> planned;
-    for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF});
+    for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF, std::nullopt, {}});
     // Its reads end before the question: no terminal waits in register mode for an answer.
-    guard_lockout(ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
+    enforce_verdict(&ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
     if (!yes_) {
       if (!isatty(STDIN_FILENO))
         throw Error(Exit::usage, fmt::format("reset of terminal {} ({}) needs confirmation", pos, type.type),

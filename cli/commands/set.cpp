@@ -6,7 +6,7 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/session/lockout.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
 #include "param_util.hpp"
@@ -34,7 +34,10 @@ class Set : public Command {
            "and refused when the nearest rate is off by more than the terminal's bit-distortion limit. A change that would leave a terminal without its register window "
            "at the coupler's next start (e.g. \\fBdata\\-bytes 1\\fR on a KL6001 in the standard format, "
            "\\fBalternative\\-format on\\fR on a coupler without complete evaluation) is refused with "
-           "status 5 before anything is written; \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR).";
+           "status 5 before anything is written; so is a change that leaves apart settings that go together: "
+           "\\fBset image\\-size 3\\fR on a KL6031 also sets \\fBextended\\-image off\\fR, and "
+           "\\fBset image\\-size 3 extended\\-image on\\fR is refused (status 5, the message \\fBapply\\fR "
+           "gives for it). \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR).";
   }
   std::vector<std::string> examples() const override {
     return {"set baud 19200", "set frame 8E1 baud 4800", "set baud 12500 --divisor", "set rts-cts off",
@@ -68,13 +71,13 @@ class Set : public Command {
     // request for a dead session's and zero the channel's bytes when it closed (issue 23 item 20).
     const StationLayout& L = ctx.layout();
     auto s = ctx.session();
-    LockoutReport rep = guard_lockout(ctx.engine(), L, ctx.catalog(), ctx.session_options(),
-                                      planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
+    Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(),
+                                planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
     SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
     s->close();
     // A mapping register (KL6001 R34/R35, ...) changes the image only when the coupler starts again.
     if (r.changed)
-      if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
+      if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
     if (ctx.json()) {
       nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
       for (const auto& p : r.params)

@@ -9,6 +9,7 @@
 #include "kscfg/base/error.hpp"
 #include "../output.hpp"
 #include "kscfg/base/files.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
@@ -113,12 +114,20 @@ class StationCheck : public Command {
   std::string man() const override {
     return "Parses \\fIFILE\\fR, lays the station out for its coupler and checks the image against the coupler's "
            "limits. Prints one line: coupler, terminals, input and output bytes. Errors name the file, line and "
-           "column.";
+           "column. The file is then judged as \\fBapply\\fR judges a change, taken as a change from the "
+           "terminals' factory settings (kscfg cannot see the station here): a value the catalog does not document "
+           "(e.g. a raw \\fBR32 = 0x00FF\\fR on a KL6001), settings that go together left apart (KL6031 "
+           "\\fBimage\\-size\\fR and \\fBextended\\-image\\fR) or a terminal that would lose its register "
+           "window is refused with status 5 and the message \\fBapply\\fR gives. A partial file is judged "
+           "terminal by terminal (an image beyond the coupler's limit needs the whole station: \\fBdiff\\fR).";
   }
   std::vector<std::string> examples() const override { return {"station check line3.toml", "--json station check line3.toml"}; }
   void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
   int run(Context& ctx) override {
     StationSpec spec = load_station_arg(file_, ctx.catalog());
+    // The verdict apply would give the file as a change from the factory settings (session/
+    // verdict.hpp): the same refusal, status 5.
+    if (Verdict v = judge_station_file(spec, ctx.catalog()); v.refused()) throw v.refusal();
     if (spec.partial()) {
       // Positions only: what is there is checked when it is applied (apply, diff, restore).
       std::vector<unsigned> positions;

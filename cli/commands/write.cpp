@@ -9,7 +9,7 @@
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "kscfg/session/lockout.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "kscfg/session/parameters.hpp"
 
 namespace kscfg::cli {
@@ -44,8 +44,9 @@ class Write : public Command {
            "alternative format on a coupler without complete evaluation, an image larger than the coupler "
            "maps, ...), it refuses with status 5 and names the consequence and the setting: over the "
            "process image there is no way back, only the coupler's configuration interface (KS2000). "
-           "\\fB\\-\\-force\\fR writes anyway after saying what recovery needs. The same check guards "
-           "\\fBset\\fR, \\fBreset\\fR, \\fBapply\\fR and \\fBrestore\\fR.";
+           "\\fB\\-\\-force\\fR writes anyway after saying what recovery needs. The same verdict, with the "
+           "same message, judges every change: \\fBset\\fR, \\fBreset\\fR, \\fBapply\\fR (also "
+           "\\fB\\-\\-dry\\-run\\fR), \\fBrestore\\fR, \\fBdiff\\fR and \\fBstation check\\fR.";
   }
   std::vector<std::string> examples() const override {
     return {"write R32 0x0007", "write R34 0x0000 --mask 0x0001", "-t 1 write 35 5", "-t 3 write R7 0x7000"};
@@ -66,27 +67,20 @@ class Write : public Command {
     // start must leave every terminal its register window (docs/design.md section 6).
     unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
     const TerminalType& ttype = *register_terminal(ctx.layout(), pos, chan).type;
-    // A value the catalog does not document (a baud code the terminal does not have, a divisor rate
-    // above its maximum, a count outside its range) is refused like by set, unless forced.
-    if (!ttype.regs[reg].command && reg < proto::kRegisterCount)
-      if (std::string why = undocumented_value(ttype, reg, value, chan, mask); !why.empty()) {
-        std::string what = fmt::format("R{} = 0x{:04X} on terminal {} ({}): {}", reg, value & mask, pos, ttype.type, why);
-        if (!force_)
-          throw Error(Exit::refused, "refused: " + what + "; nothing was written",
-                      fmt::format("'kscfg catalog {}' lists the documented values; --force writes it anyway", ttype.type));
-        std::cerr << "kscfg: warning: --force: writing " << what << '\n';
-      }
     std::vector<PlannedWrite> planned;
     if (ttype.regs[reg].command) {
       if (auto eff = command_effect(ttype, reg, value))
-        for (const auto& [r, v] : eff->expect) planned.push_back({pos, chan, r, v, 0xFFFF});
+        for (const auto& [r, v] : eff->expect) planned.push_back({pos, chan, r, v, 0xFFFF, std::nullopt, {}});
     } else {
-      planned.push_back({pos, chan, reg, value, mask});
+      planned.push_back({pos, chan, reg, value, mask, std::nullopt, {}});
     }
     // On the command's engine, where the channel is the session's own (see set).
     const StationLayout& L = ctx.layout();
     auto s = ctx.session();
-    LockoutReport rep = guard_lockout(ctx.engine(), L, ctx.catalog(), ctx.session_options(), planned, force_);
+    // The one verdict on the change (session/verdict.hpp): a value the catalog does not document (a
+    // baud code the terminal does not have, a divisor rate above its maximum, a count outside its
+    // range), settings left apart, a lost register window: refused as by set and apply.
+    Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(), planned, force_);
     const TerminalType& type = *s->terminal().type;
     if (type.regs[reg].command) {
       if (!mask_.empty())
@@ -97,7 +91,7 @@ class Write : public Command {
     WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
     s->close();
     if (r.changed)
-      if (std::string n = next_start_note(rep); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
+      if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
       nlohmann::json j = terminal_json(s->terminal(), ch);

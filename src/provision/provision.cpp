@@ -15,6 +15,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/session/station_work.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
 
@@ -199,10 +200,17 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
   return plan;
 }
 
-std::vector<PlannedWrite> planned_writes(const Plan& plan) {
+std::vector<PlannedWrite> planned_writes(const Plan& plan, const StationSpec* file, const Catalog* catalog) {
   std::vector<PlannedWrite> out;
   for (const auto& cp : plan.channels)
-    for (const auto& rc : cp.registers) out.push_back({cp.position, cp.channel, rc.reg, rc.to, 0xFFFF});
+    for (const auto& rc : cp.registers) {
+      PlannedWrite w{cp.position, cp.channel, rc.reg, rc.to, 0xFFFF, rc.from, {}};
+      if (file && catalog && cp.position >= 1 && cp.position <= file->terminals.size()) {
+        const TerminalSpec& ts = file->terminals[cp.position - 1];
+        w.origin = station_file_origin(*file, ts, catalog->get(ts.type), cp.channel, rc.reg);
+      }
+      out.push_back(std::move(w));
+    }
   return out;
 }
 

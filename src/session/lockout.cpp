@@ -114,7 +114,7 @@ std::string LockoutReport::recovery() const {
       ce ? "; or switch complete evaluation on in the fieldbus master's configuration" : "");
 }
 
-LockoutReport check_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
+LockoutReport check_lockout(Engine* engine, const StationLayout& current, const Catalog& catalog,
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes) {
   LockoutReport rep;
   // Only registers that decide an image can change the layout.
@@ -137,7 +137,7 @@ LockoutReport check_lockout(Engine& engine, const StationLayout& current, const 
     auto mregs = mapping_registers(*t.type);
     for (unsigned ch = 0; ch < t.type->channels; ++ch) {
       now[{t.position, ch}] = registers_for(*t.type, t, ch);
-      if (!mregs.empty() && ch < t.channels.size() && t.channels[ch].window) {
+      if (engine && !mregs.empty() && ch < t.channels.size() && t.channels[ch].window) {
         ChannelReads j;
         j.position = t.position;
         j.channel = ch;
@@ -146,7 +146,7 @@ LockoutReport check_lockout(Engine& engine, const StationLayout& current, const 
       }
     }
   }
-  read_channels(engine, current, jobs, so);
+  if (engine) read_channels(*engine, current, jobs, so);
   for (const auto& j : jobs) {
     if (j.error) std::rethrow_exception(j.error);
     for (std::size_t k = 0; k < j.regs.size(); ++k) now[{j.position, j.channel}][j.regs[k]] = j.values[k];
@@ -227,39 +227,13 @@ std::string next_start_note(const LockoutReport& rep) {
                      by_terminal(rep.causes, [](const ChangedMapping& c) { return c.setting; }));
 }
 
-LockoutReport guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
-                            const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force) {
-  LockoutReport rep = check_lockout(engine, current, catalog, so, writes);
-  if (!rep.conflicts.empty()) {
-    std::string text, fix;
-    for (const auto& c : rep.conflicts) text += (text.empty() ? "" : "; ") + c;
-    for (const auto& f : rep.conflict_fixes) fix += (fix.empty() ? "" : "; ") + f;
-    if (!force)
-      throw Error(Exit::refused,
-                  fmt::format("refused: {}: the coupler lays the image out from one and the terminal reports the "
-                              "other, so the PLC's image would change unannounced; nothing was written",
-                              text),
-                  "change them together (kscfg set, or both in the station file): " + fix +
-                      ". Give --force to write anyway");
-    if (so.notice) so.notice(fmt::format("warning: --force: writing although {}", text));
-  }
-  if (!rep.locks_out()) return rep;
-  if (!force)
-    throw Error(Exit::refused, fmt::format("refused: {}", rep.consequence()),
-                "nothing was written; " + rep.recovery() +
-                    ". Give --force to write anyway");
-  if (so.notice)
-    so.notice(fmt::format("warning: --force: writing although {}. {}", rep.consequence(), rep.recovery()));
-  return rep;
-}
-
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,
                                          const std::vector<std::pair<std::string, std::string>>& pairs,
                                          const Catalog& catalog, bool divisor) {
   std::vector<PlannedWrite> out;
   for (const auto& [name, value] : pairs) {
     const ParamDef& p = find_param(type, name, catalog, channel);
-    out.push_back({position, channel, p.reg, encode_param(p, value, 0, divisor), p.mask});
+    out.push_back({position, channel, p.reg, encode_param(p, value, 0, divisor), p.mask, std::nullopt, {}});
   }
   return out;
 }

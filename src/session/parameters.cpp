@@ -124,16 +124,9 @@ std::vector<std::pair<std::string, std::string>> with_settings(
     for (const auto& ev : p.values) {
       if (ev.code != code || ev.with_param.empty()) continue;
       const ParamDef& other = find_param(type, ev.with_param, catalog, channel);
-      std::uint16_t want = other.field(encode_param(other, ev.with_value, 0));
-      if (const auto* g = given(other.name)) {
-        if (other.field(encode_param(other, g->second, 0)) != want)
-          throw Error(Exit::usage,
-                      fmt::format("{} {} needs {} {}; '{} {}' contradicts it", p.name, v, other.name, ev.with_value,
-                                  g->first, g->second),
-                      fmt::format("leave {} out: it is set with {}", other.name, p.name));
-      } else {
-        out.emplace_back(other.name, ev.with_value);
-      }
+      // Given too: left as given. With another value the verdict on the change refuses the two
+      // apart (session/verdict.hpp), with status 5 as on every other path.
+      if (!given(other.name)) out.emplace_back(other.name, ev.with_value);
     }
   }
   return out;

@@ -316,6 +316,124 @@ class FactsTest(Tmp):
         self.assertEqual(ku.backup_channels({'type': 'KL1104'}), [{'channel': 1, 'params': {}, 'registers': {}}])
 
 
+# ---------------------------------------------------------------------------------------------
+# The kscfg_station module's check mode without Ansible: the module's main() with a stand-in for
+# AnsibleModule (the parts it uses), against kscfg and the emulator. A change kscfg refuses must
+# fail in check mode too, with kscfg's reason, instead of reporting "would change" (issue 33 item 2).
+
+MODULE = os.path.join(ROOT, 'contrib', 'ansible', 'ansible_collections', 'kscfg', 'bus', 'plugins', 'modules',
+                      'kscfg_station.py')
+
+
+class _Exit(Exception):
+    def __init__(self, failed, result):
+        super().__init__(result.get('msg', ''))
+        self.failed, self.result = failed, result
+
+
+class _Module:
+    """What kscfg_station uses of AnsibleModule: params, check_mode, _diff, tmpdir, run_command,
+    get_bin_path, exit_json and fail_json."""
+    params_for_next = None
+    check_mode_for_next = False
+
+    def __init__(self, argument_spec, **_):
+        self.params = {k: None for k in argument_spec}
+        self.params['layout'] = False
+        self.params.update(_Module.params_for_next)
+        self.check_mode = _Module.check_mode_for_next
+        self._diff = False
+        self.tmpdir = tempfile.mkdtemp(prefix='kscfg-ansible-module-')
+
+    def run_command(self, cmd):
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        return r.returncode, r.stdout, r.stderr
+
+    def get_bin_path(self, name, required=False):
+        return KSCFG
+
+    def exit_json(self, **result):
+        raise _Exit(result.get('failed', False), result)
+
+    def fail_json(self, **result):
+        raise _Exit(True, result)
+
+
+def run_station_module(params, check_mode):
+    """The module's main() with `params`; (failed, result)."""
+    import types
+    stubs = {
+        'ansible': types.ModuleType('ansible'),
+        'ansible.module_utils': types.ModuleType('ansible.module_utils'),
+        'ansible.module_utils.basic': types.ModuleType('ansible.module_utils.basic'),
+        'ansible_collections': types.ModuleType('ansible_collections'),
+        'ansible_collections.kscfg': types.ModuleType('ansible_collections.kscfg'),
+        'ansible_collections.kscfg.bus': types.ModuleType('ansible_collections.kscfg.bus'),
+        'ansible_collections.kscfg.bus.plugins': types.ModuleType('ansible_collections.kscfg.bus.plugins'),
+        'ansible_collections.kscfg.bus.plugins.module_utils':
+            types.ModuleType('ansible_collections.kscfg.bus.plugins.module_utils'),
+        'ansible_collections.kscfg.bus.plugins.module_utils.kscfg': ku,
+    }
+    stubs['ansible.module_utils.basic'].AnsibleModule = _Module
+    saved = {k: sys.modules.get(k) for k in stubs}
+    sys.modules.update(stubs)
+    try:
+        spec = importlib.util.spec_from_file_location('kscfg_station_under_test', MODULE)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        _Module.params_for_next = params
+        _Module.check_mode_for_next = check_mode
+        try:
+            mod.main()
+        except _Exit as e:
+            return e.failed, e.result
+        raise AssertionError('the module neither exited nor failed')
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                sys.modules.pop(k, None)
+            else:
+                sys.modules[k] = v
+
+
+class CheckModeTest(Tmp):
+    def setUp(self):
+        super().setUp()
+        self.port = 'emu:' + self.path('emu.json')
+        kscfg('--port', self.port, 'emu', 'reset')
+
+    def module(self, settings, check_mode=True):
+        station = self.write('s.toml', 'coupler = "BK9000"\n[[terminal]]\n' + settings)
+        return run_station_module({'port': self.port, 'station': station, 'kscfg': KSCFG}, check_mode)
+
+    def test_a_change_kscfg_accepts_would_change(self):
+        failed, result = self.module('position = 1\ntype = "KL6001"\nbaud = 19200\n')
+        self.assertFalse(failed, result.get('msg'))
+        self.assertTrue(result['changed'])
+        self.assertTrue(result['dry_run'])
+
+    def test_a_change_kscfg_refuses_fails_in_check_mode(self):
+        cases = {
+            'position = 3\ntype = "KL6031"\nimage-size = 3\nextended-image = true\n':
+                'image-size 3 needs extended-image off, and extended-image is on',
+            'position = 1\ntype = "KL6001"\nR32 = 0x00FF\n':
+                "R32 = 0x00FF: the divisor form gives baud 250000, above the KL6001's documented maximum",
+            'position = 1\ntype = "KL6001"\nR32 = 0x0008\n': 'R32 = 0x0008: baud code 8 is none of the documented',
+        }
+        for settings, reason in cases.items():
+            with self.subTest(reason=reason):
+                failed, result = self.module(settings)
+                self.assertTrue(failed, 'check mode reported "would change": %s' % result)
+                self.assertEqual(result['rc'], 5)
+                self.assertIn(reason, result['msg'])
+                self.assertTrue(result['unchanged'])
+                # The real run refuses with the same reason.
+                failed, real = self.module(settings, check_mode=False)
+                self.assertTrue(failed)
+                self.assertEqual(real['rc'], 5)
+                self.assertIn(reason, real['msg'])
+
+
 if __name__ == '__main__':
     if '--kscfg' in sys.argv:
         i = sys.argv.index('--kscfg')

@@ -64,8 +64,10 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
   CHECK(off.rc == 5);
   CHECK(one_line_error(off));
   CHECK_THAT(off.err, Catch::Contains("image-size 22 needs extended-image on"));
+  // Given apart, refused as apply refuses them (one verdict per change, issue 33 item 2).
   Run both = emu({"-t", "3", "set", "extended-image", "on", "image-size", "3"});
-  CHECK(both.rc == 2);
+  CHECK(both.rc == 5);
+  CHECK_THAT(both.err, Catch::Contains("image-size 3 needs extended-image off, and extended-image is on"));
   Run five = emu({"-t", "3", "--json", "set", "image-size", "5"});  // extended-image goes with it
   REQUIRE(five.rc == 0);
   json j = json::parse(five.out);

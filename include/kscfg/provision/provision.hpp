@@ -77,8 +77,11 @@ struct BackupInfo {
   bool automatic = false;
 };
 
-// The register writes `plan` makes (for guard_lockout).
-std::vector<PlannedWrite> planned_writes(const Plan& plan);
+// The register writes `plan` makes, each with what the register holds (read by make_plan) and,
+// given the station file it came from (in plug order: expand_partial), the file line that sets
+// it: what the verdict on the change judges (session/verdict.hpp).
+std::vector<PlannedWrite> planned_writes(const Plan& plan, const StationSpec* file = nullptr,
+                                         const Catalog* catalog = nullptr);
 
 // Carries out `plan`: first saves the touched registers' current values as a station file at
 // `backup_path` (atomically; its comments record `info`: port, unit, coupler, applied file, time,

@@ -5,6 +5,7 @@
 // refusal unless the user forces it.
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -24,6 +25,8 @@ struct PlannedWrite {
   unsigned reg = 0;
   std::uint16_t value = 0;
   std::uint16_t mask = 0xFFFF;
+  std::optional<std::uint16_t> before;  // what the register holds, when the command read it
+  std::string origin;                   // where the change comes from ("line3.toml:5"), for messages
 };
 
 struct LostWindow {
@@ -58,17 +61,15 @@ struct LockoutReport {
 // Computes the layout the planned writes produce at the coupler's next start and compares it with
 // `current`. Reads the image-deciding registers (KL6001 R34/R35, KL6031 R34/R35, ...) of every
 // terminal it can reach, but only when a planned write touches one of them; otherwise nothing is
-// read and `checked` is false.
+// read and `checked` is false. Without an engine (nullptr: offline, station check) nothing is read:
+// every terminal holds its factory settings in the format `current` gives it.
 // The reads run on `engine`: where the command has a session on a channel already, the guard's read
 // shares that channel (the access counts its users), so no second session finds the first one's
 // register request and takes it for a dead session's leftover.
-LockoutReport check_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
+// Commands do not call it themselves: the verdict on a change (verdict.hpp) does, with the other
+// checks, and refuses a change that locks kscfg out.
+LockoutReport check_lockout(Engine* engine, const StationLayout& current, const Catalog& catalog,
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes);
-
-// check_lockout, then: a lock-out is Error(Exit::refused) naming the consequence and the setting
-// that causes it; with `force` the write may go ahead and so.notice is told what recovery needs.
-LockoutReport guard_lockout(Engine& engine, const StationLayout& current, const Catalog& catalog,
-                            const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force);
 // "takes effect at the coupler's next start: terminal 1 (KL6001) alternative-format = off (R34
 // 0x0003 -> 0x0001); ..." for a report whose writes change a register that decides an image; ""
 // otherwise. The coupler lays its image out at its start: until then it keeps the one it has.

@@ -57,8 +57,8 @@ void check_params(const TerminalType& type, const std::vector<std::pair<std::str
 
 // NAME VALUE pairs with the settings their values go with (catalog `with`) added after them:
 // `set image-size 3` on a KL6031 also sets extended-image off, so both registers are written as
-// one change. A pair that names the other setting with a value that contradicts it is
-// Error(usage). Validation only, no I/O.
+// one change. A pair that names the other setting is left as given: a value that contradicts it is
+// for the verdict on the change to refuse (verdict.hpp). Validation only, no I/O.
 std::vector<std::pair<std::string, std::string>> with_settings(
     const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs, const Catalog& catalog,
     unsigned channel = 0);
