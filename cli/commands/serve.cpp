@@ -7,7 +7,6 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/ads_server.hpp"
@@ -211,11 +210,11 @@ class Serve : public Command {
         std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
       else
         std::cout << server.endpoint() << std::endl;
-      server.run(g_interrupted);
+      server.run([&ctx] { return ctx.cancel()->signalled(); });
       st = server.stats();
     }
     store.save();         // the server saved already; this writes only if something is left
-    g_interrupted = false;  // stopping is how a server ends: exit status 0
+    ctx.cancel()->reset();  // stopping is how a server ends: exit status 0
     return st;
   }
 

@@ -85,6 +85,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
     ao.trace = opt.trace;
+    ao.cancel = opt.cancel;
     AdsTarget target = ads_target(p, uri);
     // One kscfg at a time on a coupler of this computer, as over Modbus: before it connects.
     OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
@@ -105,6 +106,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
   mo.ack_timeout_ms = opt.timeout_ms;
   mo.trace = opt.trace;
+  mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);
   // One kscfg at a time on a coupler of this computer (issue 21 item 1): before it connects.
   OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
@@ -113,6 +115,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(mo.ack_timeout_ms);
   so.trace = mo.trace;
+  so.cancel = opt.cancel;
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;

@@ -272,12 +272,12 @@ void AdsServer::Impl::timers(Conn& c, Clock::time_point now) {
   }
 }
 
-void AdsServer::run(const std::atomic<bool>& stop) {
+void AdsServer::run(const std::function<bool()>& stop) {
   Impl& I = *impl_;
   std::vector<pollfd> fds;
   std::vector<Conn*> who;
   bool more = false;  // a whole frame left in a buffer after a turn
-  while (!stop) {
+  while (!stop()) {
     auto now = Clock::now();
     fds.clear();
     who.clear();

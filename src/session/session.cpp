@@ -3,7 +3,6 @@
 #include <fmt/format.h>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
@@ -15,8 +14,6 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   h.journal = so.journal;
   h.cancel = so.cancel;
   h.notice = so.notice;
-  // A second SIGINT/SIGTERM ends the clean-up too (base/interrupt.hpp).
-  if (so.cancel) h.abandon = [] { return g_interrupts.load() >= 2; };
   h.after_write = so.after_write;
   return h;
 }

@@ -34,6 +34,9 @@ struct LinkOptions {
   // kscfg of this computer holds (owner_lock.hpp): the link is opened only once it is free, and
   // holds it until it closes.
   LockWait lock_wait;
+  // The run's cancellation (base/cancel.hpp), given to the link's client (every wait on the
+  // coupler) and to the scan's sessions. Null: never cancelled.
+  CancelToken* cancel = nullptr;
 };
 
 // A port opened: its link, and how the station behind it is found when the link cannot tell it.

@@ -45,7 +45,11 @@ class AdsServer {
   AdsServer(const AdsServer&) = delete;
   AdsServer& operator=(const AdsServer&) = delete;
   std::string endpoint() const;  // ads://127.0.0.1:40123
-  void run(const std::atomic<bool>& stop);
+  // Serves until `stop` is set, or `stop()` says so (checked every 50 ms).
+  void run(const std::atomic<bool>& stop) {
+    run([&stop] { return stop.load(); });
+  }
+  void run(const std::function<bool()>& stop);
   AdsServeStats stats() const;
 
  private:
