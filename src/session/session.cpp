@@ -61,6 +61,10 @@ std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<
 }
 
 std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
+  // The first Ctrl-C says at once what it undoes (base/cancel.hpp).
+  std::string regs;
+  for (const auto& c : changes) regs += fmt::format("{}R{}", regs.empty() ? "" : ", ", c.reg);
+  CancelNote note(ch_->options().cancel, fmt::format("rolling back {} of {} and relocking it", regs, who()));
   return engine_.wait(ch_->write_masked(changes));
 }
 
