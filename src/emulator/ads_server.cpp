@@ -113,6 +113,7 @@ AdsServer::AdsServer(EmulatedStation& station, AdsServeOptions opt)
   ho.netid = I.opt.netid;
   ho.routes = I.opt.routes;
   ho.watchdog_ms = I.opt.watchdog_ms;
+  ho.register_ms = I.opt.register_ms;
   ho.trace = I.opt.trace;
   I.handler.emplace(station, ho);
   I.listen_tcp();
