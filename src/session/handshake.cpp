@@ -280,6 +280,12 @@ std::vector<Program*> HandshakeAccess::advance() {
       if (c.prog && (all || !c.prog->shielded)) fail(c, Error(Exit::interrupted, "interrupted"), done);
     if (!done.empty()) return done;
   }
+  // Clean-up alone (every program left shielded: after a signal, or a relock at the end) works
+  // under a shield, the save of a channel opened again for a rollback too: the first signal does
+  // not cut the link's waits short, a second one does (base/cancel.hpp).
+  std::optional<ShieldScope> cleanup;
+  if (std::all_of(chans_.begin(), chans_.end(), [](const auto& kv) { return !kv.second.prog || kv.second.prog->shielded; }))
+    cleanup.emplace(opt_.cancel);
   // Channels whose work begins: their process-data bytes saved, in one request where they fit.
   std::vector<Chan*> fresh;
   for (auto& [k, c] : chans_)
