@@ -212,7 +212,8 @@ def serve_any(state, transport):
     if transport == "modbus":
         return serve(state, "--cycle-us", "2000")
     p = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--ads", "127.0.0.1:0", "--watchdog-ms", "0",
-                          "--ads-register-ms", "30"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                          "--ads-register-ms", "30"], stdout=subprocess.PIPE, stderr=open(state + ".serve.err", "w"),
+                         text=True)
     uri = p.stdout.readline().strip()
     if not uri.startswith("ads://"):
         raise SystemExit("serve --ads did not start")
@@ -246,7 +247,7 @@ def ctrl_c_row(work, env, n, transport, kind, rnd):
     run(["--port", "emu:" + state, "emu", "reset"], env)
     srv, uri = serve_any(state, transport)
     base = os.path.join(work, f"cc-{transport}-{kind}-base.toml")
-    tally = dict(runs=0, interrupted=0, finished=0, wrong=0, unlocked=0, regmode=0, crashed=0, acked=0)
+    tally = dict(runs=0, interrupted=0, finished=0, early=0, wrong=0, unlocked=0, regmode=0, crashed=0, acked=0)
     acks = []
     try:
         run(["--port", uri, "info"], env)
@@ -309,6 +310,8 @@ def ctrl_c_row(work, env, n, transport, kind, rnd):
                 tally["finished"] += 1
             elif rc == 8:
                 tally["interrupted"] += 1
+            elif rc == -signal.SIGINT:
+                tally["early"] += 1  # before kscfg took SIGINT (parsing its arguments): nothing touched
             elif rc < 0 or rc == 70:
                 tally["crashed"] += 1
                 print(f"  crashed: {transport} {kind} run {i}: rc {rc}: {err.strip()[-300:]}", file=sys.stderr)
@@ -330,21 +333,27 @@ def ctrl_c_row(work, env, n, transport, kind, rnd):
                 print(f"  left: {transport} {kind} run {i}: unlocked {unlocked} register mode {regmode}",
                       file=sys.stderr)
     finally:
+        if srv.poll() is not None:
+            with open(state + ".serve.err") as f:
+                print(f"  the server ended with {srv.returncode}: {f.read()[-500:]}", file=sys.stderr)
         stop(srv)
     return tally, acks
 
 
-def ctrl_c(work, env, n, seed):
+def ctrl_c(work, env, n, seed, only=None):
     rnd = random.Random(seed)
-    print("| transport | command | runs | interrupted (8) | finished first | wrong | unlocked | register mode | "
-          "crashed or hung | first Ctrl-C acknowledged: signal to the line on stderr |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| transport | command | runs | interrupted (8) | finished first | killed before the handler | wrong | "
+          "unlocked | register mode | crashed or hung | first Ctrl-C acknowledged: signal to the line on stderr |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for transport in ("modbus", "ads"):
         for kind in ("apply", "restore", "set", "backup"):
+            if only and f"{transport}-{kind}" not in only:
+                continue
             t, acks = ctrl_c_row(work, env, n, transport, kind, rnd)
             within = sum(a <= 0.1 for a in acks)
             print(f"| {'Modbus TCP (serve)' if transport == 'modbus' else 'ADS (serve --ads, 30 ms accesses)'} | "
-                  f"{kind} | {t['runs']} | {t['interrupted']} | {t['finished']} | {t['wrong']} | {t['unlocked']} | "
+                  f"{kind} | {t['runs']} | {t['interrupted']} | {t['finished']} | {t['early']} | {t['wrong']} | "
+                  f"{t['unlocked']} | "
                   f"{t['regmode']} | {t['crashed']} | {t['acked']} runs: {figures(acks)}; {within} within 100 ms |",
                   flush=True)
 
@@ -356,6 +365,7 @@ def main():
     ap.add_argument("-n", type=int, default=20)
     ap.add_argument("--ctrl-c", action="store_true", help="only the Ctrl-C row of issue 32 (N runs per command)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", nargs="*", help="rows of --ctrl-c: modbus-apply ... ads-backup")
     a = ap.parse_args()
     KSCFG = os.path.abspath(a.kscfg)
     with tempfile.TemporaryDirectory(prefix="kscfg-interrupts-") as work:
@@ -363,7 +373,7 @@ def main():
                    KSCFG_LOCK_DIR=os.path.join(work, "locks"))
         env.pop("KSCFG_PORT", None)
         if a.ctrl_c:
-            ctrl_c(work, env, a.n, a.seed)
+            ctrl_c(work, env, a.n, a.seed, a.only)
             return
         t, c = ack_wait(work, env, a.n)
         print(f"| SIGINT while waiting for an acknowledge (terminal muted): signal to exit | {figures(t)}; "
