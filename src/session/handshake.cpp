@@ -378,7 +378,15 @@ std::vector<Program*> HandshakeAccess::advance() {
     // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
     // rules above the seam decide whether to ask again (a write's answer lost: read first).
     for (Chan* c : act) {
-      if (c->act == Act::close) continue;  // tried again by the next advance()
+      // The bytes it wrote may or may not have gone out: the shadow no longer says what the
+      // coupler holds, so the put-back that follows (a close tried again, close(), close_now())
+      // writes them again instead of taking them for done. Before, a close cut by a signal
+      // found nothing to put back and left the control byte in register mode.
+      for (std::size_t b = c->out_at; b < c->out_at + c->out_n; ++b)
+        c->shadow[b - c->out_lo] = static_cast<std::uint8_t>(~c->saved[b - c->saved_at]);
+      // A close is tried again by the next advance(), three times in all; then the program fails
+      // and close_now() makes its own bounded attempts (and says so when they fail).
+      if (c->act == Act::close && ++c->close_failures < 3) continue;
       fail(*c, e, done);
     }
     return done;

@@ -107,6 +107,7 @@ class HandshakeAccess final : public RegisterAccess {
     std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
     std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
     bool ready = false, closed = false, journaled = false;
+    unsigned close_failures = 0;  // exchanges that carried its close and failed
     unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
