@@ -14,11 +14,19 @@ Against `kscfg serve` (Modbus TCP on loopback, watchdog off, default --timeout o
                  to kscfg's exit (status 9 with the undo command), and whether it named the backup
   Ctrl-C, dead   the same, and SIGINT 0.5 s after the stop: time from the signal to the exit; and
                  a second SIGINT during the rollback
+  Ctrl-C row     (issue 32 item 3, --ctrl-c) SIGINT at a random point of `apply`, `restore`, `set`
+                 and `backup`, N runs each over Modbus TCP (serve, K-bus cycle 2 ms) and over ADS
+                 (serve --ads, every register access 30 ms, one at a time): runs whose registers
+                 are neither as before nor as the command sets them (wrong), a channel left
+                 unlocked or in register mode, crashes and hangs; and the first Ctrl-C's
+                 acknowledgement: time from the signal to the "kscfg: interrupted: ..." line on
+                 stderr (target 100 ms), in the runs that had something to undo
 
 Uses only Debian's /usr/bin/python3 and the built kscfg.
 """
 import argparse
 import os
+import random
 import signal
 import statistics
 import subprocess
@@ -197,17 +205,176 @@ def dead_link(work, env, n, ctrl_c):
     return times, codes, named, second
 
 
+CTRL = [(1, 1, 0), (2, 1, 8), (3, 1, 16), (4, 1, 40), (4, 2, 44)]  # (position, channel, control byte)
+
+
+def serve_any(state, transport):
+    if transport == "modbus":
+        return serve(state, "--cycle-us", "2000")
+    p = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--ads", "127.0.0.1:0", "--watchdog-ms", "0",
+                          "--ads-register-ms", "30"], stdout=subprocess.PIPE, stderr=open(state + ".serve.err", "w"),
+                         text=True)
+    uri = p.stdout.readline().strip()
+    if not uri.startswith("ads://"):
+        raise SystemExit("serve --ads did not start")
+    return p, uri
+
+
+def snapshot(state):
+    """The served state once its file stayed the same for 50 ms: registers by (position, channel),
+    the channels left unlocked (R31 = 0x1235) and those whose control byte is in register mode."""
+    import json
+    last, same_since, end = None, time.monotonic(), time.monotonic() + 3
+    while time.monotonic() < end:
+        with open(state, "rb") as f:
+            now = f.read()
+        if now != last:
+            last, same_since = now, time.monotonic()
+        elif time.monotonic() - same_since >= 0.05:
+            break
+        time.sleep(0.01)
+    st = json.loads(last)
+    regs = {(c["position"], c["channel"] + 1): c["registers"] for c in st["channels"]}
+    out = bytes.fromhex(st["outputs"])
+    unlocked = [k for k, r in regs.items() if r[31] == 0x1235]
+    regmode = [(p, c) for p, c, at in CTRL if at < len(out) and out[at] & 0x80]
+    return regs, unlocked, regmode
+
+
+def ctrl_c_row(work, env, n, transport, kind, rnd):
+    """SIGINT at a random point of one command kind; returns the tally and the acknowledgement times."""
+    state = os.path.join(work, f"cc-{transport}-{kind}.json")
+    run(["--port", "emu:" + state, "emu", "reset"], env)
+    srv, uri = serve_any(state, transport)
+    base = os.path.join(work, f"cc-{transport}-{kind}-base.toml")
+    tally = dict(runs=0, interrupted=0, finished=0, early=0, wrong=0, unlocked=0, regmode=0, crashed=0, acked=0)
+    acks = []
+    try:
+        run(["--port", uri, "info"], env)
+        r = run(["--port", uri, "backup", base], env)
+        if r.returncode != 0:
+            raise SystemExit(f"backup: {r.stderr}")
+        # Over ADS, table 9 shows the KL2134 as a KL2114 and no KL9010.
+        station = APPLY if transport == "modbus" else APPLY.replace(
+            'type = "KL2134"\n[[terminal]]\ntype = "KL9010"\n', 'type = "KL2114"\n')
+        with open(os.path.join(work, f"cc-{transport}-apply.toml"), "w") as f:
+            ch1 = "".join(f"R{r} = {0x100 + r}\n" for r in range(36, 48))
+            ch2 = "".join(f"R{r} = {0x200 + r}\n" for r in range(36, 48))
+            f.write(station.format(ch1, ch2).replace('type = "KL6001"\n', 'type = "KL6001"\nbaud = 19200\n', 1))
+        with open(os.path.join(work, f"cc-{transport}-restore.toml"), "w") as f:
+            ch1 = "".join(f"R{r} = {0x300 + r}\n" for r in range(36, 48))
+            f.write(station.format(ch1, "").replace('type = "KL6031"\n', 'type = "KL6031"\nbaud = 2400\n', 1))
+        args = {"apply": ["apply", "--backup", os.path.join(work, "cc-undo.toml"),
+                          os.path.join(work, f"cc-{transport}-apply.toml")],
+                "restore": ["restore", os.path.join(work, f"cc-{transport}-restore.toml")],
+                "set": ["-t", "1", "set", "baud", "19200"],
+                "backup": ["backup", "--force", os.path.join(work, "cc-out.toml")]}[kind]
+        before = snapshot(state)[0]
+        t0 = time.monotonic()
+        r = run(["--port", uri] + args, env)
+        span = time.monotonic() - t0
+        if r.returncode not in (0, 10):
+            raise SystemExit(f"{transport} {kind}: {r.returncode}: {r.stderr}")
+        target = snapshot(state)[0]
+        run(["--port", uri, "restore", base], env)
+        for i in range(n):
+            if snapshot(state)[0] != before:
+                run(["--port", uri, "restore", base], env)
+            errp = os.path.join(work, f"cc-{transport}-{kind}-{i}.err")
+            with open(errp, "w") as ef:
+                k = start(["--port", uri] + args, env, ef)
+                time.sleep(rnd.uniform(0, span))
+                ts = time.monotonic()
+                k.send_signal(signal.SIGINT)
+                acked = None
+                end = ts + 60
+                while time.monotonic() < end:
+                    if acked is None:
+                        with open(errp) as f:
+                            if "kscfg: interrupted: " in f.read():
+                                acked = time.monotonic()
+                    if k.poll() is not None:
+                        break
+                    time.sleep(0.0005)
+                if k.poll() is None:
+                    k.kill()
+                    k.wait()
+                    tally["crashed"] += 1  # a hang
+            tally["runs"] += 1
+            rc = k.returncode
+            with open(errp) as f:
+                err = f.read()
+            if acked is None and "kscfg: interrupted: " in err:
+                acked = ts  # written before the poll saw the exit
+            if rc in (0, 10):
+                tally["finished"] += 1
+            elif rc == 8:
+                tally["interrupted"] += 1
+            elif rc == -signal.SIGINT:
+                tally["early"] += 1  # before kscfg took SIGINT (parsing its arguments): nothing touched
+            elif rc < 0 or rc == 70:
+                tally["crashed"] += 1
+                print(f"  crashed: {transport} {kind} run {i}: rc {rc}: {err.strip()[-300:]}", file=sys.stderr)
+            else:
+                print(f"  status {rc}: {transport} {kind} run {i}: {err.strip()[-300:]}", file=sys.stderr)
+            if acked is not None:
+                tally["acked"] += 1
+                acks.append(acked - ts)
+            regs, unlocked, regmode = snapshot(state)
+            if regs != before and regs != target:
+                tally["wrong"] += 1
+                print(f"  wrong: {transport} {kind} run {i}: rc {rc}: {err.strip()[-300:]}", file=sys.stderr)
+            elif rc == 8 and regs != before or rc in (0, 10) and regs != target:
+                tally["wrong"] += 1
+                print(f"  not as the exit status says: {transport} {kind} run {i}: rc {rc}", file=sys.stderr)
+            tally["unlocked"] += bool(unlocked)
+            tally["regmode"] += bool(regmode)
+            if unlocked or regmode:
+                print(f"  left: {transport} {kind} run {i}: unlocked {unlocked} register mode {regmode}",
+                      file=sys.stderr)
+    finally:
+        if srv.poll() is not None:
+            with open(state + ".serve.err") as f:
+                print(f"  the server ended with {srv.returncode}: {f.read()[-500:]}", file=sys.stderr)
+        stop(srv)
+    return tally, acks
+
+
+def ctrl_c(work, env, n, seed, only=None):
+    rnd = random.Random(seed)
+    print("| transport | command | runs | interrupted (8) | finished first | killed before the handler | wrong | "
+          "unlocked | register mode | crashed or hung | first Ctrl-C acknowledged: signal to the line on stderr |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for transport in ("modbus", "ads"):
+        for kind in ("apply", "restore", "set", "backup"):
+            if only and f"{transport}-{kind}" not in only:
+                continue
+            t, acks = ctrl_c_row(work, env, n, transport, kind, rnd)
+            within = sum(a <= 0.1 for a in acks)
+            print(f"| {'Modbus TCP (serve)' if transport == 'modbus' else 'ADS (serve --ads, 30 ms accesses)'} | "
+                  f"{kind} | {t['runs']} | {t['interrupted']} | {t['finished']} | {t['early']} | {t['wrong']} | "
+                  f"{t['unlocked']} | "
+                  f"{t['regmode']} | {t['crashed']} | {t['acked']} runs: {figures(acks)}; {within} within 100 ms |",
+                  flush=True)
+
+
 def main():
     global KSCFG
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kscfg", default=KSCFG)
     ap.add_argument("-n", type=int, default=20)
+    ap.add_argument("--ctrl-c", action="store_true", help="only the Ctrl-C row of issue 32 (N runs per command)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", nargs="*", help="rows of --ctrl-c: modbus-apply ... ads-backup")
     a = ap.parse_args()
     KSCFG = os.path.abspath(a.kscfg)
     with tempfile.TemporaryDirectory(prefix="kscfg-interrupts-") as work:
         env = dict(os.environ, XDG_CACHE_HOME=os.path.join(work, "cache"), XDG_STATE_HOME=os.path.join(work, "state"),
                    KSCFG_LOCK_DIR=os.path.join(work, "locks"))
         env.pop("KSCFG_PORT", None)
+        if a.ctrl_c:
+            ctrl_c(work, env, a.n, a.seed, a.only)
+            return
         t, c = ack_wait(work, env, a.n)
         print(f"| SIGINT while waiting for an acknowledge (terminal muted): signal to exit | {figures(t)}; "
               f"exit {sorted(set(c))} |")

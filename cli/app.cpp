@@ -6,7 +6,7 @@
 #include <cstdlib>
 #include <iostream>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/session.hpp"
@@ -67,11 +67,12 @@ std::unique_ptr<App> build_app() {
 
 // SIGHUP too: a closed SSH session or terminal window ends kscfg like Ctrl-C, with the terminal
 // restored (killed by it, kscfg would leave register mode or forced outputs behind).
-static void on_signal(int sig) {
-  g_signal = sig;
-  g_interrupts.fetch_add(1);  // a second one ends a rollback too (interrupt.hpp)
-  g_interrupted = true;
-}
+// The run's one cancellation token: the handler signals it (async-signal-safe: atomics and the
+// prepared note's write(2)); every wait gets it explicitly through GlobalOptions::cancel. A second
+// signal abandons a clean-up (base/cancel.hpp).
+static CancelToken g_cancel;
+
+static void on_signal(int sig) { g_cancel.signal(sig); }
 
 static Command* parsed_command(App& a) {
   Command* found = nullptr;
@@ -172,6 +173,7 @@ static int run_command(int argc, char** argv) {
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
     std::signal(SIGHUP, on_signal);
+    o.cancel = &g_cancel;
     ctx = std::make_unique<Context>(o);
     rc = cmd->run(*ctx);
     ctx->finish();

@@ -10,7 +10,6 @@
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/discovery/match.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
@@ -40,6 +39,7 @@ Link& Context::link() {
     lo.session = session_options();
     // ADS: terminals are numbered on port 100 from the station this command uses (--station too).
     lo.layout = [this]() -> const StationLayout& { return layout(); };
+    lo.cancel = opt_.cancel;
     OpenedPort port = open_port_uri(opt_.port, catalog(), lo);
     link_ = std::move(port.link);
     access_ = std::move(port.access);
@@ -293,7 +293,7 @@ SessionOptions Context::session_options() {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
-  so.cancel = &g_interrupted;
+  so.cancel = opt_.cancel;
 #ifdef KSCFG_TEST_HOOKS
   // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
@@ -311,6 +311,7 @@ LockWait Context::lock_wait() const {
   LockWait w;
   w.limit = std::chrono::milliseconds(opt_.lock_wait_ms);
   w.waiting = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
+  w.cancel = opt_.cancel;
   return w;
 }
 

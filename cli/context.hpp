@@ -10,6 +10,7 @@
 #include <vector>
 #include <string>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
@@ -34,6 +35,9 @@ struct GlobalOptions {
   bool verbose = false;       // -v
   bool rescan = false;        // --rescan: scan a Modbus coupler even if the scan cache is valid
   unsigned lock_wait_ms = 30000;  // --lock-wait: longest wait for a coupler another kscfg holds
+  // The run's one cancellation token (app.cpp makes it; its SIGINT/SIGTERM/SIGHUP handler signals
+  // it): passed explicitly to every wait (base/cancel.hpp). Null: never cancelled.
+  CancelToken* cancel = nullptr;
 };
 
 class Context {
@@ -42,6 +46,8 @@ class Context {
   ~Context();
 
   const GlobalOptions& options() const { return opt_; }
+  // The run's cancellation token (never null in a run of the CLI).
+  CancelToken* cancel() const { return opt_.cancel; }
   bool json() const { return opt_.json; }
   const Catalog& catalog() const;
 

@@ -1,7 +1,8 @@
 # Checks that the library's layers only include downwards (src/README.md draws the picture).
 # Usage: cmake -DROOT=<source dir> -P check_layers.cmake
-# Fails (FATAL_ERROR) naming every file that includes a header of a layer it may not use, and
-# every dynamic_cast of a link in the library or the CLI.
+# Fails (FATAL_ERROR) naming every file that includes a header of a layer it may not use, every
+# dynamic_cast of a link in the library or the CLI, and every global interrupt flag or cancellation
+# token in the library.
 # Run at configure time and as the CTest test "layers", so an upward include breaks the build.
 
 include(${CMAKE_CURRENT_LIST_DIR}/layers.cmake)
@@ -58,7 +59,25 @@ foreach(f IN LISTS castfiles)
   endforeach()
 endforeach()
 
+# Cancellation is passed, not global (docs/design.md 7.3): no library file names a process-wide
+# interrupt flag (the g_interrupted/g_interrupts/g_signal of old) or holds a CancelToken of its own
+# at namespace scope; the CLI makes the one token and passes it to every wait.
+foreach(f IN LISTS libfiles)
+  file(STRINGS ${f} lines REGEX "g_interrupted|g_interrupts|g_signal|pause_interrupt|resume_interrupt")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    string(STRIP "${line}" line)
+    list(APPEND violations "${rel}: a global interrupt flag in the library (pass a CancelToken): ${line}")
+  endforeach()
+  file(STRINGS ${f} lines REGEX "^(static |extern |inline )*(const )?(kscfg::)?CancelToken[ \t]+[A-Za-z_][A-Za-z_0-9]*[ \t]*(;|\\{|=)")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    string(STRIP "${line}" line)
+    list(APPEND violations "${rel}: a global cancellation token in the library (the CLI owns the one token): ${line}")
+  endforeach()
+endforeach()
+
 if(violations)
   list(JOIN violations "\n  " text)
-  message(FATAL_ERROR "upward include(s) or link downcast(s), see src/README.md for the layers:\n  ${text}")
+  message(FATAL_ERROR "upward include(s), link downcast(s) or global cancellation, see src/README.md for the layers:\n  ${text}")
 endif()

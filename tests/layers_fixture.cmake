@@ -1,6 +1,7 @@
 # Builds a small tree in which the link layer includes the session layer, runs the layer check on
 # it and fails unless the check fails naming that include; then checks that the same tree without
-# the upward include passes, and that a downcast of a link in the CLI fails it too.
+# the upward include passes, that a downcast of a link in the CLI fails it too, and that a global
+# interrupt flag or cancellation token in the library fails it while the CLI's token does not.
 file(REMOVE_RECURSE ${WORK})
 file(WRITE ${WORK}/include/kscfg/session/session.hpp "#pragma once\n")
 file(WRITE ${WORK}/include/kscfg/base/error.hpp "#pragma once\n")
@@ -29,4 +30,27 @@ file(WRITE ${WORK}/cli/bad.cpp "void f(Link& l) {\n  if (auto* m = l.modbus_regi
 execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "the layer check failed a tree that asks a link for a capability:\n${err}")
+endif()
+file(REMOVE ${WORK}/cli/bad.cpp)
+file(WRITE ${WORK}/src/link/bad.cpp "bool f() {\n  return g_interrupted.load();\n}\n")
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
+if(rc EQUAL 0)
+  message(FATAL_ERROR "the layer check passed a library file that reads a global interrupt flag")
+endif()
+if(NOT err MATCHES "src/link/bad.cpp: a global interrupt flag in the library")
+  message(FATAL_ERROR "the layer check failed without naming the global interrupt flag:\n${err}")
+endif()
+file(WRITE ${WORK}/src/link/bad.cpp "namespace kscfg {\nstatic CancelToken g_token;\n}\n")
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
+if(rc EQUAL 0)
+  message(FATAL_ERROR "the layer check passed a library file with a global cancellation token")
+endif()
+if(NOT err MATCHES "src/link/bad.cpp: a global cancellation token in the library")
+  message(FATAL_ERROR "the layer check failed without naming the global cancellation token:\n${err}")
+endif()
+file(WRITE ${WORK}/src/link/bad.cpp "void f(const CancelToken* cancel);\n")
+file(WRITE ${WORK}/cli/app.cpp "static CancelToken g_cancel;\nstatic void on_signal(int sig) { g_cancel.signal(sig); }\n")
+execute_process(COMMAND ${CMAKE_COMMAND} -DROOT=${WORK} -P ${CHECK} RESULT_VARIABLE rc ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "the layer check failed a library that takes its token as an argument, or the CLI's token:\n${err}")
 endif()

@@ -13,7 +13,7 @@
 #include "../commands.hpp"
 #include "../output.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
@@ -310,10 +310,13 @@ class Data : public Command {
       }
     }
     int rc = 0;
-    // Puts the outputs back, verified. A signal during it does not stop it (a second Ctrl-C must not
-    // leave them forced); a link error is tried again (a Modbus link reconnects). Returns the error.
+    // Puts the outputs back, verified, under a shield (base/cancel.hpp): a signal during it says
+    // so at once and does not stop it, a second one abandons it (the Ctrl-C that ended the view
+    // was forgotten with it); a link error is tried again (a Modbus link reconnects). Returns the
+    // error.
     auto restore = [&]() -> std::optional<Error> {
-      bool was = g_interrupted.exchange(false);  // the link refuses to work while it is set
+      ShieldScope shield(ctx.cancel(), fmt::format("restoring the forced outputs of terminal {} ({})", ft->position,
+                                                   ft->type->type));
       std::optional<Error> failed;
       for (int attempt = 0; attempt < 3; ++attempt) {
         try {
@@ -322,11 +325,9 @@ class Data : public Command {
           break;
         } catch (const Error& e) {
           failed = e;
-          was = g_interrupted.exchange(false) || was;
-          if (e.code() != Exit::interrupted && e.code() != Exit::link) break;
+          if (e.code() != Exit::link) break;
         }
       }
-      if (was) g_interrupted = true;
       return failed;
     };
     auto restore_after_error = [&] {
@@ -347,7 +348,7 @@ class Data : public Command {
         restore_after_error();
         throw;
       }
-      g_interrupted = false;
+      ctx.cancel()->reset();
     } catch (...) {
       restore_after_error();
       throw;
@@ -381,11 +382,11 @@ class Data : public Command {
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
     for (std::size_t n = 1;; ++n) {
-      if (g_interrupted) break;
+      if (ctx.cancel()->cancelled()) break;
       if (plan && n > 1) apply_force(link, *plan);  // held: written again every interval
       // Only outside register mode: a command that read a register just before leaves its answer in
       // the input image until the terminal has seen the control byte go back.
-      ImageSnapshot s = read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), only);
+      ImageSnapshot s = read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), ctx.cancel(), only);
       auto rows = decode_station(L, s, only);
       std::string out;
       if (ctx.json()) {
@@ -413,7 +414,7 @@ class Data : public Command {
       if (hold && std::chrono::steady_clock::now() - start >= *hold) break;
       // Wait for the next sample; the emulated K-bus runs for the time that passed.
       auto next = last + interval;
-      while (!g_interrupted && std::chrono::steady_clock::now() < next) {
+      while (!ctx.cancel()->cancelled() && std::chrono::steady_clock::now() < next) {
         if (hold && std::chrono::steady_clock::now() - start >= *hold) break;
         std::this_thread::sleep_for(std::chrono::milliseconds(10));
       }
@@ -425,7 +426,7 @@ class Data : public Command {
       }
       last = now;
     }
-    g_interrupted = false;  // Ctrl-C is how the live view ends: exit status 0
+    ctx.cancel()->reset();  // Ctrl-C is how the live view ends: exit status 0
     return 0;
   }
 

@@ -19,10 +19,8 @@
 #include "../output.hpp"
 #include "../progress.hpp"
 #include "../serial_map.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/session/process_data.hpp"
@@ -45,6 +43,7 @@ std::unique_ptr<SerialPort> open_port(Context& ctx) {
   SerialOptions so;
   so.timeout = std::chrono::milliseconds(ctx.options().timeout_ms);
   if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace(s); };
+  so.cancel = ctx.cancel();
   unsigned pos = serial_position(ctx);
   return std::make_unique<SerialPort>(ctx.link(), ctx.layout(), pos, ctx.options().channel - 1, so);
 }
@@ -240,7 +239,7 @@ class SerialSend : public Command {
         }
         ssize_t k = ::read(STDIN_FILENO, bytes.data() + n, kPreload - n);
         if (k < 0 && errno == EINTR) {
-          if (g_interrupted) throw Error(Exit::interrupted, "interrupted before anything was sent");
+          if (ctx.cancel()->cancelled()) throw Error(Exit::interrupted, "interrupted before anything was sent");
           continue;
         }
         if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));

@@ -17,7 +17,6 @@
 #include "../command.hpp"
 #include "../serial_map.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/serial_port.hpp"
@@ -179,7 +178,7 @@ class SerialTerm : public Command {
     bool eof = false, escape = false;
     auto last = std::chrono::steady_clock::now();
     for (;;) {
-      if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+      ctx.cancel()->throw_if_cancelled();
       bool progress = port->poll(true);
       take_received();
       std::uint8_t flags = port->status() & (serial::kBufF | serial::kIA);

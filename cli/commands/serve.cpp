@@ -7,7 +7,6 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/ads_server.hpp"
@@ -78,7 +77,9 @@ class Serve : public Command {
            "client connected to plus .1.1 (\\fB\\-\\-ads\\-netid\\fR sets another); a request for another NetId "
            "gets AMS error 0x7. \\fB\\-\\-ads\\-route\\fR \\fINETID\\fR (repeatable) fills the AMS routing table: "
            "when it is not empty, only the NetIds it lists are served, the others get AMS error 0x7. A "
-           "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR).";
+           "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR). "
+           "\\fB\\-\\-ads\\-register\\-ms\\fR \\fIMS\\fR makes every terminal register access over port 100 take "
+           "\\fIMS\\fR, one at a time, as a coupler busy on its K\\-bus does (for tests of slow accesses; default 0).";
   }
   std::vector<std::string> examples() const override {
     return {"serve --tcp 127.0.0.1:5020", "--port emu:station.json serve --pty",
@@ -108,14 +109,19 @@ class Serve : public Command {
         ->option_text("NETID");
     sub.add_option("--ads-idle-ms", ads_idle_, "ADS: cut a connection idle this long (default 10000, 0 = never)")
         ->option_text("MS");
+    sub.add_option("--ads-register-ms", ads_register_ms_,
+                   "ADS: every terminal register access takes this long, one at a time (default 0)")
+        ->option_text("MS");
   }
 
   int run(Context& ctx) override {
     ServeOptions so;
     int modes = !tcp_.empty() + !rtu_.empty() + pty_ + !ads_.empty();
     if (modes != 1) throw Error(Exit::usage, "give exactly one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT");
-    if (ads_.empty() && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty()))
-      throw Error(Exit::usage, "--ads-route, --ads-netid and --ads-idle-ms go with --ads ADDR:PORT");
+    if (ads_.empty() &&
+        (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
+      throw Error(Exit::usage,
+                  "--ads-route, --ads-netid, --ads-idle-ms and --ads-register-ms go with --ads ADDR:PORT");
     if (!ads_.empty()) return run_ads(ctx);
     if (!tcp_.empty()) {
       so.mode = ServeOptions::Mode::tcp;
@@ -211,11 +217,11 @@ class Serve : public Command {
         std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
       else
         std::cout << server.endpoint() << std::endl;
-      server.run(g_interrupted);
+      server.run([&ctx] { return ctx.cancel()->signalled(); });
       st = server.stats();
     }
     store.save();         // the server saved already; this writes only if something is left
-    g_interrupted = false;  // stopping is how a server ends: exit status 0
+    ctx.cancel()->reset();  // stopping is how a server ends: exit status 0
     return st;
   }
 
@@ -225,6 +231,8 @@ class Serve : public Command {
     for (const auto& r : ads_routes_) ao.routes.push_back(netid_arg("--ads-route", r));
     if (!ads_netid_.empty()) ao.netid = netid_arg("--ads-netid", ads_netid_);
     if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
+    if (!ads_register_ms_.empty())
+      ao.register_ms = static_cast<unsigned>(parse_uint(ads_register_ms_, 60000, "register access time"));
     if (!unit_.empty() || !fault_.empty() || !seed_.empty())
       throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
     common_options(ctx, ao);
@@ -239,7 +247,8 @@ class Serve : public Command {
     return 0;
   }
 
-  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_, ads_, ads_netid_, ads_idle_;
+  std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_, ads_, ads_netid_, ads_idle_,
+      ads_register_ms_;
   std::vector<std::string> ads_routes_;
   bool pty_ = false;
 };

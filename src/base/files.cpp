@@ -15,7 +15,7 @@
 #include <thread>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 
 namespace kscfg {
 
@@ -166,7 +166,7 @@ RegularFile read_regular_file(const std::string& path, std::string_view what, st
   return r;
 }
 
-int lock_file(const std::string& path, double timeout_s) {
+int lock_file(const std::string& path, double timeout_s, const CancelToken* cancel) {
   int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK, 0644);
   if (fd < 0)
     throw Error(Exit::file, fmt::format("cannot open the lock file '{}': {}", path, std::strerror(errno)));
@@ -181,7 +181,7 @@ int lock_file(const std::string& path, double timeout_s) {
       ::close(fd);
       throw Error(Exit::file, fmt::format("'{}' is locked by another kscfg for more than {:g} s", path, timeout_s));
     }
-    if (!sleep_for_or_cancelled(std::chrono::milliseconds(5))) {
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(5), cancel)) {
       ::close(fd);
       throw Error(Exit::interrupted, fmt::format("interrupted while waiting for the lock '{}'", path));
     }

@@ -250,7 +250,7 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
                     fmt::format("{} is in use by {}; gave up after waiting {}", what, who, seconds(w.limit)),
                     "try again when it has finished, or wait longer with --lock-wait SECONDS");
       }
-      if (!sleep_for_or_cancelled(std::chrono::milliseconds(2), w.cancel ? *w.cancel : g_interrupted)) {
+      if (!sleep_for_or_cancelled(std::chrono::milliseconds(2), w.cancel)) {
         ::close(fd);
         throw Error(Exit::interrupted, fmt::format("interrupted while waiting for {}", what));
       }

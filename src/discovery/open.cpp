@@ -62,6 +62,7 @@ SessionOptions port_session(const LinkOptions& opt) {
   so.timeout = std::chrono::milliseconds(opt.timeout_ms);
   if (!so.trace) so.trace = opt.trace;
   if (!so.journal) so.journal = opt.journal;
+  if (!so.cancel) so.cancel = opt.cancel;
   return so;
 }
 
@@ -92,6 +93,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
     ao.trace = opt.trace;
+    ao.cancel = opt.cancel;
     AdsTarget target = ads_target(p, uri);
     // One kscfg at a time on a coupler of this computer, as over Modbus: before it connects.
     OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
@@ -124,6 +126,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
   mo.ack_timeout_ms = opt.timeout_ms;
   mo.trace = opt.trace;
+  mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);
   // One kscfg at a time on a coupler of this computer (issue 21 item 1): before it connects.
   OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),

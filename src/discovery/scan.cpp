@@ -446,7 +446,7 @@ class ScanDiscovery : public StationDiscovery {
     if (primed_ || !cache_) return;
     primed_ = true;
     try {
-      if (!cache_->lock(kLockSeconds)) return;
+      if (!cache_->lock(kLockSeconds, so_.cancel)) return;
       auto c = cache_->load(catalog_, so_.trace);
       cache_->unlock();
       if (!c) return;
@@ -487,7 +487,7 @@ class ScanDiscovery : public StationDiscovery {
         cache_->unlock();
         return;
       }
-      if (!cache_->lock(kLockSeconds)) return;
+      if (!cache_->lock(kLockSeconds, so_.cancel)) return;
       if (cache_->store(c)) {
         dirty_ = false;
         saved_wait_ = c.ack_wait;
@@ -528,7 +528,7 @@ class ScanDiscovery : public StationDiscovery {
     std::optional<ScanHead> head;
     if (!kept_ || !cache_ || opt_.rescan || forgotten_) head = read_scan_head(link_.client());
     if (cache_ && !opt_.rescan && !forgotten_) {
-      if (!cache_->lock(kLockSeconds)) {
+      if (!cache_->lock(kLockSeconds, so_.cancel)) {
         trace(fmt::format("the scan cache {} is locked by another kscfg; scanning without it", cache_->path()));
         cache_.reset();
       } else if (kept_) {

@@ -38,12 +38,12 @@ ScanCache::ScanCache(std::string dir, const ModbusTarget& t) : dir_(std::move(di
 
 ScanCache::~ScanCache() { unlock(); }
 
-bool ScanCache::lock(double timeout_s) {
+bool ScanCache::lock(double timeout_s, const CancelToken* cancel) {
   if (lock_fd_ >= 0) return true;
   std::error_code ec;
   fs::create_directories(fs::path(path_).parent_path(), ec);
   try {
-    lock_fd_ = lock_file(path_ + ".lock", timeout_s);
+    lock_fd_ = lock_file(path_ + ".lock", timeout_s, cancel);
   } catch (const Error&) {
     return false;  // held longer, interrupted, or no lock file to be had: go on without the cache
   }

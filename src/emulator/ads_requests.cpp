@@ -198,6 +198,13 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
       }
       std::vector<std::uint8_t> out;
       std::uint32_t result = h.target_port == adsport::kRegisters ? registers(h, *r, out, rep) : image(h, *r, out, rep, now);
+      if (h.target_port == adsport::kRegisters && r->group >= 1 && opt_.register_ms) {
+        // A coupler works on one register access at a time, each taking register_ms.
+        auto due = std::max(now, register_free_) + std::chrono::milliseconds(opt_.register_ms);
+        register_free_ = due;
+        rep.delay_ms = std::max<unsigned>(
+            rep.delay_ms, static_cast<unsigned>(std::chrono::ceil<std::chrono::milliseconds>(due - now).count()));
+      }
       if (result) rep.what += ": " + ams::error_text(result);
       data = h.command == ams::kRead ? (result ? ams::data_response(result, {}) : ams::data_response(0, out))
                                      : ams::result_response(result);

@@ -113,6 +113,7 @@ AdsServer::AdsServer(EmulatedStation& station, AdsServeOptions opt)
   ho.netid = I.opt.netid;
   ho.routes = I.opt.routes;
   ho.watchdog_ms = I.opt.watchdog_ms;
+  ho.register_ms = I.opt.register_ms;
   ho.trace = I.opt.trace;
   I.handler.emplace(station, ho);
   I.listen_tcp();
@@ -272,12 +273,12 @@ void AdsServer::Impl::timers(Conn& c, Clock::time_point now) {
   }
 }
 
-void AdsServer::run(const std::atomic<bool>& stop) {
+void AdsServer::run(const std::function<bool()>& stop) {
   Impl& I = *impl_;
   std::vector<pollfd> fds;
   std::vector<Conn*> who;
   bool more = false;  // a whole frame left in a buffer after a turn
-  while (!stop) {
+  while (!stop()) {
     auto now = Clock::now();
     fds.clear();
     who.clear();

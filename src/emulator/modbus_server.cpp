@@ -257,12 +257,12 @@ void ModbusServer::Impl::timers(Conn& c, Clock::time_point now) {
 // ---------------------------------------------------------------------------------------------
 // The loop
 
-void ModbusServer::run(const std::atomic<bool>& stop) {
+void ModbusServer::run(const std::function<bool()>& stop) {
   Impl& I = *impl_;
   std::vector<pollfd> fds;
   std::vector<Conn*> who;
   bool more = false;  // frames left in a buffer after a turn
-  while (!stop) {
+  while (!stop()) {
     auto now = Clock::now();
     fds.clear();
     who.clear();

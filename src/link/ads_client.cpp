@@ -16,7 +16,7 @@
 #include <cstring>
 #include <map>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 
 namespace kscfg {
 
@@ -25,14 +25,16 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
 
-constexpr int kSlice = 50;  // longest wait before the interrupt flag is looked at again (ms)
+constexpr int kSlice = 50;  // longest wait before the cancellation token is looked at again (ms)
 
 long long ms_since(Clock::time_point t) {
   return std::chrono::duration_cast<milliseconds>(Clock::now() - t).count();
 }
 
-void check_interrupt() {
-  if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+bool cancelled(const AdsOptions& o) { return o.cancel && o.cancel->cancelled(); }
+
+void check_interrupt(const AdsOptions& o) {
+  if (cancelled(o)) throw Error(Exit::interrupted, "interrupted");
 }
 
 }  // namespace
@@ -115,10 +117,10 @@ void AdsClient::connect() {
     }
     auto start = Clock::now();
     while (rc != 0) {
-      if (g_interrupted) {
+      if (cancelled(opt_)) {
         ::close(fd);
         freeaddrinfo(res);
-        check_interrupt();
+        check_interrupt(opt_);
       }
       long long left = static_cast<long long>(opt_.connect_timeout_ms) - ms_since(start);
       if (left <= 0) {
@@ -220,7 +222,7 @@ void AdsClient::send_all(const std::vector<std::uint8_t>& frame) {
     }
     if (n < 0 && errno == EINTR) continue;
     if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
-      check_interrupt();
+      check_interrupt(opt_);
       if (ms_since(start) > opt_.response_timeout_ms + 1000)
         throw Error(Exit::link, fmt::format("{} does not take the request (send buffer full)", target_.where()));
       pollfd p{fd_, POLLOUT, 0};
@@ -234,7 +236,7 @@ void AdsClient::send_all(const std::vector<std::uint8_t>& frame) {
 bool AdsClient::receive(int ms) {
   pollfd p{fd_, POLLIN, 0};
   int n = ::poll(&p, 1, std::clamp(ms, 0, kSlice));
-  check_interrupt();
+  check_interrupt(opt_);
   if (n <= 0) return false;
   std::uint8_t buf[4096];
   ssize_t r = ::recv(fd_, buf, sizeof buf, MSG_DONTWAIT);
@@ -291,7 +293,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   std::vector<std::size_t> resend;
 
   while (finished < calls.size()) {
-    check_interrupt();
+    check_interrupt(opt_);
     // Fill the window: repeats first, then new calls.
     while (pending.size() < opt_.window && (!resend.empty() || next < calls.size())) {
       std::size_t i;

@@ -15,7 +15,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/link/modbus_client.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 
 namespace kscfg {
 
@@ -95,7 +95,7 @@ void ModbusClient::connect() {
       int e = errno;
       modbus_free(ctx_);
       ctx_ = nullptr;
-      if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+      if (cancelled()) throw Error(Exit::interrupted, "interrupted");
       if (e == ECONNREFUSED && connected_once_)
         // It answered earlier in this run: it was stopped or reset meanwhile, not misaddressed.
         throw Error(Exit::link,
@@ -137,7 +137,7 @@ void ModbusClient::connect() {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-// A reply is waited for in slices this long, the interrupt flag looked at between two.
+// A reply is waited for in slices this long, the cancellation token looked at between two.
 constexpr std::chrono::milliseconds kSlice{20};
 
 // The reply in rsp[0..n) (header of hl bytes) to function `fc`: its PDU offset, or -1 with errno
@@ -194,7 +194,7 @@ int ModbusClient::wait_reply(Clock::time_point sent, P&& parse) {
   const auto deadline = sent + std::chrono::milliseconds(opt_.response_timeout_ms);
   std::uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
   for (;;) {
-    if (g_interrupted) {
+    if (cancelled()) {
       errno = EINTR;
       return -1;
     }
@@ -218,7 +218,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     if (!dead_.empty())
       throw Error(Exit::link, dead_,
                   target_.tcp ? "check that the coupler is running and reachable" : "check the line and the coupler");
-    if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+    if (cancelled()) throw Error(Exit::interrupted, "interrupted");
     if (!ctx_) connect();
     if (drain_) {
       drain_ = false;
@@ -236,7 +236,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
       return;
     }
     int e = errno;
-    if (e == EINTR && g_interrupted) {
+    if (e == EINTR && cancelled()) {
       // Given up on: its reply may still come. TCP leaves it behind with the connection; RTU reads
       // it off the line before the next request (drain_late_reply).
       if (opt_.trace)
@@ -331,7 +331,7 @@ void ModbusClient::drain_late_reply() {
     int wait = heard ? quiet_ms : static_cast<int>((window - spent).count());
     pollfd p{serial_fd_, POLLIN, 0};
     int r = ::poll(&p, 1, wait);
-    if (r < 0 && errno == EINTR && !g_interrupted) continue;
+    if (r < 0 && errno == EINTR && !cancelled()) continue;
     if (r <= 0) return;  // quiet after the late reply, nothing at all, or interrupted
     std::uint8_t buf[256];
     ssize_t n = ::read(serial_fd_, buf, sizeof buf);

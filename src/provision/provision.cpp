@@ -12,6 +12,7 @@
 #include <string_view>
 #include <set>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/session/station_work.hpp"
@@ -231,6 +232,20 @@ std::string port_folder(const std::string& port) {
   return out;
 }
 
+// Plug positions as ranges: "1-12", "1, 3-5".
+std::string position_ranges(std::vector<unsigned> v) {
+  std::sort(v.begin(), v.end());
+  v.erase(std::unique(v.begin(), v.end()), v.end());
+  std::string out;
+  for (std::size_t i = 0; i < v.size();) {
+    std::size_t j = i;
+    while (j + 1 < v.size() && v[j + 1] == v[j] + 1) ++j;
+    out += (out.empty() ? "" : ", ") + (j > i ? fmt::format("{}-{}", v[i], v[j]) : std::to_string(v[i]));
+    i = j + 1;
+  }
+  return out;
+}
+
 // One line of a TOML comment: no control characters.
 std::string comment_text(std::string s) {
   for (auto& c : s)
@@ -352,6 +367,13 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   }
   StationProgress tick;
   if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
+  // The first Ctrl-C says at once what it undoes (base/cancel.hpp); the rollback below runs under
+  // a shield, so a second one abandons it, and the error then names the backup that undoes it.
+  std::vector<unsigned> positions;
+  for (const auto& j : jobs) positions.push_back(j.position);
+  const std::string undoing =
+      fmt::format("rolling back terminal(s) {} to the values saved in {}", position_ranges(positions), backup_path);
+  CancelNote note(so.cancel, undoing);
   write_channels(engine, layout, jobs, so, tick);
   if (std::none_of(jobs.begin(), jobs.end(), [](const ChannelChange& j) { return j.error != nullptr; })) {
     res.changed = true;
@@ -404,7 +426,10 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
       }
     }
   }
-  roll_back_channels(engine, layout, back, so);
+  {
+    ShieldScope shield(so.cancel, undoing);
+    roll_back_channels(engine, layout, back, so);
+  }
   for (std::size_t n = 0; n < back.size(); ++n) account(*back_of[n], back[n].result);
   std::sort(rolled.begin(), rolled.end());
   std::string terms;

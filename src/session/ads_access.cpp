@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <optional>
 
 #include "kscfg/link/ams.hpp"
 #include "kscfg/protocol/codec.hpp"
@@ -77,7 +78,9 @@ std::vector<Program*> AdsAccess::advance() {
     done.push_back(c.prog);
     c.prog = nullptr;
   };
-  bool cancelled = cancel_ && cancel_->load();
+  // Signalled: programs that are not clean-up end; abandoned (a second signal): every program.
+  const bool signalled = cancel_ && cancel_->signalled();
+  const bool abandoned = cancel_ && cancel_->abandoned();
   // The next requests of every channel: a run of reads together, or one write.
   struct Sent {
     Chan* chan;
@@ -89,7 +92,7 @@ std::vector<Program*> AdsAccess::advance() {
   for (auto& [key, c] : chans_) {
     if (!c.prog) continue;
     Program& p = *c.prog;
-    if (cancelled && !p.shielded) {
+    if ((signalled && !p.shielded) || abandoned) {
       p.error = Error(Exit::interrupted, "interrupted");
       finish(c);
       continue;
@@ -123,8 +126,25 @@ std::vector<Program*> AdsAccess::advance() {
   if (calls.empty()) return done;
   std::vector<AdsClient::Reply> replies;
   try {
+    // Clean-up alone (every program of this exchange shielded) runs under a shield: the first
+    // signal does not cut the client's waits short, a second one does (base/cancel.hpp).
+    std::optional<ShieldScope> shield;
+    if (std::all_of(sent.begin(), sent.end(), [](const Sent& s) { return s.chan->prog->shielded; }))
+      shield.emplace(cancel_);
     replies = client_.transact(calls);
   } catch (const Error& e) {
+    // A signal cut an exchange that also carried clean-up: the clean-up's requests (reads, and
+    // writes of values that may be written twice: a rollback's, a relock) go out again with the
+    // next advance(), under a shield then; only a second signal ends them.
+    if (e.code() == Exit::interrupted && !(cancel_ && cancel_->abandoned())) {
+      for (const auto& s : sent) s.chan->unsure = true;
+      for (const auto& s : sent)
+        if (s.chan->prog && !s.chan->prog->shielded) {
+          s.chan->prog->error = e;
+          finish(*s.chan);
+        }
+      return done;
+    }
     // Nothing is known of the requests in flight: every program that sent one is told (a write's
     // register is read back by the rules above the seam before it is written again).
     for (const auto& s : sent) s.chan->unsure = true;

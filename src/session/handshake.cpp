@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <thread>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/leftover_watch.hpp"
 
@@ -17,15 +17,6 @@ namespace {
 constexpr std::size_t kSaveSpan = 240;
 
 }  // namespace
-
-HandshakeAccess::Paused::Paused(const HandshakeAccess& a, bool cleanup) {
-  active = cleanup && a.opt_.cancel == &g_interrupted && g_interrupted.load();
-  if (active) was = pause_interrupt();
-}
-
-HandshakeAccess::Paused::~Paused() {
-  if (active) resume_interrupt(was);
-}
 
 HandshakeAccess::HandshakeAccess(Link& link, HandshakeOptions opt) : link_(link), opt_(std::move(opt)) {}
 
@@ -201,10 +192,9 @@ bool HandshakeAccess::watch_found(Chan& c) {
   // sight (issue 21 item 1): watched for as long as a live handshake can go without a step. A
   // journal's entry (adopt_dead) says whose it is: no watch.
   if (c.dead_entry || !link_.other_masters_possible()) return true;
-  static const std::atomic<bool> never{false};
   auto quiet = std::clamp(opt_.timeout, std::chrono::milliseconds(100), std::chrono::milliseconds(5000));
   LeftoverWatch v = watch_leftover(link_, c.w, quiet, 4 * quiet, std::chrono::milliseconds(10),
-                                   opt_.cancel ? *opt_.cancel : never);
+                                   opt_.cancel);
   note_trace(fmt::format("{}: control byte 0x{:02X} found in register mode; watched {} ms: {}", who(c), v.ctrl_first,
                          v.watched.count(),
                          v.verdict == LeftoverWatch::Verdict::leftover       ? "unchanged, a dead session's"
@@ -290,6 +280,12 @@ std::vector<Program*> HandshakeAccess::advance() {
       if (c.prog && (all || !c.prog->shielded)) fail(c, Error(Exit::interrupted, "interrupted"), done);
     if (!done.empty()) return done;
   }
+  // Clean-up alone (every program left shielded: after a signal, or a relock at the end) works
+  // under a shield, the save of a channel opened again for a rollback too: the first signal does
+  // not cut the link's waits short, a second one does (base/cancel.hpp).
+  std::optional<ShieldScope> cleanup;
+  if (std::all_of(chans_.begin(), chans_.end(), [](const auto& kv) { return !kv.second.prog || kv.second.prog->shielded; }))
+    cleanup.emplace(opt_.cancel);
   // Channels whose work begins: their process-data bytes saved, in one request where they fit.
   std::vector<Chan*> fresh;
   for (auto& [k, c] : chans_)
@@ -371,17 +367,26 @@ std::vector<Program*> HandshakeAccess::advance() {
       peeks.push_back(&c);
     }
   auto t = Clock::now();
-  // Clean-up after SIGINT/SIGTERM (only shielded programs left) exchanges as if there were no
-  // interrupt, so that the link does not cut its waits short; a second signal still does
-  // (base/interrupt.hpp pause_interrupt).
-  Paused paused(*this, std::none_of(act.begin(), act.end(), [](const Chan* c) { return !c->prog->shielded; }));
+  // Clean-up (only shielded programs in this exchange) runs under a shield: the first signal does
+  // not cut the link's waits short, a second one does (base/cancel.hpp).
+  std::optional<ShieldScope> shield;
+  if (std::none_of(act.begin(), act.end(), [](const Chan* c) { return !c->prog->shielded; }))
+    shield.emplace(opt_.cancel);
   try {
     link_.transfer(xs);
   } catch (const Error& e) {
     // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
     // rules above the seam decide whether to ask again (a write's answer lost: read first).
     for (Chan* c : act) {
-      if (c->act == Act::close) continue;  // tried again by the next advance()
+      // The bytes it wrote may or may not have gone out: the shadow no longer says what the
+      // coupler holds, so the put-back that follows (a close tried again, close(), close_now())
+      // writes them again instead of taking them for done. Before, a close cut by a signal
+      // found nothing to put back and left the control byte in register mode.
+      for (std::size_t b = c->out_at; b < c->out_at + c->out_n; ++b)
+        c->shadow[b - c->out_lo] = static_cast<std::uint8_t>(~c->saved[b - c->saved_at]);
+      // A close is tried again by the next advance(), three times in all; then the program fails
+      // and close_now() makes its own bounded attempts (and says so when they fail).
+      if (c->act == Act::close && ++c->close_failures < 3) continue;
       fail(*c, e, done);
     }
     return done;
@@ -409,7 +414,7 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
   }
   put_restore(c, false);
   bool restored = c.out_n == 0;
-  Paused paused(*this, true);
+  ShieldScope shield(opt_.cancel);  // putting the bytes back is clean-up: a second signal ends it
   for (int attempt = 0; !restored && attempt < 3; ++attempt) {
     try {
       link_.write_outputs(c.out_at, std::span<const std::uint8_t>(&c.shadow[c.out_at - c.out_lo], c.out_n));

@@ -14,7 +14,7 @@ std::string LeftoverWatch::text() const {
 
 LeftoverWatch watch_leftover(Link& link, const RegisterWindow& w, std::chrono::milliseconds quiet,
                              std::chrono::milliseconds give_up, std::chrono::milliseconds every,
-                             const std::atomic<bool>& cancel) {
+                             const CancelToken* cancel) {
   using Clock = std::chrono::steady_clock;
   auto sample = [&](std::uint8_t& ctrl, std::uint8_t& status) {
     link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));

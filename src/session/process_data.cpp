@@ -7,7 +7,7 @@
 #include <map>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/parameters.hpp"
@@ -38,7 +38,7 @@ bool answers_register(const TerminalImage& t, unsigned channel, const std::vecto
 }
 
 ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::chrono::milliseconds timeout,
-                                 unsigned only) {
+                                 const CancelToken* cancel, unsigned only) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (unsigned poll = 1;; ++poll) {
     ImageSnapshot s = read_image(link, layout);
@@ -48,7 +48,7 @@ ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::c
       for (unsigned c = 0; c < t.channels.size(); ++c)
         if (answers_register(t, c, s.in) && !in_register_mode(t, c, s.out)) settled = false;
     }
-    if (settled || std::chrono::steady_clock::now() >= deadline || g_interrupted) return s;
+    if (settled || std::chrono::steady_clock::now() >= deadline || (cancel && cancel->cancelled())) return s;
     link.pause(poll);
   }
 }

@@ -6,7 +6,7 @@
 #include <algorithm>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -72,8 +72,7 @@ void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ct
     link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
     if (status & proto::kReg) return;
     if (std::chrono::steady_clock::now() - start > so.timeout) break;
-    static const std::atomic<bool> never{false};
-    if (!sleep_for_or_cancelled(std::chrono::milliseconds(1), so.cancel ? *so.cancel : never))
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(1), so.cancel))
       throw Error(Exit::interrupted, "interrupted");
   }
   throw Error(Exit::timeout, fmt::format("{} does not take control byte 0x{:02X}: its status byte reads 0x{:02X}, "

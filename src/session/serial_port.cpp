@@ -5,7 +5,7 @@
 #include <algorithm>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/session/session.hpp"
 
 namespace kscfg {
@@ -129,7 +129,7 @@ SerialPort::SerialPort(Link& link, const StationLayout& layout, unsigned positio
   for (auto until = std::chrono::steady_clock::now() + opt_.timeout;
        in_register_mode() && std::chrono::steady_clock::now() < until;) {
     check_interrupt();
-    sleep_for_or_cancelled(std::chrono::milliseconds(1));
+    sleep_for_or_cancelled(std::chrono::milliseconds(1), opt_.cancel);
     read_in();
   }
   // A transmit request left by an earlier run (TR differs from TA) is still the terminal's to
@@ -149,7 +149,7 @@ void SerialPort::trace(const std::string& s) const {
 }
 
 void SerialPort::check_interrupt() const {
-  if (g_interrupted) throw Error(Exit::interrupted, "interrupted");
+  if (opt_.cancel) opt_.cancel->throw_if_cancelled();
 }
 
 void SerialPort::read_in() {

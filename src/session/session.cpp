@@ -3,7 +3,6 @@
 #include <fmt/format.h>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/base/interrupt.hpp"
 #include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
@@ -15,8 +14,6 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   h.journal = so.journal;
   h.cancel = so.cancel;
   h.notice = so.notice;
-  // A second SIGINT/SIGTERM ends the clean-up too (base/interrupt.hpp).
-  if (so.cancel) h.abandon = [] { return g_interrupts.load() >= 2; };
   h.after_write = so.after_write;
   return h;
 }
@@ -49,6 +46,10 @@ std::vector<WriteResult> RegisterSession::write_all(const std::vector<std::pair<
 }
 
 std::vector<WriteResult> RegisterSession::write_masked(const std::vector<MaskedChange>& changes) {
+  // The first Ctrl-C says at once what it undoes (base/cancel.hpp).
+  std::string regs;
+  for (const auto& c : changes) regs += fmt::format("{}R{}", regs.empty() ? "" : ", ", c.reg);
+  CancelNote note(ch_->options().cancel, fmt::format("rolling back {} of {} and relocking it", regs, who()));
   return engine_.wait(ch_->write_masked(changes));
 }
 

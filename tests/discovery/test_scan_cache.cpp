@@ -44,7 +44,7 @@ TEST_CASE("scan cache: stored and loaded again, per port and unit", "[scan]") {
   CachedScan c;
   c.scan = sample(cat);
   c.ack_wait[1] = std::chrono::microseconds(2100);
-  REQUIRE(a.lock(1));
+  REQUIRE(a.lock(1, nullptr));
   REQUIRE(a.store(c));
   a.unlock();
   auto back = a.load(cat);
@@ -94,12 +94,12 @@ TEST_CASE("scan cache: a broken, foreign or unknown entry is no entry", "[scan]"
 TEST_CASE("scan cache: the lock is bounded", "[scan]") {
   test::TempDir dir;
   ScanCache a(dir.path, target("tcp://10.0.0.6")), b(dir.path, target("tcp://10.0.0.6"));
-  REQUIRE(a.lock(1));
+  REQUIRE(a.lock(1, nullptr));
   auto t0 = std::chrono::steady_clock::now();
-  CHECK_FALSE(b.lock(0.2));
+  CHECK_FALSE(b.lock(0.2, nullptr));
   CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
   a.unlock();
-  CHECK(b.lock(1));
+  CHECK(b.lock(1, nullptr));
 }
 
 TEST_CASE("scan cache: a link where the entry goes is replaced, never written through, a lock path that is no file "
@@ -131,11 +131,11 @@ TEST_CASE("scan cache: a link where the entry goes is replaced, never written th
   ScanCache b(dir.path, target("tcp://10.0.0.8"));
   REQUIRE(::mkfifo((b.path() + ".lock").c_str(), 0644) == 0);
   auto t0 = std::chrono::steady_clock::now();
-  (void)b.lock(0.2);
+  (void)b.lock(0.2, nullptr);
   CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
   b.unlock();
   ScanCache d(dir.path, target("tcp://10.0.0.9"));
   fs::create_symlink(victim, d.path() + ".lock");
-  CHECK_FALSE(d.lock(0.2));
+  CHECK_FALSE(d.lock(0.2, nullptr));
   CHECK(test::read_text(victim) == "keep me\n");
 }

@@ -8,11 +8,12 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <csignal>
 #include <atomic>
 #include <chrono>
 #include <thread>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/emulator/ads_requests.hpp"
 #include "kscfg/emulator/ads_server.hpp"
@@ -131,9 +132,10 @@ struct Served {
     stop = true;
     th.join();
   }
-  AdsClient client(unsigned window = 16, std::string query = "") {
+  AdsClient client(unsigned window = 16, std::string query = "", const CancelToken* cancel = nullptr) {
     AdsOptions o;
     o.window = window;
+    o.cancel = cancel;
     o.response_timeout_ms = 3000;
     std::string u = uri + query;
     return AdsClient(ads_target(parse_port_uri(u), u), o);
@@ -259,16 +261,17 @@ TEST_CASE("ADS client: many requests in flight are matched by invoke id, and a w
   }
 }
 
-TEST_CASE("ADS client: SIGINT ends a wait at once") {
+TEST_CASE("ADS client: cancellation ends a wait at once") {
   // A listener that accepts and never answers.
   AdsServeOptions o;
   Served s(o);
   s.station.channel(1, 0).faults.mute = true;  // the coupler waits a second for a mute terminal
-  AdsClient c = s.client();
+  CancelToken token;
+  AdsClient c = s.client(16, "", &token);
   adsreg::RegisterAccess regs(c, 5000);
-  std::thread t([] {
+  std::thread t([&token] {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    g_interrupted = true;
+    token.signal(SIGINT);
   });
   auto start = std::chrono::steady_clock::now();
   Exit code = Exit::ok;
@@ -278,7 +281,6 @@ TEST_CASE("ADS client: SIGINT ends a wait at once") {
     code = e.code();
   }
   t.join();
-  g_interrupted = false;
   CHECK(code == Exit::interrupted);
   CHECK(std::chrono::steady_clock::now() - start < std::chrono::milliseconds(900));
 }

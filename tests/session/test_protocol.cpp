@@ -2,6 +2,7 @@
 // session's handshake rules (docs/design.md section 2) against scripted terminals.
 #include <catch2/catch.hpp>
 
+#include <csignal>
 #include <chrono>
 
 #include "../session/own_access.hpp"
@@ -275,14 +276,14 @@ TEST_CASE("session restores the process-data bytes on close, after errors and on
     CHECK_FALSE(st.channel(1, 0).unlocked());
     CHECK(std::vector<std::uint8_t>(st.outputs().begin(), st.outputs().begin() + 4) == before);
   }
-  SECTION("interrupt (SIGINT sets the flag)") {
-    std::atomic<bool> cancel{false};
+  SECTION("interrupt (SIGINT signals the token)") {
+    CancelToken cancel;
     {
       SessionOptions so;
       so.cancel = &cancel;
       ImageSession s(link, t, 0, so);
       s.unlock();
-      cancel = true;
+      cancel.signal(SIGINT);
       try {
         s.read(32);
         FAIL("not interrupted");
@@ -290,7 +291,7 @@ TEST_CASE("session restores the process-data bytes on close, after errors and on
         CHECK(e.code() == Exit::interrupted);
       }
     }
-    CHECK(cancel);
+    CHECK(cancel.signalled());
     CHECK_FALSE(st.channel(1, 0).unlocked());
     CHECK(std::vector<std::uint8_t>(st.outputs().begin(), st.outputs().begin() + 4) == before);
   }

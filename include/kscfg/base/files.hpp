@@ -4,6 +4,8 @@
 #include <string_view>
 #include <toml++/toml.h>
 
+#include "kscfg/base/cancel.hpp"
+
 namespace kscfg {
 
 // Writes `content` to a temporary file beside `path`, fsyncs it and renames it over `path`.
@@ -47,10 +49,10 @@ struct RegularFile {
 RegularFile read_regular_file(const std::string& path, std::string_view what, std::size_t max_bytes);
 
 // Opens (creating) `path` and takes an exclusive flock, waiting at most `timeout_s` seconds (less
-// when the interrupt flag is set: Error(Exit::interrupted)). A symbolic link or a FIFO at `path`
-// is refused, never followed or waited on. Returns the descriptor; closing it releases the lock.
-// Throws Error(Exit::file).
-int lock_file(const std::string& path, double timeout_s);
+// when `cancel` is cancelled: Error(Exit::interrupted); null: never). A symbolic link or a FIFO at
+// `path` is refused, never followed or waited on. Returns the descriptor; closing it releases the
+// lock. Throws Error(Exit::file).
+int lock_file(const std::string& path, double timeout_s, const CancelToken* cancel);
 
 // Line `line` (1-based) of `text`, for error messages that show the offending line.
 std::string line_of(std::string_view text, std::size_t line);

@@ -24,7 +24,7 @@
 #include <optional>
 #include <string>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 
 namespace kscfg {
 
@@ -43,8 +43,9 @@ struct LockWait {
   // After this long, `waiting` is told once who holds the lock (and how long this one waits).
   std::chrono::milliseconds say_after{250};
   std::function<void(const std::string&)> waiting;
-  // Set (SIGINT, SIGTERM): the wait ends with Error(Exit::interrupted).
-  const std::atomic<bool>* cancel = &g_interrupted;
+  // The run's cancellation (base/cancel.hpp): the wait ends with Error(Exit::interrupted) once it
+  // is cancelled. Null: never cancelled.
+  const CancelToken* cancel = nullptr;
 };
 
 class OwnerLock {

@@ -42,6 +42,9 @@ struct LinkOptions {
   // ADS: the station whose terminals the access numbers on port 100 (the command's: a station file
   // or the discovery's); empty: the discovery's.
   std::function<const StationLayout&()> layout;
+  // The run's cancellation (base/cancel.hpp), given to the link's client (every wait on the
+  // coupler) and to the scan's sessions. Null: never cancelled.
+  CancelToken* cancel = nullptr;
 };
 
 // A port opened: its link, its one register access and engine, and how the station behind it is

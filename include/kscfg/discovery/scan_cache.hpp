@@ -44,7 +44,7 @@ class ScanCache {
   void remove() const noexcept;
   // Takes the lock file beside the entry, waiting at most `timeout_s`; false when another kscfg
   // holds it longer. Released by unlock() or the destructor.
-  bool lock(double timeout_s);
+  bool lock(double timeout_s, const CancelToken* cancel);
   void unlock() noexcept;
   ~ScanCache();
   ScanCache(const ScanCache&) = delete;

@@ -43,6 +43,7 @@ class AdsRequestHandler {
     std::vector<ams::NetId> routes;
     unsigned watchdog_ms = 1000;      // port 300; 0 = off
     unsigned mute_delay_ms = 1000;    // how long the coupler waits for a terminal that never answers
+    unsigned register_ms = 0;         // port 100: each terminal register access takes this long, one at a time
     std::function<void(const std::string&)> trace;
   };
   AdsRequestHandler(EmulatedStation& station, Options opt);
@@ -68,6 +69,7 @@ class AdsRequestHandler {
 
   EmulatedStation& station_;
   Options opt_;
+  std::chrono::steady_clock::time_point register_free_{};  // the last register access answered then
   std::mutex mu_;
   ams::NetId self_{};
   std::vector<unsigned> numbered_;  // plug position of each port-100 terminal number (index + 1)

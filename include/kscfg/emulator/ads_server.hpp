@@ -21,6 +21,7 @@ struct AdsServeOptions {
   std::vector<ams::NetId> routes;   // the AMS routing table; empty: every NetId is served
   unsigned cycle_us = 1000;         // K-bus cycle
   unsigned watchdog_ms = 1000;      // port 300 outputs to 0 after this long without a telegram; 0 = off
+  unsigned register_ms = 0;         // port 100: each terminal register access takes this long (a slow coupler)
   // "If no data are transmitted for 10 seconds, the TCP/IP connection is disconnected from the
   // BC/BK9000" (BK/BC9000 "ADS services", https://infosys.beckhoff.com/content/1033/bc9000/2802215435.html).
   unsigned idle_cut_ms = 10000;
@@ -45,7 +46,11 @@ class AdsServer {
   AdsServer(const AdsServer&) = delete;
   AdsServer& operator=(const AdsServer&) = delete;
   std::string endpoint() const;  // ads://127.0.0.1:40123
-  void run(const std::atomic<bool>& stop);
+  // Serves until `stop` is set, or `stop()` says so (checked every 50 ms).
+  void run(const std::atomic<bool>& stop) {
+    run([&stop] { return stop.load(); });
+  }
+  void run(const std::function<bool()>& stop);
   AdsServeStats stats() const;
 
  private:

@@ -72,7 +72,11 @@ class ModbusServer {
   std::string endpoint() const;
   // Serves until `stop` is set (checked every 50 ms); the K-bus runs on its own thread meanwhile.
   // Saves the state a last time (ServeOptions::save_state) before it returns.
-  void run(const std::atomic<bool>& stop);
+  void run(const std::atomic<bool>& stop) {
+    run([&stop] { return stop.load(); });
+  }
+  // Serves until `stop()` says so (the CLI: its cancellation token signalled).
+  void run(const std::function<bool()>& stop);
   ServeStats stats() const;
 
  private:

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/link/ams.hpp"
 #include "kscfg/link/port_uri.hpp"
@@ -46,6 +47,9 @@ struct AdsOptions {
   unsigned window = 16;          // requests in flight on the connection at most
   unsigned idle_cut_ms = 10000;  // the coupler closes a connection idle this long
   std::function<void(const std::string&)> trace;
+  // The run's cancellation (base/cancel.hpp): every wait looks at it at least every 50 ms and ends
+  // with Error(Exit::interrupted) once it is cancelled. Null: never cancelled.
+  const CancelToken* cancel = nullptr;
 };
 
 class AdsClient {
@@ -76,7 +80,7 @@ class AdsClient {
 
   // Sends every call, at most `window` in flight, and returns their replies in order. A transport
   // failure, an AMS error in a reply's header or a reply that does not parse throws
-  // Error(Exit::link) naming the cause; SIGINT/SIGTERM throws Error(Exit::interrupted) within
+  // Error(Exit::link) naming the cause; cancellation (AdsOptions::cancel) throws Error(Exit::interrupted) within
   // 50 ms. An ADS result other than 0 is returned in Reply::result: what it means depends on the call.
   std::vector<Reply> transact(std::span<const Call> calls);
   Reply call(const Call& c);
@@ -113,7 +117,7 @@ class AdsClient {
   void disconnect();
   bool peer_closed();  // the coupler has closed the connection (an idle cut) while nothing was pending
   void send_all(const std::vector<std::uint8_t>& frame);
-  // Waits up to `ms` (at most 50 at a time, checking the interrupt flag) for bytes; false: none.
+  // Waits up to `ms` (at most 50 at a time, checking the cancellation token) for bytes; false: none.
   bool receive(int ms);
 
   AdsTarget target_;

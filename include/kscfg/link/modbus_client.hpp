@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/link/port_uri.hpp"
 
 typedef struct _modbus modbus_t;
@@ -79,6 +80,9 @@ struct ModbusOptions {
   unsigned poll_us = 500;  // between two polls of the input image (pause())
   unsigned ack_timeout_ms = 1000;  // the user's --timeout: register sessions of a scan
   std::function<void(const std::string&)> trace;
+  // The run's cancellation (base/cancel.hpp): a request or the wait for its reply ends with
+  // Error(Exit::interrupted) once it is cancelled. Null: never cancelled.
+  const CancelToken* cancel = nullptr;
 };
 
 // A Modbus coupler's registers beyond its process image (identification 0x1000.., image lengths
@@ -123,12 +127,13 @@ class ModbusClient : public ModbusRegisters {
  private:
   void connect();
   void disconnect();
+  bool cancelled() const { return opt_.cancel && opt_.cancel->cancelled(); }
   // RTU, after a timeout: reads and drops a late reply before the next request goes out.
   void drain_late_reply();
   // Runs one request with bounded retries. `addr`/`count`: the registers it reads or writes (for
   // the hint of an exception 2). With `refused`, exception 2 sets it and returns instead of throwing.
   // With `parse` (the expected reply from its raw bytes), the wait for a reply is cut into slices
-  // of kSlice: between two, a SIGINT/SIGTERM (g_interrupted) ends it (issue 21 item 4).
+  // of kSlice: between two, cancellation (ModbusOptions::cancel) ends it (issue 21 item 4).
   template <class F, class P>
   void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused = nullptr);
   // After the first slice passed without a reply: waits on for it (modbus_receive_confirmation)

@@ -58,7 +58,7 @@ class AdsAccess final : public RegisterAccess {
   AdsClient& client_;
   adsreg::RegisterAccess regs_;
   std::function<unsigned(unsigned)> number_;
-  const std::atomic<bool>* cancel_;
+  CancelToken* cancel_;
   std::shared_ptr<SessionJournal> journal_;
   std::function<void(unsigned reg)> after_write_;
   std::map<ChannelKey, Chan> chans_;

@@ -30,6 +30,7 @@
 #include <utility>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/task.hpp"
 #include "kscfg/catalog/catalog.hpp"
@@ -45,9 +46,11 @@ struct SessionOptions {
   std::function<void(const std::string&)> trace;  // -v: every exchange
   // Diagnostics the user must see (stderr): a crashed session's leftovers finished, a forced write.
   std::function<void(const std::string&)> notice;
-  // Set (the CLI passes its SIGINT/SIGTERM flag): a run ends with Error(interrupted), after a change
-  // in progress was rolled back and every terminal put back. Null: never cancelled.
-  const std::atomic<bool>* cancel = nullptr;
+  // The run's cancellation (the CLI's token, signalled by SIGINT/SIGTERM/SIGHUP; base/cancel.hpp):
+  // once signalled a run ends with Error(interrupted), after a change in progress was rolled back
+  // and every terminal put back under a shield; a second signal abandons that clean-up. Null:
+  // never cancelled.
+  CancelToken* cancel = nullptr;
   // Where this process notes the terminals it has in register mode, so that the next kscfg can
   // finish them if it dies (journal.hpp). Null: nothing is noted.
   std::shared_ptr<SessionJournal> journal;

@@ -37,6 +37,7 @@
 #include <string>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/ack_latency.hpp"
@@ -48,11 +49,11 @@ struct HandshakeOptions {
   std::chrono::milliseconds timeout{1000};        // per acknowledge
   std::function<void(const std::string&)> trace;  // -v: every acknowledge
   std::shared_ptr<SessionJournal> journal;        // null: nothing is noted
-  // Set (SIGINT/SIGTERM): programs that are not shielded fail with Error(interrupted), and waits
-  // end early. Null: never cancelled.
-  const std::atomic<bool>* cancel = nullptr;
-  // True: even shielded programs end at once (a second Ctrl-C during clean-up). Empty: never.
-  std::function<bool()> abandon;
+  // The run's cancellation (base/cancel.hpp). Signalled: programs that are not shielded fail with
+  // Error(interrupted), and waits end early; the exchanges of shielded programs alone run under a
+  // ShieldScope, so that the link's waits go on. Abandoned (a second signal): shielded programs
+  // end too. Null: never cancelled.
+  CancelToken* cancel = nullptr;
   // Diagnostics the user must see: a terminal left in register mode because putting its bytes back
   // failed, another master found at work.
   std::function<void(const std::string&)> notice;
@@ -106,6 +107,7 @@ class HandshakeAccess final : public RegisterAccess {
     std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
     std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
     bool ready = false, closed = false, journaled = false;
+    unsigned close_failures = 0;  // exchanges that carried its close and failed
     unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
@@ -124,21 +126,12 @@ class HandshakeAccess final : public RegisterAccess {
     std::size_t out_at = 0, out_n = 0;
   };
 
-  // While it lives, the process's interrupt flag is paused when it is the run's cancel flag and
-  // `cleanup` (base/interrupt.hpp): clean-up exchanges are not cut short by the first signal.
-  struct Paused {
-    Paused(const HandshakeAccess& a, bool cleanup);
-    ~Paused();
-    Paused(const Paused&) = delete;
-    Paused& operator=(const Paused&) = delete;
-    bool active = false, was = false;
-  };
   std::string who(const Chan& c) const;
   void note_trace(const std::string& s) const {
     if (opt_.trace) opt_.trace(s);
   }
-  bool cancelled() const { return opt_.cancel && opt_.cancel->load(); }
-  bool abandoned() const { return opt_.abandon && opt_.abandon(); }
+  bool cancelled() const { return opt_.cancel && opt_.cancel->signalled(); }
+  bool abandoned() const { return opt_.cancel && opt_.cancel->abandoned(); }
   // A control byte found in register mode: another master's (Error(other_master)) or a leftover.
   bool watch_found(Chan& c);
   Request sent_request(Chan& c, bool write, unsigned reg, std::uint16_t value, Clock::time_point t) const;

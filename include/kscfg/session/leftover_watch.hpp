@@ -18,7 +18,7 @@
 #include <cstdint>
 #include <string>
 
-#include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/station/layout.hpp"
 
@@ -41,10 +41,9 @@ struct LeftoverWatch {
 // Watches the control byte (outputs) and the status byte (inputs) of window `w` until the control
 // byte leaves register mode, or stays unchanged with the status byte for `quiet`, or `give_up` has
 // passed (then: other_master). Samples every `every` (two reads). Throws Error(Exit::interrupted)
-// when `cancel` is set, link errors as they come.
+// when `cancel` (null: never) is cancelled, link errors as they come.
 LeftoverWatch watch_leftover(Link& link, const RegisterWindow& w, std::chrono::milliseconds quiet,
                              std::chrono::milliseconds give_up,
-                             std::chrono::milliseconds every = std::chrono::milliseconds(10),
-                             const std::atomic<bool>& cancel = g_interrupted);
+                             std::chrono::milliseconds every, const CancelToken* cancel);
 
 }  // namespace kscfg

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/station/layout.hpp"
 
@@ -46,9 +47,10 @@ bool answers_register(const TerminalImage& t, unsigned channel, const std::vecto
 // read_image() taken only outside register mode: while a channel (of the terminal at `only`, 0: of
 // every terminal) shows REG in its status byte but not in its control byte, the terminal has not
 // yet seen its control byte go back, and the image is read again (link pause between reads), for
-// at most `timeout`. A channel whose control byte asks for register mode is not waited for.
+// at most `timeout`, or until `cancel` (null: never) is cancelled. A channel whose control byte asks
+// for register mode is not waited for.
 ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::chrono::milliseconds timeout,
-                                 unsigned only = 0);
+                                 const CancelToken* cancel, unsigned only = 0);
 
 // One output byte a force changes: `mask` are the bits it sets to `after`.
 struct ForcedByte {

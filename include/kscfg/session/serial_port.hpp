@@ -13,6 +13,7 @@
 #include <string_view>
 #include <vector>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/station/serial_image.hpp"
@@ -22,6 +23,9 @@ namespace kscfg {
 struct SerialOptions {
   std::chrono::milliseconds timeout{1000};        // longest wait for one handshake step (TA, IA)
   std::function<void(const std::string&)> trace;  // -v: every control/status change
+  // The run's cancellation (base/cancel.hpp): every wait ends with Error(interrupted) once it is
+  // cancelled. Null: never cancelled.
+  const CancelToken* cancel = nullptr;
 };
 
 // Bytes to send, from the command line: text with C escapes (\r \n \t \0 \\ \xHH), or with
