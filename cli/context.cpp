@@ -302,6 +302,16 @@ SessionOptions Context::session_options() {
       if (reg == kill_after) ::raise(SIGKILL);  // die as a crash would, right after the write
     };
   }
+  if (const char* e = std::getenv("KSCFG_TEST_STOP_AFTER"); e && *e && !so.after_write) {
+    // Stops itself (SIGSTOP) once, right after the first acknowledged write of the register: a
+    // test then stops the coupler and lets this process go on against a dead link.
+    auto stopped = std::make_shared<bool>(false);
+    so.after_write = [stop_after = parse_register(e), stopped](unsigned reg) {
+      if (reg != stop_after || *stopped) return;
+      *stopped = true;
+      ::raise(SIGSTOP);
+    };
+  }
 #endif
   return so;
 }

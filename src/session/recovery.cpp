@@ -105,10 +105,12 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     // Only a terminal that shows register mode now, in its control byte and in the status byte
     // that answers it, with a control byte the dead session wrote: otherwise it was finished
     // already, or it is not that session's (another master's), and nothing is touched.
+    // A terminal whose relock failed ("!") may be unlocked in process-data mode too: its R31 is
+    // read (and relocked) by a session of its own.
     std::uint8_t ctrl = 0;
     link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-    if (!(ctrl & proto::kReg)) return;
-    if (std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
+    if (!(ctrl & proto::kReg) && !e.unlocked) return;
+    if ((ctrl & proto::kReg) && std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
       trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
                         "process did not write last; not touched",
                         d.pid, e.position, ctrl));
@@ -118,7 +120,8 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     // taken yet: the status byte shows REG a K-bus cycle or two later (more on a loaded coupler).
     // Waited for as any acknowledge, up to the timeout; taken for finished, it would stay in
     // register mode with its journal gone.
-    wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
+    if (ctrl & proto::kReg)
+      wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
     TerminalImage t;
     t.position = e.position;
     t.type = type;
