@@ -18,6 +18,7 @@
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/modbus_client.hpp"
+#include "kscfg/provision/provision.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
 
@@ -292,6 +293,11 @@ SessionOptions Context::session_options() {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
+  so.release_forced = release_forced_;
+  so.release_hint = "kscfg --port " + shell_word(opt_.port);
+  if (!opt_.station.empty() && opt_.station != "-") so.release_hint += " --station " + shell_word(opt_.station);
+  so.release_hint += " data release --yes";
+  so.dead_force = dead_force_;
   so.cancel = &g_interrupted;
 #ifdef KSCFG_TEST_HOOKS
   // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).

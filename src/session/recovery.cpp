@@ -19,12 +19,16 @@ namespace {
 // timeout) may pass next time and keeps the journal, with a warning (also without -v: the terminal
 // may be left as the dead process left it); anything else (an address the coupler does not have:
 // not this station) will not. A journal is released once its entries were tried.
+// The outputs a dead `data force` left forced are dealt with after the entries, through `image`
+// (forced_recovery.cpp); a journal with outputs still forced stays.
 void each_dead_entry(const SessionOptions& so, const char* left,
-                     const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish) {
+                     const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish,
+                     Link* image, const ForceFits& force_fits) {
   if (!so.journal || !so.journal->enabled()) return;
   for (auto& d : so.journal->claim_dead()) {
     bool done = true;
     try {
+      if (!finish_dead_forces(d, image, so, force_fits)) done = false;
       for (const auto& e : d.open) {
         try {
           finish(d, e);
@@ -72,7 +76,7 @@ void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ct
 }  // namespace
 
 void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
+                          const std::function<bool(const SessionJournal::Entry&)>& fits, const ForceFits& force_fits) {
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
   };
@@ -133,11 +137,12 @@ void finish_dead_sessions(Link& link, const Catalog& catalog, const SessionOptio
     Channel ch(engine, t, e.channel, so);
     access.adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
-  });
+  }, &link, force_fits);
 }
 
 void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& so,
-                                 const std::function<const TerminalImage*(unsigned position)>& terminal) {
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal, Link* image,
+                                 const ForceFits& force_fits) {
   each_dead_entry(so, "left unlocked", [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
     const TerminalImage* t = e.direct ? terminal(e.position) : nullptr;
     if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
@@ -151,7 +156,7 @@ void finish_dead_direct_sessions(RegisterAccess& access, const SessionOptions& s
     Channel ch(engine, *t, e.channel, so);
     access.adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
-  });
+  }, image, force_fits);
 }
 
 }  // namespace kscfg

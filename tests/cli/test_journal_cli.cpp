@@ -8,6 +8,7 @@
 
 #include <catch2/catch.hpp>
 #include <fmt/format.h>
+#include <algorithm>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -47,11 +48,11 @@ struct Coupler {
   std::map<std::string, std::string> env{{"XDG_STATE_HOME", dir.file("xdg")},
                                          {"XDG_CACHE_HOME", dir.file("cache")},
                                          {"KSCFG_LOCK_DIR", dir.file("locks")}};
-  explicit Coupler(const std::string& station) {
+  explicit Coupler(const std::string& station,
+                   const std::vector<std::string>& serve = {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}) {
     write_text(dir.file("station.toml"), station);
     REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset", "--station", dir.file("station.toml")}).rc == 0);
-    srv = std::make_unique<Server>(state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"},
-                                   dir.file("serve.err"));
+    srv = std::make_unique<Server>(state, serve, dir.file("serve.err"));
   }
   std::vector<std::string> args(std::vector<std::string> a) const {
     a.insert(a.begin(), {"--port", srv->uri});
@@ -159,3 +160,102 @@ TEST_CASE("a link that dies during a 12-terminal apply keeps the journal, and on
   CHECK((undo.rc == 0 || undo.rc == 10));
 }
 #endif
+
+namespace {
+
+// The station `kscfg emu reset` makes: terminal 6 is a KL2134 (4 digital outputs).
+const char* const kDefaultStation =
+    "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
+    "type = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\n"
+    "type = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+
+const nlohmann::json kForced = {1, 0, 1, 0};
+const nlohmann::json kIdle = {0, 0, 0, 0};
+
+// Terminal 6's outputs as another kscfg reads them. It only reads, beside a force (which holds the
+// coupler's lock): a lock directory of its own.
+nlohmann::json kl2134_outputs(const Coupler& c, std::vector<std::string> station) {
+  station.insert(station.end(), {"-t", "6", "--json", "data", "--once"});
+  Run r = c(station, {{"KSCFG_LOCK_DIR", c.dir.file("observer-locks")}});
+  if (r.rc != 0) return nullptr;
+  return nlohmann::json::parse(r.out.substr(0, r.out.find('\n')))["outputs"];
+}
+
+// `kscfg data force 1=on 3=on --yes` on terminal 6 killed with kill -9 once the outputs read as
+// forced; then the next commands. `station`: the --station words (a Modbus scan does not place
+// digital terminals; ADS reads the coupler's table).
+void killed_force_then_release(const Coupler& c, const std::vector<std::string>& station) {
+  auto with = [&](std::vector<std::string> a) {
+    a.insert(a.begin(), station.begin(), station.end());
+    return a;
+  };
+  auto outputs = [&] { return kl2134_outputs(c, station); };
+  Child force(c.args(with({"-t", "6", "data", "force", "1=on", "3=on", "--yes", "--interval", "50"})), c.env);
+  const int pid = force.pid;
+  REQUIRE(wait_for([&] { return outputs() == kForced; }, 60));
+  force.signal(SIGKILL);
+  REQUIRE(force.wait(60) == -9);
+  CHECK(outputs() == kForced);  // nothing can clean up after kill -9
+  REQUIRE(c.journals().size() == 1);
+  CHECK(SessionJournal::parse_forced(c.journals()[0]).size() == 1);  // outputs 1 and 3: one byte
+
+  // Any command on the coupler says so, in one line: what, whose, and how to put them back.
+  Run rd = c(with({"-t", "1", "read", "--raw", "R8"}));
+  CHECK(rd.rc == 0);
+  CHECK(rd.out == "0x1771\n");
+  std::string hint = "put them back with: kscfg --port " + c.srv->uri;
+  if (!station.empty()) hint += " --station " + station[1];
+  hint += " data release --yes\n";
+  CHECK(rd.err.rfind(fmt::format("kscfg: warning: kscfg process {} ended without putting back the outputs it forced "
+                                 "(terminal 6 (KL2",
+                                 pid),
+                     0) == 0);
+  CHECK(std::count(rd.err.begin(), rd.err.end(), '\n') == 1);
+  CHECK_THAT(rd.err, Catch::EndsWith(hint));
+  CHECK(outputs() == kForced);  // told, not touched
+  // Without --yes: listed and refused; with --yes: put back, verified, and forgotten.
+  Run no = c(with({"data", "release"}));
+  CHECK(no.rc == 5);
+  CHECK_THAT(no.err, Catch::Contains("kscfg: error: 1 output byte is left forced by a killed 'kscfg data force'"));
+  CHECK(outputs() == kForced);
+  Run yes = c(with({"data", "release", "--yes"}));
+  INFO(yes.err);
+  CHECK(yes.rc == 0);
+  CHECK_THAT(yes.out, Catch::Contains(fmt::format("put back to 0x00 (forced by kscfg process {})", pid)));
+  CHECK(outputs() == kIdle);
+  CHECK(c.journals().empty());
+  Run after = c(with({"-t", "1", "read", "--raw", "R8"}));
+  CHECK(after.err.empty());
+  Run none = c(with({"--json", "data", "release", "--yes"}));
+  CHECK(none.rc == 0);
+  CHECK(nlohmann::json::parse(none.out) == nlohmann::json{{"outputs", nlohmann::json::array()}});
+}
+
+}  // namespace
+
+TEST_CASE("kill -9 of data force over Modbus TCP: the next command names the forced outputs, data release --yes "
+          "puts them back",
+          "[journal][data][force][serve]") {
+  Coupler c(kDefaultStation);
+  killed_force_then_release(c, {"--station", c.dir.file("station.toml")});
+  // The next `data force --yes` puts back what a killed one left before it reads its own previous
+  // values: at its end the outputs are as they were before either.
+  Child force(c.args({"--station", c.dir.file("station.toml"), "-t", "6", "data", "force", "1=on", "--yes"}), c.env);
+  const nlohmann::json first_on = {1, 0, 0, 0};
+  REQUIRE(wait_for([&] { return kl2134_outputs(c, {"--station", c.dir.file("station.toml")}) == first_on; }, 60));
+  force.signal(SIGKILL);
+  force.wait(60);
+  Run again = c({"--station", c.dir.file("station.toml"), "-t", "6", "data", "force", "3=on", "--yes", "--once"});
+  INFO(again.err);
+  CHECK(again.rc == 0);
+  CHECK_THAT(again.err, Catch::Contains("was left forced by kscfg process"));
+  CHECK(kl2134_outputs(c, {"--station", c.dir.file("station.toml")}) == kIdle);
+  CHECK(c.journals().empty());
+}
+
+TEST_CASE("kill -9 of data force over ADS: the next command names the forced outputs, data release --yes puts "
+          "them back",
+          "[journal][data][force][ads]") {
+  Coupler c(kDefaultStation, {"--ads", "127.0.0.1:0"});
+  killed_force_then_release(c, {});
+}
