@@ -16,7 +16,8 @@ itself dying.
 
 CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
 own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
-an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer).
+an apply on 12 terminals); issue 32's deadlink12 (the coupler stopped during such an apply) and
+kill9force (kill -9 of data force); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
@@ -547,7 +548,7 @@ def campaign_durability(n, seed, work):
 
 # Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick)).
 ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
-             "kill9apply12": "campaign_station", **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads")}
+             **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"), **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads")}
 
 
 def main():

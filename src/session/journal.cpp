@@ -364,14 +364,19 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
 
 const std::pair<long, SessionJournal::Entry>* SessionJournal::peek_dead(unsigned position, unsigned channel) {
   if (!peeked_) {
+    auto dead = claim_dead();
     peeked_.emplace();
-    for (auto& d : claim_dead()) {
+    for (auto& d : dead) {
       for (auto& e : d.open) (*peeked_)[{e.position, e.channel}] = {d.pid, e};
       release(d, false);
     }
   }
   auto it = peeked_->find({position, channel});
   return it == peeked_->end() ? nullptr : &it->second;
+}
+
+void SessionJournal::forget_peeked(unsigned position, unsigned channel) {
+  if (peeked_) peeked_->erase({position, channel});
 }
 
 void SessionJournal::unforce_dead(Dead& d, const Forced& f) {

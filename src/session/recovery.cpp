@@ -32,6 +32,7 @@ void each_dead_entry(const SessionOptions& so, const char* left,
       for (const auto& e : d.open) {
         try {
           finish(d, e);
+          so.journal->forget_peeked(e.position, e.channel);  // dealt with: not a leftover of its any more
         } catch (const Error& err) {
           if (err.code() == Exit::interrupted) throw;
           std::string what =

@@ -120,9 +120,10 @@ class SessionJournal {
   std::vector<Dead> claim_dead();
   // The open entry a dead process's journal has for a channel, and that process's pid: looked up
   // in the journals as they were at the first call (read, not claimed: claim_dead() acts on them
-  // later). For a session that finds the channel in register mode before the station's layout is
+  // later; forget_peeked() once the recovery dealt with an entry). For a session that finds the channel in register mode before the station's layout is
   // known (a scan walking towards it): that process's leftover, no watch needed (handshake.hpp).
   const std::pair<long, Entry>* peek_dead(unsigned position, unsigned channel);
+  void forget_peeked(unsigned position, unsigned channel);
   // Unlocks a claimed journal; `finished`: every open entry was dealt with, the file goes.
   static void release(Dead& d, bool finished);
   // Notes in a claimed journal that its forced byte at `offset` was put back (or is not that
