@@ -17,7 +17,8 @@ itself dying.
 CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
 own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
 an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer);
-issue 32's spellings (one coupler through localhost and 127.0.0.1 at once, Modbus TCP and ADS).
+issue 32's spellings (one coupler through localhost and 127.0.0.1 at once, Modbus TCP and ADS),
+deadlink12 (the coupler stopped during such an apply) and kill9force (kill -9 of data force).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
@@ -548,8 +549,8 @@ def campaign_durability(n, seed, work):
 
 # Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick)).
 ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
-             "kill9apply12": "campaign_station", **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"),
-             "spellings": "campaign_spellings"}
+             **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"),
+             **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"), "spellings": "campaign_spellings"}
 
 
 def main():

@@ -17,6 +17,7 @@
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/modbus_client.hpp"
+#include "kscfg/provision/provision.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
 
@@ -293,6 +294,11 @@ SessionOptions Context::session_options() {
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
   so.notice = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
   so.journal = journal_;
+  so.release_forced = release_forced_;
+  so.release_hint = "kscfg --port " + shell_word(opt_.port);
+  if (!opt_.station.empty() && opt_.station != "-") so.release_hint += " --station " + shell_word(opt_.station);
+  so.release_hint += " data release --yes";
+  so.dead_force = dead_force_;
   so.cancel = opt_.cancel;
 #ifdef KSCFG_TEST_HOOKS
   // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).
@@ -301,6 +307,16 @@ SessionOptions Context::session_options() {
     unsigned kill_after = parse_register(e);
     so.after_write = [kill_after](unsigned reg) {
       if (reg == kill_after) ::raise(SIGKILL);  // die as a crash would, right after the write
+    };
+  }
+  if (const char* e = std::getenv("KSCFG_TEST_STOP_AFTER"); e && *e && !so.after_write) {
+    // Stops itself (SIGSTOP) once, right after the first acknowledged write of the register: a
+    // test then stops the coupler and lets this process go on against a dead link.
+    auto stopped = std::make_shared<bool>(false);
+    so.after_write = [stop_after = parse_register(e), stopped](unsigned reg) {
+      if (reg != stop_after || *stopped) return;
+      *stopped = true;
+      ::raise(SIGSTOP);
     };
   }
 #endif

@@ -97,6 +97,15 @@ class Context {
   // it closes) is closed first: another session on that terminal would find register mode and take
   // this run's own request for a dead session's leftover (issue 23 item 5).
   SessionOptions session_options();
+  // The outputs a dead `kscfg data force` left forced, found with what dead processes left when the
+  // layout is first known: put back (`release`: data force and data release with --yes) or named
+  // in a warning; `seen` is told of each. Set before the layout is asked for.
+  void release_forced(bool release, std::function<void(const DeadForce&)> seen = {}) {
+    release_forced_ = release;
+    dead_force_ = std::move(seen);
+  }
+  // This run's session journal (opened with a Modbus or ADS link).
+  SessionJournal& journal() { return *journal_; }
   // How to wait for a coupler or an emulator state file another kscfg holds (--lock-wait; the
   // holder is named on stderr after a moment).
   LockWait lock_wait() const;
@@ -153,6 +162,8 @@ class Context {
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
   bool layout_complete_ = false;
   bool recovered_ = false;
+  bool release_forced_ = false;                        // release_forced()
+  std::function<void(const DeadForce&)> dead_force_;  // release_forced()
   bool check_cached_ = true;                      // layout(): check a cached layout's R8s
   std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
   std::optional<StationLayout> matched_;

@@ -309,7 +309,10 @@ std::string generate_manpage(const App& a) {
        "must catch the refused write.\n"
        ".TP\n.B KSCFG_TEST_KILL_AFTER\nTest hook, only in a build for tests as above: a register such as R31; kscfg "
        "kills itself (SIGKILL) right after the terminal acknowledged a write of it, leaving the terminal as a crashed "
-       "session would.\n";
+       "session would.\n"
+       ".TP\n.B KSCFG_TEST_STOP_AFTER\nTest hook, only in a build for tests as above: a register such as R32; kscfg "
+       "stops itself (SIGSTOP) once, right after the first acknowledged write of it, so that a test can stop the "
+       "coupler before it goes on (a link that dies in the middle of a command).\n";
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
        "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR, which names "
        "its holder to a waiter (\\fB\\-\\-lock\\-wait\\fR).\n"

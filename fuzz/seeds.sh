@@ -118,5 +118,8 @@ printf '+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n
 printf '+ 3 0 16 16 18 19 18 19 16 000041420000000000000000000000000000000000000000 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n' > corpus/journal/open
 printf '+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n> 4 1 a4\n+ 2 0 8 8 10 11 10 11 8 0000000000000000 ?\n> 2 0 8' > corpus/journal/cut
 printf '+ 1 0 600 0 2 3 2 3 0 00 KL6001\n+ 99999 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 zz\n- 1\n' > regressions/journal/forged
+# Issue 32: a relock that failed ("!") and outputs a `data force` left forced ("f", "r" once back).
+printf '+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 a0\n> 1 0 df\n> 1 0 00\n> 1 0 df\n! 1 0\n> 1 0 00\n' > corpus/journal/relock-failed
+printf 'f 6 0 7 05 00 05 KL2134\nf 6 0 6 01 00 01 KL2134\nr 6 0 6\nf 3 1 20 ff 10 27 KL4032\n' > corpus/journal/forced
 
 echo "seeds: $(find corpus -type f | wc -l) corpus files, $(find regressions -type f | wc -l) regression inputs"

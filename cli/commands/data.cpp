@@ -209,7 +209,13 @@ class Data : public Command {
            "or a reader of stdout that went away (\\fB| head\\fR). A kill \\-9 cannot be caught: when it forces, "
            "kscfg prints on stderr the command that puts the previous values back, "
            "\\fBdata force\\fR ... \\fB\\-\\-yes \\-\\-no\\-restore\\fR (which writes the values once and "
-           "leaves them). "
+           "leaves them), and notes the forced bits and their previous values in its session journal (Modbus and "
+           "ADS couplers; the emulator saves nothing of a killed run). Every later kscfg on that coupler that finds "
+           "them still forced by a dead process says so on stderr, one line naming the outputs, the process and "
+           "the command that puts them back: \\fBdata release \\-\\-yes\\fR (without \\fB\\-\\-yes\\fR it "
+           "lists them and exits with status 5). The next \\fBdata force \\-\\-yes\\fR puts them back too, "
+           "before it reads the values it will restore. Bits that no longer read as forced (put back by hand, a "
+           "watchdog, another master) are left alone and forgotten. "
            "With \\fB\\-\\-json\\fR the last line is {position, channel, forced: [{name, before, after}], "
            "restored}. Ctrl\\-C, SIGTERM and SIGHUP end \\fBdata\\fR and \\fBdata force\\fR normally (exit status 0). "
            "Over \\fBads://\\fR the coupler's port\\-300 watchdog switches the outputs to the safe state when no "
@@ -219,15 +225,16 @@ class Data : public Command {
   std::vector<std::string> examples() const override {
     return {"data", "data --once", "--json data --once", "-t 2 data --count 5 --interval 100",
             "-t 6 data force 1=on 3=on --yes", "-t 2 data force D0=0x10 D1=0x27 CT/ST=0x04 --yes --hold 2000",
-            "-p tcp://10.0.3.11 --station line3.toml -t 5 data force value=4.5 --yes"};
+            "-p tcp://10.0.3.11 --station line3.toml -t 5 data force value=4.5 --yes", "data release --yes"};
   }
-  std::vector<std::string> completions() const override { return {"force"}; }
+  std::vector<std::string> completions() const override { return {"force", "release"}; }
   void add_cli(CLI::App& sub) override {
-    sub.add_option("ARGS", args_, "Nothing (the live view), or: force NAME=VALUE...")->option_text("force NAME=VALUE...");
+    sub.add_option("ARGS", args_, "Nothing (the live view), or: force NAME=VALUE..., or: release")
+        ->option_text("release | force NAME=VALUE...");
     sub.add_flag("--once", once_, "One sample, then exit");
     sub.add_option("--count", count_, "N samples, then exit")->option_text("N");
     sub.add_option("--interval", interval_, "Time between samples in ms (default 500)")->option_text("MS");
-    sub.add_flag("--yes", yes_, "data force: really write the outputs");
+    sub.add_flag("--yes", yes_, "data force, data release: really write the outputs");
     sub.add_option("--hold", hold_, "data force: hold the forced values for MS ms, then restore")->option_text("MS");
     sub.add_flag("--no-restore", no_restore_,
                  "data force: write the values once and leave them (how to put outputs back by hand)");
@@ -235,11 +242,16 @@ class Data : public Command {
 
   int run(Context& ctx) override {
     bool force = !args_.empty() && args_.front() == "force";
+    if (!args_.empty() && args_.front() == "release") return release(ctx);
     if (!args_.empty() && !force)
       throw Error(Exit::usage, fmt::format("unknown argument '{}' for data", args_.front()),
-                  "kscfg data shows the process data; kscfg data force NAME=VALUE... --yes forces outputs");
+                  "kscfg data shows the process data; kscfg data force NAME=VALUE... --yes forces outputs; "
+                  "kscfg data release --yes puts back what a killed one left forced");
     if (!force && (yes_ || !hold_.empty()))
-      throw Error(Exit::usage, "--yes and --hold go with 'data force'");
+      throw Error(Exit::usage, "--yes and --hold go with 'data force' and 'data release'");
+    // Outputs a killed `data force` left forced are put back before this one reads what it will
+    // restore at its end (else those would be its "previous values").
+    if (force && yes_ && !no_restore_) ctx.release_forced(true);
     if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
     std::size_t count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
@@ -295,6 +307,9 @@ class Data : public Command {
         std::cerr << fmt::format("kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
                                  "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
                                  ft->position, ft->type->type, undo_cmd);
+      // Noted in the session journal before they are written: a kill -9 leaves them for the next
+      // kscfg on this coupler, which names them and puts them back with --yes (data release).
+      if (!no_restore_) journal_force(ctx.journal(), *ft, fch, plan);
       apply_force(link, plan);
       if (no_restore_) {
         if (ctx.json()) {
@@ -321,6 +336,7 @@ class Data : public Command {
       for (int attempt = 0; attempt < 3; ++attempt) {
         try {
           restore_force(link, plan);
+          journal_restored(ctx.journal(), *ft, fch, plan);
           failed.reset();
           break;
         } catch (const Error& e) {
@@ -375,6 +391,63 @@ class Data : public Command {
   }
 
  private:
+  // kscfg data release [--yes]: the outputs a killed `data force` left forced on this coupler (its
+  // session journal), put back with --yes.
+  int release(Context& ctx) {
+    if (args_.size() > 1)
+      throw Error(Exit::usage, fmt::format("unknown argument '{}' for data release", args_[1]),
+                  "kscfg data release --yes puts back the outputs a killed 'kscfg data force' left forced");
+    if (!hold_.empty() || once_ || !count_.empty() || no_restore_ || !interval_.empty())
+      throw Error(Exit::usage, "data release takes --yes only");
+    std::vector<DeadForce> found;
+    ctx.release_forced(yes_, [&](const DeadForce& f) { found.push_back(f); });
+    ctx.layout();  // what dead processes left is found and dealt with here
+    std::size_t still = 0, failed = 0;
+    std::optional<Error> first;
+    nlohmann::json outs = nlohmann::json::array();
+    std::string text;
+    for (const auto& f : found) {
+      const auto& b = f.forced;
+      const char* state = f.state == DeadForce::State::restored ? "restored"
+                          : f.state == DeadForce::State::forced ? "forced"
+                          : f.state == DeadForce::State::changed ? "changed"
+                                                                  : "failed";
+      still += f.state == DeadForce::State::forced;
+      if (f.state == DeadForce::State::failed) {
+        ++failed;
+        if (!first) first = f.error;
+      }
+      nlohmann::json j{{"position", b.position}, {"type", b.type},     {"offset", b.offset},
+                       {"mask", b.mask},         {"before", b.before}, {"after", b.after},
+                       {"pid", f.pid},           {"outcome", state}};
+      if (b.channel) j["channel"] = b.channel + 1;
+      outs.push_back(j);
+      if (f.state == DeadForce::State::restored)
+        text += fmt::format("terminal {} ({}): output byte {} bits 0x{:02X} put back to 0x{:02X} (forced by kscfg "
+                            "process {})\n",
+                            b.position, b.type, b.offset, b.mask, b.before, f.pid);
+    }
+    if (still && yes_)
+      throw Error(Exit::usage,
+                  fmt::format("{} output byte{} left forced by a killed 'kscfg data force' (named above) belong{} to "
+                              "terminals a scan does not place; nothing written",
+                              still, still == 1 ? "" : "s", still == 1 ? "s" : ""),
+                  "give --station FILE with the terminals in plug order");
+    if (still)
+      throw Error(Exit::refused,
+                  fmt::format("{} output byte{} left forced by a killed 'kscfg data force' (named above); nothing written",
+                              still, still == 1 ? " is" : "s are"),
+                  "add --yes to put them back");
+    if (failed)
+      throw Error(first ? first->code() : Exit::link,
+                  fmt::format("putting back {} output byte{} left forced failed: {}", failed, failed == 1 ? "" : "s",
+                              first ? first->what() : "unknown"),
+                  "the journal keeps them: run kscfg data release --yes again when the coupler answers");
+    if (ctx.json()) write_out(nlohmann::json{{"outputs", outs}}.dump() + "\n");
+    else write_out(text.empty() ? "no outputs left forced by a killed kscfg data force\n" : text);
+    return 0;
+  }
+
   int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, std::size_t count,
            std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold, const ForcePlan* plan) {
     EmulatedStation* emu = link.emulator();

@@ -163,12 +163,14 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 
 void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
+  // Outputs a dead `data force` left forced: the terminal at the journal's position owns that byte.
+  auto force_fits = [&](const SessionJournal::Forced& f) { return forced_fits(layout_upto(f.position), f); };
   if (link.ads_connection()) {
     // Direct access: the channels a dead kscfg unlocked over port 100.
     finish_dead_direct_sessions(engine, so, [&](unsigned position) -> const TerminalImage* {
       const StationLayout& L = layout_upto(position);
       return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
-    });
+    }, &link, force_fits);
     return;
   }
   auto fits = [&](const SessionJournal::Entry& e) {
@@ -184,7 +186,7 @@ void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, c
     return e.type == t.type->type && j.ctrl == w.ctrl && j.status == w.status && j.out_lo == w.out_lo &&
            j.out_hi == w.out_hi && j.in_lo == w.in_lo && j.in_hi == w.in_hi;
   };
-  finish_dead_sessions(engine, link, catalog, so, fits);
+  finish_dead_sessions(engine, link, catalog, so, fits, force_fits);
 }
 
 }  // namespace kscfg

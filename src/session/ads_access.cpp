@@ -193,6 +193,15 @@ void AdsAccess::close_now(ChannelKey key) noexcept {
   }
 }
 
+void AdsAccess::lock_unverified(ChannelKey key) noexcept {
+  auto it = chans_.find(key);
+  if (it == chans_.end() || !it->second.journaled || !journal_) return;
+  try {
+    journal_->lock_unverified(key.position, key.channel);
+  } catch (...) {
+  }
+}
+
 void AdsAccess::close_all() noexcept {
   for (auto& [key, c] : chans_)
     if (!c.unsure) leave(key, c);

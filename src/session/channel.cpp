@@ -48,8 +48,10 @@ Channel::Channel(Engine& engine, const TerminalImage& terminal, unsigned channel
 
 Channel::~Channel() {
   if (closed_) return;
-  if (maybe_unlocked_ || unlocked_)
+  if (maybe_unlocked_ || unlocked_) {
     note(fmt::format("warning: {} may still be unlocked: its work ended without relocking it", who()));
+    engine_.access().lock_unverified(key_);  // the journal entry stays: the next kscfg reads R31
+  }
   engine_.access().close_now(key_);
 }
 
@@ -568,7 +570,10 @@ Task<void> Channel::close() {
         if (e.code() != Exit::link) break;
       }
     }
-    if (!failed.empty()) note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+    if (!failed.empty()) {
+      note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+      engine_.access().lock_unverified(key_);  // the journal entry stays: the next kscfg reads R31
+    }
   }
   // Never leave it in register mode: put back the process-data bytes this work changed.
   if (!closed_) {

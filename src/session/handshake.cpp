@@ -15,6 +15,8 @@ namespace {
 
 // Bytes read for the save of several channels in one request: a Modbus read carries 125 registers.
 constexpr std::size_t kSaveSpan = 240;
+// Exchanges a close program tries before it fails (a link error each time).
+constexpr unsigned kCloseAttempts = 3;
 
 }  // namespace
 
@@ -146,10 +148,11 @@ void HandshakeAccess::put_restore(Chan& c, bool ctrl_only) {
     return;
   }
   // Only the bytes this work changed (the control byte, and the value bytes of a write): the
-  // channel's other bytes were never touched.
+  // channel's other bytes were never touched. After an exchange that failed, what the coupler
+  // holds of the window is unknown: all of it goes back.
   std::size_t lo = c.out_hi + 1, hi = 0;
   for (std::size_t b = c.out_lo; b <= c.out_hi; ++b)
-    if (c.shadow[b - c.out_lo] != saved(b)) {
+    if (c.out_unsure || c.shadow[b - c.out_lo] != saved(b)) {
       lo = std::min(lo, b);
       hi = std::max(hi, b);
     }
@@ -192,6 +195,22 @@ bool HandshakeAccess::watch_found(Chan& c) {
   // sight (issue 21 item 1): watched for as long as a live handshake can go without a step. A
   // journal's entry (adopt_dead) says whose it is: no watch.
   if (c.dead_entry || !link_.other_masters_possible()) return true;
+  // A dead kscfg's journal names this channel with that control byte (a scan walking towards a
+  // terminal before the layout is known, so before the journal recovery): its leftover.
+  if (opt_.journal && opt_.journal->enabled())
+    if (const auto* d = opt_.journal->peek_dead(c.key.position, c.key.channel)) {
+      const auto& e = d->second;
+      std::uint8_t ctrl = c.saved[c.w.ctrl - c.saved_at];
+      if (!e.direct && e.window.ctrl == c.w.ctrl && e.window.status == c.w.status &&
+          std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) != e.ctrl.end()) {
+        note_trace(fmt::format("{}: control byte 0x{:02X} found in register mode, as the journal of kscfg process {} "
+                               "left it; not watched",
+                               who(c), ctrl, d->first));
+        c.dead_entry = e;
+        c.found.dead_pid = d->first;
+        return true;
+      }
+    }
   auto quiet = std::clamp(opt_.timeout, std::chrono::milliseconds(100), std::chrono::milliseconds(5000));
   LeftoverWatch v = watch_leftover(link_, c.w, quiet, 4 * quiet, std::chrono::milliseconds(10),
                                    opt_.cancel);
@@ -266,6 +285,9 @@ void HandshakeAccess::save(std::vector<Chan*>& chans, std::vector<Program*>& don
           at(c.w.out_lo) = 0;
           at(c.w.out_hi) = 0;
         }
+      } else if (c.dead_entry && c.dead_entry->unlocked) {
+        // Back in process-data mode, but that process's relock failed: R31 is read.
+        c.found.dead_unlocked = true;
       }
       c.ready = true;
     }
@@ -378,15 +400,10 @@ std::vector<Program*> HandshakeAccess::advance() {
     // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
     // rules above the seam decide whether to ask again (a write's answer lost: read first).
     for (Chan* c : act) {
-      // The bytes it wrote may or may not have gone out: the shadow no longer says what the
-      // coupler holds, so the put-back that follows (a close tried again, close(), close_now())
-      // writes them again instead of taking them for done. Before, a close cut by a signal
-      // found nothing to put back and left the control byte in register mode.
-      for (std::size_t b = c->out_at; b < c->out_at + c->out_n; ++b)
-        c->shadow[b - c->out_lo] = static_cast<std::uint8_t>(~c->saved[b - c->saved_at]);
-      // A close is tried again by the next advance(), three times in all; then the program fails
-      // and close_now() makes its own bounded attempts (and says so when they fail).
-      if (c->act == Act::close && ++c->close_failures < 3) continue;
+      if (c->out_n) c->out_unsure = true;
+      // A close is tried again by the next advance(), a few times: a link that stays dead fails
+      // it, and the journal entry stays open (the channel is not known to be closed).
+      if (c->act == Act::close && ++c->close_fails < kCloseAttempts) continue;
       fail(*c, e, done);
     }
     return done;
@@ -428,6 +445,7 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
   if (restored) {
     closed_now(c);
   } else {
+    c.out_unsure = true;
     // The journal entry stays: the next kscfg on this port finishes the terminal.
     if (opt_.notice) {
       try {
@@ -441,6 +459,15 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
     }
     c.closed = true;
     c.journaled = false;
+  }
+}
+
+void HandshakeAccess::lock_unverified(ChannelKey key) noexcept {
+  auto it = chans_.find(key);
+  if (it == chans_.end() || !it->second.journaled || !opt_.journal) return;
+  try {
+    opt_.journal->lock_unverified(key.position, key.channel);
+  } catch (...) {
   }
 }
 

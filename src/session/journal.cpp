@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <algorithm>
 #include <map>
 
 namespace kscfg {
@@ -85,7 +86,7 @@ SessionJournal::~SessionJournal() {
   if (fd_ < 0) return;
   // Every session closed cleanly: nothing for anyone to finish. Otherwise the file stays, and the
   // next kscfg on this port finishes what is open (the lock goes with the descriptor).
-  if (open_ == 0) ::unlink(path_.c_str());
+  if (!has_open()) ::unlink(path_.c_str());
   ::close(fd_);
 }
 
@@ -97,7 +98,7 @@ void SessionJournal::open(std::string dir, std::string key) {
 void SessionJournal::give_up(const std::string& why) {
   why_ = why;
   if (fd_ >= 0) {
-    if (open_ == 0) ::unlink(path_.c_str());
+    if (!has_open()) ::unlink(path_.c_str());
     ::close(fd_);
     fd_ = -1;
   }
@@ -141,7 +142,7 @@ void SessionJournal::enter(const Entry& e) {
   if (!enabled()) return;
   append("+ " + format_entry(e) + "\n");
   if (!enabled()) return;
-  ++open_;
+  open_.insert({e.position, e.channel});
   last_ctrl_[{e.position, e.channel}] = -1;
 }
 
@@ -149,7 +150,7 @@ void SessionJournal::enter_direct(unsigned position, unsigned channel) {
   if (!enabled()) return;
   append(fmt::format("u {} {}\n", position, channel));
   if (!enabled()) return;
-  ++open_;
+  open_.insert({position, channel});
   last_ctrl_[{position, channel}] = -1;
 }
 
@@ -161,11 +162,96 @@ void SessionJournal::control(unsigned position, unsigned channel, std::uint8_t c
   it->second = ctrl;
 }
 
+void SessionJournal::lock_unverified(unsigned position, unsigned channel) {
+  if (!enabled() || fd_ < 0 || !open_.count({position, channel})) return;
+  if (unverified_.insert({position, channel}).second) append(fmt::format("! {} {}\n", position, channel));
+}
+
 void SessionJournal::leave(unsigned position, unsigned channel) {
-  if (!enabled() || fd_ < 0) return;
+  if (!enabled() || fd_ < 0 || !open_.count({position, channel})) return;
+  // A channel whose relock failed stays open for as long as this process lives: only a next kscfg
+  // that reads R31 knows it is locked.
+  if (unverified_.count({position, channel})) return;
   append(fmt::format("- {} {}\n", position, channel));
   last_ctrl_.erase({position, channel});
-  if (enabled() && open_ > 0) --open_;
+  if (enabled()) open_.erase({position, channel});
+}
+
+std::string SessionJournal::format_forced(const Forced& f) {
+  return fmt::format("{} {} {} {:02x} {:02x} {:02x} {}", f.position, f.channel, f.offset, f.mask, f.before, f.after,
+                     f.type);
+}
+
+void SessionJournal::force(const Forced& f) {
+  if (!enabled()) return;
+  append("f " + format_forced(f) + "\n");
+  if (enabled()) forced_.insert(f.offset);
+}
+
+void SessionJournal::unforce(unsigned position, unsigned channel, std::size_t offset) {
+  if (!enabled() || fd_ < 0 || !forced_.count(offset)) return;
+  append(fmt::format("r {} {} {}\n", position, channel, offset));
+  if (enabled()) forced_.erase(offset);
+}
+
+namespace {
+
+bool hex_byte(std::string_view w, std::uint8_t& v) {
+  if (w.size() != 2 || hex(w[0]) < 0 || hex(w[1]) < 0) return false;
+  v = static_cast<std::uint8_t>(hex(w[0]) << 4 | hex(w[1]));
+  return true;
+}
+
+// "POS CH" within the limits every line kind keeps.
+bool place(std::string_view p, std::string_view c, std::size_t& pos, std::size_t& ch) {
+  return number(p, pos) && number(c, ch) && pos >= 1 && pos <= 1024 && ch <= 256;
+}
+
+}  // namespace
+
+bool SessionJournal::parse_forced_line(std::string_view rest, Forced& f) {
+  auto w = words(rest, 7);
+  std::size_t p = 0, c = 0, off = 0;
+  std::uint8_t mask = 0, before = 0, after = 0;
+  if (w.size() != 7 || !place(w[0], w[1], p, c) || !number(w[2], off) || off > kMaxOffset || !hex_byte(w[3], mask) ||
+      mask == 0 || !hex_byte(w[4], before) || !hex_byte(w[5], after) || w[6].empty() || w[6].size() > 64 ||
+      w[6].find(' ') != std::string_view::npos)
+    return false;
+  f = Forced{};
+  f.position = static_cast<unsigned>(p);
+  f.channel = static_cast<unsigned>(c);
+  f.offset = off;
+  f.mask = mask;
+  f.before = static_cast<std::uint8_t>(before & mask);
+  f.after = static_cast<std::uint8_t>(after & mask);
+  f.type = std::string(w[6]);
+  return true;
+}
+
+std::vector<SessionJournal::Forced> SessionJournal::parse_forced(std::string_view text) {
+  if (text.size() > kMaxJournalBytes) text = text.substr(0, kMaxJournalBytes);
+  std::map<std::size_t, Forced> forced;
+  while (!text.empty()) {
+    auto nl = text.find('\n');
+    if (nl == std::string_view::npos) break;  // cut by a kill -9: not a line
+    std::string_view line = text.substr(0, nl);
+    text.remove_prefix(nl + 1);
+    if (line.size() <= 2 || line[1] != ' ') continue;
+    std::string_view rest = line.substr(2);
+    if (line[0] == 'f') {
+      Forced f;
+      if (parse_forced_line(rest, f)) forced[f.offset] = std::move(f);
+    } else if (line[0] == 'r') {
+      auto w = words(rest, 4);
+      std::size_t p = 0, c = 0, off = 0;
+      if (w.size() != 3 || !place(w[0], w[1], p, c) || !number(w[2], off)) continue;
+      auto it = forced.find(off);
+      if (it != forced.end() && it->second.position == p && it->second.channel == c) forced.erase(it);
+    }
+  }
+  std::vector<Forced> out;
+  for (auto& [k, f] : forced) out.push_back(std::move(f));
+  return out;
 }
 
 std::vector<SessionJournal::Entry> SessionJournal::parse_open(std::string_view text) {
@@ -181,7 +267,11 @@ std::vector<SessionJournal::Entry> SessionJournal::parse_open(std::string_view t
     std::string_view rest = line.substr(2);
     if (line[0] == '+') {
       Entry e;
-      if (parse_entry(std::string(rest), e)) open[{e.position, e.channel}] = std::move(e);
+      if (!parse_entry(std::string(rest), e)) continue;
+      // Entered again by the same process: a relock that failed before still counts.
+      auto was = open.find({e.position, e.channel});
+      e.unlocked = was != open.end() && was->second.unlocked;
+      open[{e.position, e.channel}] = std::move(e);
     } else if (line[0] == 'u') {
       auto w = words(rest, 3);
       std::size_t p = 0, c = 0;
@@ -190,21 +280,29 @@ std::vector<SessionJournal::Entry> SessionJournal::parse_open(std::string_view t
       e.position = static_cast<unsigned>(p);
       e.channel = static_cast<unsigned>(c);
       e.direct = true;
+      auto was = open.find({e.position, e.channel});
+      e.unlocked = was != open.end() && was->second.unlocked;
       open[{e.position, e.channel}] = std::move(e);
-    } else if (line[0] == '-' || line[0] == '>') {
+    } else if (line[0] == '-' || line[0] == '>' || line[0] == '!') {
       auto w = words(rest, 3);
       std::size_t p = 0, c = 0;
       if (w.size() < 2 || !number(w[0], p) || !number(w[1], c) || p > 1024 || c > 256) continue;
       auto it = open.find({static_cast<unsigned>(p), static_cast<unsigned>(c)});
       if (it == open.end()) continue;
-      if (line[0] == '-') {
-        if (w.size() == 2) open.erase(it);
+      if (line[0] == '-' || line[0] == '!') {
+        if (w.size() != 2) continue;
+        if (line[0] == '-') open.erase(it);
+        else it->second.unlocked = true;
         continue;
       }
-      if (w.size() != 3 || w[2].size() != 2 || hex(w[2][0]) < 0 || hex(w[2][1]) < 0) continue;
+      std::uint8_t b = 0;
+      if (w.size() != 3 || !hex_byte(w[2], b)) continue;
+      // Each control byte once, the latest last: a link that died leaves any of those tried since
+      // its last answered exchange, and the relock and restore attempts repeat the same few.
       auto& ctrl = it->second.ctrl;
-      ctrl.push_back(static_cast<std::uint8_t>(hex(w[2][0]) << 4 | hex(w[2][1])));
-      if (ctrl.size() > 2) ctrl.erase(ctrl.begin());
+      ctrl.erase(std::remove(ctrl.begin(), ctrl.end(), b), ctrl.end());
+      ctrl.push_back(b);
+      if (ctrl.size() > kMaxCtrl) ctrl.erase(ctrl.begin());
     }
   }
   std::vector<Entry> out;
@@ -252,14 +350,40 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
     for (ssize_t n; text.size() <= kMaxJournalBytes && (n = ::read(fd, buf, sizeof buf)) > 0;)
       text.append(buf, static_cast<std::size_t>(n));
     std::vector<Entry> open = parse_open(text);
+    std::vector<Forced> forced = parse_forced(text);
     Dead d;
     d.path = path;
     d.pid = static_cast<long>(pid);
     d.fd = fd;
     d.open = std::move(open);
+    d.forced = std::move(forced);
     dead.push_back(std::move(d));
   }
   return dead;
+}
+
+const std::pair<long, SessionJournal::Entry>* SessionJournal::peek_dead(unsigned position, unsigned channel) {
+  if (!peeked_) {
+    auto dead = claim_dead();
+    peeked_.emplace();
+    for (auto& d : dead) {
+      for (auto& e : d.open) (*peeked_)[{e.position, e.channel}] = {d.pid, e};
+      release(d, false);
+    }
+  }
+  auto it = peeked_->find({position, channel});
+  return it == peeked_->end() ? nullptr : &it->second;
+}
+
+void SessionJournal::forget_peeked(unsigned position, unsigned channel) {
+  if (peeked_) peeked_->erase({position, channel});
+}
+
+void SessionJournal::unforce_dead(Dead& d, const Forced& f) {
+  if (d.fd < 0) return;
+  std::string line = fmt::format("r {} {} {}\n", f.position, f.channel, f.offset);
+  // Appended in one write(2) under the claim's lock; a failure only means it is looked at again.
+  if (::lseek(d.fd, 0, SEEK_END) >= 0) (void)!::write(d.fd, line.data(), line.size());
 }
 
 void SessionJournal::release(Dead& d, bool finished) {

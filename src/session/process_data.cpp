@@ -396,4 +396,22 @@ void restore_force(Link& link, const ForcePlan& p) {
   for (const auto& b : p.bytes) put_bits(link, b.offset, b.mask, b.before, "restoring");
 }
 
+void journal_force(SessionJournal& j, const TerminalImage& t, unsigned channel, const ForcePlan& p) {
+  for (const auto& b : p.bytes) {
+    SessionJournal::Forced f;
+    f.position = t.position;
+    f.channel = t.complex ? channel : 0;
+    f.offset = b.offset;
+    f.mask = b.mask;
+    f.before = static_cast<std::uint8_t>(b.before & b.mask);
+    f.after = static_cast<std::uint8_t>(b.after & b.mask);
+    f.type = t.type->type;
+    j.force(f);
+  }
+}
+
+void journal_restored(SessionJournal& j, const TerminalImage& t, unsigned channel, const ForcePlan& p) {
+  for (const auto& b : p.bytes) j.unforce(t.position, t.complex ? channel : 0, b.offset);
+}
+
 }  // namespace kscfg

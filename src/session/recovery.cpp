@@ -22,12 +22,16 @@ namespace {
 // Only entries of its own kind (`direct`: ADS port 100; else the image handshake) are handed on: a
 // journal that names a channel of the other kind stays for a kscfg of that kind (its keys are
 // apart, link/coupler_key.hpp; an older kscfg's journal might not be), never dropped untouched.
+// The outputs a dead `data force` left forced are dealt with after the entries, through `image`
+// (forced_recovery.cpp); a journal with outputs still forced stays.
 void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
-                     const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish) {
+                     const std::function<void(const SessionJournal::Dead&, const SessionJournal::Entry&)>& finish,
+                     Link* image, const ForceFits& force_fits) {
   if (!so.journal || !so.journal->enabled()) return;
   for (auto& d : so.journal->claim_dead()) {
     bool done = true;
     try {
+      if (!finish_dead_forces(d, image, so, force_fits)) done = false;
       for (const auto& e : d.open) {
         if (e.direct != direct) {
           done = false;
@@ -40,6 +44,7 @@ void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
         }
         try {
           finish(d, e);
+          so.journal->forget_peeked(e.position, e.channel);  // dealt with: not a leftover of its any more
         } catch (const Error& err) {
           if (err.code() == Exit::interrupted) throw;
           std::string what =
@@ -83,7 +88,7 @@ void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ct
 }  // namespace
 
 void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits) {
+                          const std::function<bool(const SessionJournal::Entry&)>& fits, const ForceFits& force_fits) {
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
   };
@@ -110,10 +115,12 @@ void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, co
     // Only a terminal that shows register mode now, in its control byte and in the status byte
     // that answers it, with a control byte the dead session wrote: otherwise it was finished
     // already, or it is not that session's (another master's), and nothing is touched.
+    // A terminal whose relock failed ("!") may be unlocked in process-data mode too: its R31 is
+    // read (and relocked) by a session of its own.
     std::uint8_t ctrl = 0;
     link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-    if (!(ctrl & proto::kReg)) return;
-    if (std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
+    if (!(ctrl & proto::kReg) && !e.unlocked) return;
+    if ((ctrl & proto::kReg) && std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
       trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
                         "process did not write last; not touched",
                         d.pid, e.position, ctrl));
@@ -123,7 +130,8 @@ void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, co
     // taken yet: the status byte shows REG a K-bus cycle or two later (more on a loaded coupler).
     // Waited for as any acknowledge, up to the timeout; taken for finished, it would stay in
     // register mode with its journal gone.
-    wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
+    if (ctrl & proto::kReg)
+      wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
     TerminalImage t;
     t.position = e.position;
     t.type = type;
@@ -133,11 +141,12 @@ void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, co
     Channel ch(engine, t, e.channel, so);
     engine.access().adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
-  });
+  }, &link, force_fits);
 }
 
 void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
-                                 const std::function<const TerminalImage*(unsigned position)>& terminal) {
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal, Link* image,
+                                 const ForceFits& force_fits) {
   each_dead_entry(so, "left unlocked", true, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
     const TerminalImage* t = terminal(e.position);
     if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
@@ -150,7 +159,7 @@ void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
     Channel ch(engine, *t, e.channel, so);
     engine.access().adopt_dead(ch.key(), e, d.pid);
     engine.wait(ch.finish_dead());
-  });
+  }, image, force_fits);
 }
 
 }  // namespace kscfg

@@ -191,6 +191,7 @@ def main():
             run(['--port', uri, 'scan'], 'scan')
             run(['--port', uri, 'coupler'], 'coupler_settings')
             run(['--port', uri, '-t', '1', 'data', '--once'], 'data', lines=True)
+            run(['--port', uri, 'data', 'release', '--yes'], 'data_release')
     finally:
         srv.terminate()
         try:

@@ -512,6 +512,7 @@ TEST_CASE("data, emu encoder and serial line: completion of commands, options an
   };
   CHECK_THAT(complete({""}), Catch::Contains("\ndata\t"));
   CHECK_THAT(complete({"data", ""}), Catch::Contains("\nforce"));
+  CHECK_THAT(complete({"data", ""}), Catch::Contains("\nrelease"));
   for (const char* o : {"--once\t", "--count\t", "--interval\t", "--yes\t", "--hold\t"})
     CHECK_THAT(complete({"data", "-"}), Catch::Contains(std::string("\n") + o));
   CHECK_THAT(complete({"emu", ""}), Catch::Contains("\nencoder\t"));

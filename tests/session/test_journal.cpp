@@ -110,7 +110,7 @@ TEST_CASE("session journal: an entry is one line and reads back the same, broken
     CHECK_FALSE(SessionJournal::parse_entry(bad, back));
 }
 
-TEST_CASE("session journal: the open entries of a journal's text, with the last two control bytes, within limits",
+TEST_CASE("session journal: the open entries of a journal's text, with their last control bytes, within limits",
           "[session][journal]") {
   std::string text = "+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n"
                      "+ 3 0 16 16 18 19 18 19 16 0041 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n"
@@ -121,7 +121,7 @@ TEST_CASE("session journal: the open entries of a journal's text, with the last 
   auto open = SessionJournal::parse_open(text);
   REQUIRE(open.size() == 2);
   CHECK(open[0].position == 3);
-  CHECK(open[0].ctrl == std::vector<std::uint8_t>{0xA0, 0x88});
+  CHECK(open[0].ctrl == std::vector<std::uint8_t>{0xDF, 0xA0, 0x88});
   CHECK(open[0].saved == std::vector<std::uint8_t>{0x00, 0x41});
   CHECK(open[1].position == 4);
   CHECK(open[1].channel == 1);
@@ -134,6 +134,86 @@ TEST_CASE("session journal: the open entries of a journal's text, with the last 
   std::string big(SessionJournal::kMaxJournalBytes + 100, '\n');
   big.replace(big.size() - 60, 45, "+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 88\n");
   CHECK(SessionJournal::parse_open(big).empty());  // beyond the limit: not looked at
+}
+
+TEST_CASE("session journal: a failed relock keeps an entry open, forced outputs are entries of their own",
+          "[session][journal]") {
+  // Control bytes each once, the latest last, at most four: the relock and restore attempts of a
+  // link that died repeat the same few, and the one the coupler holds is among them.
+  auto open = SessionJournal::parse_open("+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 a0\n> 1 0 a1\n> 1 0 df\n> 1 0 00\n"
+                                         "> 1 0 df\n> 1 0 00\n! 1 0\n"
+                                         "+ 2 0 8 8 10 11 10 11 8 00 KL6001\n> 2 0 9f\n> 2 0 e0\n> 2 0 e1\n> 2 0 df\n"
+                                         "> 2 0 00\n! 2 0 x\n!  2 0\n"
+                                         "+ 3 0 16 16 18 19 18 19 16 00 KL6031\n! 3 0\n- 3 0\n"
+                                         "+ 4 0 24 24 26 27 26 27 24 00 KL6001\n! 4 0\n+ 4 0 24 24 26 27 26 27 24 00 KL6001\n");
+  REQUIRE(open.size() == 3);
+  CHECK(open[0].ctrl == std::vector<std::uint8_t>{0xA0, 0xA1, 0xDF, 0x00});
+  CHECK(open[0].unlocked);
+  CHECK(open[1].ctrl == std::vector<std::uint8_t>{0xE0, 0xE1, 0xDF, 0x00});
+  CHECK_FALSE(open[1].unlocked);  // "! 2 0 x" and "!  2 0" are not lines
+  CHECK(open[2].position == 4);
+  CHECK(open[2].unlocked);  // entered again by the same process: the failed relock still counts
+  // "f POS CH OFFSET MASK BEFORE AFTER TYPE" until "r POS CH OFFSET".
+  auto forced = SessionJournal::parse_forced("f 6 0 7 05 00 05 KL2134\nf 6 0 6 01 00 01 KL2134\nr 6 0 6\n"
+                                             "f 3 1 20 ff 10 27 KL4032\nr 3 0 20\n"  // another channel's "r"
+                                             "f 6 0 600 01 00 01 KL2134\nf 6 0 5 00 00 00 KL2134\nf 6 0 5 1 0 1 KL2134\n"
+                                             "f 0 0 5 01 00 01 KL2134\nf 6 0 5 01 00 01\nf 6 0 4 0f 03 0c KL2134");
+  REQUIRE(forced.size() == 2);
+  CHECK((forced[0].position == 6 && forced[0].offset == 7 && forced[0].mask == 0x05 && forced[0].before == 0x00 &&
+         forced[0].after == 0x05 && forced[0].type == "KL2134"));
+  CHECK((forced[1].position == 3 && forced[1].channel == 1 && forced[1].offset == 20 && forced[1].before == 0x10 &&
+         forced[1].after == 0x27));
+  SessionJournal::Forced back;
+  REQUIRE(SessionJournal::parse_forced_line(SessionJournal::format_forced(forced[1]), back));
+  CHECK((back.offset == 20 && back.mask == 0xFF && back.type == "KL4032"));
+}
+
+TEST_CASE("session journal: a process whose relock failed or whose outputs stay forced keeps its journal",
+          "[session][journal]") {
+  TempDir tmp;
+  std::string dir = tmp.file("sessions");
+  EmulatedStation st(default_station(), cat());
+  {
+    SessionJournal j;
+    j.open(dir, "tcp-127.0.0.1-502-unit1");
+    j.enter(entry_for(st.layout(), 1, {0x00}));
+    j.lock_unverified(1, 0);
+    j.leave(1, 0);  // its bytes went back, but R31 is not known to be 0
+    CHECK(j.has_open());
+  }
+  CHECK(files_in(dir) == 1);
+  SessionJournal next;
+  next.open(dir, "tcp-127.0.0.1-502-unit1");
+  auto dead = next.claim_dead();
+  REQUIRE(dead.size() == 1);
+  REQUIRE(dead[0].open.size() == 1);
+  CHECK(dead[0].open[0].unlocked);
+  SessionJournal::release(dead[0], true);
+  {
+    SessionJournal j;
+    j.open(dir, "tcp-127.0.0.1-502-unit1");
+    SessionJournal::Forced f{6, 0, 7, 0x05, 0x00, 0x05, "KL2134"};
+    j.force(f);
+    CHECK(j.has_open());
+    j.unforce(6, 0, 7);
+    CHECK_FALSE(j.has_open());
+  }
+  CHECK(files_in(dir) == 0);  // restored: nothing for anyone to finish
+  {
+    SessionJournal j;
+    j.open(dir, "tcp-127.0.0.1-502-unit1");
+    j.force(SessionJournal::Forced{6, 0, 7, 0x05, 0x00, 0x05, "KL2134"});
+  }
+  CHECK(files_in(dir) == 1);  // not restored: the next kscfg finds it
+  dead = next.claim_dead();
+  REQUIRE(dead.size() == 1);
+  REQUIRE(dead[0].forced.size() == 1);
+  SessionJournal::unforce_dead(dead[0], dead[0].forced[0]);
+  SessionJournal::release(dead[0], false);
+  dead = next.claim_dead();
+  REQUIRE(dead.size() == 1);
+  CHECK(dead[0].forced.empty());  // noted as put back in the dead journal itself
+  SessionJournal::release(dead[0], true);
 }
 
 TEST_CASE("session journal: a dead process's open entries are claimed, a live one's never",

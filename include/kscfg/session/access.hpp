@@ -113,6 +113,9 @@ class RegisterAccess {
   virtual void close_now(ChannelKey key) noexcept = 0;
   // Every open channel, closed at once as close_now() does (the end of a run). Never throws.
   virtual void close_all() noexcept = 0;
+  // Relocking an open channel failed (or its work ended without it): its journal entry stays open
+  // whatever comes after, so that the next kscfg reads R31 (journal.hpp "!"). Never throws.
+  virtual void lock_unverified(ChannelKey) noexcept {}
 
   // An open channel left by a dead process, as its journal's entry `e` says (recovery.cpp): what
   // found() then reports (the handshake also restores the bytes that session found).

@@ -42,6 +42,7 @@ class AdsAccess final : public RegisterAccess {
   std::vector<Program*> advance() override;
   bool busy() const override;
   void close_now(ChannelKey key) noexcept override;
+  void lock_unverified(ChannelKey key) noexcept override;
   void close_all() noexcept override;
   std::size_t exchanges() const override { return client_.exchanges(); }
 

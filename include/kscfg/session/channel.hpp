@@ -41,6 +41,21 @@
 
 namespace kscfg {
 
+// Output bits a dead `kscfg data force` left forced (journal.hpp "f"), as the journal recovery
+// found and dealt with them (SessionOptions::dead_force).
+struct DeadForce {
+  enum class State {
+    restored,  // put back (SessionOptions::release_forced) and read back as they were
+    forced,    // still as forced; named in a warning, left so
+    changed,   // no longer as forced, or not this station's: not touched, dropped from the journal
+    failed,    // putting them back failed (the journal keeps them): `error`
+  };
+  long pid = 0;
+  SessionJournal::Forced forced;
+  State state = State::forced;
+  std::optional<Error> error;
+};
+
 struct SessionOptions {
   std::chrono::milliseconds timeout{1000};        // per acknowledge
   std::function<void(const std::string&)> trace;  // -v: every exchange
@@ -54,6 +69,12 @@ struct SessionOptions {
   // Where this process notes the terminals it has in register mode, so that the next kscfg can
   // finish them if it dies (journal.hpp). Null: nothing is noted.
   std::shared_ptr<SessionJournal> journal;
+  // Outputs a dead `kscfg data force` left forced: put back when true (`data force` and
+  // `data release` with --yes), else named in one warning per dead process with `release_hint`,
+  // the command that puts them back. `dead_force`: told of each (data release reports them).
+  bool release_forced = false;
+  std::string release_hint;
+  std::function<void(const DeadForce&)> dead_force;
   // Test hooks, set only by the build made for tests (cli/main/test_hooks.cpp): write without the
   // code word; called after a write of a register was acknowledged.
   bool skip_unlock = false;

@@ -76,6 +76,7 @@ class HandshakeAccess final : public RegisterAccess {
   bool busy() const override;
   void close_now(ChannelKey key) noexcept override;
   void close_all() noexcept override;
+  void lock_unverified(ChannelKey key) noexcept override;
   std::optional<Error> explain_no_ack() override { return link_.explain_no_ack(); }
   std::size_t exchanges() const override { return link_.exchanges(); }
 
@@ -107,7 +108,10 @@ class HandshakeAccess final : public RegisterAccess {
     std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
     std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
     bool ready = false, closed = false, journaled = false;
-    unsigned close_failures = 0;  // exchanges that carried its close and failed
+    // An exchange that carried its output bytes failed: what the coupler holds of them is unknown,
+    // so the close puts every byte of the window back, not only those the shadow says changed.
+    bool out_unsure = false;
+    unsigned close_fails = 0;  // exchanges of its close program that failed
     unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found

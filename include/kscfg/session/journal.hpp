@@ -22,10 +22,21 @@
 //   u POS CH                                      direct register access (ADS port 100, no image
 //                                                 bytes): the code word goes to R31 (written
 //                                                 before it is sent); "- POS CH" once relocked
+//   ! POS CH                                      relocking it failed (a dead link, a terminal that
+//                                                 did not answer): the entry stays open even once
+//                                                 its bytes are back, and the next kscfg reads R31
+//   f POS CH OFFSET MASK BEFORE AFTER TYPE        `data force`: the bits MASK of output byte OFFSET
+//                                                 go from BEFORE to AFTER (hex; written before they
+//                                                 are); "r POS CH OFFSET" once they read back as before
+// An entry is left ("-", "r") only once what was put back is known to be there: the exchange that
+// carried it was answered. A dead link, a timeout or a relock that failed keeps it open, and a
+// journal with an open entry outlives its process (docs/design.md 6.2).
 #pragma once
 #include <cstddef>
 #include <cstdint>
 #include <map>
+#include <optional>
+#include <set>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -44,13 +55,26 @@ class SessionJournal {
     RegisterWindow window;  // where its control/status and value bytes are in the image
     std::size_t saved_at = 0;            // output image offset of saved[0]
     std::vector<std::uint8_t> saved;     // the process-data output bytes found when the session began
-    // The last control bytes it wrote, the latest last (at most two: a kill -9 between the line and
-    // the exchange leaves the one before on the coupler). Empty: it never wrote one.
+    // The last control bytes it wrote, each once, the latest last (at most kMaxCtrl: a kill -9
+    // between the line and the exchange leaves the one before on the coupler, and a link that died
+    // leaves any of those it tried since its last answered exchange). Empty: it never wrote one.
     std::vector<std::uint8_t> ctrl;
     // An entry of direct register access ("u"): the process wrote the code word to this channel
     // and had not relocked it. No window, no saved bytes, no type.
     bool direct = false;
+    // "!": relocking it failed; R31 may still hold the code word whatever the control byte says.
+    bool unlocked = false;
   };
+  // Output bits a `kscfg data force` process forced ("f"), not yet put back ("r").
+  struct Forced {
+    unsigned position = 0;  // 1-based plug position
+    unsigned channel = 0;   // 0-based (0 for digital terminals)
+    std::size_t offset = 0;  // output image byte
+    std::uint8_t mask = 0, before = 0, after = 0;
+    std::string type;  // catalog type name
+  };
+  // At most this many control bytes kept per entry (Entry::ctrl).
+  static constexpr std::size_t kMaxCtrl = 4;
   // Longest journal read; a journal holds a few lines, more is not one of ours.
   static constexpr std::size_t kMaxJournalBytes = 256 * 1024;
   // The journal of a process that is gone, locked by the caller until release().
@@ -58,6 +82,7 @@ class SessionJournal {
     std::string path;
     long pid = 0;
     std::vector<Entry> open;  // entries never closed: terminals it may have left in register mode
+    std::vector<Forced> forced;  // outputs it forced and did not put back
     int fd = -1;
   };
 
@@ -80,13 +105,30 @@ class SessionJournal {
   // Direct register access (no image bytes): before the code word goes to R31 of a channel. Left
   // with leave() once it is locked again.
   void enter_direct(unsigned position, unsigned channel);
+  // Relocking an entered channel failed: its entry stays open whatever comes after ("!").
+  void lock_unverified(unsigned position, unsigned channel);
+  // Before output bits are forced / once they read back as they were. A journal with forced bits
+  // outlives its process like one with an open entry.
+  void force(const Forced& f);
+  void unforce(unsigned position, unsigned channel, std::size_t offset);
+  // Entries entered and not left, forced bytes not put back: the file stays when the process ends.
+  bool has_open() const { return !open_.empty() || !forced_.empty(); }
   const std::string& why() const { return why_; }
 
   // The journals of this port whose processes are gone, each locked until release(). Journals of
   // live processes (their lock is held) are not returned.
   std::vector<Dead> claim_dead();
+  // The open entry a dead process's journal has for a channel, and that process's pid: looked up
+  // in the journals as they were at the first call (read, not claimed: claim_dead() acts on them
+  // later; forget_peeked() once the recovery dealt with an entry). For a session that finds the channel in register mode before the station's layout is
+  // known (a scan walking towards it): that process's leftover, no watch needed (handshake.hpp).
+  const std::pair<long, Entry>* peek_dead(unsigned position, unsigned channel);
+  void forget_peeked(unsigned position, unsigned channel);
   // Unlocks a claimed journal; `finished`: every open entry was dealt with, the file goes.
   static void release(Dead& d, bool finished);
+  // Notes in a claimed journal that its forced byte at `offset` was put back (or is not that
+  // process's any more): a later kscfg does not act on it again.
+  static void unforce_dead(Dead& d, const Forced& f);
 
   // One line of the file, and back (tests; an unreadable line gives false).
   static std::string format_entry(const Entry& e);
@@ -94,6 +136,11 @@ class SessionJournal {
   // The entries a journal's text leaves open (entered, not left), in (position, channel) order.
   // Bounded: at most kMaxJournalBytes are looked at; a line that is not well formed is skipped.
   static std::vector<Entry> parse_open(std::string_view text);
+  // The forced bytes a journal's text leaves (an "f" line and no "r" after it), in offset order;
+  // bounded and strict as parse_open.
+  static std::vector<Forced> parse_forced(std::string_view text);
+  static std::string format_forced(const Forced& f);
+  static bool parse_forced_line(std::string_view rest, Forced& f);
 
  private:
   bool create();
@@ -104,8 +151,11 @@ class SessionJournal {
   std::string prefix_;  // dir/KEY
   std::string path_;    // dir/KEY.PID-TIME.sessions once created
   int fd_ = -1;
-  unsigned open_ = 0;   // entries entered and not left
+  std::set<std::pair<unsigned, unsigned>> open_;  // entries entered and not left
+  std::set<std::pair<unsigned, unsigned>> unverified_;  // lock_unverified(): never left
+  std::set<std::size_t> forced_;                  // forced bytes not put back
   std::map<std::pair<unsigned, unsigned>, int> last_ctrl_;  // control byte last noted (-1: none)
+  std::optional<std::map<std::pair<unsigned, unsigned>, std::pair<long, Entry>>> peeked_;  // peek_dead()
   std::string why_;
 };
 

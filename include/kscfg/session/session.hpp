@@ -83,14 +83,32 @@ class RegisterSession {
 // once dealt with; one whose terminal did not answer stays for the next run. `fits` (when given)
 // says whether an entry's window lies inside the image the coupler has now; one that does not is
 // not this station's and is dropped untouched. Never throws but Error(interrupted).
+// The outputs a dead `kscfg data force` left forced (journal "f" lines, DeadForce) are dealt with
+// through `link` in the same pass: each checked with `force_fits` (the terminal at its position is
+// of its type and owns that output byte) and against the byte as the coupler holds it now (still as
+// forced), then put back (SessionOptions::release_forced) or named in a warning; a journal with
+// outputs still forced stays.
+// `unknown`: the layout cannot tell (a Modbus scan places no digital terminal): named in the
+// warning, never put back, kept.
+enum class ForceFit { fits, foreign, unknown };
+using ForceFits = std::function<ForceFit(const SessionJournal::Forced&)>;
 void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
-                          const std::function<bool(const SessionJournal::Entry&)>& fits = {});
+                          const std::function<bool(const SessionJournal::Entry&)>& fits = {},
+                          const ForceFits& force_fits = {});
+// The forced outputs of one claimed dead journal (`d.forced`), as above; those dealt with are noted
+// in it (SessionJournal::unforce_dead). True when none is left forced (the journal may go).
+bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOptions& so, const ForceFits& fits);
+// Whether output byte f.offset (bits f.mask) belongs to the terminal at f.position of `layout`, of
+// type f.type (channel f.channel of a complex terminal, the terminal's output bits of a digital one).
+// `unknown` for a byte among the digital outputs of a layout that cannot place digital terminals.
+ForceFit forced_fits(const StationLayout& layout, const SessionJournal::Forced& f);
 
 // The same for direct register access (ADS port 100, AdsAccess): each channel a dead process's
 // journal says it unlocked ("u" entries) is relocked through the port's engine (its access
 // AdsAccess) when R31 still holds the code word, with a note. `terminal(position)`: the station's terminal there (nullptr: none; the entry
 // is then not this station's and dropped untouched). Never throws but Error(interrupted).
 void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
-                                 const std::function<const TerminalImage*(unsigned position)>& terminal);
+                                 const std::function<const TerminalImage*(unsigned position)>& terminal,
+                                 Link* image = nullptr, const ForceFits& force_fits = {});
 
 }  // namespace kscfg

@@ -1,0 +1,135 @@
+// Outputs a dead `kscfg data force` left forced (journal.hpp "f" lines; docs/design.md 6.2): each
+// checked against the station and against the byte as the coupler holds it now, then put back
+// (SessionOptions::release_forced) or named in one warning per dead process.
+#include <fmt/format.h>
+
+#include <algorithm>
+
+#include "kscfg/base/error.hpp"
+#include "kscfg/session/session.hpp"
+
+namespace kscfg {
+
+ForceFit forced_fits(const StationLayout& L, const SessionJournal::Forced& f) {
+  auto fit = [](bool yes) { return yes ? ForceFit::fits : ForceFit::foreign; };
+  if (f.position < 1 || f.position > L.terminals.size()) {
+    // Not a terminal the layout knows: one of the digital terminals a Modbus scan sees only as bit
+    // totals, if the byte lies among their outputs.
+    bool digital = !L.unidentified_digital().empty() && f.offset >= L.complex_out && f.offset < L.out_bytes;
+    return digital && f.position >= 1 ? ForceFit::unknown : ForceFit::foreign;
+  }
+  const TerminalImage& t = L.terminal(f.position);
+  if (!t.type || t.type->type != f.type) return ForceFit::foreign;
+  if (t.complex) {
+    if (f.channel >= t.channels.size()) return ForceFit::foreign;
+    const auto& out = t.channels[f.channel].out;
+    return fit(std::any_of(out.begin(), out.end(), [&](const ImageByte& b) { return b.offset == f.offset; }));
+  }
+  // A digital terminal's output bits: every bit of the mask is one of them.
+  if (f.channel != 0 || !t.bits_out) return ForceFit::foreign;
+  for (unsigned bit = 0; bit < 8; ++bit) {
+    if (!(f.mask >> bit & 1)) continue;
+    std::size_t at = f.offset * 8 + bit;
+    if (at < t.out_bit || at >= t.out_bit + t.bits_out) return ForceFit::foreign;
+  }
+  return ForceFit::fits;
+}
+
+namespace {
+
+std::string forced_text(const SessionJournal::Forced& f) {
+  std::string s = fmt::format("terminal {} ({})", f.position, f.type);
+  if (f.channel) s += fmt::format(" channel {}", f.channel + 1);
+  return s + fmt::format(" output byte {} bits 0x{:02X} = 0x{:02X} (were 0x{:02X})", f.offset, f.mask, f.after,
+                         f.before);
+}
+
+}  // namespace
+
+bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOptions& so, const ForceFits& fits) {
+  if (d.forced.empty()) return true;
+  if (!link) return false;  // kept for a kscfg that can reach the image
+  auto trace = [&](const std::string& s) {
+    if (so.trace) so.trace(s);
+  };
+  auto told = [&](DeadForce r) {
+    if (so.dead_force) so.dead_force(r);
+  };
+  std::vector<std::string> still;
+  bool all = true, unplaced = false;
+  for (const auto& f : d.forced) {
+    DeadForce r;
+    r.pid = d.pid;
+    r.forced = f;
+    ForceFit fit = ForceFit::fits;
+    try {
+      if (fits) fit = fits(f);
+    } catch (const Error& e) {
+      if (e.code() == Exit::interrupted) throw;
+      fit = ForceFit::unknown;  // the station could not be walked that far: told, kept
+    }
+    if (fit == ForceFit::foreign) {
+      trace(fmt::format("journal of kscfg process {}: forced {} is not this station's; not touched", d.pid,
+                        forced_text(f)));
+      SessionJournal::unforce_dead(d, f);
+      r.state = DeadForce::State::changed;
+      told(r);
+      continue;
+    }
+    try {
+      std::uint8_t cur = 0;
+      link->read_outputs(f.offset, std::span<std::uint8_t>(&cur, 1));
+      if ((cur & f.mask) != f.after) {
+        // Put back already (by hand, a watchdog) or changed since by another master: not ours.
+        trace(fmt::format("journal of kscfg process {}: forced {} reads 0x{:02X} now; not touched", d.pid,
+                          forced_text(f), cur));
+        SessionJournal::unforce_dead(d, f);
+        r.state = DeadForce::State::changed;
+        told(r);
+        continue;
+      }
+      if (!so.release_forced || fit == ForceFit::unknown) {
+        still.push_back(forced_text(f));
+        unplaced = unplaced || fit == ForceFit::unknown;
+        all = false;
+        told(r);
+        continue;
+      }
+      std::uint8_t v = static_cast<std::uint8_t>((cur & ~f.mask) | f.before);
+      link->write_outputs(f.offset, std::span<const std::uint8_t>(&v, 1));
+      std::uint8_t back = 0;
+      link->read_outputs(f.offset, std::span<std::uint8_t>(&back, 1));
+      if ((back & f.mask) != f.before)
+        throw Error(Exit::verify,
+                    fmt::format("output byte {}: wrote 0x{:02X}, reads back 0x{:02X}", f.offset, v, back));
+      SessionJournal::unforce_dead(d, f);
+      r.state = DeadForce::State::restored;
+      if (so.notice)
+        so.notice(fmt::format("note: {} was left forced by kscfg process {}, which ended without putting it back; "
+                              "put back, reads 0x{:02X}",
+                              forced_text(f), d.pid, back));
+      told(r);
+    } catch (const Error& e) {
+      if (e.code() == Exit::interrupted) throw;
+      all = false;
+      r.state = DeadForce::State::failed;
+      r.error = e;
+      if (so.notice)
+        so.notice(fmt::format("warning: putting back {}, left forced by kscfg process {}, failed: {}; the next kscfg "
+                              "on this port tries again (session journal)",
+                              forced_text(f), d.pid, e.what()));
+      told(r);
+    }
+  }
+  if (!still.empty() && so.notice) {
+    std::string list;
+    for (const auto& s : still) list += (list.empty() ? "" : ", ") + s;
+    so.notice(fmt::format("warning: kscfg process {} ended without putting back the outputs it forced ({}): they are "
+                          "still forced; put them back with: {}{}",
+                          d.pid, list, so.release_hint.empty() ? "kscfg data release --yes" : so.release_hint,
+                          unplaced ? " (with --station FILE: a scan does not place digital terminals)" : ""));
+  }
+  return all;
+}
+
+}  // namespace kscfg
