@@ -288,7 +288,9 @@ std::string generate_manpage(const App& a) {
         {Exit::changed, "apply: the station was changed (success)."},
         {Exit::busy,
          "Gave up waiting for the coupler (port and unit) or the emulator state file that another kscfg on this "
-         "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process."},
+         "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process. An emulator state "
+         "file that a running \\fBkscfg serve\\fR holds is refused at once, naming the serve's PID and the "
+         "\\fB\\-p\\fR URI that reaches the same station through it."},
         {Exit::other_master,
          "Another master is using the terminal: its control byte is in register mode and changes (a kscfg on "
          "another computer, KS2000); nothing was written."},
