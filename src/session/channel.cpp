@@ -48,7 +48,7 @@ Channel::Channel(Engine& engine, const TerminalImage& terminal, unsigned channel
 
 Channel::~Channel() {
   if (closed_) return;
-  if (maybe_unlocked_ || unlocked_)
+  if ((maybe_unlocked_ || unlocked_) && !unlock_reported_)
     note(fmt::format("warning: {} may still be unlocked: its work ended without relocking it", who()));
   engine_.access().close_now(key_);
 }
@@ -493,6 +493,7 @@ Task<RollbackResult> Channel::roll_back(std::vector<WriteResult> changes) {
     why = e.what();
   }
   if (why) rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", *why));
+  unlock_reported_ = !rb.locked;
   --shield_;
   co_return rb;
 }
@@ -568,7 +569,8 @@ Task<void> Channel::close() {
         if (e.code() != Exit::link) break;
       }
     }
-    if (!failed.empty()) note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+    if (!failed.empty() && !unlock_reported_)
+      note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
   }
   // Never leave it in register mode: put back the process-data bytes this work changed.
   if (!closed_) {

@@ -1,0 +1,116 @@
+// Issue 36: what a newcomer trips over, through the CLI. Each case names its item.
+#include <signal.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <filesystem>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "kscfg/link/modbus_client.hpp"
+#include "kscfg/link/port_uri.hpp"
+#include "support.hpp"
+
+using kscfg::test::Child;
+using kscfg::test::Emu;
+using kscfg::test::one_line_error;
+using kscfg::test::read_text;
+using kscfg::test::Run;
+using kscfg::test::run_kscfg;
+using kscfg::test::Server;
+using kscfg::test::TempDir;
+using kscfg::test::wait_for;
+using kscfg::test::write_text;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> v;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);) v.push_back(l);
+  return v;
+}
+
+// The output image of the coupler behind `uri` (another Modbus client), empty when it does not answer.
+std::vector<std::uint8_t> outputs(const std::string& uri) {
+  try {
+    kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri), uri), {});
+    std::vector<std::uint8_t> b;
+    for (auto v : c.read(kscfg::mbmap::kOutputImage, 24))
+      b.insert(b.end(), {static_cast<std::uint8_t>(v & 0xFF), static_cast<std::uint8_t>(v >> 8)});
+    return b;
+  } catch (...) {
+    return {};
+  }
+}
+
+}  // namespace
+
+TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then one line per terminal with the "
+          "registers, the shared cause once",
+          "[issue36][rollback][serve]") {
+  TempDir d;
+  std::string state = d.file("emulator.json");
+  REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
+  // A slow K-bus (20 ms a cycle) keeps the apply in register mode long enough to be caught there.
+  auto srv = std::make_unique<Server>(state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0",
+                                                                      "--cycle-us", "20000"},
+                                      d.file("serve.err"));
+  std::string uri = srv->uri;
+  REQUIRE(run_kscfg({"--port", uri, "info"}).rc == 0);  // the scan is kept: the apply starts writing at once
+  write_text(d.file("apply.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+                                   "[[terminal]]\ntype = \"KL5101\"\nR32 = 0x0001\n[[terminal]]\ntype = \"KL6031\"\n"
+                                   "baud = 4800\n[[terminal]]\ntype = \"KL3022\"\nR36 = 0x0042\n");
+  Child apply({"--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
+  // The coupler goes away while a register write is under way (control byte: REG and W set).
+  const std::vector<std::size_t> ctrl{0, 8, 16, 40, 44};
+  REQUIRE(wait_for(
+      [&] {
+        auto o = outputs(uri);
+        for (auto at : ctrl)
+          if (o.size() > at && (o[at] & 0xC0) == 0xC0) return true;
+        return false;
+      },
+      30));
+  srv->kill_now();
+  REQUIRE(apply.wait(60) == 9);
+  auto lines = lines_of(apply.err());
+  INFO(apply.err());
+  REQUIRE(lines.size() >= 2);
+  const std::string& first = lines.front();
+  CHECK_THAT(first, Catch::StartsWith("kscfg: error: apply failed: "));
+  CHECK_THAT(first, Catch::Contains("; rollback failed (nothing could be read back): "));
+  CHECK_THAT(first, Catch::Contains("undo with 'kscfg --port " + uri + " restore "));
+  CHECK(first.size() < 600);
+  // Then one line per terminal, each naming registers, none repeating a reason per register.
+  for (std::size_t i = 1; i < lines.size(); ++i) {
+    CHECK_THAT(lines[i], Catch::StartsWith("kscfg:   terminal "));
+    CHECK_THAT(lines[i], Catch::Contains(": R"));
+    CHECK(lines[i].size() < 300);
+  }
+  // With --json the same as one object: the terminals' lines in "details".
+  REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
+  srv = std::make_unique<Server>(state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0",
+                                                                 "--cycle-us", "20000"},
+                                 d.file("serve2.err"));
+  uri = srv->uri;
+  Child json({"--json", "--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
+  REQUIRE(wait_for(
+      [&] {
+        auto o = outputs(uri);
+        for (auto at : ctrl)
+          if (o.size() > at && (o[at] & 0xC0) == 0xC0) return true;
+        return false;
+      },
+      30));
+  srv->kill_now();
+  REQUIRE(json.wait(60) == 9);
+  auto jl = lines_of(json.err());
+  REQUIRE(jl.size() == 1);  // the error alone: no warning repeats what its details say
+  auto j = nlohmann::json::parse(jl.front());
+  CHECK_THAT(j["error"].get<std::string>(), Catch::Contains("rollback failed"));
+  CHECK(j["details"].size() >= 1);
+}
