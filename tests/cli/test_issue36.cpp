@@ -114,3 +114,20 @@ TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then 
   CHECK_THAT(j["error"].get<std::string>(), Catch::Contains("rollback failed"));
   CHECK(j["details"].size() >= 1);
 }
+
+TEST_CASE("issue 36 item 5: the next-start note only for a setting that changes the image", "[issue36][lockout]") {
+  Emu emu;
+  // The KL6001 in the alternative format (its factory setting): these do not change its image.
+  for (const std::vector<std::string>& s :
+       {std::vector<std::string>{"xon-xoff-send", "on"}, {"point-to-point", "on"}, {"data-bytes", "4"}}) {
+    Run r = emu({"-t", "1", "set", s[0], s[1]});
+    INFO(s[0] << ": " << r.err);
+    CHECK(r.rc == 0);
+    CHECK(r.err.find("next start") == std::string::npos);
+  }
+  // The format does: the note names it.
+  Run f = emu({"-t", "1", "set", "alternative-format", "off"});
+  CHECK(f.rc == 0);
+  CHECK_THAT(f.err, Catch::Contains("kscfg: note: takes effect at the coupler's next start (power off and on): "
+                                    "terminal 1 (KL6001): alternative-format = off (R34"));
+}
