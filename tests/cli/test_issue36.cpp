@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <regex>
 #include <sstream>
 
 #include "kscfg/link/modbus_client.hpp"
@@ -130,4 +131,29 @@ TEST_CASE("issue 36 item 5: the next-start note only for a setting that changes 
   CHECK(f.rc == 0);
   CHECK_THAT(f.err, Catch::Contains("kscfg: note: takes effect at the coupler's next start (power off and on): "
                                     "terminal 1 (KL6001): alternative-format = off (R34"));
+}
+
+TEST_CASE("issue 36 item 6: backup refuses -t (it saves the whole station) and honours --json without FILE",
+          "[issue36][backup]") {
+  Emu emu;
+  TempDir d;
+  for (const char* t : {"1", "3", "KL6001", "1-2"}) {
+    Run r = emu({"-t", t, "backup", d.file("b.toml")});
+    INFO(t << ": " << r.err);
+    CHECK(r.rc == 2);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("'kscfg backup' saves the whole station; -t " + std::string(t)));
+    CHECK(r.out.empty());
+    CHECK_FALSE(fs::exists(d.file("b.toml")));
+  }
+  CHECK(emu({"-t", "all", "backup", d.file("all.toml")}).rc == 0);
+  Run j = emu({"--json", "backup"});
+  REQUIRE(j.rc == 0);
+  auto doc = nlohmann::json::parse(j.out);
+  CHECK(doc["file"].is_null());
+  CHECK(doc["terminal_count"] == 7);
+  CHECK_THAT(doc["station"].get<std::string>(), Catch::Contains("coupler = \"BK9000\""));
+  // The text is the station file `backup` without --json prints.
+  Run t = emu({"backup"});
+  CHECK(t.out == doc["station"].get<std::string>());
 }
