@@ -157,3 +157,23 @@ TEST_CASE("issue 36 item 6: backup refuses -t (it saves the whole station) and h
   Run t = emu({"backup"});
   CHECK(t.out == doc["station"].get<std::string>());
 }
+
+TEST_CASE("issue 36 item 8: info, info -t and scan write image ranges in one notation (the map's)",
+          "[issue36][info][scan][serve]") {
+  TempDir d;
+  std::string state = d.file("emulator.json");
+  Run info = run_kscfg({"--port", "emu:" + state, "info"});
+  REQUIRE(info.rc == 0);
+  CHECK_THAT(info.out, Catch::Contains(" in 0-7 out 0-7 "));
+  CHECK_THAT(info.out, Catch::Contains(" in 48.0-48.3 "));
+  Run one = run_kscfg({"--port", "emu:" + state, "-t", "1", "info"});
+  CHECK_THAT(one.out, Catch::Contains("image    alternative: in 0-7 out 0-7\n"));
+  Run dig = run_kscfg({"--port", "emu:" + state, "-t", "5", "info"});
+  CHECK_THAT(dig.out, Catch::Contains("image    in 48.0-48.3\n"));
+  Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
+  Run scan = run_kscfg({"--port", srv.uri, "scan"});
+  REQUIRE(scan.rc == 0);
+  CHECK_THAT(scan.out, Catch::Contains(" in 0-7 out 0-7\n"));
+  CHECK_THAT(scan.out, Catch::Contains(" in 16-39 out 16-39\n"));
+  CHECK(scan.out.find("..") == std::string::npos);
+}
