@@ -177,3 +177,30 @@ TEST_CASE("issue 36 item 8: info, info -t and scan write image ranges in one not
   CHECK_THAT(scan.out, Catch::Contains(" in 16-39 out 16-39\n"));
   CHECK(scan.out.find("..") == std::string::npos);
 }
+
+TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (README and man page)", "[issue36][docs]") {
+  Emu emu;
+  // The refusals the documentation did not name, each exit 5.
+  Run force = emu({"-t", "6", "data", "force", "1=on"});
+  CHECK(force.rc == 5);
+  Run raw = emu({"-t", "1", "write", "R32", "0x0099"});
+  CHECK(raw.rc == 5);
+  TempDir d;
+  write_text(d.file("other.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL5101\"\n");
+  Run mismatch = emu({"apply", d.file("other.toml")});
+  CHECK(mismatch.rc == 5);
+  std::string readme = read_text(std::string(KSCFG_SOURCE_DIR) + "/README.md");
+  auto row = readme.substr(readme.find("\n| 5 | "), 600);
+  row = row.substr(0, row.find('\n', 1));
+  Run man = run_kscfg({"manpage"});
+  auto sec = man.out.substr(man.out.find(".SH EXIT STATUS"));
+  sec = sec.substr(sec.find(".B 5\n"), 900);
+  sec = sec.substr(0, sec.find(".TP", 1));
+  for (const std::string& doc : {row, sec}) {
+    INFO(doc);
+    CHECK_THAT(doc, Catch::Contains("data force"));
+    CHECK_THAT(doc, Catch::Contains("yes"));
+    CHECK_THAT(doc, Catch::Contains("raw value the catalog does not document"));
+    CHECK_THAT(doc, Catch::Contains("does not match"));
+  }
+}
