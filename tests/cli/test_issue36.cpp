@@ -204,3 +204,30 @@ TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (README and man
     CHECK_THAT(doc, Catch::Contains("does not match"));
   }
 }
+
+TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the shape of the path apply writes",
+          "[issue36][docs][ansible]") {
+  Emu emu;
+  TempDir d;
+  write_text(d.file("want.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+                                  "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n"
+                                  "[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n"
+                                  "[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
+  Run a = emu({"--json", "apply", d.file("want.toml")});
+  REQUIRE(a.rc == 10);
+  std::string path = nlohmann::json::parse(a.out)["backup"].get<std::string>();
+  // STATE/kscfg/backups/PORT/apply-YYYYMMDD-HHMMSS.UUUUUUZ-PID.toml
+  const std::regex shape(R"(/kscfg/backups/[A-Za-z0-9._-]+/apply-\d{8}-\d{6}\.\d{6}Z-\d+\.toml)");
+  CHECK(std::regex_search(path, shape));
+  std::string src = std::string(KSCFG_SOURCE_DIR);
+  for (const std::string& f :
+       {src + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py", src + "/README.md"}) {
+    std::string text = read_text(f);
+    auto at = text.find("sample: /root/.local/state/kscfg/backups/");
+    INFO(f);
+    REQUIRE(at != std::string::npos);
+    std::string sample = text.substr(at + 8, text.find('\n', at) - at - 8);
+    CHECK(std::regex_search(sample, shape));
+    CHECK(text.find("$XDG_STATE_HOME/kscfg/backups/PORT/") != std::string::npos);
+  }
+}
