@@ -16,6 +16,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/interrupt.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg {
 
@@ -339,9 +340,10 @@ toml::table parse_toml(std::string_view text, std::string_view origin) {
   try {
     return toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
+    std::string line = line_of(text, e.source().begin.line);
+    if (line.size() > kQuoteMax) line = quote_input(line);  // a crafted line of megabytes: its start and size
     throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
-                                        e.source().begin.column, e.description(),
-                                        line_of(text, e.source().begin.line)));
+                                        e.source().begin.column, e.description(), line));
   }
 }
 

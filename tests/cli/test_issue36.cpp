@@ -231,3 +231,31 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
     CHECK(text.find("$XDG_STATE_HOME/kscfg/backups/PORT/") != std::string::npos);
   }
 }
+
+TEST_CASE("issue 36 item 12: a 3 MB name, key or value in a station file is quoted cut to a readable length",
+          "[issue36][files]") {
+  TempDir d;
+  const std::string big(3000000, 'B');
+  const std::vector<std::pair<std::string, std::string>> files{
+      {"coupler = \"" + big + "\"\n", "unknown coupler 'BBBB"},
+      {"coupler = \"BK9000\"\n" + big + " = 1\n", "unknown key 'BBBB"},
+      {"coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n" + big + " = 1\n", "has no parameter 'BBBB"},
+      {"coupler = \"BK9000\"\n[[terminal]]\ntype = \"" + big + "\"\n", "unknown terminal type 'BBBB"},
+      {"coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = \"" + big + "\"\n", "invalid value 'BBBB"},
+      {"coupler = \"BK9000\" " + big + "\n", "(in: 'coupler = \"BK9000\" BBBB"}};
+  for (const auto& [text, what] : files) {
+    write_text(d.file("big.toml"), text);
+    Run r = run_kscfg({"--port", "emu:mem", "station", "check", d.file("big.toml")}, {}, 30);
+    INFO(r.err.substr(0, 300));
+    CHECK(r.rc != 0);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains(what));
+    CHECK_THAT(r.err, Catch::Contains("...' (3000"));
+    CHECK(r.err.size() < 400);
+  }
+  // The command line too: a register of 100 000 characters.
+  Run reg = run_kscfg({"--port", "emu:mem", "read", std::string(100000, '7')});
+  CHECK(reg.rc == 2);
+  CHECK(reg.err.size() < 300);
+  CHECK_THAT(reg.err, Catch::Contains("...' (100000 bytes)"));
+}
