@@ -90,21 +90,29 @@ static Command* parsed_command(App& a) {
 // With --json, errors are one JSON object on stderr (docs/json.md); otherwise one line.
 static bool g_json_errors = false;
 
-static void print_error(const std::string& msg, const std::string& hint, int code) {
+static void print_error(const std::string& msg, const std::string& hint, int code,
+                        const std::vector<std::string>& details = {}) {
   if (g_json_errors) {
     nlohmann::json j{{"error", msg}, {"exit", code}};
     if (!hint.empty()) j["hint"] = hint;
+    if (!details.empty()) j["details"] = details;
     std::cerr << j.dump() << '\n';
     return;
   }
+  auto flat = [](std::string s) {
+    for (auto& ch : s)
+      if (ch == '\n') ch = ' ';
+    return s;
+  };
   std::string line = msg;
   if (!hint.empty()) line += " (" + hint + ")";
-  for (auto& ch : line)
-    if (ch == '\n') ch = ' ';
-  std::cerr << "kscfg: error: " << line << '\n';
+  std::cerr << "kscfg: error: " << flat(line) << '\n';
+  for (const auto& d : details) std::cerr << "kscfg:   " << flat(d) << '\n';
 }
 
-static void print_error(const Error& e) { print_error(e.what(), e.hint(), static_cast<int>(e.code())); }
+static void print_error(const Error& e) {
+  print_error(e.what(), e.hint(), static_cast<int>(e.code()), e.details());
+}
 
 static int run_command(int argc, char** argv) {
   std::unique_ptr<App> app;

@@ -277,7 +277,12 @@ std::string generate_manpage(const App& a) {
         {Exit::link, "The link failed: the port could not be opened, the connection broke, a Modbus exception."},
         {Exit::timeout, "A terminal did not acknowledge a register request within the timeout."},
         {Exit::refused,
-         "The terminal refuses: read-only (ROM) or unimplemented register, control/status byte not mapped."},
+         "Refused; nothing was written: a read-only (ROM) or unimplemented register, a terminal without a "
+         "register window (control/status byte not mapped); a raw value the catalog does not document "
+         "(\\fBwrite\\fR, \\fBapply\\fR; \\fB\\-\\-force\\fR writes it), a change that would lock kscfg "
+         "out or leave settings that go together apart; a station or station file that does not match the one "
+         "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
+         "\\fB\\-\\-yes\\fR."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
         {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
@@ -288,7 +293,9 @@ std::string generate_manpage(const App& a) {
         {Exit::changed, "apply: the station was changed (success)."},
         {Exit::busy,
          "Gave up waiting for the coupler (port and unit) or the emulator state file that another kscfg on this "
-         "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process."},
+         "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process. An emulator state "
+         "file that a running \\fBkscfg serve\\fR holds is refused at once, naming the serve's PID and the "
+         "\\fB\\-p\\fR URI that reaches the same station through it."},
         {Exit::other_master,
          "Another master is using the terminal: its control byte is in register mode and changes (a kscfg on "
          "another computer, KS2000); nothing was written."},

@@ -25,7 +25,11 @@ class Backup : public Command {
            "\\fBkscfg diff\\fR take. The hardware version (R16) is identity, not configuration, and is not "
            "saved. With \\fIFILE\\fR the file is written atomically; without it the file goes to stdout. "
            "An existing \\fIFILE\\fR is never replaced without \\fB\\-\\-force\\fR (exit status 7 before anything "
-           "is read). On a terminal a progress line with an estimate of the time left is shown on stderr.";
+           "is read). On a terminal a progress line with an estimate of the time left is shown on stderr. "
+           "A backup is always of the whole station (a station file describes every terminal): \\fB\\-t\\fR is "
+           "refused with exit status 2 (\\fBkscfg \\-t\\fR \\fIPOS\\fR \\fBdump\\fR shows one terminal's "
+           "registers). With \\fB\\-\\-json\\fR and no \\fIFILE\\fR, stdout is one JSON object whose "
+           "\\fBstation\\fR is the station file's text.";
   }
   std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
   void add_cli(CLI::App& sub) override {
@@ -33,6 +37,13 @@ class Backup : public Command {
     sub.add_flag("--force", force_, "Replace an existing FILE");
   }
   int run(Context& ctx) override {
+    // A station file holds every terminal: a backup of "terminal 1" would restore as a whole station.
+    const TerminalSelection& sel = ctx.options().selection;
+    if (ctx.terminal_given() && !(sel.all && sel.ranges.empty() && sel.types.empty()))
+      throw Error(Exit::usage,
+                  fmt::format("'kscfg backup' saves the whole station; -t {} selects terminals",
+                              ctx.options().selection.text),
+                  "drop -t; 'kscfg -t " + ctx.options().selection.text + " dump' shows a terminal's registers");
     refuse_to_replace(file_, force_);  // before the station is read: nothing is lost, no time wasted
     StationSpec spec;
     {
@@ -40,7 +51,9 @@ class Backup : public Command {
       spec = backup_station(ctx.engine(), ctx.layout(), ctx.session_options(), bar.callback());
     }
     std::string text = toml_comment("kscfg backup of " + ctx.link().describe()) + station_to_toml(spec);
-    if (file_.empty() || file_ == "-") write_output("-", text);
+    if ((file_.empty() || file_ == "-") && ctx.json())
+      print_json({{"file", nullptr}, {"terminal_count", spec.terminals.size()}, {"station", text}});
+    else if (file_.empty() || file_ == "-") write_output("-", text);
     else {
       write_file_atomic(file_, text);
       if (!ctx.json()) std::cout << fmt::format("backup of {} terminals written to {}\n", spec.terminals.size(), file_);

@@ -14,6 +14,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/station_work.hpp"
+#include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
 
@@ -33,16 +34,10 @@ nlohmann::json image_json(const TerminalImage& t) {
 
 namespace {
 
+// "alternative: in 0-7 out 0-7", "in 48.0-48.3 (4 bits)": the map's notation (image_ranges).
 std::string image_text(const TerminalImage& t) {
-  if (t.complex)
-    return fmt::format("{}: in {}..{} out {}..{}", t.format, t.in_offset, t.in_offset + t.in_size - 1, t.out_offset,
-                       t.out_offset + t.out_size - 1);
-  if (t.bits_in || t.bits_out) {
-    std::string s;
-    if (t.bits_in) s += fmt::format("{} bit(s) in at {}.{}", t.bits_in, t.in_bit / 8, t.in_bit % 8);
-    if (t.bits_out) s += fmt::format("{}{} bit(s) out at {}.{}", s.empty() ? "" : ", ", t.bits_out, t.out_bit / 8, t.out_bit % 8);
-    return s;
-  }
+  if (t.complex) return fmt::format("{}: {}", t.format, image_ranges(t));
+  if (t.bits_in || t.bits_out) return image_ranges(t);
   return "no process image";
 }
 
@@ -114,7 +109,7 @@ class Info : public Command {
                                    t.position, v8, t.type->type);
       }
       arr.push_back(j);
-      rows.push_back({fmt::format("{}", t.position), t.type->type, r8, ver, image_columns(t), t.type->title});
+      rows.push_back({fmt::format("{}", t.position), t.type->type, r8, ver, image_ranges(t), t.type->title});
     }
     if (ctx.json()) {
       nlohmann::json j{{"coupler", L.coupler}};
@@ -165,25 +160,6 @@ class Info : public Command {
       return s.find("UTF-8") != std::string::npos || s.find("utf8") != std::string::npos ? "\u2026" : "...";
     }
     return "...";
-  }
-
-  // "in 0-7 out 0-7", "in 48.0-48.3": where the bytes (or bits) are, compact.
-  static std::string image_columns(const TerminalImage& t) {
-    auto range = [](std::size_t a, std::size_t n) { return n == 1 ? fmt::format("{}", a) : fmt::format("{}-{}", a, a + n - 1); };
-    auto bits = [](std::size_t first, unsigned n) {
-      std::size_t last = first + n - 1;
-      return n == 1 ? fmt::format("{}.{}", first / 8, first % 8)
-                    : fmt::format("{}.{}-{}.{}", first / 8, first % 8, last / 8, last % 8);
-    };
-    std::string s;
-    if (t.complex) {
-      if (t.in_size) s += "in " + range(t.in_offset, t.in_size);
-      if (t.out_size) s += (s.empty() ? "" : " ") + std::string("out ") + range(t.out_offset, t.out_size);
-    } else {
-      if (t.bits_in) s += "in " + bits(t.in_bit, t.bits_in);
-      if (t.bits_out) s += (s.empty() ? "" : " ") + std::string("out ") + bits(t.out_bit, t.bits_out);
-    }
-    return s.empty() ? "-" : s;
   }
 
   // "type     KL5101  Incremental encoder ...", the title wrapped under itself to the output width.

@@ -11,6 +11,7 @@
 #include "kscfg/base/error.hpp"
 #include "../output.hpp"
 #include "kscfg/base/files.hpp"
+#include "kscfg/station/map.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "../progress.hpp"
 #include "kscfg/discovery/ads_station.hpp"
@@ -201,17 +202,14 @@ class Scan : public Command {
       std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", "POS", "TYPE", "R8", "FORMAT", "IMAGE");
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
-        if (!t.complex) {  // over ADS, table 9 lists digital terminals too: their bits
-          std::string bits;
-          if (t.bits_out) bits += fmt::format("out bit {}..{}", t.out_bit, t.out_bit + t.bits_out - 1);
-          if (t.bits_in)
-            bits += fmt::format("{}in bit {}..{}", bits.empty() ? "" : " ", t.in_bit, t.in_bit + t.bits_in - 1);
-          std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type, "-", t.format, bits);
+        // The notation of info and map: "in 0-7 out 0-7", digital bits (over ADS) "in 48.0-48.3".
+        if (!t.complex) {
+          std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type, "-", t.format,
+                                   image_ranges(t));
           continue;
         }
-        std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} out {}..{} in {}..{}\n", t.position, t.type->type,
-                                 i < r.r8.size() ? r.r8[i] : 0, t.format, t.out_offset, t.out_offset + t.out_size - 1,
-                                 t.in_offset, t.in_offset + t.in_size - 1);
+        std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type,
+                                 i < r.r8.size() ? r.r8[i] : 0, t.format, image_ranges(t));
       }
     }
     if (!write_.empty()) std::cout << fmt::format("station written to {}\n", write_);

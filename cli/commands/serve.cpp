@@ -59,10 +59,10 @@ class Serve : public Command {
            "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0. "
            "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
            "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
-           "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs: another kscfg on the "
-           "same file (\\fBkscfg \\-\\-port emu:\\fR\\fIPATH\\fR ...) waits for it, says after a moment "
-           "which process holds it (the serve, with its PID and command line), and gives up after "
-           "\\fB\\-\\-lock\\-wait\\fR seconds with status 11; use the server's port instead.\n"
+           "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs, and records beside it (\\fIPATH\\fB.serve\\fR) "
+           "where it serves it: another kscfg on the same file (\\fBkscfg \\-\\-port emu:\\fR\\fIPATH\\fR "
+           "...) is refused at once with status 11, naming the serve's PID and the \\fB\\-p\\fR URI that "
+           "reaches the same station through it (e.g. \\fB\\-p tcp://127.0.0.1:5020\\fR).\n"
            ".IP\n"
            "\\fB\\-\\-ads\\fR \\fIADDR\\fR:\\fIPORT\\fR serves the station as a BK9000's ADS (AMS/TCP) server instead, "
            "printing its URI (e.g. \\fBads://127.0.0.1:48898\\fR). Port 100 answers register reads and writes "
@@ -213,6 +213,7 @@ class Serve : public Command {
     decltype(std::declval<Server&>().stats()) st;
     {
       Server server(store.station(), o);
+      store.announce(server.endpoint());  // another kscfg on the file is told where to go
       if (ctx.json())
         std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
       else

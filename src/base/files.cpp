@@ -16,6 +16,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg {
 
@@ -121,48 +122,105 @@ std::string read_input_fd(int fd, std::string_view what, std::string_view name, 
   return text;
 }
 
-std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, path, std::strerror(errno)));
-  try {
-    std::string text = read_input_fd(fd, what, path, max_bytes);
+namespace {
+
+// What is at a path that is not a regular file, in words that follow its name.
+const char* not_regular(mode_t m) {
+  return S_ISLNK(m)    ? "is a symbolic link"
+         : S_ISFIFO(m) ? "is a FIFO"
+         : S_ISDIR(m)  ? "is a directory"
+         : S_ISCHR(m)  ? "is a character device"
+         : S_ISBLK(m)  ? "is a block device"
+         : S_ISSOCK(m) ? "is a socket"
+                       : "is not a regular file";
+}
+
+// The one way kscfg opens a file it reads: looked at first (lstat, or stat when it `follow`s links),
+// opened only when it is a regular file, O_NONBLOCK (a FIFO swapped in between cannot block the
+// open), and checked again once open (the same regular file). A FIFO, a device, a socket or a
+// directory is never opened or read.
+struct OpenedFile {
+  int fd = -1;
+  int err = 0;          // when the path could not be looked at or opened (errno)
+  mode_t mode = 0;      // what is there (when it is not a regular file, fd < 0)
+  bool changed = false; // replaced between the look and the open
+  off_t size = 0;
+};
+
+OpenedFile open_regular(const std::string& path, bool follow) {
+  OpenedFile f;
+  struct stat st {};
+  if ((follow ? ::stat(path.c_str(), &st) : ::lstat(path.c_str(), &st)) != 0) {
+    f.err = errno;
+    return f;
+  }
+  f.mode = st.st_mode;
+  f.size = st.st_size;
+  if (!S_ISREG(st.st_mode)) return f;
+  int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | (follow ? 0 : O_NOFOLLOW));
+  if (fd < 0) {
+    f.err = errno;
+    return f;
+  }
+  struct stat now {};
+  if (::fstat(fd, &now) != 0 || !S_ISREG(now.st_mode) || now.st_ino != st.st_ino || now.st_dev != st.st_dev) {
     ::close(fd);
+    f.changed = true;
+    return f;
+  }
+  f.fd = fd;
+  return f;
+}
+
+}  // namespace
+
+std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
+  auto fail = [&](const std::string& why) {
+    return Error(Exit::file, fmt::format("cannot read {} '{}': {}", what, path, why));
+  };
+  OpenedFile f = open_regular(path, true);
+  if (f.err != 0) throw fail(std::strerror(f.err));
+  if (f.changed) throw fail("it changed while it was opened");
+  if (S_ISDIR(f.mode)) throw fail(std::strerror(EISDIR));
+  if (f.fd < 0) throw fail(fmt::format("it {}, not a regular file", not_regular(f.mode)));
+  try {
+    std::string text = read_input_fd(f.fd, what, path, max_bytes);
+    ::close(f.fd);
     return text;
   } catch (...) {
-    ::close(fd);
+    ::close(f.fd);
     throw;
   }
 }
 
 RegularFile read_regular_file(const std::string& path, std::string_view what, std::size_t max_bytes) {
   RegularFile r;
-  struct stat st {};
-  if (::lstat(path.c_str(), &st) != 0) return r;  // none
+  OpenedFile f = open_regular(path, false);
+  if (f.err != 0 && f.mode == 0) return r;  // none
   r.exists = true;
-  if (!S_ISREG(st.st_mode)) {
-    r.refused = S_ISLNK(st.st_mode)    ? "is a symbolic link"
-                : S_ISFIFO(st.st_mode) ? "is a FIFO"
-                : S_ISDIR(st.st_mode)  ? "is a directory"
-                                       : "is not a regular file";
+  if (f.changed) {
+    r.refused = "changed while it was opened";
     return r;
   }
-  if (static_cast<std::uintmax_t>(st.st_size) > max_bytes) {
-    r.refused = fmt::format("has {} bytes, more than a {} has ({} KiB at most)", st.st_size, what, max_bytes / 1024);
+  if (f.mode != 0 && !S_ISREG(f.mode)) {
+    r.refused = not_regular(f.mode);
     return r;
   }
-  int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
-  if (fd < 0) {
-    r.refused = fmt::format("cannot be read ({})", std::strerror(errno));
+  if (static_cast<std::uintmax_t>(f.size) > max_bytes) {
+    if (f.fd >= 0) ::close(f.fd);
+    r.refused = fmt::format("has {} bytes, more than a {} has ({} KiB at most)", f.size, what, max_bytes / 1024);
+    return r;
+  }
+  if (f.fd < 0) {
+    r.refused = fmt::format("cannot be read ({})", std::strerror(f.err));
     return r;
   }
   try {
-    struct stat now {};
-    if (::fstat(fd, &now) != 0 || !S_ISREG(now.st_mode) || now.st_ino != st.st_ino) r.refused = "changed while it was opened";
-    else r.text = read_input_fd(fd, what, path, max_bytes);
+    r.text = read_input_fd(f.fd, what, path, max_bytes);
   } catch (const Error& e) {
     r.refused = fmt::format("cannot be read ({})", e.what());
   }
-  ::close(fd);
+  ::close(f.fd);
   return r;
 }
 
@@ -282,9 +340,10 @@ toml::table parse_toml(std::string_view text, std::string_view origin) {
   try {
     return toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
+    std::string line = line_of(text, e.source().begin.line);
+    if (line.size() > kQuoteMax) line = quote_input(line);  // a crafted line of megabytes: its start and size
     throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
-                                        e.source().begin.column, e.description(),
-                                        line_of(text, e.source().begin.line)));
+                                        e.source().begin.column, e.description(), line));
   }
 }
 

@@ -31,9 +31,16 @@ const char* exit_name(Exit e) {
   return "?";
 }
 
+std::string quote_input(std::string_view text, std::size_t max) {
+  if (text.size() <= max) return fmt::format("'{}'", text);
+  std::size_t cut = max;
+  while (cut > 0 && (static_cast<unsigned char>(text[cut]) & 0xC0) == 0x80) --cut;  // a UTF-8 continuation
+  return fmt::format("'{}...' ({} bytes)", text.substr(0, cut), text.size());
+}
+
 std::uint64_t parse_uint(std::string_view text, std::uint64_t max, std::string_view what) {
   auto fail = [&](std::string_view why) -> std::uint64_t {
-    throw Error(Exit::usage, fmt::format("invalid {} '{}': {}", what, text, why));
+    throw Error(Exit::usage, fmt::format("invalid {} {}: {}", what, quote_input(text), why));
   };
   if (text.empty()) return fail("empty");
   unsigned base = 10;
@@ -65,22 +72,22 @@ double parse_real(std::string_view text, std::string_view what) {
   double v = 0;
   auto [p, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
   if (text.empty() || ec != std::errc() || p != text.data() + text.size() || !std::isfinite(v))
-    throw Error(Exit::usage, fmt::format("invalid {} '{}': expected a number", what, text));
+    throw Error(Exit::usage, fmt::format("invalid {} {}: expected a number", what, quote_input(text)));
   return v;
 }
 
 unsigned parse_register(std::string_view text) {
   std::string_view t = text;
   if (!t.empty() && (t[0] == 'R' || t[0] == 'r')) t.remove_prefix(1);
-  if (t.empty()) throw Error(Exit::usage, fmt::format("invalid register '{}'", text));
+  if (t.empty()) throw Error(Exit::usage, fmt::format("invalid register {}", quote_input(text)));
   std::uint64_t v = 0;
   try {
     v = parse_uint(t, UINT64_MAX, "register");
   } catch (const Error&) {
-    throw Error(Exit::usage, fmt::format("invalid register '{}': use R0..R63, 0..63 or 0x00..0x3F", text));
+    throw Error(Exit::usage, fmt::format("invalid register {}: use R0..R63, 0..63 or 0x00..0x3F", quote_input(text)));
   }
   if (v > 63)
-    throw Error(Exit::usage, fmt::format("invalid register '{}': registers are R0..R63", text));
+    throw Error(Exit::usage, fmt::format("invalid register {}: registers are R0..R63", quote_input(text)));
   return static_cast<unsigned>(v);
 }
 
@@ -89,7 +96,7 @@ std::vector<unsigned> parse_register_list(std::string_view text) {
   if (dash == std::string_view::npos) return {parse_register(text)};
   unsigned a = parse_register(text.substr(0, dash));
   unsigned b = parse_register(text.substr(dash + 1));
-  if (b < a) throw Error(Exit::usage, fmt::format("invalid register range '{}': end before start", text));
+  if (b < a) throw Error(Exit::usage, fmt::format("invalid register range {}: end before start", quote_input(text)));
   std::vector<unsigned> out;
   for (unsigned r = a; r <= b; ++r) out.push_back(r);
   return out;
@@ -120,6 +127,7 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
 std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates,
                                  std::size_t n) {
   std::vector<std::pair<std::size_t, std::string>> scored;
+  if (name.size() > 4 * kQuoteMax) return {};  // no name is near a crafted megabyte (nor worth its time)
   for (const auto& c : candidates) {
     auto d = edit_distance(name, c);
     // Prefix matches count as close ("KL60" -> KL6001).

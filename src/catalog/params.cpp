@@ -72,12 +72,12 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
       auto t = lower(text);
       if (t == "on" || t == "true" || t == "1" || t == "yes") return p.with_field(current, 1);
       if (t == "off" || t == "false" || t == "0" || t == "no") return p.with_field(current, 0);
-      throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use on or off", text, p.name));
+      throw Error(Exit::usage, fmt::format("invalid value {} for {}: use on or off", quote_input(text), p.name));
     }
     case ParamDef::Kind::integer: {
       auto v = parse_uint(text, UINT64_MAX, p.name);
       if (static_cast<std::int64_t>(v) < p.min || static_cast<std::int64_t>(v) > p.max)
-        throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: allowed {}..{}{}", text, p.name, p.min,
+        throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name, p.min,
                                              p.max, p.unit.empty() ? "" : " " + p.unit));
       return p.with_field(current, static_cast<std::uint16_t>(v));
     }
@@ -94,7 +94,7 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
           rate = parse_uint(text, 10'000'000, p.name);
         } catch (const Error&) {
           auto dym = did_you_mean(text, param_choices(p));
-          throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use one of {}{}", text, p.name,
+          throw Error(Exit::usage, fmt::format("invalid value {} for {}: use one of {}{}", quote_input(text), p.name,
                                                join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
         }
         std::string upto = d.max ? fmt::format(" up to {}", d.max) : std::string();
@@ -142,7 +142,7 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
                                 near.empty() ? "none" : join(near, ", "), join(param_choices(p), ", ")));
       }
       auto dym = did_you_mean(text, param_choices(p));
-      throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: use one of {}{}", text, p.name,
+      throw Error(Exit::usage, fmt::format("invalid value {} for {}: use one of {}{}", quote_input(text), p.name,
                                            join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
     }
   }

@@ -6,6 +6,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <chrono>
 #include <cstdlib>
@@ -264,6 +265,48 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
 
 std::string EmulatorStore::default_path() { return (std::filesystem::path(state_dir()) / "emulator.json").string(); }
 
+namespace {
+
+// Where a `kscfg serve` of a state file says where it serves it: "PID\nURI\n", beside the file
+// (the end of its links, as the lock), written after the lock is taken and removed before it goes.
+std::string serve_record_path(const std::string& state) { return resolve_link(state) + ".serve"; }
+
+// The state file's lock, taken as the store and `emu reset` take it. A file held by a running serve
+// is refused at once, naming the serve and the URI that reaches the same station through it: the
+// serve holds the file as long as it runs, so waiting for it is waiting for an operator.
+OwnerLock lock_state_file(const std::string& path, const LockWait& wait) {
+  std::string lock_path = resolve_link(path) + ".lock";
+  std::string record = serve_record_path(path);
+  RegularFile r = read_regular_file(record, "serve record", 1024);
+  if (r.exists && r.refused.empty()) {
+    auto nl = r.text.find('\n');
+    std::string pid = r.text.substr(0, nl);
+    std::string uri = nl == std::string::npos ? "" : r.text.substr(nl + 1, r.text.find('\n', nl + 1) - nl - 1);
+    bool sane = !pid.empty() && pid.size() < 12 && !uri.empty() && uri.size() < 300 &&
+                std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; }) &&
+                std::all_of(uri.begin(), uri.end(), [](char c) { return c > ' ' && c < 0x7F; });
+    auto holder = sane ? OwnerLock::holder(lock_path) : std::nullopt;
+    if (holder && std::to_string(holder->pid) == pid)
+      throw Error(Exit::busy,
+                  fmt::format("the emulator state file {} is held by kscfg serve (process {}), which serves it at {}",
+                              path, pid, uri),
+                  fmt::format("reach the same station through it with -p {}, or stop the serve", uri));
+  }
+  OwnerLock lock = OwnerLock::acquire(lock_path, fmt::format("the emulator state file {}", path), wait);
+  // A record left by a serve that was killed (-9): nobody serves the file now.
+  if (r.exists) ::unlink(record.c_str());
+  return lock;
+}
+
+}  // namespace
+
+void EmulatorStore::announce(const std::string& uri) {
+  if (path_.empty() || !lock_.held()) return;
+  std::string record = serve_record_path(path_);
+  write_file_atomic(record, fmt::format("{}\n{}\n", ::getpid(), uri), true);
+  announced_ = record;
+}
+
 EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, const LockWait& wait) : path_(std::move(path)) {
   if (path_.empty() || path_ == "mem") {
     path_.clear();
@@ -276,7 +319,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, const Loc
   if (ec)
     throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
   // Beside the file a symbolic link points to, so that every name of it takes the same lock.
-  lock_ = OwnerLock::acquire(resolve_link(path_) + ".lock", fmt::format("the emulator state file {}", path_), wait);
+  lock_ = lock_state_file(path_, wait);
   remove_stale_temporaries(path_);  // what a killed kscfg left, also when this run only reads
   struct stat st {};
   if (::stat(path_.c_str(), &st) != 0 && errno == ENOENT) {
@@ -303,7 +346,9 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, const Loc
   }
 }
 
-EmulatorStore::~EmulatorStore() = default;
+EmulatorStore::~EmulatorStore() {
+  if (!announced_.empty()) ::unlink(announced_.c_str());  // before the lock goes
+}
 
 std::string EmulatorStore::snapshot() const { return station_->to_json().dump(1) + "\n"; }
 
@@ -380,8 +425,7 @@ void reset_emulator_state(const std::string& path, const StationSpec& spec, cons
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
   if (ec) throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
-  OwnerLock lock =
-      OwnerLock::acquire(resolve_link(path) + ".lock", fmt::format("the emulator state file {}", path), wait);
+  OwnerLock lock = lock_state_file(path, wait);
   write_file_atomic(path, fresh.to_json().dump(1) + "\n");
 }
 

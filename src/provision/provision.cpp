@@ -384,18 +384,31 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   Exit code = Exit::internal;
   std::size_t verified = 0;
   std::vector<unsigned> rolled;
-  std::vector<std::string> unverified;
   auto who = [](const ChannelPlan& cp) {
     return fmt::format("terminal {} ({}){}", cp.position, cp.type,
                        cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
   };
+  // Per channel whose rollback failed: its registers, each with why ("could not be read: WHY").
+  std::vector<std::pair<std::string, std::vector<std::pair<std::string, std::string>>>> unverified;
   auto account = [&](const ChannelPlan& cp, const RollbackResult& rb) {
     verified += rb.verified.size();
     if (std::find(rolled.begin(), rolled.end(), cp.position) == rolled.end()) rolled.push_back(cp.position);
     if (rb.ok()) return;
-    std::string list;
-    for (const auto& u : rb.unverified) list += (list.empty() ? "" : ", ") + u;
-    unverified.push_back(fmt::format("{}: {}", who(cp), list));
+    std::vector<std::pair<std::string, std::string>> regs;
+    for (const auto& u : rb.unverified) {
+      // "R32 (could not be read: WHY)", "R31 (could not be read: WHY; it may be unlocked)",
+      // "R33 (reads 0x0002, was 0x0001)"
+      auto sp = u.find(" (");
+      std::string reg = u.substr(0, sp), why;
+      if (sp != std::string::npos && u.back() == ')') why = u.substr(sp + 2, u.size() - sp - 3);
+      constexpr std::string_view unlocked = "; it may be unlocked";
+      if (why.starts_with("could not be read: ") && why.ends_with(unlocked)) {
+        why.resize(why.size() - unlocked.size());
+        reg += " (the code word: it may be unlocked)";
+      }
+      regs.emplace_back(reg, why);
+    }
+    unverified.emplace_back(who(cp), std::move(regs));
   };
   std::vector<ChannelRollback> back;
   std::vector<const ChannelPlan*> back_of;
@@ -436,11 +449,39 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
   std::string msg = fmt::format("apply failed: {}", cause);
   if (!unverified.empty()) {
-    std::string list;
-    for (const auto& u : unverified) list += (list.empty() ? "" : "; ") + u;
-    throw Error(Exit::unverified, fmt::format("{}; rollback failed: could not verify {}", msg, list),
-                "those registers may hold the new values: read them with 'kscfg dump' when the terminal answers "
-                "again; '" + res.undo + "' puts every touched register back");
+    // The undo command first, then one line per terminal; a reason that all share (a dead link) is
+    // said once, in the first line (issue 36 item 3: 26 registers made one line of 3,400 characters).
+    std::set<std::string> whys;
+    std::size_t count = 0;
+    for (const auto& [w, regs] : unverified)
+      for (const auto& [r, why] : regs) whys.insert(why), ++count;
+    std::string common = whys.size() == 1 ? *whys.begin() : "";
+    // The link that failed the apply failed the rollback's reads too: said once.
+    std::string common_text = common == "could not be read: " + cause ? "nothing could be read back"
+                              : common.empty()                        ? ""
+                                                                      : common;
+    std::vector<std::string> lines;
+    for (const auto& [w, regs] : unverified) {
+      std::string line;
+      for (std::size_t i = 0; i < regs.size(); ++i) {
+        const auto& [reg, why] = regs[i];
+        line += (i ? ", " : "") + reg;
+        bool last_of_why = i + 1 == regs.size() || regs[i + 1].second != why;
+        if (common.empty() && !why.empty() && last_of_why) line += " (" + why + ")";
+      }
+      lines.push_back(fmt::format("{}: {}", w, line));
+    }
+    throw Error(Exit::unverified,
+                fmt::format("{}; rollback failed{}: undo with '{}' when the terminal{} answer{} again; {} register{} "
+                            "may hold the new value{} (read them with 'kscfg dump'){}:",
+                            msg, common_text.empty() ? "" : " (" + common_text + ")", res.undo,
+                            unverified.size() == 1 ? "" : "s", unverified.size() == 1 ? "s" : "", count,
+                            count == 1 ? "" : "s", count == 1 ? "" : "s",
+                            // Channels left unlocked or in register mode stay in the journal (6.2).
+                            so.journal && so.journal->enabled()
+                                ? "; the next kscfg on this port relocks them and ends register mode (session journal)"
+                                : ""))
+        .with_details(std::move(lines));
   }
   if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
   throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),

@@ -122,7 +122,7 @@ std::vector<Program*> AdsAccess::advance() {
       if (op.write) break;
     }
   }
-  for (const auto& key : closing) close_now(key);
+  for (const auto& key : closing) close_now(key, false);
   if (calls.empty()) return done;
   std::vector<AdsClient::Reply> replies;
   try {
@@ -180,7 +180,7 @@ std::vector<Program*> AdsAccess::advance() {
   return done;
 }
 
-void AdsAccess::close_now(ChannelKey key) noexcept {
+void AdsAccess::close_now(ChannelKey key, bool) noexcept {
   auto it = chans_.find(key);
   if (it == chans_.end()) return;
   if (--it->second.users == 0) {

@@ -49,10 +49,11 @@ Channel::Channel(Engine& engine, const TerminalImage& terminal, unsigned channel
 Channel::~Channel() {
   if (closed_) return;
   if (maybe_unlocked_ || unlocked_) {
-    note(fmt::format("warning: {} may still be unlocked: its work ended without relocking it", who()));
+    if (!unlock_reported_)
+      note(fmt::format("warning: {} may still be unlocked: its work ended without relocking it", who()));
     engine_.access().lock_unverified(key_);  // the journal entry stays: the next kscfg reads R31
   }
-  engine_.access().close_now(key_);
+  engine_.access().close_now(key_, unlock_reported_);
 }
 
 std::string Channel::who() const {
@@ -495,6 +496,7 @@ Task<RollbackResult> Channel::roll_back(std::vector<WriteResult> changes) {
     why = e.what();
   }
   if (why) rb.unverified.push_back(fmt::format("R31 (could not be read: {}; it may be unlocked)", *why));
+  unlock_reported_ = !rb.locked;
   --shield_;
   co_return rb;
 }
@@ -544,7 +546,7 @@ Task<void> Channel::close() {
   if (closed_) co_return;
   if (!opened_) {
     // Nothing was exchanged: nothing to put back.
-    engine_.access().close_now(key_);
+    engine_.access().close_now(key_, unlock_reported_);
     closed_ = true;
     co_return;
   }
@@ -571,7 +573,8 @@ Task<void> Channel::close() {
       }
     }
     if (!failed.empty()) {
-      note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
+      if (!unlock_reported_)
+        note(fmt::format("warning: {} may still be unlocked: relocking it failed ({})", who(), failed));
       engine_.access().lock_unverified(key_);  // the journal entry stays: the next kscfg reads R31
     }
   }
@@ -585,7 +588,7 @@ Task<void> Channel::close() {
     } catch (...) {
       ok = false;
     }
-    if (!ok) engine_.access().close_now(key_);
+    if (!ok) engine_.access().close_now(key_, unlock_reported_);
   }
   closed_ = true;
   --shield_;

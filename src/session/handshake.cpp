@@ -416,7 +416,7 @@ std::vector<Program*> HandshakeAccess::advance() {
 }
 
 
-void HandshakeAccess::close_now(ChannelKey key) noexcept {
+void HandshakeAccess::close_now(ChannelKey key, bool quiet) noexcept {
   auto it = chans_.find(key);
   if (it == chans_.end()) return;
   Chan& c = it->second;
@@ -447,7 +447,7 @@ void HandshakeAccess::close_now(ChannelKey key) noexcept {
   } else {
     c.out_unsure = true;
     // The journal entry stays: the next kscfg on this port finishes the terminal.
-    if (opt_.notice) {
+    if (opt_.notice && !quiet) {
       try {
         opt_.notice(fmt::format("warning: {} is left in register mode: putting its process-data bytes back failed{}",
                                 who(c),
@@ -474,7 +474,7 @@ void HandshakeAccess::lock_unverified(ChannelKey key) noexcept {
 void HandshakeAccess::close_all() noexcept {
   for (auto& [k, c] : chans_) {
     c.users = 1;
-    close_now(k);
+    close_now(k, false);
   }
 }
 

@@ -69,6 +69,24 @@ std::string setting_text(const TerminalType& type, unsigned ch, unsigned reg, st
   return names.empty() ? raw : fmt::format("{} ({})", names, raw);
 }
 
+// Whether a terminal lays its image out alike in two layouts: the format, and each channel's bytes
+// by name in order (where the terminal sits may move with the terminals before it).
+bool same_image(const TerminalImage& a, const TerminalImage& b) {
+  if (a.format != b.format || a.in_size != b.in_size || a.out_size != b.out_size || a.bits_in != b.bits_in ||
+      a.bits_out != b.bits_out || a.channels.size() != b.channels.size())
+    return false;
+  auto names = [](const std::vector<ImageByte>& v) {
+    std::vector<std::string> n;
+    for (const auto& x : v) n.push_back(x.name);
+    return n;
+  };
+  for (std::size_t c = 0; c < a.channels.size(); ++c)
+    if (names(a.channels[c].out) != names(b.channels[c].out) || names(a.channels[c].in) != names(b.channels[c].in) ||
+        a.channels[c].window.has_value() != b.channels[c].window.has_value())
+      return false;
+  return true;
+}
+
 }  // namespace
 
 namespace {
@@ -191,6 +209,7 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
   };
   StationLayout before = compute_layout(spec, catalog, current.settings, source(now));
   StationLayout after = compute_layout(spec, catalog, current.settings, source(next));
+  for (auto& c : rep.causes) c.changes_image = !same_image(before.terminal(c.position), after.terminal(c.position));
 
   // An image the coupler cannot take: the terminals whose bytes lie beyond its limit are lost
   // (the coupler may not start at all).
@@ -221,10 +240,13 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
 }
 
 std::string next_start_note(const LockoutReport& rep) {
-  if (rep.causes.empty()) return {};
+  std::vector<ChangedMapping> relaid;
+  std::copy_if(rep.causes.begin(), rep.causes.end(), std::back_inserter(relaid),
+               [](const ChangedMapping& c) { return c.changes_image; });
+  if (relaid.empty()) return {};
   return fmt::format("takes effect at the coupler's next start (power off and on): {}; until then the coupler keeps "
                      "the process image it has ('kscfg map' shows both)",
-                     by_terminal(rep.causes, [](const ChangedMapping& c) { return c.setting; }));
+                     by_terminal(relaid, [](const ChangedMapping& c) { return c.setting; }));
 }
 
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,

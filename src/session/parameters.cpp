@@ -33,7 +33,7 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
                                          }()));
   }
   auto hint = did_you_mean(name, type.param_names());
-  throw Error(Exit::usage, fmt::format("{} has no parameter '{}'{}", type.type, name, hint.empty() ? "" : "; " + hint),
+  throw Error(Exit::usage, fmt::format("{} has no parameter {}{}", type.type, quote_input(name), hint.empty() ? "" : "; " + hint),
               "kscfg show lists the parameters");
 }
 

@@ -70,7 +70,7 @@ void RegisterSession::close() noexcept {
   try {
     engine_.wait(ch_->close());
   } catch (...) {
-    engine_.access().close_now(ch_->key());
+    engine_.access().close_now(ch_->key(), false);
   }
 }
 

@@ -88,6 +88,24 @@ std::string bit_range(const MapEntry& e) {
   return fmt::format("{}.{}-{}.{}", first / 8, first % 8, last / 8, last % 8);
 }
 
+std::string image_ranges(const TerminalImage& t) {
+  auto range = [](std::size_t a, std::size_t n) { return n == 1 ? fmt::format("{}", a) : fmt::format("{}-{}", a, a + n - 1); };
+  auto bits = [](std::size_t first, unsigned n) {
+    std::size_t last = first + n - 1;
+    return n == 1 ? fmt::format("{}.{}", first / 8, first % 8)
+                  : fmt::format("{}.{}-{}.{}", first / 8, first % 8, last / 8, last % 8);
+  };
+  std::string s;
+  if (t.complex) {
+    if (t.in_size) s += "in " + range(t.in_offset, t.in_size);
+    if (t.out_size) s += (s.empty() ? "" : " ") + std::string("out ") + range(t.out_offset, t.out_size);
+  } else {
+    if (t.bits_in) s += "in " + bits(t.in_bit, t.bits_in);
+    if (t.bits_out) s += (s.empty() ? "" : " ") + std::string("out ") + bits(t.out_bit, t.bits_out);
+  }
+  return s.empty() ? "-" : s;
+}
+
 namespace map_detail {
 
 const char* on_off(bool b) { return b ? "on" : "off"; }

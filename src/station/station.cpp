@@ -84,7 +84,7 @@ const CouplerProfile& coupler_profile(std::string_view name) {
   std::vector<std::string> names;
   for (const auto& p : all) names.push_back(p.name);
   auto hint = did_you_mean(name, names);
-  throw Error(Exit::usage, fmt::format("unknown coupler '{}'{}", name, hint.empty() ? "" : "; " + hint),
+  throw Error(Exit::usage, fmt::format("unknown coupler {}{}", quote_input(name), hint.empty() ? "" : "; " + hint),
               "kscfg map --list-couplers shows the known couplers");
 }
 
@@ -99,11 +99,11 @@ namespace {
 std::string value_text(std::string_view origin, const std::string& key, const toml::node& v) {
   if (auto s = v.value_exact<std::string>()) return *s;
   if (auto i = v.value_exact<std::int64_t>()) {
-    if (*i < 0) fail_at(origin, &v, Exit::usage, fmt::format("'{}': negative values are not allowed", key));
+    if (*i < 0) fail_at(origin, &v, Exit::usage, fmt::format("{}: negative values are not allowed", quote_input(key)));
     return fmt::format("{}", *i);
   }
   if (auto b = v.value_exact<bool>()) return *b ? "on" : "off";
-  fail_at(origin, &v, Exit::file, fmt::format("'{}': expected a string, an integer or true/false", key));
+  fail_at(origin, &v, Exit::file, fmt::format("{}: expected a string, an integer or true/false", quote_input(key)));
 }
 
 void parse_channel(std::string_view origin, const toml::table& t, const TerminalType& type, ChannelSpec& ch,
@@ -132,7 +132,7 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
     if (!p) {
       auto hint = did_you_mean(key, type.param_names());
       fail_at(origin, &v, Exit::usage,
-              fmt::format("{} has no parameter '{}'{}", type.type, key, hint.empty() ? "" : "; " + hint));
+              fmt::format("{} has no parameter {}{}", type.type, quote_input(key), hint.empty() ? "" : "; " + hint));
     }
     Setting s{key, value_text(origin, key, v), line};
     try {
@@ -219,7 +219,7 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
   for (auto&& [k, v] : root) {
     if (k.str() != "coupler" && k.str() != "mapping" && k.str() != "terminal")
       fail_at(origin, &v, Exit::file,
-              fmt::format("unknown key '{}' (expected coupler, [mapping] or [[terminal]])", k.str()));
+              fmt::format("unknown key {} (expected coupler, [mapping] or [[terminal]])", quote_input(k.str())));
   }
   if (const auto* c = root.get("coupler")) {
     auto s = c->value_exact<std::string>();
@@ -235,13 +235,13 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
     if (!t) fail_at(origin, m, Exit::file, "[mapping] must be a table");
     for (auto&& [k, v] : *t) {
       auto b = v.value_exact<bool>();
-      if (!b) fail_at(origin, &v, Exit::file, fmt::format("'{}' must be true or false", k.str()));
+      if (!b) fail_at(origin, &v, Exit::file, fmt::format("{} must be true or false", quote_input(k.str())));
       if (k.str() == "complete-evaluation") spec.complete_evaluation = *b;
       else if (k.str() == "motorola") spec.motorola = *b;
       else if (k.str() == "word-alignment") spec.word_alignment = *b;
       else
         fail_at(origin, &v, Exit::file,
-                fmt::format("unknown mapping setting '{}' (complete-evaluation, motorola, word-alignment)", k.str()));
+                fmt::format("unknown mapping setting {} (complete-evaluation, motorola, word-alignment)", quote_input(k.str())));
       try {
         (void)spec.settings();  // a setting the coupler fixes (BK2000) is an error here, with its line
       } catch (const Error& e) {

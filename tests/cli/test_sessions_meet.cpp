@@ -146,28 +146,41 @@ TEST_CASE("two kscfg on one coupler: the second waits for the first and names it
   CHECK(c({"--lock-wait", "x", "info"}).rc == 2);
 }
 
-TEST_CASE("the emulator state file that kscfg serve holds: a waiter names the serve at once and gives up with "
-          "status 11, serve --help says how to pick the file",
+TEST_CASE("the emulator state file that kscfg serve holds: refused at once with status 11, the serve's PID and "
+          "the -p URI to reach it, serve --help says how to pick the file",
           "[sessions][lock][serve]") {
   TempDir d;
   std::string state = d.file("station.json");
   Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
-  std::string holder = "kscfg process " + std::to_string(srv.pid) + " (kscfg --port emu:" + state +
-                       " serve --tcp 127.0.0.1:0 --watchdog-ms 0)";
-  Run r = run_kscfg({"--port", "emu:" + state, "--lock-wait", "1", "read", "R8"});
+  // Issue 36 item 2: no wait for a server that does not end (the default --lock-wait is 30 s; the run
+  // is killed after 10).
+  std::string refusal = "kscfg: error: the emulator state file " + state + " is held by kscfg serve (process " +
+                        std::to_string(srv.pid) + "), which serves it at " + srv.uri +
+                        " (reach the same station through it with -p " + srv.uri + ", or stop the serve)\n";
+  Run r = run_kscfg({"--port", "emu:" + state, "read", "R8"}, {}, 10);
   CHECK(r.rc == 11);
-  CHECK(r.err == "kscfg: waiting for the emulator state file " + state + ": " + holder +
-                     " is using it (up to 1 s in all, --lock-wait)\n"
-                     "kscfg: error: the emulator state file " + state + " is in use by " + holder +
-                     "; gave up after waiting 1 s (try again when it has finished, or wait longer with --lock-wait "
-                     "SECONDS)\n");
-  // A second server on the same file, of the other kind, waits the same way (it did not, before the
-  // Modbus and ADS servers shared their start).
-  Run ads = run_kscfg({"--port", "emu:" + state, "--lock-wait", "1", "serve", "--ads", "127.0.0.1:0"});
+  CHECK(r.err == refusal);
+  // The URI it names reaches the same station.
+  Run through = run_kscfg({"--port", srv.uri, "-t", "1", "read", "--raw", "R8"}, {}, 30);
+  CHECK(through.rc == 0);
+  CHECK(through.out == "0x1771\n");  // R8: the KL6001 type number
+  // A second server on the same file, of the other kind, is refused the same way, and so is emu reset.
+  Run ads = run_kscfg({"--port", "emu:" + state, "serve", "--ads", "127.0.0.1:0"}, {}, 10);
   CHECK(ads.rc == 11);
   CHECK(ads.out.empty());
-  CHECK_THAT(ads.err, Catch::Contains("kscfg: error: the emulator state file " + state + " is in use by " + holder +
-                                      "; gave up after waiting 1 s"));
+  CHECK(ads.err == refusal);
+  Run reset = run_kscfg({"--port", "emu:" + state, "emu", "reset"}, {}, 10);
+  CHECK(reset.rc == 11);
+  CHECK(reset.err == refusal);
+  // Once the serve has stopped (or was killed), the file is free at once.
+  REQUIRE(srv.stop(SIGTERM) == 0);
+  CHECK(run_kscfg({"--port", "emu:" + state, "-t", "1", "read", "--raw", "R8"}, {}, 30).rc == 0);
+  Server again(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve2.err"));
+  again.kill_now();
+  Run after = run_kscfg({"--port", "emu:" + state, "-t", "1", "read", "--raw", "R8"}, {}, 30);
+  INFO(after.err);
+  CHECK(after.rc == 0);
+  CHECK(after.err.empty());
   Run h = run_kscfg({"serve", "--help"});
   // However the help is wrapped (the brief grew with ADS; the width follows the terminal):
   std::string flat;

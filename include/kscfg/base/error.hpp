@@ -2,6 +2,7 @@
 #pragma once
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace kscfg {
 
@@ -31,10 +32,18 @@ class Error : public std::runtime_error {
       : std::runtime_error(std::move(message)), code_(code), hint_(std::move(hint)) {}
   Exit code() const noexcept { return code_; }
   const std::string& hint() const noexcept { return hint_; }
+  // Lines that follow the message, one thing each (a failed rollback: one per terminal); the CLI
+  // prints each on its own line after the error's, and as "details" with --json.
+  const std::vector<std::string>& details() const noexcept { return details_; }
+  Error& with_details(std::vector<std::string> d) {
+    details_ = std::move(d);
+    return *this;
+  }
 
  private:
   Exit code_;
   std::string hint_;
+  std::vector<std::string> details_;
 };
 
 }  // namespace kscfg

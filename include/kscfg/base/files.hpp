@@ -25,11 +25,15 @@ void remove_stale_temporaries(const std::string& path);
 // absolute relative to each link's directory), or `path` itself.
 std::string resolve_link(const std::string& path);
 
-// Input files (station, catalog, emulator state) are read whole, so their size is bounded first:
-// a pipe or a device is read only up to the limit (`apply /dev/zero` stops there).
+// Input files (station, catalog, emulator state) are read whole, so their size is bounded first
+// (standard input, a pipe, is read only up to the limit).
 constexpr std::size_t kMaxInputFileBytes = 4u << 20;  // 4 MiB: a station file is a few KiB
-// Reads `path` (`what` names it in errors: "station file"). Error(Exit::file) when it cannot be
-// read, is a directory, or holds more than `max_bytes`.
+// Reads `path` (`what` names it in errors: "station file"), following symbolic links, only when it
+// is a regular file: looked at before it is opened and opened without blocking, as
+// read_regular_file does, so that a FIFO, a device (`/dev/zero`), a socket or a directory is
+// refused at once and never waited on. Error(Exit::file) when it cannot be read, is not a regular
+// file ("... 'PATH': it is a FIFO, not a regular file"; "Is a directory"), or holds more than
+// `max_bytes`.
 std::string read_input_file(const std::string& path, std::string_view what,
                             std::size_t max_bytes = kMaxInputFileBytes);
 // The same from an open descriptor (stdin for '-'), left open; `name` is what errors call it.
@@ -38,7 +42,8 @@ std::string read_input_fd(int fd, std::string_view what, std::string_view name,
 
 // A file kscfg keeps for itself (a cache) read only when it is a regular file of at most
 // `max_bytes`: looked at before it is opened (so that a FIFO cannot block the open, and a symbolic
-// link, a device or a directory is never followed or read) and checked again once open.
+// link, a device or a directory is never followed or read) and checked again once open. The same
+// opening as read_input_file's, without following links.
 struct RegularFile {
   bool exists = false;  // something is at the path
   std::string text;     // the file, when `refused` is empty and it exists

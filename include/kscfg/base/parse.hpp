@@ -29,6 +29,13 @@ std::uint16_t parse_value(std::string_view text);
 std::string format_value(std::uint16_t v);
 std::string hex4(std::uint16_t v);
 
+// User input quoted for a message: 'TEXT', or, past `max` bytes, its first `max` bytes (never a
+// UTF-8 character cut in two) and the size: 'BBBB...' (3000000 bytes). Every message that echoes a
+// name, key or value from a file or the command line quotes it with this, so a crafted 3 MB string
+// makes a readable line, not 3 MB on stderr.
+constexpr std::size_t kQuoteMax = 80;
+std::string quote_input(std::string_view text, std::size_t max = kQuoteMax);
+
 // Levenshtein distance, case-insensitive.
 std::size_t edit_distance(std::string_view a, std::string_view b);
 

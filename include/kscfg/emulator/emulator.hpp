@@ -124,9 +124,14 @@ class EmulatorStore {
   std::string snapshot() const;
   // Writes `text` (a snapshot(), taken e.g. under a server's lock) unless the file holds it already.
   bool save_text(const std::string& text);
+  // Records beside the state file that this process (a `kscfg serve`) serves it at `uri`, for as
+  // long as the store lives: another kscfg on the file is then refused at once (Exit::busy) with the
+  // serve's PID and `-p URI`, instead of waiting --lock-wait for a server that does not end.
+  void announce(const std::string& uri);
 
  private:
   std::string path_;
+  std::string announced_;  // the serve record this store wrote (removed when it dies)
   std::string saved_;  // the snapshot the file holds ("" when unknown or missing)
   OwnerLock lock_;
   std::unique_ptr<EmulatedStation> station_;

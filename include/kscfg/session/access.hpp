@@ -109,8 +109,9 @@ class RegisterAccess {
 
   // Ends the work on a channel at once, without a program (destructors, errors): the handshake
   // puts back the process-data bytes it changed and leaves the journal. Never throws. A channel
-  // already closed by a program is left alone.
-  virtual void close_now(ChannelKey key) noexcept = 0;
+  // already closed by a program is left alone. `quiet`: a channel whose bytes cannot be put back is
+  // not warned of here, since the caller reports it (a rollback that failed names every terminal).
+  virtual void close_now(ChannelKey key, bool quiet) noexcept = 0;
   // Every open channel, closed at once as close_now() does (the end of a run). Never throws.
   virtual void close_all() noexcept = 0;
   // Relocking an open channel failed (or its work ended without it): its journal entry stays open

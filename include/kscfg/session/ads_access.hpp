@@ -41,7 +41,7 @@ class AdsAccess final : public RegisterAccess {
   void submit(Program& p) override;
   std::vector<Program*> advance() override;
   bool busy() const override;
-  void close_now(ChannelKey key) noexcept override;
+  void close_now(ChannelKey key, bool quiet) noexcept override;
   void lock_unverified(ChannelKey key) noexcept override;
   void close_all() noexcept override;
   std::size_t exchanges() const override { return client_.exchanges(); }

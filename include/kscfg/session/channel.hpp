@@ -202,6 +202,9 @@ class Channel {
   long dead_pid_ = 0;
   bool dead_unlocked_ = false;  // direct access: a dead process's journal says it unlocked this channel
   bool unlocked_ = false, maybe_unlocked_ = false, unlock_checked_ = false;
+  // A rollback's result said already that R31 may be unlocked (its error names it): closing does
+  // not warn about it once more.
+  bool unlock_reported_ = false;
   unsigned shield_ = 0;  // > 0: clean-up, runs after cancellation too
   std::optional<std::uint16_t> expect_r8_;
   std::map<unsigned, std::uint16_t> rom_;  // ROM registers read: they cannot change

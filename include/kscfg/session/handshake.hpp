@@ -74,7 +74,7 @@ class HandshakeAccess final : public RegisterAccess {
   void submit(Program& p) override;
   std::vector<Program*> advance() override;
   bool busy() const override;
-  void close_now(ChannelKey key) noexcept override;
+  void close_now(ChannelKey key, bool quiet) noexcept override;
   void close_all() noexcept override;
   void lock_unverified(ChannelKey key) noexcept override;
   std::optional<Error> explain_no_ack() override { return link_.explain_no_ack(); }

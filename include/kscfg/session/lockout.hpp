@@ -40,6 +40,10 @@ struct ChangedMapping {  // a planned write to a register that decides an image
   std::string who;
   std::uint16_t before = 0, after = 0;
   std::string setting;  // "data-bytes = 1 (R35 0x0003 -> 0x0001)"
+  // Whether the terminal's image (its format, its bytes) differs at the next start. False for a
+  // setting of such a register that the image does not show (KL6001 xon-xoff-send in the
+  // alternative format): no next-start note for it.
+  bool changes_image = true;
 };
 
 struct LockoutReport {
@@ -71,8 +75,8 @@ struct LockoutReport {
 LockoutReport check_lockout(Engine* engine, const StationLayout& current, const Catalog& catalog,
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes);
 // "takes effect at the coupler's next start: terminal 1 (KL6001) alternative-format = off (R34
-// 0x0003 -> 0x0001); ..." for a report whose writes change a register that decides an image; ""
-// otherwise. The coupler lays its image out at its start: until then it keeps the one it has.
+// 0x0003 -> 0x0001); ..." for a report whose writes change a terminal's image at the next start
+// (the layouts before and after are compared per terminal); "" otherwise. The coupler lays its image out at its start: until then it keeps the one it has.
 std::string next_start_note(const LockoutReport& rep);
 
 // Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).

@@ -47,6 +47,9 @@ std::vector<MapEntry> map_entries(const StationLayout& layout, bool input);
 
 // "4.6-5.1" style bit range of a digital entry.
 std::string bit_range(const MapEntry& e);
+// Where a terminal's bytes (or bits) are, in the one notation every command uses (the map's):
+// "in 0-7 out 0-7", "in 48.0-48.3", "out 48" for one byte; "-" when it has none.
+std::string image_ranges(const TerminalImage& t);
 
 // Station-wide table (inputs, then outputs) with the Modbus register of each word for Modbus couplers.
 std::string render_table(const StationLayout& layout, const CouplerProfile& p);

@@ -83,7 +83,7 @@ options:
   backup_file:
     description:
       - Where kscfg saves the touched registers before the first write (C(kscfg apply --backup)).
-      - Default, a new file under C($XDG_STATE_HOME/kscfg/backups/) on the host the task runs on.
+      - Default, a new file under C($XDG_STATE_HOME/kscfg/backups/PORT/) on the host the task runs on.
     type: path
   kscfg:
     description:
@@ -177,7 +177,7 @@ backup:
       (C(kscfg restore) puts them back). C(null) when nothing was written.
   returned: always
   type: str
-  sample: /root/.local/state/kscfg/backups/apply-20240611-101500-4242.toml
+  sample: /root/.local/state/kscfg/backups/tcp_10.0.3.11_502/apply-20240611-101500.123456Z-4242.toml
 terminals:
   description: Every terminal channel the station file configures, with what differs.
   returned: success
