@@ -17,7 +17,9 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   h.notice = so.notice;
   // A second SIGINT/SIGTERM ends the clean-up too (base/interrupt.hpp).
   if (so.cancel) h.abandon = [] { return g_interrupts.load() >= 2; };
+#ifdef KSCFG_TEST_HOOKS
   h.after_write = so.after_write;
+#endif
   return h;
 }
 
