@@ -310,16 +310,9 @@ std::string generate_manpage(const App& a) {
        "backups (\\fIkscfg/backups/PORT/\\fR) and kscfg its session journals (\\fIkscfg/sessions/\\fR).\n"
        ".TP\n.B KSCFG_BACKUP_KEEP\nHow many automatic backups of a port \\fBapply\\fR and \\fBrestore\\fR keep "
        "(default 20; 0 keeps all), like \\fB\\-\\-keep\\-backups\\fR.\n"
-       ".TP\n.B KSCFG_LOCK_DIR\nWhere the coupler locks are kept (default /run/lock/kscfg).\n"
-       ".TP\n.B KSCFG_TEST_NO_UNLOCK\nTest hook, read only by a kscfg built for tests (CMake option "
-       "\\fBKSCFG_TEST_HOOKS\\fR; never in a package): when 1, writes skip the code word, so the read-back "
-       "must catch the refused write.\n"
-       ".TP\n.B KSCFG_TEST_KILL_AFTER\nTest hook, only in a build for tests as above: a register such as R31; kscfg "
-       "kills itself (SIGKILL) right after the terminal acknowledged a write of it, leaving the terminal as a crashed "
-       "session would.\n"
-       ".TP\n.B KSCFG_TEST_STOP_AFTER\nTest hook, only in a build for tests as above: a register such as R32; kscfg "
-       "stops itself (SIGSTOP) once, right after the first acknowledged write of it, so that a test can stop the "
-       "coupler before it goes on (a link that dies in the middle of a command).\n";
+       ".TP\n.B KSCFG_LOCK_DIR\nWhere the coupler locks are kept (default /run/lock/kscfg).\n";
+  // (The test hooks of a build for tests are documented in tests/README.md, not here: this page is
+  // the release one, and a kscfg built without them has none.)
   m << ".SH FILES\n.TP\n.I ~/.local/state/kscfg/emulator.json\nEmulator state (registers and output image), "
        "written atomically; concurrent invocations are serialised by a lock on \\fIemulator.json.lock\\fR, which names "
        "its holder to a waiter (\\fB\\-\\-lock\\-wait\\fR).\n"

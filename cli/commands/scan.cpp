@@ -54,7 +54,7 @@ class Scan : public Command {
            "port find the terminals the same way, walking only as far as they need (\\fB\\-t 2\\fR: terminals "
            "1 and 2). What a scan found is kept per port and unit in "
            "\\fI$XDG_CACHE_HOME/kscfg/scans/\\fR with the terminals' acknowledge latencies; a later command uses "
-           "it while the coupler reports the same identification and image lengths (two requests), and each "
+           "it while the coupler reports the same image lengths (one request), and each "
            "terminal it talks to first tells its type (R8). When they differ, it scans again; "
            "\\fB\\-\\-rescan\\fR forces that. \\fBscan\\fR itself always scans and replaces what is kept. "
            "Over \\fBads://\\fR (ADS port 100) the identification is the coupler's ReadDeviceInfo (name and "
@@ -118,8 +118,8 @@ class Scan : public Command {
         ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
         r = scan_station(*regs, ctx.engine(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
       }
-      // Later commands on this port use it (the scan cache) while the coupler reports the same
-      // identification and image lengths.
+      // Later commands on this port use it (the scan cache) while the coupler reports the same image
+      // lengths, each terminal's type (R8) checked once a run (docs/design.md 4.6).
       if (auto* d = ctx.discovery()) d->adopt(r);
       // Now that the station is known: what kscfg processes that died on this port left in
       // register mode (their journals) is finished, as by any other command (issue 21 item 2).

@@ -124,7 +124,6 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.response_timeout_ms = std::clamp(opt.timeout_ms / 3, 50u, 5000u);
   mo.timeout_retries = 2;
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
-  mo.ack_timeout_ms = opt.timeout_ms;
   mo.trace = opt.trace;
   mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);

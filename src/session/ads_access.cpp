@@ -15,8 +15,11 @@ AdsAccess::AdsAccess(AdsClient& client, std::function<unsigned(unsigned)> number
       regs_(client, static_cast<unsigned>(so.timeout.count())),
       number_(std::move(number)),
       cancel_(so.cancel),
-      journal_(so.journal),
-      after_write_(so.after_write) {}
+      journal_(so.journal) {
+#ifdef KSCFG_TEST_HOOKS
+  after_write_ = so.after_write;
+#endif
+}
 
 ChannelFound AdsAccess::found(ChannelKey key) const {
   ChannelFound f;
@@ -168,7 +171,9 @@ std::vector<Program*> AdsAccess::advance() {
       continue;
     }
     p.values.push_back(op.write ? op.value : ams::get16(replies[i].data.data()));
+#ifdef KSCFG_TEST_HOOKS
     if (op.write && after_write_) after_write_(op.reg);
+#endif
     // Locked again (the rules above read R31 back): nothing left for a next kscfg to relock.
     if (op.write && op.reg == proto::kCodeWordRegister && op.value != proto::kCodeWord) {
       c.unsure = false;

@@ -274,7 +274,7 @@ void Channel::check_writable(unsigned reg) const {
 }
 
 Task<void> Channel::unlock() {
-  if (opt_.skip_unlock) co_return;
+  if (skips_unlock(opt_)) co_return;
   co_await begin();
   if (!unlock_checked_) {
     // Unlocked before this work touched it: another session's leftover (or 'kscfg unlock').
@@ -319,7 +319,7 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
   // the "read" of read-modify-write. R31 goes first (was it left unlocked?), so that the status
   // never already acknowledges R31 when the code word is written.
   std::vector<unsigned> regs;
-  bool check_r31 = protected_candidate && !unlock_checked_ && !leftover_ && !opt_.skip_unlock;
+  bool check_r31 = protected_candidate && !unlock_checked_ && !leftover_ && !skips_unlock(opt_);
   if (check_r31) regs.push_back(proto::kCodeWordRegister);
   for (const auto& c : changes) regs.push_back(c.reg);
   std::vector<std::uint16_t> now = co_await read_many(regs);
@@ -351,7 +351,7 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
 
   std::optional<Error> failure;
   try {
-    bool r31 = any_protected && !opt_.skip_unlock;
+    bool r31 = any_protected && !skips_unlock(opt_);
     std::vector<std::uint16_t> got = co_await write_change(change, r31, then_close);
     for (std::size_t i = 0; i < change.size(); ++i)
       if (got[i] != change[i].after)

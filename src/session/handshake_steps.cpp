@@ -223,7 +223,9 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
                                c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
                                c.with_restore ? ", control byte restored with the poll" : ""));
       p.values.push_back(value());
+#ifdef KSCFG_TEST_HOOKS
       if (r.write && opt_.after_write) opt_.after_write(r.reg);
+#endif
       if (p.progress) p.progress(p.values.size());
     }
     if (c.with_restore) {

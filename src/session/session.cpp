@@ -14,7 +14,9 @@ HandshakeOptions handshake_options(const SessionOptions& so) {
   h.journal = so.journal;
   h.cancel = so.cancel;
   h.notice = so.notice;
+#ifdef KSCFG_TEST_HOOKS
   h.after_write = so.after_write;
+#endif
   return h;
 }
 

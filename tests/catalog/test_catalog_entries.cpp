@@ -3,7 +3,7 @@
 // examples that need the larger catalog, run through the library and through `kscfg map`.
 //
 // Each example is described, with its source, in docs/research/mapping-examples.md (examples 1, 3b,
-// 5, 6, 7). The earlier examples (2a-2d, 3a) are in tests/test_map.cpp. Where a manual's table
+// 5, 6, 7). The earlier examples (2a-2d, 3a) are in tests/station/test_map.cpp. Where a manual's table
 // disagrees with the rules of docs/design.md section 3, the comment says so and the test follows the rules.
 #include <catch2/catch.hpp>
 

@@ -41,9 +41,9 @@ TEST_CASE("ADS: a deliberate unlock stays, a forged journal entry of a channel w
   CHECK(journals(d.file("state") + "/kscfg/sessions") == 0);
 }
 
-#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("ADS: kill -9 right after the code word, then a command on another terminal relocks it with a note",
           "[ads][journal][kill]") {
+  KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_KILL_AFTER
   TempDir d;
   std::string state = d.file("emu.json");
   std::string sessions = d.file("state") + "/kscfg/sessions";
@@ -69,4 +69,3 @@ TEST_CASE("ADS: kill -9 right after the code word, then a command on another ter
   r = run_kscfg({"--port", s.uri, "-t", "1", "read", "--raw", "R32"}, env);
   CHECK(r.out == "0x0006\n");  // killed before it wrote the baud rate
 }
-#endif

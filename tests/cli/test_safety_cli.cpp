@@ -245,7 +245,6 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
 // ---------------------------------------------------------------------------------------------
 // Issue 11 item 3: a crashed session's leftovers.
 
-#if KSCFG_TEST_HOOKS  // used by the cases that need KSCFG_TEST_KILL_AFTER
 namespace {
 
 // Output word 0x0800 of a Modbus coupler: image bytes 0 (low) and 1 (high).
@@ -258,7 +257,6 @@ std::uint8_t output_byte(const std::string& uri, std::size_t offset) {
 std::uint8_t output_byte0(const std::string& uri) { return output_byte(uri, 0); }
 
 }  // namespace
-#endif
 
 TEST_CASE("emulator: a terminal left in register mode and unlocked is finished by the next command",
           "[safety][recovery]") {
@@ -309,9 +307,9 @@ struct Served {
   }
 };
 
-#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves nothing behind the next command",
           "[safety][recovery][serve]") {
+  KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_KILL_AFTER
   Station st;
   REQUIRE(st({"emu", "reset"}).rc == 0);
   Served on(st);
@@ -338,12 +336,11 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
   CHECK_THAT(w2.err, Catch::Contains("was already unlocked (R31 = 0x1235) when this session began"));
   CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
 }
-#endif
 
-#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_KILL_AFTER (a build for tests: tests/CMakeLists.txt)
 TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is finished by the next command on "
           "any terminal",
           "[safety][recovery][serve][journal]") {
+  KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_KILL_AFTER
   Station st;
   REQUIRE(st({"emu", "reset"}).rc == 0);
   Served on(st);
@@ -368,7 +365,6 @@ TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is 
   std::error_code ec;
   CHECK(std::filesystem::is_empty(st.dir.file("xdg") + "/kscfg/sessions", ec));
 }
-#endif
 
 // ---------------------------------------------------------------------------------------------
 // Issue 11 item 4: rollback that reads, against kscfg serve dropping replies.

@@ -25,10 +25,10 @@ struct LinkOptions {
   std::function<void(const std::string&)> trace;  // -v: link-level events (retries of a Modbus link)
   std::string cache_dir;  // Modbus: keep scans here between runs (scan_cache.hpp); empty: no cache
   bool rescan = false;    // Modbus: scan even when the cache holds a valid scan
-  // Modbus with a journal directory ($XDG_STATE_HOME/kscfg/sessions): the journal is opened there
-  // for this port; the sessions this process leaves open if it dies are noted in it
-  // (journal.hpp). What dead kscfg processes left is finished by recover_dead_sessions() once the
-  // station's layout is known.
+  // Modbus or ADS with a journal directory ($XDG_STATE_HOME/kscfg/sessions): the journal is opened
+  // there for this coupler (station_key()); the sessions this process leaves open if it dies are
+  // noted in it (journal.hpp; over ADS, the channels it unlocked on port 100). What dead kscfg
+  // processes left is finished by recover_dead_sessions() once the station's layout is known.
   std::shared_ptr<SessionJournal> journal;
   std::string journal_dir;
   // Waiting for the coupler (Modbus: coupler_lock_path()) or the emulator state file that another

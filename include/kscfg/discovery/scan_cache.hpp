@@ -2,8 +2,8 @@
 // $XDG_CACHE_HOME/kscfg/scans/KEY.json (KEY: station_key(), link/coupler_key.hpp: one file
 // whatever name the coupler was reached by) (written atomically; a lock file serialises the
 // kscfg processes that scan the same coupler). Any run may find it out of date: it is validated
-// against the identification and image lengths the coupler reports, and replaced when they
-// differ.
+// against the image lengths the coupler reports (and each terminal's R8 once a run, as a command
+// first talks to it), and replaced when they differ.
 #pragma once
 #include <chrono>
 #include <functional>

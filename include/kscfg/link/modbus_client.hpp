@@ -78,7 +78,6 @@ struct ModbusOptions {
   unsigned retries = 3;                // extra attempts after busy, CRC or garbled replies
   unsigned timeout_retries = 1;        // extra attempts after a timeout
   unsigned poll_us = 500;  // between two polls of the input image (pause())
-  unsigned ack_timeout_ms = 1000;  // the user's --timeout: register sessions of a scan
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): a request or the wait for its reply ends with
   // Error(Exit::interrupted) once it is cancelled. Null: never cancelled.

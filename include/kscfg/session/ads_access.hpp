@@ -61,7 +61,9 @@ class AdsAccess final : public RegisterAccess {
   std::function<unsigned(unsigned)> number_;
   CancelToken* cancel_;
   std::shared_ptr<SessionJournal> journal_;
-  std::function<void(unsigned reg)> after_write_;
+#ifdef KSCFG_TEST_HOOKS
+  std::function<void(unsigned reg)> after_write_;  // SessionOptions::after_write
+#endif
   std::map<ChannelKey, Chan> chans_;
 };
 

@@ -75,11 +75,24 @@ struct SessionOptions {
   bool release_forced = false;
   std::string release_hint;
   std::function<void(const DeadForce&)> dead_force;
-  // Test hooks, set only by the build made for tests (cli/main/test_hooks.cpp): write without the
-  // code word; called after a write of a register was acknowledged.
+#ifdef KSCFG_TEST_HOOKS
+  // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; set from the
+  // environment by Context::session_options in cli/context.cpp): write without the code word;
+  // called after a write of a register was acknowledged. A release build has neither.
   bool skip_unlock = false;
   std::function<void(unsigned reg)> after_write;
+#endif
 };
+
+// The test hook KSCFG_TEST_NO_UNLOCK: true when this session writes without the code word. Always
+// false in a build without the test hooks, where no code path can skip the code word.
+inline bool skips_unlock([[maybe_unused]] const SessionOptions& so) {
+#ifdef KSCFG_TEST_HOOKS
+  return so.skip_unlock;
+#else
+  return false;
+#endif
+}
 
 struct WriteResult {
   unsigned reg = 0;

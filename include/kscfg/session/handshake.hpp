@@ -57,8 +57,10 @@ struct HandshakeOptions {
   // Diagnostics the user must see: a terminal left in register mode because putting its bytes back
   // failed, another master found at work.
   std::function<void(const std::string&)> notice;
+#ifdef KSCFG_TEST_HOOKS
   // Test hook (a build for tests only): called after a write of a register was acknowledged.
   std::function<void(unsigned reg)> after_write;
+#endif
 };
 
 class HandshakeAccess final : public RegisterAccess {
