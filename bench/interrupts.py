@@ -220,19 +220,59 @@ def serve_any(state, transport):
     return p, uri
 
 
-def snapshot(state):
-    """The served state once its file stayed the same for 50 ms: registers by (position, channel),
-    the channels left unlocked (R31 = 0x1235) and those whose control byte is in register mode."""
+MARK = [0]
+
+
+def modbus_mark(uri):
+    """Writes the next marker into the KL2134's output bits (image byte 48, output register 0x0818)
+    with one FC6 and returns it: a state file that shows it was saved after every earlier change."""
+    import socket
+    import struct
+    host, port = uri[len("tcp://"):].rsplit(":", 1)
+    MARK[0] = MARK[0] % 15 + 1
+    with socket.create_connection((host, int(port)), timeout=5) as c:
+        c.sendall(struct.pack(">HHHBBHH", MARK[0], 0, 6, 1, 6, 0x0800 + 24, MARK[0]))
+        reply = b""
+        while len(reply) < 12:
+            got = c.recv(12 - len(reply))
+            if not got:
+                raise SystemExit("serve closed the marker's connection")
+            reply += got
+    return MARK[0]
+
+
+def snapshot(state, uri=None):
+    """The served state as it is now: registers by (position, channel), the channels left unlocked
+    (R31 = 0x1235) and those whose control byte is in register mode.
+
+    The server saves its state file on a thread of its own, coalesced and fsynced: on a loaded
+    computer a save can take longer than any quiet time the file is watched for, and a file that
+    merely stayed the same showed the middle of a run that had long ended (register mode, R31 =
+    0x1235 of a rollback in progress; 4 of 60 runs under an fsync load, all as before 1.5 s later).
+    Over Modbus a marker is written to an output byte the commands never touch (the KL2134's) and
+    the file is read once it shows the marker; over ADS, once it stayed the same for longer than
+    the server's 250 ms look at its state with no save of it in progress (its temporary file)."""
+    import glob
     import json
-    last, same_since, end = None, time.monotonic(), time.monotonic() + 3
+    mark = modbus_mark(uri) if uri and uri.startswith("tcp://") else None
+    last, same_since, end = None, time.monotonic(), time.monotonic() + 20
     while time.monotonic() < end:
         with open(state, "rb") as f:
             now = f.read()
-        if now != last:
+        saving = bool(glob.glob(glob.escape(state) + ".tmp.*"))
+        if now != last or saving:
             last, same_since = now, time.monotonic()
-        elif time.monotonic() - same_since >= 0.05:
+        if mark is not None:
+            try:
+                if bytes.fromhex(json.loads(now)["outputs"])[48] == mark:
+                    break
+            except (ValueError, KeyError, IndexError):
+                pass
+        elif time.monotonic() - same_since >= 0.3:
             break
         time.sleep(0.01)
+    else:
+        raise SystemExit(f"the state file {state} did not settle within 20 s")
     st = json.loads(last)
     regs = {(c["position"], c["channel"] + 1): c["registers"] for c in st["channels"]}
     out = bytes.fromhex(st["outputs"])
@@ -269,16 +309,16 @@ def ctrl_c_row(work, env, n, transport, kind, rnd):
                 "restore": ["restore", os.path.join(work, f"cc-{transport}-restore.toml")],
                 "set": ["-t", "1", "set", "baud", "19200"],
                 "backup": ["backup", "--force", os.path.join(work, "cc-out.toml")]}[kind]
-        before = snapshot(state)[0]
+        before = snapshot(state, uri)[0]
         t0 = time.monotonic()
         r = run(["--port", uri] + args, env)
         span = time.monotonic() - t0
         if r.returncode not in (0, 10):
             raise SystemExit(f"{transport} {kind}: {r.returncode}: {r.stderr}")
-        target = snapshot(state)[0]
+        target = snapshot(state, uri)[0]
         run(["--port", uri, "restore", base], env)
         for i in range(n):
-            if snapshot(state)[0] != before:
+            if snapshot(state, uri)[0] != before:
                 run(["--port", uri, "restore", base], env)
             errp = os.path.join(work, f"cc-{transport}-{kind}-{i}.err")
             with open(errp, "w") as ef:
@@ -320,7 +360,7 @@ def ctrl_c_row(work, env, n, transport, kind, rnd):
             if acked is not None:
                 tally["acked"] += 1
                 acks.append(acked - ts)
-            regs, unlocked, regmode = snapshot(state)
+            regs, unlocked, regmode = snapshot(state, uri)
             if regs != before and regs != target:
                 tally["wrong"] += 1
                 print(f"  wrong: {transport} {kind} run {i}: rc {rc}: {err.strip()[-300:]}", file=sys.stderr)

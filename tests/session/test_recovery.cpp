@@ -331,3 +331,61 @@ TEST_CASE("apply: a failed rollback is never reported as 'as it was'", "[provisi
   }
   CHECK(st.channel(1, 0).registers()[32] == 6);
 }
+
+TEST_CASE("a channel left in register mode by a close that failed, opened again for a rollback, is not put back "
+          "into register mode",
+          "[session][rollback]") {
+  // The hypothesis of a Ctrl-C run of `apply` over serve that looked left unlocked (bench/interrupts.py
+  // --ctrl-c): the channel's close failed with the code word's request still in its control byte;
+  // the rollback opens it again. Its save must take that byte for a leftover (relocked, and the
+  // idle bytes put back), never for process data that the put-back at its end would write again.
+  EmulatedStation st(default_station(), cat());
+  EmulatorLink emu(st);
+  FaultLink link(emu);
+  Notes notes;
+  HandshakeEngine he(link, notes.options());
+  const TerminalImage& t = register_terminal(st.layout(), 1, 0);
+  const RegisterWindow w = *t.channels[0].window;
+  WriteResult done;
+  {
+    RegisterSession s(he.engine(), t, 0, notes.options());
+    done = s.write(32, 7);
+    REQUIRE(done.changed);
+    s.unlock();
+    // The link goes down: the relock and every put-back of the close are lost.
+    link.rule = [](const FaultLink::Call& c) { return c.write ? FaultLink::Act::lose_request : FaultLink::Act::pass; };
+    s.close();
+  }
+  REQUIRE(st.outputs()[w.ctrl] == proto::control_byte(true, 31));
+  REQUIRE(st.channel(1, 0).unlocked());
+  CHECK_THAT(notes.all(), Catch::Contains("terminal 1 (KL6001) is left in register mode"));
+  notes.lines.clear();
+
+  // The link is back; the change is rolled back from what the terminal holds. Writes of the outputs
+  // are counted: the last code word's request must go out before the last read of R31.
+  std::size_t n = 0, last_code_word = 0, last_r31_read = 0;
+  link.rule = [&](const FaultLink::Call& c) {
+    if (!c.write || c.offset > w.ctrl || w.ctrl >= c.offset + c.bytes.size()) return FaultLink::Act::pass;
+    ++n;
+    std::uint8_t ctrl = c.bytes[w.ctrl - c.offset];
+    if (ctrl == proto::control_byte(false, 31)) last_r31_read = n;
+    if (ctrl == proto::control_byte(true, 31) && w.out_hi < c.offset + c.bytes.size() &&
+        c.bytes[w.out_hi - c.offset] == 0x12)
+      last_code_word = n;
+    return FaultLink::Act::pass;
+  };
+  RollbackResult rb;
+  {
+    RegisterSession s(he.engine(), t, 0, notes.options());
+    rb = s.roll_back({done});
+    s.close();
+  }
+  INFO(notes.all());
+  CHECK(rb.ok());
+  CHECK_THAT(notes.all(), Catch::Contains("terminal 1 (KL6001) was in register mode (control byte 0xDF)"));
+  CHECK(st.outputs()[w.ctrl] == 0x00);
+  for (int i = 0; i < 4; ++i) st.cycle();
+  CHECK_FALSE(st.channel(1, 0).unlocked());  // the code word's request did not run again
+  CHECK(st.channel(1, 0).registers()[32] == 6);
+  CHECK(last_r31_read > last_code_word);
+}
