@@ -1,6 +1,7 @@
 #include "kscfg/link/coupler_key.hpp"
 
 #include <arpa/inet.h>
+#include <ifaddrs.h>
 #include <fmt/format.h>
 #include <net/if.h>
 #include <netdb.h>
@@ -31,6 +32,38 @@ std::string safe(const std::string& s) {
   std::string o;
   for (char c : s) o += std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' ? c : '_';
   return o;
+}
+
+// The key of every address of this computer: a listener on 0.0.0.0 or :: (`kscfg serve --tcp [::]:P`,
+// a gateway program) answers each of them, so they reach one coupler.
+constexpr char kThisComputer[] = "127.0.0.1";
+
+// An address of this computer: loopback (127/8, ::1), the unspecified address (connect() takes it
+// for this computer), or one of its interfaces' addresses.
+bool this_computer(const sockaddr* sa) {
+  if (sa->sa_family == AF_INET) {
+    std::uint32_t a = ntohl(reinterpret_cast<const sockaddr_in*>(sa)->sin_addr.s_addr);
+    if ((a >> 24) == 127 || a == 0) return true;
+  } else if (sa->sa_family == AF_INET6) {
+    const in6_addr& a = reinterpret_cast<const sockaddr_in6*>(sa)->sin6_addr;
+    if (IN6_IS_ADDR_LOOPBACK(&a) || IN6_IS_ADDR_UNSPECIFIED(&a)) return true;
+  } else {
+    return false;
+  }
+  ifaddrs* list = nullptr;
+  if (getifaddrs(&list) != 0) return false;
+  bool mine = false;
+  for (ifaddrs* i = list; i && !mine; i = i->ifa_next) {
+    if (!i->ifa_addr || i->ifa_addr->sa_family != sa->sa_family) continue;
+    if (sa->sa_family == AF_INET)
+      mine = reinterpret_cast<const sockaddr_in*>(i->ifa_addr)->sin_addr.s_addr ==
+             reinterpret_cast<const sockaddr_in*>(sa)->sin_addr.s_addr;
+    else
+      mine = std::memcmp(&reinterpret_cast<const sockaddr_in6*>(i->ifa_addr)->sin6_addr,
+                         &reinterpret_cast<const sockaddr_in6*>(sa)->sin6_addr, sizeof(in6_addr)) == 0;
+  }
+  freeifaddrs(list);
+  return mine;
 }
 
 std::string resolve(const std::string& host) {
@@ -64,15 +97,19 @@ std::string resolve(const std::string& host) {
   freeaddrinfo(res);
   char text[INET6_ADDRSTRLEN + IF_NAMESIZE + 2] = {};
   if (v4) {
-    in_addr a{};
-    a.s_addr = htonl(*v4);
-    inet_ntop(AF_INET, &a, text, sizeof text);
+    sockaddr_in sa{};
+    sa.sin_family = AF_INET;
+    sa.sin_addr.s_addr = htonl(*v4);
+    if (this_computer(reinterpret_cast<const sockaddr*>(&sa))) return kThisComputer;
+    inet_ntop(AF_INET, &sa.sin_addr, text, sizeof text);
     return text;
   }
   if (v6) {
-    in6_addr a{};
-    std::memcpy(a.s6_addr, v6->first.data(), 16);
-    inet_ntop(AF_INET6, &a, text, sizeof text);
+    sockaddr_in6 sa{};
+    sa.sin6_family = AF_INET6;
+    std::memcpy(sa.sin6_addr.s6_addr, v6->first.data(), 16);
+    if (this_computer(reinterpret_cast<const sockaddr*>(&sa))) return kThisComputer;
+    inet_ntop(AF_INET6, &sa.sin6_addr, text, sizeof text);
     std::string out = text;
     if (v6->second != 0) {  // a link-local address is one per interface
       char name[IF_NAMESIZE] = {};

@@ -100,6 +100,25 @@ TEST_CASE("two names of one ADS coupler take one lock: ads://localhost waits for
   CHECK(r.out == "0x1771\n");  // KL6001
 }
 
+TEST_CASE("a serve on :: is one coupler through 127.0.0.1, ::1 and its wildcard address: one lock",
+          "[sessions][lock][serve]") {
+  Served s({"--tcp", "[::]:0"});  // dual-stack: IPv4 and IPv6 clients reach one listener
+  const std::string by_v4 = "tcp://127.0.0.1:" + s.port();
+  auto first = holder({"--port", by_v4}, lock_file("ip-127.0.0.1-" + s.port()));
+  for (const std::string& uri : {"tcp://[::1]:" + s.port(), "tcp://[::]:" + s.port(), s.srv->uri}) {
+    INFO(uri);
+    Run r = run_kscfg({"--port", uri, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+    CHECK(r.rc == 11);  // waited for the holder through the other address (two locks before: read at once)
+    CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
+                                                  by_v4)));
+  }
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+  Run r = run_kscfg({"--port", "tcp://[::1]:" + s.port(), "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 0);
+  CHECK(r.out == "0x1771\n");  // KL6001
+}
+
 TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][serve][rtu]") {
   Served s({"--pty"});
   REQUIRE(s.srv->uri.rfind("rtu:", 0) == 0);

@@ -32,7 +32,7 @@ TEST_CASE("coupler keys: every spelling of one address is one key, standard Modb
   CHECK(host_key_address("127.0.0.1") == "127.0.0.1");
   CHECK(host_key_address("localhost") == "127.0.0.1");  // its IPv4 address, though ::1 may come first
   CHECK(host_key_address("::ffff:127.0.0.1") == "127.0.0.1");
-  CHECK(host_key_address("::1") == "::1");
+  CHECK(host_key_address("2001:db8::7") == "2001:db8::7");  // a remote IPv6 address is its own
   CHECK(host_key_address("0x7f.1") == "127.0.0.1");  // inet_aton's spellings resolve as well
 
   CHECK(coupler_key(mb("tcp://localhost")) == "ip-127.0.0.1");
@@ -46,7 +46,7 @@ TEST_CASE("coupler keys: every spelling of one address is one key, standard Modb
   CHECK(coupler_key(ads("ads://localhost:5020")) == "ip-127.0.0.1-5020");
   CHECK(coupler_key(ads("ads://127.0.0.1:502")) == "ip-127.0.0.1-502");     // ADS on Modbus's port: not standard
   CHECK(coupler_key(mb("tcp://127.0.0.1:48898")) == "ip-127.0.0.1-48898");
-  CHECK(coupler_key(mb("tcp://[::1]:502")) == "ip-__1");
+  CHECK(coupler_key(mb("tcp://[2001:db8::7]:502")) == "ip-2001_db8__7");
   // The stations behind it: per unit over Modbus (decision 24), ADS's journals apart.
   CHECK(station_key(mb("tcp://localhost:5020")) == "ip-127.0.0.1-5020-unit1");
   CHECK(station_key(mb("tcp://127.0.0.1?unit=3")) == "ip-127.0.0.1-unit3");
@@ -60,6 +60,21 @@ TEST_CASE("coupler keys: every spelling of one address is one key, standard Modb
     CHECK_THAT(e.what(), Catch::StartsWith("cannot resolve host 'no-such-host.invalid': "));
   }
   CHECK_THROWS_AS(coupler_key(ads("ads://no-such-host.invalid")), Error);
+}
+
+TEST_CASE("coupler keys: every address of this computer is one host (a listener on :: or 0.0.0.0 answers them all)",
+          "[link][lock]") {
+  // `kscfg serve --tcp [::]:P` (or a gateway on 0.0.0.0) answers 127.0.0.1, ::1, 127.0.1.1 (Debian's
+  // name of the host) and the wildcard address itself: one listener, so one key.
+  for (const char* local : {"::1", "127.0.0.2", "127.0.1.1", "0.0.0.0", "::", "::ffff:127.0.0.5"}) {
+    INFO(local);
+    CHECK(host_key_address(local) == "127.0.0.1");
+  }
+  CHECK(coupler_key(mb("tcp://[::1]:5020")) == "ip-127.0.0.1-5020");
+  CHECK(coupler_key(ads("ads://[::1]:5020")) == "ip-127.0.0.1-5020");
+  CHECK(coupler_key(mb("tcp://[::1]")) == coupler_key(ads("ads://127.0.0.1")));  // standard ports: one coupler
+  CHECK(station_key(mb("tcp://[::]:5020?unit=2")) == "ip-127.0.0.1-5020-unit2");
+  CHECK(coupler_key(mb("tcp://10.255.255.254:5020")) != "ip-127.0.0.1-5020");  // not an address of this computer
 }
 
 TEST_CASE("coupler keys: a serial device and a link to it are one key, whatever the unit", "[link][lock]") {

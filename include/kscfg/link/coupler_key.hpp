@@ -5,7 +5,11 @@
 // name of one address are one key. A name with several addresses is keyed by the lowest IPv4
 // address (numerically; an IPv4-mapped IPv6 address counts as IPv4), or, with no IPv4 address, by
 // the lowest IPv6 address (bytewise). Beckhoff couplers speak IPv4 only, so a name's IPv4 address is
-// the coupler's. A name that does not resolve is Error(Exit::link), as the connect would say.
+// the coupler's. Every address of this computer (127/8, ::1, 0.0.0.0, ::, its interfaces' addresses)
+// is one host, keyed "127.0.0.1": a listener on :: or 0.0.0.0 (`kscfg serve --tcp [::]:P`, a gateway
+// program) answers them all. Two listeners on two of them then take turns, which is safe; two keys for
+// one listener were not (two sessions undo each other's writes). A name that does not resolve is
+// Error(Exit::link), as the connect would say.
 //
 // Modbus TCP on the standard port 502 and ADS on the standard AMS/TCP port 48898 of one address
 // are one coupler (a BK9000 answers both), keyed by the address alone: "ip-10.0.3.11". The Modbus
@@ -24,7 +28,8 @@
 
 namespace kscfg {
 
-// The numeric address that keys `host` (the rule above): "127.0.0.1", "::1", "fe80::1%eth0".
+// The numeric address that keys `host` (the rule above): "10.0.3.11", "fd00::7", "fe80::1%eth0", and
+// "127.0.0.1" for every address of this computer.
 // Resolved once per process and host. Error(Exit::link) when the name does not resolve.
 std::string host_key_address(const std::string& host);
 
