@@ -119,7 +119,9 @@ void HandshakeAccess::journal_enter(Chan& c) {
 }
 
 void HandshakeAccess::journal_ctrl(Chan& c) {
-  if (c.journaled && opt_.journal) opt_.journal->control(c.key.position, c.key.channel, c.shadow[c.w.ctrl - c.out_lo]);
+  // Over a link proven dead nothing goes out: the terminal keeps a byte noted before (6.2).
+  if (c.journaled && opt_.journal && !link_.proven_dead())
+    opt_.journal->control(c.key.position, c.key.channel, c.shadow[c.w.ctrl - c.out_lo]);
 }
 
 void HandshakeAccess::put_request(Chan& c, bool write, unsigned reg, std::uint16_t value) {

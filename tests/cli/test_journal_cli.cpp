@@ -258,3 +258,50 @@ TEST_CASE("kill -9 of data force over ADS: the next command names the forced out
   Coupler c(kDefaultStation, {"--ads", "127.0.0.1:0"});
   killed_force_then_release(c, {});
 }
+
+// The journal notes each control byte before it goes out. Once the link is known dead, the
+// requests fail at once and nothing goes out: the bytes of the rollback that follows (a read of
+// each of the 12 registers, the relock, the control byte put back) were noted all the same, and the
+// byte the terminal holds fell out of the last ones noted; the next kscfg took the terminal for
+// another master's, left it unlocked and in register mode, and dropped the journal (deadlink12:
+// 1 of 150; a dead link 0.1 s into a restore over serve: 2 of 3).
+TEST_CASE("a link that dies in the middle of a restore of 12 registers: the next command finishes the channel",
+          "[journal][recovery][serve]") {
+  KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_STOP_AFTER
+  Coupler c(kDefaultStation);
+  std::string regs;
+  for (unsigned r = 36; r <= 47; ++r) regs += fmt::format("R{} = {}\n", r, 0x100 + r);
+  std::string want = kDefaultStation;
+  want.replace(want.find("type = \"KL3022\"\n"), 16, "type = \"KL3022\"\n" + regs);
+  write_text(c.dir.file("want.toml"), want);
+  REQUIRE(c({"scan"}).rc == 0);
+  // Stopped right after the first acknowledged write of R38 (the channel unlocked, in register
+  // mode); the coupler is stopped, and the restore goes on against it.
+  Child restore(c.args({"--station", c.dir.file("station.toml"), "restore", c.dir.file("want.toml")}), [&] {
+    auto e = c.env;
+    e["KSCFG_TEST_STOP_AFTER"] = "R38";
+    return e;
+  }());
+  const int pid = restore.pid;
+  REQUIRE(wait_for([&] { return stopped(pid); }, 60));
+  REQUIRE(::kill(c.srv->pid, SIGSTOP) == 0);
+  restore.signal(SIGCONT);
+  int rc = restore.wait(120);
+  INFO(restore.err());
+  ::kill(c.srv->pid, SIGCONT);
+  CHECK(rc == 9);
+  auto texts = c.journals();
+  REQUIRE(texts.size() == 1);
+  INFO(texts[0]);
+  auto open = SessionJournal::parse_open(texts[0]);
+  REQUIRE(open.size() == 1);
+  CHECK(open[0].position == 4);
+  Run rd = c({"--station", c.dir.file("station.toml"), "-t", "1", "read", "--raw", "R8"});
+  INFO(rd.err);
+  CHECK(rd.rc == 0);
+  CHECK_THAT(rd.err, Catch::Contains("terminal 4 (KL3022) channel 1 was left in register mode (control byte 0x") &&
+                         Catch::Contains(fmt::format("by kscfg process {}, which ended without finishing", pid)));
+  CHECK((c.outputs(24)[40] & 0x80) == 0);  // KL3022 channel 1: its control byte out of register mode
+  CHECK(c.none_unlocked());
+  CHECK(c.journals().empty());
+}

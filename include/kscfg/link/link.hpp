@@ -104,6 +104,12 @@ class Link {
   // whose watchdog switched the outputs off). Returns the error to report instead, if any.
   virtual std::optional<Error> explain_no_ack() { return std::nullopt; }
 
+  // A link proven dead (Modbus: two requests in a row got no answer): every later request fails
+  // before anything goes out. The session journal notes no control byte then, since none reaches a
+  // terminal: noted, the bytes of a rollback tried against it pushed the one the terminal holds out
+  // of the last ones a journal keeps (docs/design.md 6.2).
+  virtual bool proven_dead() const { return false; }
+
   // Makes the station's state durable (emulator: saves its state file). Called once at the end.
   virtual void commit() {}
 

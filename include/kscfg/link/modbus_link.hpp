@@ -54,6 +54,7 @@ class ModbusLink : public Link {
 
   ModbusClient& client() { return client_; }
   ModbusRegisters* modbus_registers() override { return &client_; }
+  bool proven_dead() const override { return !client_.dead().empty(); }
 
  private:
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
