@@ -2,6 +2,12 @@
 
 #include <fmt/format.h>
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
 #include <csignal>
 #include <cstdlib>
 #include <iostream>
@@ -72,7 +78,57 @@ std::unique_ptr<App> build_app() {
 // signal abandons a clean-up (base/cancel.hpp).
 static CancelToken g_cancel;
 
-static void on_signal(int sig) { g_cancel.signal(sig); }
+// Who sent the first signal (SA_SIGINFO), for `kscfg serve` to say when it stops: a server that
+// ended "with status 0" while nobody meant to stop it is otherwise a mystery (bench deadlink12).
+// Written by the handler once, before the token counts the signal; read after the token shows it.
+static std::atomic<long> g_sender_pid{0};
+static std::atomic<int> g_sender_code{0};
+static char g_sender_cmd[160];
+static std::atomic<int> g_sender_cmd_len{0};
+
+static void on_signal(int sig, siginfo_t* si, void*) {
+  if (g_cancel.signals() == 0 && si) {
+    int saved = errno;
+    g_sender_code.store(si->si_code);
+    g_sender_pid.store(si->si_pid);
+    // Its command line now: the sender (kill, pkill, a harness) may be gone when serve says it.
+    int n = 0;
+    if (si->si_code <= 0 && si->si_pid > 0) {
+      char path[40] = "/proc/";
+      int at = 6;
+      char digits[20];
+      int k = 0;
+      for (long v = si->si_pid; v > 0 && k < 20; v /= 10) digits[k++] = static_cast<char>('0' + v % 10);
+      while (k > 0) path[at++] = digits[--k];
+      for (const char* t = "/cmdline"; *t;) path[at++] = *t++;
+      path[at] = 0;
+      int fd = ::open(path, O_RDONLY | O_CLOEXEC);
+      if (fd >= 0) {
+        ssize_t r = ::read(fd, g_sender_cmd, sizeof g_sender_cmd - 1);
+        n = r > 0 ? static_cast<int>(r) : 0;
+        ::close(fd);
+      }
+    }
+    g_sender_cmd_len.store(n);
+    errno = saved;
+  }
+  g_cancel.signal(sig);
+}
+
+std::string first_signal_origin() {
+  int sig = g_cancel.first_signal();
+  if (sig == 0) return "";
+  const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : sig == SIGHUP ? "SIGHUP" : "a signal";
+  long pid = g_sender_pid.load();
+  if (g_sender_code.load() > 0 || pid <= 0)  // SI_KERNEL: a terminal (Ctrl-C, a hang-up) or the kernel
+    return fmt::format("{} from a terminal or the kernel", name);
+  std::string cmd(g_sender_cmd, static_cast<std::size_t>(std::max(0, g_sender_cmd_len.load())));
+  while (!cmd.empty() && cmd.back() == '\0') cmd.pop_back();
+  for (char& c : cmd)
+    if (c == '\0') c = ' ';
+  return cmd.empty() ? fmt::format("{} from process {}", name, pid)
+                     : fmt::format("{} from process {} ({})", name, pid, cmd);
+}
 
 static Command* parsed_command(App& a) {
   Command* found = nullptr;
@@ -178,9 +234,11 @@ static int run_command(int argc, char** argv) {
     (void)Catalog::standard();  // a broken user catalog is reported before anything is touched
     Command* cmd = parsed_command(*app);
     if (!cmd) throw Error(Exit::usage, "no command given; 'kscfg --help' lists the commands");
-    std::signal(SIGINT, on_signal);
-    std::signal(SIGTERM, on_signal);
-    std::signal(SIGHUP, on_signal);
+    struct sigaction sa {};
+    sa.sa_sigaction = on_signal;
+    sa.sa_flags = SA_SIGINFO | SA_RESTART;  // as std::signal (BSD semantics), with the sender
+    sigemptyset(&sa.sa_mask);
+    for (int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &sa, nullptr);
     o.cancel = &g_cancel;
     ctx = std::make_unique<Context>(o);
     rc = cmd->run(*ctx);

@@ -28,6 +28,10 @@ int run(int argc, char** argv);
 std::string generate_manpage(const App& app);
 std::string generate_completion(const App& app, const std::string& shell);  // bash, zsh, fish
 
+// The first SIGINT/SIGTERM/SIGHUP of this run and who sent it ("SIGTERM from process 4242 (pkill
+// kscfg)", "SIGINT from a terminal or the kernel"); "" before any. For `kscfg serve`'s stop line.
+std::string first_signal_origin();
+
 // The App being run (for the completion and manpage commands).
 const App& current_app();
 

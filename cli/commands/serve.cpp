@@ -5,6 +5,7 @@
 #include <tuple>
 #include <utility>
 
+#include "../app.hpp"
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/emulator/emulator.hpp"
@@ -56,7 +57,9 @@ class Serve : public Command {
            "Every change is saved to the state file (atomically) within a fraction of a second, so a write "
            "that was acknowledged survives even a kill \\-9 of the server. Serving on an address that is "
            "not a loopback one (0.0.0.0, *, [::]) prints a warning: the emulator has no authentication. "
-           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved and the exit status is 0. "
+           "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved, one line on stderr names the "
+           "signal and the process that sent it (\\fBkscfg: serve: stopped by SIGTERM from process 4242 (pkill "
+           "kscfg)\\fR), and the exit status is 0. "
            "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
            "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
            "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs, and records beside it (\\fIPATH\\fB.serve\\fR) "
@@ -222,6 +225,8 @@ class Serve : public Command {
       st = server.stats();
     }
     store.save();         // the server saved already; this writes only if something is left
+    // Who stopped it: a server that ended while nobody meant to stop it names the process.
+    std::cerr << "kscfg: serve: stopped by " << first_signal_origin() << std::endl;
     ctx.cancel()->reset();  // stopping is how a server ends: exit status 0
     return st;
   }
