@@ -6,6 +6,7 @@
 #include <chrono>
 #include <map>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
@@ -159,7 +160,24 @@ CommandResult run_command(RegisterSession& s, unsigned reg, std::uint16_t value)
   r.effect = command_effect(*s.terminal().type, reg, value);
   if (r.effect)
     for (const auto& [er, v] : r.effect->expect) r.checked.push_back({er, s.read(er), v, false});
-  s.command(reg, value);
+  // A command cannot be taken back (docs/design.md 6.5): once it is sent the terminal carries it
+  // out, and a Ctrl-C then ended with "interrupted" (status 8: the terminal was restored) while it
+  // was not. So a Ctrl-C before it sends nothing; one from here on lets the command and the check of
+  // its effect finish (bounded by the timeout) and what is said is what happened; a second one
+  // abandons the check, said as such.
+  CancelToken* cancel = s.work().options().cancel;
+  if (cancel) cancel->throw_if_cancelled();
+  std::string what = fmt::format("R{} = 0x{:04X}{} on {}", reg, value,
+                                 r.effect ? " (" + r.effect->what + ")" : std::string(), s.who());
+  ShieldScope shield(cancel, "finishing " + what + ", which cannot be undone once sent");
+  Channel::Shield work(s.work());
+  try {
+    s.command(reg, value);
+  } catch (const Error& e) {
+    if (e.code() != Exit::interrupted) throw;
+    throw Error(Exit::unverified, fmt::format("interrupted while sending {}: it may have been carried out", what),
+                "read the terminal's registers with 'kscfg dump'");
+  }
   if (!r.effect) return r;
   // The terminal may take a moment to carry the command out (EEPROM writes): read until every
   // register holds its expected value, bounded by the session's timeout.
@@ -167,9 +185,15 @@ CommandResult run_command(RegisterSession& s, unsigned reg, std::uint16_t value)
   std::vector<std::pair<unsigned, std::uint16_t>> wrong;
   for (;;) {
     wrong.clear();
-    for (auto& w : r.checked) {
-      std::uint16_t now = s.read(w.reg);
-      if (now != w.after) wrong.emplace_back(w.reg, now);
+    try {
+      for (auto& w : r.checked) {
+        std::uint16_t now = s.read(w.reg);
+        if (now != w.after) wrong.emplace_back(w.reg, now);
+      }
+    } catch (const Error& e) {
+      if (e.code() != Exit::interrupted) throw;
+      throw Error(Exit::unverified, fmt::format("interrupted after {} was sent: its effect was not checked", what),
+                  "read the terminal's registers with 'kscfg dump'");
     }
     if (wrong.empty() || std::chrono::steady_clock::now() > deadline) break;
   }

@@ -5,6 +5,7 @@
 #include <catch2/catch.hpp>
 
 #include <signal.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <memory>
@@ -148,3 +149,38 @@ TEST_CASE("Ctrl-C during apply over Modbus TCP rolls back", "[cancel][modbus]") 
   interrupted_apply_rolls_back("modbus", {"--tcp", "127.0.0.1:0", "--cycle-us", "10000", "--watchdog-ms", "0"},
                                kTailModbus, {false, ": write R32"});
 }
+
+#if KSCFG_TEST_HOOKS  // needs KSCFG_TEST_STOP_AFTER (a build for tests: tests/CMakeLists.txt)
+// A command register is a command (docs/design.md 6.5): once the factory reset is sent the terminal
+// carries it out, and no rollback takes it back. A Ctrl-C right after it ended with status 8,
+// "interrupted" (which says the terminal was restored), the check of the effect cut short and the
+// terminal at its factory settings all the same (bench: 2 of 27 Ctrl-C during `reset -t 3`).
+TEST_CASE("Ctrl-C right after a factory reset was sent: the reset is finished and said, not claimed undone",
+          "[cancel][reset]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  REQUIRE(emu({"-t", "3", "set", "baud", "57600"}).rc == 0);
+  // Stops itself right after the acknowledged write of R7 (the command is carried out then).
+  auto env = emu.env;
+  env["KSCFG_TEST_STOP_AFTER"] = "R7";
+  Child c({"-t", "3", "reset", "-y"}, env);
+  const int pid = c.pid;
+  REQUIRE(wait_for(
+      [&] {
+        std::string st = read_text("/proc/" + std::to_string(pid) + "/stat");
+        auto p = st.rfind(')');
+        return p != std::string::npos && p + 2 < st.size() && st[p + 2] == 'T';
+      },
+      60));
+  c.signal(SIGINT);
+  c.signal(SIGCONT);
+  int rc = c.wait(60);
+  INFO(c.err());
+  CHECK(rc == 0);
+  CHECK_THAT(c.out(), Catch::Contains("terminal 3 (KL6031) reset to factory settings"));
+  CHECK_THAT(c.err(), Catch::Contains("kscfg: interrupted: finishing R7 = 0x7000 (restore factory settings) on "
+                                      "terminal 3 (KL6031)"));
+  CHECK(emu({"-t", "3", "get", "baud"}).out == "9600\n");
+  CHECK(emu({"-t", "3", "read", "--raw", "R31"}).out == "0x0000\n");  // relocked
+}
+#endif

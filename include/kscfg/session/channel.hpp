@@ -184,6 +184,20 @@ class Channel {
   // Returns whether the terminal was still in register mode.
   Task<bool> finish_dead();
 
+  // While one lives, this channel's work runs as clean-up does: a first signal lets it go on, a
+  // second ends it. For work that cannot be taken back once begun (a command sent, and the check of
+  // its effect: docs/design.md 6.5).
+  class Shield {
+   public:
+    explicit Shield(Channel& c) : c_(c) { ++c_.shield_; }
+    ~Shield() { --c_.shield_; }
+    Shield(const Shield&) = delete;
+    Shield& operator=(const Shield&) = delete;
+
+   private:
+    Channel& c_;
+  };
+
   const TerminalImage& terminal() const { return term_; }
   unsigned channel() const { return key_.channel; }
   ChannelKey key() const { return key_; }
