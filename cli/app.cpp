@@ -85,6 +85,9 @@ static std::atomic<long> g_sender_pid{0};
 static std::atomic<int> g_sender_code{0};
 static char g_sender_cmd[160];
 static std::atomic<int> g_sender_cmd_len{0};
+static std::atomic<bool> g_sender_wanted{false};  // serve: the command line is read in the handler
+
+void want_signal_origin() { g_sender_wanted.store(true); }
 
 static void on_signal(int sig, siginfo_t* si, void*) {
   if (g_cancel.signals() == 0 && si) {
@@ -93,7 +96,9 @@ static void on_signal(int sig, siginfo_t* si, void*) {
     g_sender_pid.store(si->si_pid);
     // Its command line now: the sender (kill, pkill, a harness) may be gone when serve says it.
     int n = 0;
-    if (si->si_code <= 0 && si->si_pid > 0) {
+    // Only for serve (a read of /proc/PID/cmdline can wait on the sender's memory map; the first
+    // Ctrl-C of any other command is said at once, base/cancel.hpp).
+    if (g_sender_wanted.load() && si->si_code <= 0 && si->si_pid > 0) {
       char path[40] = "/proc/";
       int at = 6;
       char digits[20];

@@ -31,6 +31,8 @@ std::string generate_completion(const App& app, const std::string& shell);  // b
 // The first SIGINT/SIGTERM/SIGHUP of this run and who sent it ("SIGTERM from process 4242 (pkill
 // kscfg)", "SIGINT from a terminal or the kernel"); "" before any. For `kscfg serve`'s stop line.
 std::string first_signal_origin();
+// From now on the sender's command line is kept too (read in the signal handler; serve only).
+void want_signal_origin();
 
 // The App being run (for the completion and manpage commands).
 const App& current_app();

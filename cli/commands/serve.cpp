@@ -209,6 +209,7 @@ class Serve : public Command {
       throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
                   "use --port emu, emu:PATH or emu:mem");
     path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    want_signal_origin();
     // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
     EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
     // Durable: the server saves the state soon after every change, not only when it stops.
