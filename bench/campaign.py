@@ -55,10 +55,13 @@ def run(args, port=None, timeout=60, stdin=None):
 
 
 def outcome(rc, err, ok=(0,)):
-    """'ok', 'clean' or 'crashed' for one finished command."""
+    """'ok', 'clean' or 'crashed' for one finished command. The error is one line; only a rollback that
+    failed adds one line per terminal after it ("kscfg:   terminal ...", docs/design.md 6.4)."""
     if rc in ok:
         return "ok"
-    if rc in CLEAN and err.startswith("kscfg: error: ") and err.count("\n") == 1:
+    lines = err.splitlines()
+    if (rc in CLEAN and err.endswith("\n") and lines and lines[0].startswith("kscfg: error: ")
+            and all(l.startswith("kscfg:   terminal ") for l in lines[1:])):
         return "clean"
     return "crashed"
 

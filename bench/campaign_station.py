@@ -35,36 +35,46 @@ OLD = {32: 0x0006, 33: 0x0003}  # 9600 baud, 8N1 (the defaults)
 NEW = {32: 0x0007, 33: 0x0004}  # 19200 baud, 8E1
 
 
+class ApplyRig:
+    """What the kill -9 and dead-link rows share: the station's undo file and desired state, a
+    snapshot of the coupler (serve is stopped for it, so that its state file is current; a serve
+    that ends other than with 0 counts as crashed), and the time one apply takes (a first run learns
+    the scan; the second is the one timed), the station put back after each."""
+
+    def __init__(self, st, t, kind):
+        self.st, self.t, self.kind = st, t, kind
+        self.want = st.station_file("want.toml", baud=19200, frame='"8E1"')
+        self.undo = os.path.join(st.dir, "undo.toml")
+        st.kscfg(self.apply_args())
+        st.kscfg(["--station", st.station, "restore", self.undo])
+        t0 = time.monotonic()
+        st.kscfg(self.apply_args())
+        self.span = max(time.monotonic() - t0, 0.05)
+        st.kscfg(["--station", st.station, "restore", self.undo])
+
+    def apply_args(self):
+        return ["--station", self.st.station, "apply", "--backup", self.undo, self.want]
+
+    def snapshot(self):
+        if self.kind != "serve":
+            return self.st.snapshot()
+        rc = self.st.stop()
+        if rc != 0:
+            self.t.add("crashed")
+            self.t.note(f"serve ended with {rc}")
+        snap = self.st.snapshot()
+        self.st.start()
+        return snap
+
+
 def kill9apply(C, kind, n, seed, work):
     from nstation import NStation
 
     t = C.Tally(f"{n} kill -9 of kscfg during an apply of 2 parameters on 12 KL6001, then one read ({kind})")
     st = NStation(kind, C.KSCFG, work, N, name=f"kill9apply-{kind}")
     rnd = random.Random(seed)
-    want = st.station_file("want.toml", baud=19200, frame='"8E1"')
-    undo = os.path.join(st.dir, "undo.toml")
-
-    def snapshot():
-        if kind != "serve":
-            return st.snapshot()
-        rc = st.stop()
-        if rc != 0:
-            t.add("crashed")
-            t.note(f"serve ended with {rc}")
-        snap = st.snapshot()
-        st.start()
-        return snap
-
-    def apply_args():
-        return ["--station", st.station, "apply", "--backup", undo, want]
-
-    # How long an apply takes (a first run learns the scan; the second is the one timed), then back.
-    st.kscfg(apply_args())
-    st.kscfg(["--station", st.station, "restore", undo])
-    t0 = time.monotonic()
-    st.kscfg(apply_args())
-    span = max(time.monotonic() - t0, 0.05)
-    st.kscfg(["--station", st.station, "restore", undo])
+    rig = ApplyRig(st, t, kind)
+    undo, snapshot, apply_args, span = rig.undo, rig.snapshot, rig.apply_args, rig.span
     caught = half = 0
     for _ in range(n):
         regs0, _, _ = snapshot()
@@ -121,10 +131,14 @@ def kill9apply(C, kind, n, seed, work):
 
 
 def apply_outcome(rc, err):
-    """'ok', 'clean' or 'crashed' for an apply whose link died: warnings may come before its error."""
+    """'ok', 'clean' or 'crashed' for an apply whose link died: warnings may come before its error, and
+    a rollback that failed names each terminal on a line of its own after it ("kscfg:   terminal ...")."""
     if rc in (0, 10):
         return "ok"
-    last = err.strip().splitlines()[-1] if err.strip() else ""
+    lines = err.strip().splitlines()
+    while lines and lines[-1].startswith("kscfg:   "):
+        lines.pop()
+    last = lines[-1] if lines else ""
     return "clean" if rc in (1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12) and last.startswith("kscfg: error: ") else "crashed"
 
 
@@ -137,33 +151,13 @@ def deadlink(C, kind, n, seed, work):
     t = C.Tally(f"{n} dead links during an apply on 12 KL6001, then one read of terminal 1 ({kind})")
     st = NStation(kind, C.KSCFG, work, N, name=f"deadlink-{kind}")
     rnd = random.Random(seed)
-    want = st.station_file("want.toml", baud=19200, frame='"8E1"')
-    undo = os.path.join(st.dir, "undo.toml")
     sessions = os.path.join(st.dir, "state", "kscfg", "sessions")
 
     def coupler(sig):
         (st.srv.send_signal if kind == "serve" else st.peer.send)(sig)
 
-    def snapshot():
-        if kind != "serve":
-            return st.snapshot()
-        rc = st.stop()
-        if rc != 0:
-            t.add("crashed")
-            t.note(f"serve ended with {rc}")
-        snap = st.snapshot()
-        st.start()
-        return snap
-
-    def apply_args():
-        return ["--station", st.station, "apply", "--backup", undo, want]
-
-    st.kscfg(apply_args())
-    st.kscfg(["--station", st.station, "restore", undo])
-    t0 = time.monotonic()
-    st.kscfg(apply_args())
-    span = max(time.monotonic() - t0, 0.05)
-    st.kscfg(["--station", st.station, "restore", undo])
+    rig = ApplyRig(st, t, kind)
+    undo, snapshot, apply_args, span = rig.undo, rig.snapshot, rig.apply_args, rig.span
     died = kept = left = 0
     for _ in range(n):
         if os.path.exists(undo):
