@@ -132,6 +132,7 @@ class Map : public Command {
       MappingSettings s = resolve_settings(base, ce, mo, wa);
       OnlineMap m = map_online(ctx.engine(), current, spec, cat, s, ctx.session_options());
       L = std::move(m.layout);
+      notes = std::move(m.notes);
       // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
       // they give another layout than the one the coupler uses now, the map shows what is in effect
       // and, after it, what the next start brings (issue 23 item 21).
@@ -143,7 +144,6 @@ class Map : public Command {
                                     "coupler (power off and on) to apply them; the map shows both",
                                     next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes));
       }
-      notes = std::move(m.notes);
       for (const auto& r : m.readings)
         readings.push_back({{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg},
                             {"value", r.value}});

@@ -259,3 +259,22 @@ TEST_CASE("issue 36 item 12: a 3 MB name, key or value in a station file is quot
   CHECK(reg.err.size() < 300);
   CHECK_THAT(reg.err, Catch::Contains("...' (100000 bytes)"));
 }
+
+TEST_CASE("issue 36 item 4 (part): map --online says the next start's image and shows both, as set promised",
+          "[issue36][map][serve]") {
+  TempDir d;
+  std::string state = d.file("emulator.json");
+  REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
+  // A serve keeps the layout it started with (a coupler lays its image out at its start).
+  Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
+  Run set = run_kscfg({"--port", srv.uri, "-t", "1", "set", "alternative-format", "off"});
+  INFO(set.err);
+  REQUIRE(set.rc == 0);
+  CHECK_THAT(set.err, Catch::Contains("'kscfg map' shows both"));
+  Run map = run_kscfg({"--port", srv.uri, "map", "--online"});
+  INFO(map.err);
+  REQUIRE(map.rc == 0);
+  // The note was overwritten by the online map's own notes before (map.cpp), so the promise was not kept.
+  CHECK_THAT(map.err, Catch::Contains("another process image at the coupler's next start"));
+  CHECK_THAT(map.out, Catch::Contains("In effect now:"));
+}
