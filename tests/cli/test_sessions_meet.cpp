@@ -449,11 +449,14 @@ TEST_CASE("SIGINT while kscfg waits for a slow coupler's reply: the wait ends at
   Child k(c.args({"--station", c.dir.file("station.toml"), "-v", "--timeout", "3000", "-t", "1", "dump"}));
   // The first register answered: the terminal is in register mode, kscfg waits for the next reply.
   REQUIRE(wait_for([&] { return k.err().find("read  R0") != std::string::npos; }));
+  auto t0 = std::chrono::steady_clock::now();
   k.signal(SIGINT);
-  // It gives the request up at once (the -v trace says after how long), then restores the terminal
-  // over a new connection.
-  CHECK(wait_for([&] { return k.err().find("interrupted after waiting") != std::string::npos; }, 30));
+  // It gives the request up at once (the -v trace says after how long, when the signal came during
+  // the wait for a reply; on a loaded machine it may come between two requests, and the next one is
+  // not sent), then restores the terminal over a new connection: far sooner than the rest of the
+  // dump (some 40 registers at half a second each).
   CHECK(k.wait() == 8);
+  CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10));
   CHECK_THAT(k.err(), Catch::EndsWith("kscfg: error: interrupted\n"));
   CHECK(wait_for([&] {
     auto j = nlohmann::json::parse(read_text(c.state));
