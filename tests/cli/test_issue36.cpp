@@ -68,14 +68,13 @@ TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then 
   Child apply({"--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
   // The coupler goes away while a register write is under way (control byte: REG and W set).
   const std::vector<std::size_t> ctrl{0, 8, 16, 40, 44};
-  REQUIRE(wait_for(
-      [&] {
-        auto o = outputs(uri);
-        for (auto at : ctrl)
-          if (o.size() > at && (o[at] & 0xC0) == 0xC0) return true;
-        return false;
-      },
-      30));
+  auto writing = [&] {
+    auto o = outputs(uri);
+    for (auto at : ctrl)
+      if (o.size() > at && (o[at] & 0xC0) == 0xC0) return true;
+    return false;
+  };
+  REQUIRE(wait_for(writing, 30));
   srv->kill_now();
   REQUIRE(apply.wait(60) == 9);
   auto lines = lines_of(apply.err());
@@ -99,14 +98,7 @@ TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then 
                                  d.file("serve2.err"));
   uri = srv->uri;
   Child json({"--json", "--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
-  REQUIRE(wait_for(
-      [&] {
-        auto o = outputs(uri);
-        for (auto at : ctrl)
-          if (o.size() > at && (o[at] & 0xC0) == 0xC0) return true;
-        return false;
-      },
-      30));
+  REQUIRE(wait_for(writing, 30));
   srv->kill_now();
   REQUIRE(json.wait(60) == 9);
   auto jl = lines_of(json.err());
