@@ -28,29 +28,8 @@ namespace kscfg {
 // Setting up
 
 void ModbusServer::Impl::listen_tcp() {
-  TcpListener l = kscfg::listen_tcp(opt.host, opt.port);
-  listen_fd = l.fd;
-  bound_port = l.port;
-  if (!l.loopback)
-    warn(fmt::format("serving on {} port {}, which is not a loopback address: the emulator has no authentication, "
-                     "and anyone who reaches it can change its state",
-                     opt.host, bound_port));
-  // Room for the connections: raise the soft limit of open files if the hard one allows it.
-  rlimit rl{};
-  if (getrlimit(RLIMIT_NOFILE, &rl) == 0) {
-    rlim_t want = static_cast<rlim_t>(opt.max_connections) + kMaxRefusing + 32;
-    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
-      rlimit raised = rl;
-      raised.rlim_cur = rl.rlim_max == RLIM_INFINITY ? want : std::min(want, rl.rlim_max);
-      if (setrlimit(RLIMIT_NOFILE, &raised) == 0) rl = raised;
-    }
-    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
-      unsigned fit = rl.rlim_cur > kMaxRefusing + 64 ? static_cast<unsigned>(rl.rlim_cur - kMaxRefusing - 32) : 16;
-      warn(fmt::format("at most {} open files allowed: serving at most {} connections instead of {}",
-                       static_cast<unsigned long long>(rl.rlim_cur), fit, opt.max_connections));
-      opt.max_connections = fit;
-    }
-  }
+  // Room for the connections and the ones awaiting their "busy".
+  listen(opt.host, opt.port, "", opt.max_connections, kMaxRefusing);
 }
 
 void ModbusServer::Impl::open_rtu() {
@@ -110,9 +89,6 @@ ModbusServer::Impl::~Impl() {
   stop_kbus = true;
   if (kbus.joinable()) kbus.join();
   saver.reset();
-  for (auto& c : conns)
-    if (c.fd >= 0) ::close(c.fd);
-  if (listen_fd >= 0) ::close(listen_fd);
   if (pty_slave >= 0) ::close(pty_slave);
 }
 

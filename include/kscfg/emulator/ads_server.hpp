@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/emulator/poll_loop.hpp"
 #include "kscfg/link/ams.hpp"
 
 namespace kscfg {
@@ -52,6 +53,9 @@ class AdsServer {
   }
   void run(const std::function<bool()>& stop);
   AdsServeStats stats() const;
+  // Its part in a poll loop that serves other servers too (run_poll_loop); run() is that loop
+  // with this server alone.
+  PollSource& poll_source();
 
  private:
   struct Impl;

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/emulator/poll_loop.hpp"
 #include "kscfg/link/modbus_client.hpp"
 
 namespace kscfg {
@@ -78,6 +79,9 @@ class ModbusServer {
   // Serves until `stop()` says so (the CLI: its cancellation token signalled).
   void run(const std::function<bool()>& stop);
   ServeStats stats() const;
+  // Its part in a poll loop that serves other servers too (run_poll_loop); run() is that loop
+  // with this server alone.
+  PollSource& poll_source();
 
  private:
   struct Impl;
