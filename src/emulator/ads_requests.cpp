@@ -225,8 +225,15 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
 }
 
 bool AdsRequestHandler::kbus_cycle(std::chrono::steady_clock::time_point now) {
+  {
+    std::lock_guard<std::mutex> g(mu_);
+    station_.cycle();
+  }
+  return watchdog(now);
+}
+
+bool AdsRequestHandler::watchdog(std::chrono::steady_clock::time_point now) {
   std::lock_guard<std::mutex> g(mu_);
-  station_.cycle();
   if (wd_armed_ && opt_.watchdog_ms > 0 && now - wd_last_ > std::chrono::milliseconds(opt_.watchdog_ms)) {
     std::fill(station_.outputs().begin(), station_.outputs().end(), 0);
     wd_armed_ = false;

@@ -25,7 +25,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/ads_requests.hpp"
-#include "modbus_saver.hpp"
+#include "kscfg/emulator/served_station.hpp"
 #include "stream_server.hpp"
 
 namespace kscfg {
@@ -46,12 +46,10 @@ struct Conn : serving::StreamConn {
 struct AdsServer::Impl : serving::StreamServer<Conn> {
   EmulatedStation& station;
   AdsServeOptions opt;
+  std::optional<StationHold> host;  // its K-bus, lock and saving: its own or shared
   std::optional<AdsRequestHandler> handler;
-  std::optional<StateSaver> saver;
   mutable std::mutex stats_mu;
   AdsServeStats st;
-  std::thread kbus;
-  std::atomic<bool> stop_kbus{false};
 
   Impl(EmulatedStation& s, AdsServeOptions o)
       : StreamServer({16 * 1024, 64 * 1024, 16}, o.frame_timeout_ms), station(s), opt(std::move(o)) {
@@ -59,9 +57,7 @@ struct AdsServer::Impl : serving::StreamServer<Conn> {
     warn_fn = opt.warn;
   }
   ~Impl() override {
-    stop_kbus = true;
-    if (kbus.joinable()) kbus.join();
-    saver.reset();
+    host.reset();  // before the handler its watchdog calls
   }
   void count(std::size_t AdsServeStats::*f) {
     std::lock_guard<std::mutex> g(stats_mu);
@@ -86,33 +82,28 @@ struct AdsServer::Impl : serving::StreamServer<Conn> {
   void timed_out() override { count(&AdsServeStats::timed_out); }
 };
 
-AdsServer::AdsServer(EmulatedStation& station, AdsServeOptions opt)
+AdsServer::AdsServer(EmulatedStation& station, AdsServeOptions opt) : AdsServer(nullptr, station, std::move(opt)) {}
+
+AdsServer::AdsServer(ServedStation& station, AdsServeOptions opt)
+    : AdsServer(&station, station.station(), std::move(opt)) {}
+
+AdsServer::AdsServer(ServedStation* shared, EmulatedStation& station, AdsServeOptions opt)
     : impl_(std::make_unique<Impl>(station, std::move(opt))) {
   Impl& I = *impl_;
-  station.kbus_cycle_us = I.opt.cycle_us;
+  I.host.emplace(shared, station, I.opt, [&I](const std::string& s) { I.warn(s); });
   AdsRequestHandler::Options ho;
   ho.netid = I.opt.netid;
   ho.routes = I.opt.routes;
   ho.watchdog_ms = I.opt.watchdog_ms;
   ho.register_ms = I.opt.register_ms;
   ho.trace = I.opt.trace;
+  ho.lock = &(*I.host)->lock();
   I.handler.emplace(station, ho);
   I.listen(I.opt.host, I.opt.port, "ADS ", I.opt.max_connections, 0);
-  if (I.opt.save_state)
-    I.saver.emplace([&I] { return I.handler->with_station([](EmulatedStation& s) { return s.to_json().dump(1) + "\n"; }); },
-                    I.opt.save_state, [&I](const std::string& s) { I.warn(s); }, milliseconds(I.opt.save_delay_ms));
-  I.kbus = std::thread([&I] {
-    auto next = Clock::now();
-    while (!I.stop_kbus) {
-      if (I.handler->kbus_cycle(Clock::now())) {
-        I.count(&AdsServeStats::watchdog_expired);
-        if (I.saver) I.saver->changed();
-      }
-      next += std::chrono::microseconds(I.opt.cycle_us);
-      auto now = Clock::now();
-      if (next < now - milliseconds(50)) next = now;
-      std::this_thread::sleep_until(next);
-    }
+  I.host->watch([&I](Clock::time_point now) {
+    bool expired = I.handler->watchdog(now);
+    if (expired) I.count(&AdsServeStats::watchdog_expired);
+    return expired;
   });
 }
 
@@ -127,7 +118,7 @@ std::string AdsServer::endpoint() const {
 AdsServeStats AdsServer::stats() const {
   std::lock_guard<std::mutex> g(impl_->stats_mu);
   AdsServeStats s = impl_->st;
-  if (impl_->saver) s.saves = impl_->saver->saves();
+  s.saves = (*impl_->host)->saves();
   return s;
 }
 
@@ -153,7 +144,7 @@ void AdsServer::Impl::request(Conn& c, std::vector<std::uint8_t> frame, Clock::t
   count(&AdsServeStats::requests);
   AdsReply r = handler->handle(frame, now, c.self);
   if (r.frame.empty()) count(&AdsServeStats::malformed);
-  if (r.changed && saver) saver->changed();
+  if (r.changed) (*host)->changed();
   if (!r.what.empty()) trace(r.what);
   // A reply held back holds up the ones after it: replies leave in the order of the requests.
   if (r.delay_ms || !c.held.empty()) c.held.emplace_back(now + milliseconds(r.delay_ms), std::move(r.frame));
@@ -176,7 +167,7 @@ bool AdsServer::Impl::expire(Conn& c, Clock::time_point now) {
 
 void AdsServer::run(const std::function<bool()>& stop) {
   run_poll_loop({impl_.get()}, stop);
-  if (impl_->saver) impl_->saver->flush();
+  (*impl_->host)->flush();
 }
 
 PollSource& AdsServer::poll_source() { return *impl_; }

@@ -129,7 +129,7 @@ void ModbusServer::Impl::request(Conn& c, std::vector<std::uint8_t> adu, Clock::
 
 void ModbusServer::Impl::execute(Conn& c, std::span<const std::uint8_t> adu, Fault fault, Clock::time_point now) {
   ModbusReply r = handler->execute(adu, now);
-  if (r.changed && saver) saver->changed();
+  if (r.changed) (*host)->changed();
   if (fault == Fault::drop) {
     count(&ServeStats::dropped);
     trace(fmt::format("FC{}: fault: reply dropped", r.function));
@@ -168,7 +168,7 @@ void ModbusServer::Impl::deadline(const Conn& c, Clock::time_point& next) const 
 
 void ModbusServer::run(const std::function<bool()>& stop) {
   run_poll_loop({impl_.get()}, stop);
-  if (impl_->saver) impl_->saver->flush();
+  (*impl_->host)->flush();
 }
 
 PollSource& ModbusServer::poll_source() { return *impl_; }

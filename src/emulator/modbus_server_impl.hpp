@@ -10,13 +10,13 @@
 #include <optional>
 #include <span>
 #include <string>
-#include <thread>
+#include <memory>
 #include <vector>
 
 #include "kscfg/emulator/modbus_requests.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "modbus_faults.hpp"
-#include "modbus_saver.hpp"
+#include "kscfg/emulator/served_station.hpp"
 #include "stream_server.hpp"
 
 namespace kscfg {
@@ -45,9 +45,9 @@ struct ModbusServer::Impl : serving::StreamServer<Conn> {
   EmulatedStation& station;
   ServeOptions opt;
   bool tcp = true;
+  std::optional<StationHold> host;  // its K-bus, lock and saving: its own or shared
   std::optional<ModbusRequestHandler> handler;
   FaultInjector faults;
-  std::optional<StateSaver> saver;
   mutable std::mutex stats_mu;
   ServeStats st;
   unsigned served = 0;    // TCP connections not refusing
@@ -55,8 +55,6 @@ struct ModbusServer::Impl : serving::StreamServer<Conn> {
   int pty_slave = -1;  // kept open so the master never sees a hang-up between clients
   std::string pty_name;
   Clock::duration rtu_silence{};
-  std::thread kbus;
-  std::atomic<bool> stop_kbus{false};
 
   Impl(EmulatedStation& s, ServeOptions o)
       : StreamServer({8192, 64 * 1024, 16}, o.frame_timeout_ms),
@@ -76,7 +74,6 @@ struct ModbusServer::Impl : serving::StreamServer<Conn> {
 
   void listen_tcp();
   void open_rtu();
-  void kbus_loop();
   void execute(Conn& c, std::span<const std::uint8_t> adu, Fault fault, Clock::time_point now);
 
   // The stream server's hooks (modbus_server.cpp).

@@ -1,5 +1,6 @@
 // ModbusServer, setting up (modbus_server_impl.hpp): listening on TCP, opening the RTU line or a
-// pseudo-terminal, the server's life and what it tells (endpoint, stats), and the K-bus thread.
+// pseudo-terminal, the server's life on its station (served_station.hpp: the K-bus and the
+// saving) and what it tells (endpoint, stats).
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -65,30 +66,35 @@ void ModbusServer::Impl::open_rtu() {
   rtu_silence = std::max<Clock::duration>(t35, milliseconds(5));
 }
 
-ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt)
+ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt) : ModbusServer(nullptr, station, std::move(opt)) {}
+
+ModbusServer::ModbusServer(ServedStation& station, ServeOptions opt)
+    : ModbusServer(&station, station.station(), std::move(opt)) {}
+
+ModbusServer::ModbusServer(ServedStation* shared, EmulatedStation& station, ServeOptions opt)
     : impl_(std::make_unique<Impl>(station, std::move(opt))) {
   Impl& I = *impl_;
-  station.kbus_cycle_us = I.opt.cycle_us;
+  I.host.emplace(shared, station, I.opt, [&I](const std::string& s) { I.warn(s); });
   ModbusRequestHandler::Options ho;
   ho.framing = I.tcp ? ModbusFraming::tcp : ModbusFraming::rtu;
   ho.unit = I.opt.unit;
   ho.watchdog_ms = I.opt.watchdog_ms;
   ho.trace = I.opt.trace;
+  ho.lock = &(*I.host)->lock();
   I.handler.emplace(station, ho);  // checks the image against the register map
   if (I.tcp) I.listen_tcp();
   else I.open_rtu();
-  if (I.opt.save_state)
-    I.saver.emplace([&I] { return I.handler->with_station([](EmulatedStation& s) { return s.to_json().dump(1) + "\n"; }); },
-                    I.opt.save_state, [&I](const std::string& s) { I.warn(s); }, milliseconds(I.opt.save_delay_ms));
-  I.kbus = std::thread([&I] { I.kbus_loop(); });
+  I.host->watch([&I](Clock::time_point now) {
+    bool expired = I.handler->watchdog(now);
+    if (expired) I.count(&ServeStats::watchdog_expired);
+    return expired;
+  });
 }
 
 // The resources live in Impl, so they are released also when the constructor throws half-way
 // (a port in use, a pty that cannot be opened): impl_ is a constructed member then.
 ModbusServer::Impl::~Impl() {
-  stop_kbus = true;
-  if (kbus.joinable()) kbus.join();
-  saver.reset();
+  host.reset();  // before the handler its watchdog calls
   if (pty_slave >= 0) ::close(pty_slave);
 }
 
@@ -111,26 +117,9 @@ std::string ModbusServer::endpoint() const {
 ServeStats ModbusServer::stats() const {
   std::lock_guard<std::mutex> g(impl_->stats_mu);
   ServeStats s = impl_->st;
-  if (impl_->saver) s.saves = impl_->saver->saves();
+  s.cycles = (*impl_->host)->cycles();
+  s.saves = (*impl_->host)->saves();
   return s;
-}
-
-// ---------------------------------------------------------------------------------------------
-// The K-bus: one cycle every cycle_us on its own clock; the watchdog is checked there too.
-
-void ModbusServer::Impl::kbus_loop() {
-  auto next = Clock::now();
-  while (!stop_kbus) {
-    if (handler->kbus_cycle(Clock::now())) {
-      count(&ServeStats::watchdog_expired);
-      if (saver) saver->changed();
-    }
-    count(&ServeStats::cycles);
-    next += std::chrono::microseconds(opt.cycle_us);
-    auto now = Clock::now();
-    if (next < now - milliseconds(50)) next = now;  // after a stall, do not race to catch up
-    std::this_thread::sleep_until(next);
-  }
 }
 
 }  // namespace kscfg
