@@ -227,6 +227,19 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
   }
 }
 
+std::string Server::next_line(double timeout_s) {
+  std::string line;
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  char c;
+  while (std::chrono::steady_clock::now() < deadline) {
+    pollfd p{out_fd, POLLIN, 0};
+    if (poll(&p, 1, 100) <= 0) continue;
+    if (read(out_fd, &c, 1) != 1 || c == '\n') break;
+    line += c;
+  }
+  return line;
+}
+
 int Server::stop(int sig) {
   if (pid <= 0) return -1;
   kill(pid, sig);
