@@ -127,7 +127,15 @@ bool AdsServer::Impl::admit(Conn& c, Clock::time_point) {
   for (const auto& o : conns) open += !o.dead;
   if (open >= opt.max_connections) {
     count(&AdsServeStats::refused);
-    warn(fmt::format("connection limit ({}) reached: closing {}", opt.max_connections, c.peer));
+    std::size_t n;
+    {
+      std::lock_guard<std::mutex> g(stats_mu);
+      n = st.refused;
+    }
+    // Said once and then every hundredth, as the Modbus server does: a client that tries again
+    // within its busy wait would fill stderr.
+    if (n == 1 || n % 100 == 0)
+      warn(fmt::format("connection limit ({}) reached: closing {} ({} closed so far)", opt.max_connections, c.peer, n));
     return false;
   }
   sockaddr_storage local{};
