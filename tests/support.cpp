@@ -196,12 +196,18 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
     : err_path(err_file) {
   int out[2];
   if (pipe(out) != 0) throw std::runtime_error("pipe");
+  std::string cache = test_cache_dir();
   pid = fork();
   if (pid == 0) {
     dup2(out[1], 1);
     int e = open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     dup2(e, 2);
     close(out[0]);
+    // As run_kscfg's: what the serve records beside its coupler locks (serve --tcp --ads) goes in
+    // this test process's lock directory, where its clients look.
+    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
+    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
+    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
     std::vector<std::string> a = {KSCFG_BIN, "--port", "emu:" + state, "serve"};
     a.insert(a.end(), args.begin(), args.end());
     std::vector<char*> argv;

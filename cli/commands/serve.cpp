@@ -19,6 +19,7 @@
 #include "kscfg/emulator/served_station.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/link/ams.hpp"
+#include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/discovery/open.hpp"
 
@@ -160,6 +161,15 @@ class Serve : public Command {
         ServedStation shared(station, ServedStation::Options{so->cycle_us, save, so->save_delay_ms, so->warn});
         ModbusServer m(shared, *so);
         AdsServer a(shared, *ao);
+        // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and
+        // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
+        std::optional<CouplerAlias> alias;
+        try {
+          alias.emplace(coupler_key(local_ads(a.endpoint())), coupler_key(local_modbus(m.endpoint())));
+        } catch (const Error& e) {
+          so->warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(),
+                               a.endpoint()));
+        }
         listening({m.endpoint(), a.endpoint()});
         run_poll_loop({&m.poll_source(), &a.poll_source()}, stop);
         shared.flush();
@@ -241,6 +251,25 @@ class Serve : public Command {
       ao.register_ms = static_cast<unsigned>(parse_uint(ads_register_ms_, 60000, "register access time"));
     common_options(ctx, ao);
     return ao;
+  }
+
+  // The target a client of this computer gives for a server's endpoint ("tcp://*:5020": every
+  // address of this computer is one host, link/coupler_key.hpp).
+  static unsigned port_of(const std::string& endpoint) {
+    return static_cast<unsigned>(std::stoul(endpoint.substr(endpoint.rfind(':') + 1)));
+  }
+  static ModbusTarget local_modbus(const std::string& endpoint) {
+    ModbusTarget t;
+    t.tcp = true;
+    t.host = "127.0.0.1";
+    t.port = port_of(endpoint);
+    return t;
+  }
+  static AdsTarget local_ads(const std::string& endpoint) {
+    AdsTarget t;
+    t.host = "127.0.0.1";
+    t.port = port_of(endpoint);
+    return t;
   }
 
   static std::pair<std::string, unsigned> host_port(const char* opt, const std::string& v) {
