@@ -360,10 +360,12 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
       if (pending.empty()) {
         // A connection idle for longer than the coupler keeps one, or closed by it: open a fresh one.
         bool idle = fd_ >= 0 && ms_since(last_activity_) + 500 >= static_cast<long long>(opt_.idle_cut_ms);
+        bool was_open = fd_ >= 0;
         if (fd_ < 0 || idle || peer_closed()) {
-          if (opt_.trace && fd_ >= 0)
-            opt_.trace(fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
-                                   ms_since(last_activity_), opt_.idle_cut_ms));
+          if (opt_.trace && was_open)
+            opt_.trace(idle ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
+                                          ms_since(last_activity_), opt_.idle_cut_ms)
+                            : std::string("ads: reopening the connection (the coupler closed it)"));
           connect();
         }
       }
