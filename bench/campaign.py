@@ -17,9 +17,8 @@ itself dying.
 CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
 own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
 an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer);
-issue 32's spellings (one coupler through localhost and 127.0.0.1 at once, Modbus TCP and ADS),
-deadlink12 (the coupler stopped during such an apply) and kill9force (kill -9 of data force); issue
-35's twoprotocols (writers over Modbus TCP and over ADS at once on one `serve --tcp --ads`).
+issue 32's spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped during
+such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
