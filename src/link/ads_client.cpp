@@ -294,6 +294,15 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   };
   // The connection is gone with replies outstanding: send them again on a fresh one if that is
   // harmless, once per batch; otherwise the outcome of a write is unknown.
+  // The requests outstanding, in their order, to send again on a fresh connection.
+  auto again = [&] {
+    std::vector<std::size_t> v;
+    for (const auto& [id, p] : pending) v.push_back(p.index);
+    pending.clear();
+    connect();
+    std::sort(v.begin(), v.end());
+    return v;
+  };
   auto lost = [&](const Error& why, bool timeout = false) {
     // A connection closed or reset before any answer came on it: the server is full (all its
     // connections in use; serve --ads closes one more at once), or turns this client away. Tried
@@ -320,12 +329,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
         opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again",
                                target_.where(), why.what()));
       if (!sleep_for_or_cancelled(busy::kPause, opt_.cancel)) check_interrupt(opt_);
-      std::vector<std::size_t> again;
-      for (const auto& [id, p] : pending) again.push_back(p.index);
-      pending.clear();
-      connect();
-      std::sort(again.begin(), again.end());
-      return again;
+      return again();
     }
     disconnect();
     for (const auto& [id, p] : pending)
@@ -337,12 +341,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
     if (repeated) throw why;
     repeated = true;
     if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), pending.size()));
-    std::vector<std::size_t> again;
-    for (const auto& [id, p] : pending) again.push_back(p.index);
-    pending.clear();
-    connect();
-    std::sort(again.begin(), again.end());
-    return again;
+    return again();
   };
   std::vector<std::size_t> resend;
 
