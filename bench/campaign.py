@@ -17,8 +17,8 @@ itself dying.
 CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
 own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
 an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer);
-issue 32's spellings (one coupler through localhost and 127.0.0.1 at once, Modbus TCP and ADS),
-deadlink12 (the coupler stopped during such an apply) and kill9force (kill -9 of data force).
+issue 32's spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped during
+such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
@@ -69,10 +69,10 @@ def outcome(rc, err, ok=(0,)):
 class Serve:
     """kscfg serve in a child process; .uri is what it printed."""
 
-    def __init__(self, state, *args):
+    def __init__(self, state, *args, env=None):
         self.err = tempfile.TemporaryFile(mode="w+")
         self.p = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--tcp", "127.0.0.1:0"] + list(args),
-                                  stdout=subprocess.PIPE, stderr=self.err, text=True)
+                                  stdout=subprocess.PIPE, stderr=self.err, text=True, env=env)
         self.uri = self.p.stdout.readline().strip()
         if not self.uri.startswith("tcp://"):
             raise SystemExit("serve did not start: " + self.errors())
@@ -553,7 +553,7 @@ def campaign_durability(n, seed, work):
 # Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick)).
 ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
              **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"),
-             **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"), "spellings": "campaign_spellings"}
+             **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"), **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings")}
 
 
 def main():

@@ -36,7 +36,7 @@ OWN = {1: range(0, 8), 2: range(8, 16), 3: range(16, 40), 4: range(40, 48)}  # e
 class Coupler:
     """kscfg serve or the peer, with the same view of its state: registers, unlocked, output image."""
 
-    def __init__(self, C, kind, work, name):
+    def __init__(self, C, kind, work, name, serve_args=()):
         self.C, self.kind = C, kind
         self.env = dict(os.environ, XDG_CACHE_HOME=os.path.join(work, name, "cache"),
                         XDG_STATE_HOME=os.path.join(work, name, "state"), KSCFG_LOCK_DIR=os.path.join(work, name, "locks"))
@@ -45,7 +45,7 @@ class Coupler:
         if kind == "serve":
             self.state_path = os.path.join(work, name, "emu.json")
             C.run(["emu", "reset"], port="emu:" + self.state_path)
-            self.srv = C.Serve(self.state_path, "--watchdog-ms", "0")
+            self.srv = C.Serve(self.state_path, "--watchdog-ms", "0", *serve_args, env=self.env)
             self.uri = self.srv.uri
         else:
             import peerproc

@@ -196,12 +196,18 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
     : err_path(err_file) {
   int out[2];
   if (pipe(out) != 0) throw std::runtime_error("pipe");
+  std::string cache = test_cache_dir();
   pid = fork();
   if (pid == 0) {
     dup2(out[1], 1);
     int e = open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     dup2(e, 2);
     close(out[0]);
+    // As run_kscfg's: what the serve records beside its coupler locks (serve --tcp --ads) goes in
+    // this test process's lock directory, where its clients look.
+    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
+    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
+    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
     std::vector<std::string> a = {KSCFG_BIN, "--port", "emu:" + state, "serve"};
     a.insert(a.end(), args.begin(), args.end());
     std::vector<char*> argv;
@@ -225,6 +231,19 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
     kill_now();
     throw std::runtime_error("kscfg serve printed no address: " + read_text(err_file));
   }
+}
+
+std::string Server::next_line(double timeout_s) {
+  std::string line;
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  char c;
+  while (std::chrono::steady_clock::now() < deadline) {
+    pollfd p{out_fd, POLLIN, 0};
+    if (poll(&p, 1, 100) <= 0) continue;
+    if (read(out_fd, &c, 1) != 1 || c == '\n') break;
+    line += c;
+  }
+  return line;
 }
 
 int Server::stop(int sig) {

@@ -101,6 +101,9 @@ struct Server {
   void kill_now();
   std::string errors() const { return read_text(err_path); }
   std::string host_port() const { return uri.substr(6); }  // tcp://HOST:PORT
+  // The next line it prints (serve --tcp --ads: the ADS URI after the Modbus one); "" when none
+  // comes within `timeout_s`.
+  std::string next_line(double timeout_s = 60);
 
   int pid = -1;
   std::string uri;

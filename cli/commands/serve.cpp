@@ -1,7 +1,10 @@
-// kscfg serve: the emulated station behind a Modbus TCP or RTU server (BK9000/BK7300 register map).
+// kscfg serve: the emulated station behind a Modbus TCP or RTU server (BK9000/BK7300 register map),
+// an ADS server (BK9000), or Modbus TCP and ADS at once.
 #include <fmt/format.h>
 
+#include <functional>
 #include <iostream>
+#include <optional>
 #include <tuple>
 #include <utility>
 
@@ -12,8 +15,11 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/emulator/ads_server.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
+#include "kscfg/emulator/poll_loop.hpp"
+#include "kscfg/emulator/served_station.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/link/ams.hpp"
+#include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/discovery/open.hpp"
 
@@ -25,7 +31,8 @@ class Serve : public Command {
  public:
   std::string name() const override { return "serve"; }
   std::string brief() const override {
-    return "Serve the emulated station over Modbus TCP, Modbus RTU or ADS (its state file: --port emu:PATH)";
+    return "Serve the emulated station over Modbus TCP, Modbus RTU, ADS, or Modbus TCP and ADS at once (its state "
+           "file: --port emu:PATH)";
   }
   std::string man() const override {
     return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
@@ -82,14 +89,24 @@ class Serve : public Command {
            "when it is not empty, only the NetIds it lists are served, the others get AMS error 0x7. A "
            "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR). "
            "\\fB\\-\\-ads\\-register\\-ms\\fR \\fIMS\\fR makes every terminal register access over port 100 take "
-           "\\fIMS\\fR, one at a time, as a coupler busy on its K\\-bus does (for tests of slow accesses; default 0).";
+           "\\fIMS\\fR, one at a time, as a coupler busy on its K\\-bus does (for tests of slow accesses; default 0).\n"
+           ".IP\n"
+           "\\fB\\-\\-tcp\\fR and \\fB\\-\\-ads\\fR together serve the one station over Modbus TCP and ADS at "
+           "once, as a BK9000 answers both: one emulator, one lock on its state file, one K\\-bus, and one loop "
+           "that handles the requests of every client, whatever its protocol, one at a time. Both URIs are printed, "
+           "the Modbus one first (\\fB\\-\\-json\\fR: \\fB\\(dqport\\(dq\\fR and \\fB\\(dqads\\(dq\\fR); the "
+           "Modbus one is the \\fB\\-p\\fR URI another kscfg on the state file is sent to. "
+           "\\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR and "
+           "\\fB\\-\\-seed\\fR to the Modbus one. Two kscfg reaching the station by tcp:// and by ads:// take "
+           "the one lock of the coupler they both name, and take turns.";
   }
   std::vector<std::string> examples() const override {
     return {"serve --tcp 127.0.0.1:5020", "--port emu:station.json serve --pty",
             "--port emu:station.json serve --tcp 0.0.0.0:502",
             "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
             "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7",
-            "serve --ads 127.0.0.1:48898 --ads-route 192.168.1.20.1.1"};
+            "serve --ads 127.0.0.1:48898 --ads-route 192.168.1.20.1.1",
+            "serve --tcp 127.0.0.1:5020 --ads 127.0.0.1:48898"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--tcp", tcp_, "Serve Modbus TCP on ADDR:PORT (port 0: any free port)")->option_text("ADDR:PORT");
@@ -118,14 +135,86 @@ class Serve : public Command {
   }
 
   int run(Context& ctx) override {
-    ServeOptions so;
-    int modes = !tcp_.empty() + !rtu_.empty() + pty_ + !ads_.empty();
-    if (modes != 1) throw Error(Exit::usage, "give exactly one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT");
-    if (ads_.empty() &&
-        (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
+    int modbus = !tcp_.empty() + !rtu_.empty() + pty_;
+    bool ads = !ads_.empty();
+    if (modbus > 1 || (modbus == 0 && !ads))
+      throw Error(Exit::usage, "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT (or --tcp and "
+                               "--ads together: both protocols on one station)");
+    if (ads && modbus && tcp_.empty())
+      throw Error(Exit::usage, "--ads goes with --tcp only: a BK9000 answers Modbus TCP and ADS, no coupler RTU and ADS");
+    if (!ads && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
       throw Error(Exit::usage,
                   "--ads-route, --ads-netid, --ads-idle-ms and --ads-register-ms go with --ads ADDR:PORT");
-    if (!ads_.empty()) return run_ads(ctx);
+    if (!modbus && (!unit_.empty() || !fault_.empty() || !seed_.empty()))
+      throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
+    std::optional<ServeOptions> so;
+    std::optional<AdsServeOptions> ao;
+    if (modbus) so = modbus_options(ctx);
+    if (ads) ao = ads_options(ctx);
+    std::string path;
+    std::optional<ServeStats> st;
+    std::optional<AdsServeStats> at;
+    auto stop = [&ctx] { return ctx.cancel()->signalled(); };
+    serve_station(ctx, path, [&](EmulatedStation& station, const Saver& save, const Listening& listening) {
+      if (so && ao) {
+        // One station, one K-bus, one saver; both servers in one loop.
+        ServedStation shared(station, ServedStation::Options{so->cycle_us, save, so->save_delay_ms, so->warn});
+        ModbusServer m(shared, *so);
+        AdsServer a(shared, *ao);
+        // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and
+        // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
+        std::optional<CouplerAlias> alias;
+        try {
+          alias.emplace(coupler_key(local_ads(a.endpoint())), coupler_key(local_modbus(m.endpoint())));
+        } catch (const Error& e) {
+          so->warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(),
+                               a.endpoint()));
+        }
+        listening({m.endpoint(), a.endpoint()});
+        run_poll_loop({&m.poll_source(), &a.poll_source()}, stop);
+        shared.flush();
+        st = m.stats();
+        at = a.stats();
+      } else if (so) {
+        so->save_state = save;
+        ModbusServer m(station, *so);
+        listening({m.endpoint()});
+        m.run(stop);
+        st = m.stats();
+      } else {
+        ao->save_state = save;
+        AdsServer a(station, *ao);
+        listening({a.endpoint()});
+        a.run(stop);
+        at = a.stats();
+      }
+    });
+    std::string where = path.empty() ? "memory" : path;
+    if (st && (ctx.options().verbose || so->faults.any() || st->refused || st->timed_out || st->malformed)) {
+      std::string extra;
+      if (st->refused) extra += fmt::format("; {} connection(s) refused (limit {})", st->refused, so->max_connections);
+      if (st->timed_out) extra += fmt::format("; {} slow client(s) disconnected", st->timed_out);
+      if (st->malformed) extra += fmt::format("; {} malformed frame(s)", st->malformed);
+      std::cerr << fmt::format(
+          "kscfg: serve: {} request(s); {} dropped, {} delayed, {} corrupted, {} busy, {} exception(s){}; state saved "
+          "to {}\n",
+          st->requests, st->dropped, st->delayed, st->corrupted, st->busy, st->exceptions, extra, where);
+    }
+    if (at && (ctx.options().verbose || at->refused || at->timed_out || at->malformed))
+      std::cerr << fmt::format(
+          "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} cut idle, {} slow client(s) "
+          "disconnected, {} malformed; state saved to {}\n",
+          at->requests, at->connections, at->refused, ao->max_connections, at->idle_cut, at->timed_out, at->malformed,
+          where);
+    return 0;
+  }
+
+ private:
+  using Saver = std::function<void(const std::string&)>;
+  using Listening = std::function<void(const std::vector<std::string>&)>;
+
+  ServeOptions modbus_options(Context& ctx) const {
+    ServeOptions so;
     if (!tcp_.empty()) {
       so.mode = ServeOptions::Mode::tcp;
       std::tie(so.host, so.port) = host_port("--tcp", tcp_);
@@ -149,23 +238,40 @@ class Serve : public Command {
     common_options(ctx, so);
     so.faults = parse_faults(fault_);
     if (!seed_.empty()) so.seed = parse_uint(seed_, UINT64_MAX, "seed");
-    std::string path;
-    auto st = serve_station<ModbusServer>(ctx, so, path);
-    if (ctx.options().verbose || so.faults.any() || st.refused || st.timed_out || st.malformed) {
-      std::string extra;
-      if (st.refused) extra += fmt::format("; {} connection(s) refused (limit {})", st.refused, so.max_connections);
-      if (st.timed_out) extra += fmt::format("; {} slow client(s) disconnected", st.timed_out);
-      if (st.malformed) extra += fmt::format("; {} malformed frame(s)", st.malformed);
-      std::cerr << fmt::format(
-          "kscfg: serve: {} request(s); {} dropped, {} delayed, {} corrupted, {} busy, {} exception(s){}; state saved "
-          "to {}\n",
-          st.requests, st.dropped, st.delayed, st.corrupted, st.busy, st.exceptions, extra,
-          path.empty() ? "memory" : path);
-    }
-    return 0;
+    return so;
   }
 
- private:
+  AdsServeOptions ads_options(Context& ctx) const {
+    AdsServeOptions ao;
+    std::tie(ao.host, ao.port) = host_port("--ads", ads_);
+    for (const auto& r : ads_routes_) ao.routes.push_back(netid_arg("--ads-route", r));
+    if (!ads_netid_.empty()) ao.netid = netid_arg("--ads-netid", ads_netid_);
+    if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
+    if (!ads_register_ms_.empty())
+      ao.register_ms = static_cast<unsigned>(parse_uint(ads_register_ms_, 60000, "register access time"));
+    common_options(ctx, ao);
+    return ao;
+  }
+
+  // The target a client of this computer gives for a server's endpoint ("tcp://*:5020": every
+  // address of this computer is one host, link/coupler_key.hpp).
+  static unsigned port_of(const std::string& endpoint) {
+    return static_cast<unsigned>(std::stoul(endpoint.substr(endpoint.rfind(':') + 1)));
+  }
+  static ModbusTarget local_modbus(const std::string& endpoint) {
+    ModbusTarget t;
+    t.tcp = true;
+    t.host = "127.0.0.1";
+    t.port = port_of(endpoint);
+    return t;
+  }
+  static AdsTarget local_ads(const std::string& endpoint) {
+    AdsTarget t;
+    t.host = "127.0.0.1";
+    t.port = port_of(endpoint);
+    return t;
+  }
+
   static std::pair<std::string, unsigned> host_port(const char* opt, const std::string& v) {
     auto colon = v.rfind(':');
     if (colon == std::string::npos)
@@ -200,58 +306,38 @@ class Serve : public Command {
     o.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
   }
 
-  // Opens the emulator state of --port, serves it until SIGINT/SIGTERM/SIGHUP, saves it and returns
-  // the server's statistics; PATH is the state file served ("" for emu:mem).
-  template <class Server, class Opts>
-  static auto serve_station(Context& ctx, Opts& o, std::string& path) -> decltype(std::declval<Server&>().stats()) {
+  // Opens the emulator state of --port and runs `serve` on its station with the state file's lock
+  // held, until SIGINT/SIGTERM/SIGHUP: `serve` gets the station, the function that saves the state's
+  // text (durable: the servers save soon after every change, not only when they stop) and the one it
+  // calls with its URIs once it listens (stdout, and the record that sends another kscfg on the file
+  // to the first). PATH is the state file served ("" for emu:mem).
+  static void serve_station(Context& ctx, std::string& path,
+                            const std::function<void(EmulatedStation&, const Saver&, const Listening&)>& serve) {
     PortUri p = parse_port_uri(ctx.options().port);
     if (p.scheme != "emu")
       throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
                   "use --port emu, emu:PATH or emu:mem");
     path = p.target.empty() ? EmulatorStore::default_path() : p.target;
     want_signal_origin();
-    // The store (and its lock) lives as long as the server: no other kscfg changes the state meanwhile.
+    // The store (and its lock) lives as long as the servers: no other kscfg changes the state meanwhile.
     EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
-    // Durable: the server saves the state soon after every change, not only when it stops.
-    if (!store.path().empty()) o.save_state = [&store](const std::string& text) { store.save_text(text); };
-    decltype(std::declval<Server&>().stats()) st;
-    {
-      Server server(store.station(), o);
-      store.announce(server.endpoint());  // another kscfg on the file is told where to go
-      if (ctx.json())
-        std::cout << nlohmann::json{{"port", server.endpoint()}, {"state", path}}.dump() << std::endl;
-      else
-        std::cout << server.endpoint() << std::endl;
-      server.run([&ctx] { return ctx.cancel()->signalled(); });
-      st = server.stats();
-    }
-    store.save();         // the server saved already; this writes only if something is left
+    Saver save;
+    if (!store.path().empty()) save = [&store](const std::string& text) { store.save_text(text); };
+    serve(store.station(), save, [&](const std::vector<std::string>& uris) {
+      store.announce(uris.front());  // another kscfg on the file is told where to go
+      if (ctx.json()) {
+        nlohmann::json j{{"port", uris.front()}, {"state", path}};
+        if (uris.size() > 1) j["ads"] = uris[1];
+        std::cout << j.dump() << std::endl;
+      } else {
+        for (const auto& u : uris) std::cout << u << "\n";
+        std::cout << std::flush;
+      }
+    });
+    store.save();         // the servers saved already; this writes only if something is left
     // Who stopped it: a server that ended while nobody meant to stop it names the process.
     std::cerr << "kscfg: serve: stopped by " << first_signal_origin() << std::endl;
     ctx.cancel()->reset();  // stopping is how a server ends: exit status 0
-    return st;
-  }
-
-  int run_ads(Context& ctx) {
-    AdsServeOptions ao;
-    std::tie(ao.host, ao.port) = host_port("--ads", ads_);
-    for (const auto& r : ads_routes_) ao.routes.push_back(netid_arg("--ads-route", r));
-    if (!ads_netid_.empty()) ao.netid = netid_arg("--ads-netid", ads_netid_);
-    if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
-    if (!ads_register_ms_.empty())
-      ao.register_ms = static_cast<unsigned>(parse_uint(ads_register_ms_, 60000, "register access time"));
-    if (!unit_.empty() || !fault_.empty() || !seed_.empty())
-      throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
-    common_options(ctx, ao);
-    std::string path;
-    auto st = serve_station<AdsServer>(ctx, ao, path);
-    if (ctx.options().verbose || st.refused || st.timed_out || st.malformed)
-      std::cerr << fmt::format(
-          "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} cut idle, {} slow client(s) "
-          "disconnected, {} malformed; state saved to {}\n",
-          st.requests, st.connections, st.refused, ao.max_connections, st.idle_cut, st.timed_out, st.malformed,
-          path.empty() ? "memory" : path);
-    return 0;
   }
 
   std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_, ads_, ads_netid_, ads_idle_,

@@ -82,7 +82,8 @@ std::uint32_t AdsRequestHandler::registers(const ams::Header& h, const ams::Requ
     rep.what = fmt::format("table {} register {}", hi, lo);
     if (write) return kNotPermitted;  // the tables are read only over ADS
     if (hi != adsreg::kTable9 && hi != adsreg::kTable100) return kBadOffset;  // not documented for a BK9000
-    if (n == 0 || n % 2 || lo > 255 || lo + n / 2 > 256) return kBadSize;
+    if (lo > 255) return kBadOffset;  // a table has registers 0..255: no such register
+    if (n == 0 || n % 2 || lo + n / 2 > 256) return kBadSize;
     for (unsigned k = 0; k < n / 2; ++k) ams::put16(out, table(hi, lo + k));
     return 0;
   }
@@ -225,8 +226,15 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
 }
 
 bool AdsRequestHandler::kbus_cycle(std::chrono::steady_clock::time_point now) {
+  {
+    std::lock_guard<std::mutex> g(mu_);
+    station_.cycle();
+  }
+  return watchdog(now);
+}
+
+bool AdsRequestHandler::watchdog(std::chrono::steady_clock::time_point now) {
   std::lock_guard<std::mutex> g(mu_);
-  station_.cycle();
   if (wd_armed_ && opt_.watchdog_ms > 0 && now - wd_last_ > std::chrono::milliseconds(opt_.watchdog_ms)) {
     std::fill(station_.outputs().begin(), station_.outputs().end(), 0);
     wd_armed_ = false;

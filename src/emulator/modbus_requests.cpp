@@ -361,8 +361,15 @@ ModbusReply ModbusRequestHandler::handle(std::span<const std::uint8_t> adu,
 }
 
 bool ModbusRequestHandler::kbus_cycle(std::chrono::steady_clock::time_point now) {
+  {
+    std::lock_guard<std::mutex> g(mu_);
+    station_.cycle();
+  }
+  return watchdog(now);
+}
+
+bool ModbusRequestHandler::watchdog(std::chrono::steady_clock::time_point now) {
   std::lock_guard<std::mutex> g(mu_);
-  station_.cycle();
   if (wd_active_ && wd_preset_ > 0 && now - wd_last_ > std::chrono::milliseconds(wd_preset_)) {
     // As the coupler does: outputs to zero until the next write telegram.
     std::fill(station_.outputs().begin(), station_.outputs().end(), 0);

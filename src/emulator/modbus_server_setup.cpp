@@ -1,5 +1,6 @@
 // ModbusServer, setting up (modbus_server_impl.hpp): listening on TCP, opening the RTU line or a
-// pseudo-terminal, the server's life and what it tells (endpoint, stats), and the K-bus thread.
+// pseudo-terminal, the server's life on its station (served_station.hpp: the K-bus and the
+// saving) and what it tells (endpoint, stats).
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -28,29 +29,8 @@ namespace kscfg {
 // Setting up
 
 void ModbusServer::Impl::listen_tcp() {
-  TcpListener l = kscfg::listen_tcp(opt.host, opt.port);
-  listen_fd = l.fd;
-  bound_port = l.port;
-  if (!l.loopback)
-    warn(fmt::format("serving on {} port {}, which is not a loopback address: the emulator has no authentication, "
-                     "and anyone who reaches it can change its state",
-                     opt.host, bound_port));
-  // Room for the connections: raise the soft limit of open files if the hard one allows it.
-  rlimit rl{};
-  if (getrlimit(RLIMIT_NOFILE, &rl) == 0) {
-    rlim_t want = static_cast<rlim_t>(opt.max_connections) + kMaxRefusing + 32;
-    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
-      rlimit raised = rl;
-      raised.rlim_cur = rl.rlim_max == RLIM_INFINITY ? want : std::min(want, rl.rlim_max);
-      if (setrlimit(RLIMIT_NOFILE, &raised) == 0) rl = raised;
-    }
-    if (rl.rlim_cur != RLIM_INFINITY && rl.rlim_cur < want) {
-      unsigned fit = rl.rlim_cur > kMaxRefusing + 64 ? static_cast<unsigned>(rl.rlim_cur - kMaxRefusing - 32) : 16;
-      warn(fmt::format("at most {} open files allowed: serving at most {} connections instead of {}",
-                       static_cast<unsigned long long>(rl.rlim_cur), fit, opt.max_connections));
-      opt.max_connections = fit;
-    }
-  }
+  // Room for the connections and the ones awaiting their "busy".
+  listen(opt.host, opt.port, "", opt.max_connections, kMaxRefusing);
 }
 
 void ModbusServer::Impl::open_rtu() {
@@ -86,33 +66,35 @@ void ModbusServer::Impl::open_rtu() {
   rtu_silence = std::max<Clock::duration>(t35, milliseconds(5));
 }
 
-ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt)
+ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt) : ModbusServer(nullptr, station, std::move(opt)) {}
+
+ModbusServer::ModbusServer(ServedStation& station, ServeOptions opt)
+    : ModbusServer(&station, station.station(), std::move(opt)) {}
+
+ModbusServer::ModbusServer(ServedStation* shared, EmulatedStation& station, ServeOptions opt)
     : impl_(std::make_unique<Impl>(station, std::move(opt))) {
   Impl& I = *impl_;
-  station.kbus_cycle_us = I.opt.cycle_us;
+  I.host.emplace(shared, station, I.opt, [&I](const std::string& s) { I.warn(s); });
   ModbusRequestHandler::Options ho;
   ho.framing = I.tcp ? ModbusFraming::tcp : ModbusFraming::rtu;
   ho.unit = I.opt.unit;
   ho.watchdog_ms = I.opt.watchdog_ms;
   ho.trace = I.opt.trace;
+  ho.lock = &(*I.host)->lock();
   I.handler.emplace(station, ho);  // checks the image against the register map
   if (I.tcp) I.listen_tcp();
   else I.open_rtu();
-  if (I.opt.save_state)
-    I.saver.emplace([&I] { return I.handler->with_station([](EmulatedStation& s) { return s.to_json().dump(1) + "\n"; }); },
-                    I.opt.save_state, [&I](const std::string& s) { I.warn(s); }, milliseconds(I.opt.save_delay_ms));
-  I.kbus = std::thread([&I] { I.kbus_loop(); });
+  I.host->watch([&I](Clock::time_point now) {
+    bool expired = I.handler->watchdog(now);
+    if (expired) I.count(&ServeStats::watchdog_expired);
+    return expired;
+  });
 }
 
 // The resources live in Impl, so they are released also when the constructor throws half-way
 // (a port in use, a pty that cannot be opened): impl_ is a constructed member then.
 ModbusServer::Impl::~Impl() {
-  stop_kbus = true;
-  if (kbus.joinable()) kbus.join();
-  saver.reset();
-  for (auto& c : conns)
-    if (c.fd >= 0) ::close(c.fd);
-  if (listen_fd >= 0) ::close(listen_fd);
+  host.reset();  // before the handler its watchdog calls
   if (pty_slave >= 0) ::close(pty_slave);
 }
 
@@ -135,26 +117,9 @@ std::string ModbusServer::endpoint() const {
 ServeStats ModbusServer::stats() const {
   std::lock_guard<std::mutex> g(impl_->stats_mu);
   ServeStats s = impl_->st;
-  if (impl_->saver) s.saves = impl_->saver->saves();
+  s.cycles = (*impl_->host)->cycles();
+  s.saves = (*impl_->host)->saves();
   return s;
-}
-
-// ---------------------------------------------------------------------------------------------
-// The K-bus: one cycle every cycle_us on its own clock; the watchdog is checked there too.
-
-void ModbusServer::Impl::kbus_loop() {
-  auto next = Clock::now();
-  while (!stop_kbus) {
-    if (handler->kbus_cycle(Clock::now())) {
-      count(&ServeStats::watchdog_expired);
-      if (saver) saver->changed();
-    }
-    count(&ServeStats::cycles);
-    next += std::chrono::microseconds(opt.cycle_us);
-    auto now = Clock::now();
-    if (next < now - milliseconds(50)) next = now;  // after a stall, do not race to catch up
-    std::this_thread::sleep_until(next);
-  }
 }
 
 }  // namespace kscfg

@@ -92,8 +92,26 @@ ams::NetId AdsClient::source_netid() {
   return source_id_;
 }
 
+// A refused connection is tried again within the busy wait: a server whose connections are all in
+// use may refuse new ones (a reset on connect) for as long as they are.
 void AdsClient::connect() {
+  for (unsigned attempt = 0;; ++attempt) {
+    try {
+      connect_once();
+      return;
+    } catch (const Error& e) {
+      if (connect_errno_ != ECONNREFUSED) throw;
+      if (attempt >= opt_.busy_retries)
+        throw Error(e.code(), fmt::format("{} ({} attempts)", e.what(), attempt + 1), e.hint());
+      if (opt_.trace) opt_.trace(fmt::format("ads: {}; trying again", e.what()));
+      if (!sleep_for_or_cancelled(busy::kPause, opt_.cancel)) check_interrupt(opt_);
+    }
+  }
+}
+
+void AdsClient::connect_once() {
   disconnect();
+  connect_errno_ = 0;
   addrinfo hints{}, *res = nullptr;
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
@@ -153,20 +171,23 @@ void AdsClient::connect() {
   }
   freeaddrinfo(res);
   if (fd_ < 0) {
+    connect_errno_ = err;
     if (timed_out)
       throw Error(Exit::link,
                   fmt::format("no connection to {} within {} ms", target_.where(), opt_.connect_timeout_ms),
                   "check the address, the cable and that the coupler is powered");
     if (err == ECONNREFUSED)
-      throw Error(Exit::link, fmt::format("connection refused by {}", target_.where()),
+      throw Error(Exit::link,
+                  fmt::format("connection refused by {}", target_.where()),
                   "is ADS enabled on the coupler (table 100, register 15 bit 1) and the port its AMS/TCP port "
-                  "(48898)? 'kscfg serve --ads ADDR:PORT' serves the emulator");
+                  "(48898)? Or are all its connections in use? 'kscfg serve --ads ADDR:PORT' serves the emulator");
     throw Error(Exit::link, fmt::format("cannot connect to {}: {}", target_.where(), std::strerror(err)),
                 "check the address and the network");
   }
   int one = 1;
   setsockopt(fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
   ++connects_;
+  answered_ = false;
   last_activity_ = Clock::now();
   sockaddr_storage local{}, peer{};
   socklen_t ll = sizeof local, pl = sizeof peer;
@@ -258,6 +279,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   std::size_t next = 0, finished = 0;
   std::map<std::uint32_t, Pending> pending;  // by invoke id
   bool repeated = false;                     // one fresh connection per batch for lost replies
+  unsigned turned_away = 0;                  // fresh connections closed before any answer (a full server)
 
   auto header_for = [&](const Call& c, std::uint32_t invoke) {
     ams::Header h;
@@ -272,7 +294,43 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   };
   // The connection is gone with replies outstanding: send them again on a fresh one if that is
   // harmless, once per batch; otherwise the outcome of a write is unknown.
-  auto lost = [&](const Error& why) {
+  // The requests outstanding, in their order, to send again on a fresh connection.
+  auto again = [&] {
+    std::vector<std::size_t> v;
+    for (const auto& [id, p] : pending) v.push_back(p.index);
+    pending.clear();
+    connect();
+    std::sort(v.begin(), v.end());
+    return v;
+  };
+  auto lost = [&](const Error& why, bool timeout = false) {
+    // A connection closed or reset before any answer came on it: the server is full (all its
+    // connections in use; serve --ads closes one more at once), or turns this client away. Tried
+    // again within the busy wait, as a Modbus server that answers busy.
+    if (!timeout && !answered_) {
+      disconnect();
+      const Call& c = calls[pending.empty() ? 0 : pending.begin()->second.index];
+      std::string what = c.what.empty() ? ams::command_name(c.command) : c.what;
+      auto full = [&](const std::string& more) {
+        return Error(Exit::link,
+                     fmt::format("the ADS server at {} is full: it closed the connection before answering, {} "
+                                 "time{} ({}: {}){}",
+                                 target_.where(), turned_away + 1, turned_away ? "s" : "", what, why.what(), more),
+                     "all its connections are in use (other ADS clients of the coupler, or kscfg serve "
+                     "--max-connections); close one or try again later");
+      };
+      for (const auto& [id, p] : pending)
+        if (!calls[p.index].repeatable)
+          throw full(fmt::format("; the outcome of {} is unknown: read the value back",
+                                 calls[p.index].what.empty() ? "a write" : calls[p.index].what));
+      if (turned_away >= opt_.busy_retries) throw full("");
+      ++turned_away;
+      if (opt_.trace)
+        opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again",
+                               target_.where(), why.what()));
+      if (!sleep_for_or_cancelled(busy::kPause, opt_.cancel)) check_interrupt(opt_);
+      return again();
+    }
     disconnect();
     for (const auto& [id, p] : pending)
       if (!calls[p.index].repeatable)
@@ -283,12 +341,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
     if (repeated) throw why;
     repeated = true;
     if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), pending.size()));
-    std::vector<std::size_t> again;
-    for (const auto& [id, p] : pending) again.push_back(p.index);
-    pending.clear();
-    connect();
-    std::sort(again.begin(), again.end());
-    return again;
+    return again();
   };
   std::vector<std::size_t> resend;
 
@@ -306,10 +359,12 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
       if (pending.empty()) {
         // A connection idle for longer than the coupler keeps one, or closed by it: open a fresh one.
         bool idle = fd_ >= 0 && ms_since(last_activity_) + 500 >= static_cast<long long>(opt_.idle_cut_ms);
+        bool was_open = fd_ >= 0;
         if (fd_ < 0 || idle || peer_closed()) {
-          if (opt_.trace && fd_ >= 0)
-            opt_.trace(fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
-                                   ms_since(last_activity_), opt_.idle_cut_ms));
+          if (opt_.trace && was_open)
+            opt_.trace(idle ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
+                                          ms_since(last_activity_), opt_.idle_cut_ms)
+                            : std::string("ads: reopening the connection (the coupler closed it)"));
           connect();
         }
       }
@@ -343,7 +398,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
                 "(--timeout)");
       if (c.port == adsport::kRegisters && late->timeout_ms <= 1000)
         why = Error(Exit::link, why.what(), "the coupler needs more than 1 s for a register access: --timeout 2000");
-      resend = lost(why);
+      resend = lost(why, true);
       continue;
     }
     try {
@@ -360,6 +415,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
     for (;;) {
       auto fc = ams::check_frame(in_);
       if (fc.status == ams::FrameCheck::need_more) break;
+      answered_ = true;
       if (fc.status == ams::FrameCheck::invalid) {
         disconnect();
         throw Error(Exit::link, fmt::format("{} does not answer in AMS/TCP: {}", target_.where(), fc.why),

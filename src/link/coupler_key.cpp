@@ -6,9 +6,14 @@
 #include <net/if.h>
 #include <netdb.h>
 #include <netinet/in.h>
+#include <signal.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <array>
+#include <cerrno>
 #include <cctype>
 #include <climits>
 #include <cstdint>
@@ -20,6 +25,8 @@
 #include <optional>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
+#include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/ams.hpp"
 
 namespace kscfg {
@@ -121,9 +128,43 @@ std::string resolve(const std::string& host) {
               "check the host name or give an IP address");
 }
 
+std::string alias_path(const std::string& key) { return (std::filesystem::path(lock_dir()) / ("alias-" + key)).string(); }
+
+// The key `key` stands for while a listener's CouplerAlias records it; `key` when none does (no
+// record, a process that is gone or is not a kscfg of the record's owner, a record that is not one).
+// Only listeners of this computer are aliased: a record never speaks for a coupler elsewhere.
+std::string aliased(const std::string& key) {
+  const std::string local = std::string("ip-") + kThisComputer + "-";
+  if (key.rfind(local, 0) != 0) return key;
+  std::string path;
+  try {
+    path = alias_path(key);
+  } catch (const Error&) {
+    return key;  // no lock directory: nothing recorded either
+  }
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return key;
+  RegularFile r = read_regular_file(path, "coupler alias", 512);
+  if (!r.exists || !r.refused.empty()) return key;
+  auto nl = r.text.find('\n');
+  if (nl == std::string::npos || nl == 0 || nl > 10) return key;
+  std::string pid = r.text.substr(0, nl), to = r.text.substr(nl + 1);
+  if (!to.empty() && to.back() == '\n') to.pop_back();
+  if (!std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; }) || to.rfind(local, 0) != 0 ||
+      to.size() > 200 || safe(to) != to)
+    return key;
+  // Its writer: a kscfg of the record's owner that still runs.
+  struct stat ps {};
+  std::string proc = "/proc/" + pid;
+  if (::stat(proc.c_str(), &ps) != 0 || ps.st_uid != st.st_uid) return key;
+  RegularFile comm = read_regular_file(proc + "/comm", "process name", 64);
+  if (!comm.exists || !comm.refused.empty() || comm.text != "kscfg\n") return key;
+  return to;
+}
+
 std::string ip_key(const std::string& host, unsigned port, unsigned standard) {
   std::string a = safe(host_key_address(host));
-  return port == standard ? "ip-" + a : fmt::format("ip-{}-{}", a, port);
+  return aliased(port == standard ? "ip-" + a : fmt::format("ip-{}-{}", a, port));
 }
 
 }  // namespace
@@ -152,6 +193,19 @@ std::string coupler_key(const ModbusTarget& t) {
 }
 
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
+
+CouplerAlias::CouplerAlias(const std::string& also, const std::string& key) {
+  if (also == key) return;
+  std::error_code ec;
+  std::filesystem::create_directories(lock_dir(), ec);
+  std::string path = alias_path(also);
+  write_file_atomic(path, fmt::format("{}\n{}\n", ::getpid(), key));
+  path_ = path;
+}
+
+CouplerAlias::~CouplerAlias() {
+  if (!path_.empty()) ::unlink(path_.c_str());
+}
 
 std::string station_key(const ModbusTarget& t) { return fmt::format("{}-unit{}", coupler_key(t), t.unit); }
 

@@ -311,7 +311,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     // After a timeout the line is read until the late reply has passed or it stayed silent.
     if (timeout && serial_fd_ >= 0) drain_late_reply();
     // A late or garbled reply may still be on its way: let it arrive, then drop it.
-    std::this_thread::sleep_for(std::chrono::milliseconds(e == EMBXSBUSY ? 5 : 2));
+    std::this_thread::sleep_for(e == EMBXSBUSY ? busy::kPause : std::chrono::milliseconds(2));
     modbus_flush(ctx_);
   }
 }

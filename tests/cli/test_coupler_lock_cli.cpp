@@ -213,3 +213,28 @@ TEST_CASE("another user's lock file is locked as it is: its record neither trust
   first.signal(SIGINT);
   CHECK(first.wait() == 0);
 }
+
+TEST_CASE("serve --tcp --ads is one coupler by both ports: kscfg over ads:// waits for kscfg over tcp:// and the "
+          "other way round",
+          "[sessions][lock][serve][ads]") {
+  Served s({"--tcp", "127.0.0.1:0", "--ads", "127.0.0.1:0"});
+  const std::string tcp = s.srv->uri, ads = s.srv->next_line();
+  REQUIRE(ads.rfind("ads://127.0.0.1:", 0) == 0);
+  const std::string ads_port = ads.substr(ads.rfind(':') + 1);
+  // The serve's record that its ADS port is the coupler of its Modbus port, while it runs.
+  const std::string alias = kscfg_lock_dir() + "/alias-ip-127.0.0.1-" + ads_port;
+  CHECK(read_text(alias) == fmt::format("{}\nip-127.0.0.1-{}\n", s.srv->pid, s.port()));
+  for (const auto& [first_uri, then_uri] : {std::pair{tcp, ads}, std::pair{ads, tcp}}) {
+    INFO(first_uri << " then " << then_uri);
+    auto first = holder({"--port", first_uri}, lock_file("ip-127.0.0.1-" + s.port()));
+    Run r = run_kscfg({"--port", then_uri, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+    CHECK(r.rc == 11);  // two locks before: read at once, beside the other's session
+    CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
+                                                  first_uri)));
+    first->signal(SIGINT);
+    CHECK(first->wait() == 0);
+  }
+  CHECK(run_kscfg({"--port", ads, "-t", "1", "read", "--raw", "R8"}).out == "0x1771\n");  // KL6001
+  CHECK(s.srv->stop() == 0);
+  CHECK_FALSE(fs::exists(alias));
+}

@@ -205,6 +205,18 @@ TEST_CASE("ADS errors come by name and code with a hint that names the cause") {
   CHECK(m.find("0x703 (invalid index offset)") != std::string::npos);
   m = message([&] { c.write(adsport::kRegisters, 0, adsreg::table_offset(9, 1), std::vector<std::uint8_t>{0, 0}, "x"); });
   CHECK(m.find("0x704") != std::string::npos);
+  // A table register past 255 is no such register (0x703), not a wrong size (issue 35); a read
+  // that runs past 255 from a register that exists is the wrong size.
+  for (unsigned reg : {256u, 300u, 0xFFFFu}) {
+    INFO(reg);
+    m = message([&] { regs.read_table(9, reg, 1); });
+    CHECK(m.find("0x703 (invalid index offset)") != std::string::npos);
+    m = message([&] { regs.read_table(100, reg, 1); });
+    CHECK(m.find("0x703 (invalid index offset)") != std::string::npos);
+  }
+  CHECK(regs.read_table(100, 255, 1).size() == 1);
+  m = message([&] { c.read(adsport::kRegisters, 0, adsreg::table_offset(100, 255), 4, "two registers from 255"); });
+  CHECK(m.find("0x705") != std::string::npos);
   m = message([&] { c.read(200, 0, 0, 2, "port 200"); });
   CHECK(m.find("AMS error 0x6 (target port not found)") != std::string::npos);
   // ReadState is refused as a BK9050 refuses it.

@@ -3,7 +3,10 @@
 // coupler, other ports keep theirs, a serial device is its real path.
 #include "kscfg/link/coupler_key.hpp"
 
+#include <unistd.h>
+
 #include <catch2/catch.hpp>
+#include <cstdlib>
 #include <filesystem>
 
 #include "kscfg/base/error.hpp"
@@ -89,4 +92,34 @@ TEST_CASE("coupler keys: a serial device and a link to it are one key, whatever 
   CHECK(station_key(mb("rtu:" + d.file("by-id-link") + "?unit=5")) == real + "-unit5");
   // A device that is not there is keyed by its path (its open then says what is wrong).
   CHECK(coupler_key(mb("rtu:" + d.file("gone"))) == "rtu-" + spelled(fs::canonical(d.path).string() + "/gone"));
+}
+
+TEST_CASE("coupler keys: a serve's record makes its ADS port the coupler of its Modbus port, no other record counts",
+          "[link][lock]") {
+  // The lock directory of this process for the case, put back after it.
+  kscfg::test::TempDir d;
+  const char* was = std::getenv("KSCFG_LOCK_DIR");
+  std::string before = was ? was : "";
+  setenv("KSCFG_LOCK_DIR", d.path.c_str(), 1);
+  struct Restore {
+    std::string v;
+    bool had;
+    ~Restore() { had ? setenv("KSCFG_LOCK_DIR", v.c_str(), 1) : unsetenv("KSCFG_LOCK_DIR"); }
+  } restore{before, was != nullptr};
+
+  CHECK(coupler_key(ads("ads://127.0.0.1:40002")) == "ip-127.0.0.1-40002");
+  {
+    // Written by this process, which is no kscfg: the record names a process that cannot be a serve.
+    CouplerAlias a("ip-127.0.0.1-40002", "ip-127.0.0.1-40001");
+    CHECK(fs::exists(d.path + "/alias-ip-127.0.0.1-40002"));
+    CHECK(coupler_key(ads("ads://127.0.0.1:40002")) == "ip-127.0.0.1-40002");
+  }
+  CHECK_FALSE(fs::exists(d.path + "/alias-ip-127.0.0.1-40002"));  // removed with it
+  // Records that are not followed: a process that is gone, a coupler elsewhere, a key elsewhere.
+  kscfg::test::write_text(d.path + "/alias-ip-127.0.0.1-40002", "999999999\nip-127.0.0.1-40001\n");
+  CHECK(coupler_key(ads("ads://127.0.0.1:40002")) == "ip-127.0.0.1-40002");
+  kscfg::test::write_text(d.path + "/alias-ip-10.0.3.11", std::to_string(getpid()) + "\nip-127.0.0.1-40001\n");
+  CHECK(coupler_key(ads("ads://10.0.3.11")) == "ip-10.0.3.11");
+  kscfg::test::write_text(d.path + "/alias-ip-127.0.0.1-40003", std::to_string(getpid()) + "\nip-10.0.3.11\n");
+  CHECK(coupler_key(mb("tcp://127.0.0.1:40003")) == "ip-127.0.0.1-40003");
 }

@@ -45,6 +45,9 @@ class AdsRequestHandler {
     unsigned mute_delay_ms = 1000;    // how long the coupler waits for a terminal that never answers
     unsigned register_ms = 0;         // port 100: each terminal register access takes this long, one at a time
     std::function<void(const std::string&)> trace;
+    // The station's lock when other servers share the station (ServedStation::lock()); null: the
+    // handler's own.
+    std::mutex* lock = nullptr;
   };
   AdsRequestHandler(EmulatedStation& station, Options opt);
 
@@ -54,6 +57,8 @@ class AdsRequestHandler {
                   const ams::NetId& self);
   // One K-bus cycle of the station and the port-300 watchdog; true when the watchdog expired in it.
   bool kbus_cycle(std::chrono::steady_clock::time_point now);
+  // The watchdog check alone (the station cycled by its ServedStation); true when it expired.
+  bool watchdog(std::chrono::steady_clock::time_point now);
   template <class F>
   auto with_station(F&& f) {
     std::lock_guard<std::mutex> g(mu_);
@@ -70,7 +75,8 @@ class AdsRequestHandler {
   EmulatedStation& station_;
   Options opt_;
   std::chrono::steady_clock::time_point register_free_{};  // the last register access answered then
-  std::mutex mu_;
+  std::mutex own_mu_;
+  std::mutex& mu_ = opt_.lock ? *opt_.lock : own_mu_;
   ams::NetId self_{};
   std::vector<unsigned> numbered_;  // plug position of each port-100 terminal number (index + 1)
   bool wd_armed_ = false;

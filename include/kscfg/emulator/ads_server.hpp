@@ -1,6 +1,7 @@
 // The ADS server behind `kscfg serve --ads`: the emulated station as a BK9000's AMS/TCP endpoint
-// (requests: ads_requests.hpp). Built like serve's Modbus server (modbus_server.hpp): one poll()
-// loop, per-connection buffers and deadlines, a connection limit, the K-bus on its own thread.
+// (requests: ads_requests.hpp). Built like serve's Modbus server (modbus_server.hpp), with the same
+// connection handling and poll loop, a connection limit, the K-bus on its own thread
+// (served_station.hpp), alone or beside a Modbus server on one station.
 #pragma once
 #include <atomic>
 #include <functional>
@@ -10,6 +11,8 @@
 #include <vector>
 
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/emulator/poll_loop.hpp"
+#include "kscfg/emulator/served_station.hpp"
 #include "kscfg/link/ams.hpp"
 
 namespace kscfg {
@@ -42,6 +45,9 @@ class AdsServer {
  public:
   // Binds; Error(Exit::link) when it cannot. A non-loopback address is served with a warning.
   AdsServer(EmulatedStation& station, AdsServeOptions opt);
+  // On a station other servers share (serve --tcp --ads): its K-bus, lock and saving are
+  // `station`'s (AdsServeOptions::cycle_us, save_state and save_delay_ms are not used).
+  AdsServer(ServedStation& station, AdsServeOptions opt);
   ~AdsServer();
   AdsServer(const AdsServer&) = delete;
   AdsServer& operator=(const AdsServer&) = delete;
@@ -52,8 +58,12 @@ class AdsServer {
   }
   void run(const std::function<bool()>& stop);
   AdsServeStats stats() const;
+  // Its part in a poll loop that serves other servers too (run_poll_loop); run() is that loop
+  // with this server alone.
+  PollSource& poll_source();
 
  private:
+  AdsServer(ServedStation* shared, EmulatedStation& station, AdsServeOptions opt);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -55,6 +55,9 @@ class ModbusRequestHandler {
     int unit = 1;                 // TCP: also 0 and 255; RTU: also 0 (broadcast: executed, not answered)
     unsigned watchdog_ms = 1000;  // preset at power-on, 0 = off
     std::function<void(const std::string&)> trace;
+    // The station's lock when other servers share the station (ServedStation::lock()); null: the
+    // handler's own.
+    std::mutex* lock = nullptr;
   };
   // Throws Error(usage) when the station's image does not fit the register map (512 bytes each way).
   ModbusRequestHandler(EmulatedStation& station, Options opt);
@@ -72,6 +75,8 @@ class ModbusRequestHandler {
 
   // One K-bus cycle of the station and the watchdog check; true when the watchdog expired in it.
   bool kbus_cycle(std::chrono::steady_clock::time_point now);
+  // The watchdog check alone (the station cycled by its ServedStation); true when it expired.
+  bool watchdog(std::chrono::steady_clock::time_point now);
   // The station under the handler's lock (the K-bus thread and the request handling share it).
   template <class F>
   auto with_station(F&& f) {
@@ -90,7 +95,8 @@ class ModbusRequestHandler {
 
   EmulatedStation& station_;
   Options opt_;
-  std::mutex mu_;
+  std::mutex own_mu_;
+  std::mutex& mu_ = opt_.lock ? *opt_.lock : own_mu_;
   std::size_t in_words_ = 0, out_words_ = 0;
   // Watchdog (0x1020, 0x1120..0x1122)
   std::uint16_t wd_preset_ = 1000, wd_type_ = 1;

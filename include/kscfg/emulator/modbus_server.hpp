@@ -8,6 +8,8 @@
 #include <string>
 
 #include "kscfg/emulator/emulator.hpp"
+#include "kscfg/emulator/poll_loop.hpp"
+#include "kscfg/emulator/served_station.hpp"
 #include "kscfg/link/modbus_client.hpp"
 
 namespace kscfg {
@@ -64,7 +66,11 @@ class ModbusServer {
   // Binds/opens; Error(Exit::link/usage) when it cannot, or when the station's image does not fit
   // the register map (512 bytes each way). A TCP address that is not a loopback one is served
   // with a warning: the emulator has no authentication.
+  // A station of its own: the K-bus (cycle_us) and the saving (save_state) are the server's.
   ModbusServer(EmulatedStation& station, ServeOptions opt);
+  // A station other servers share (serve --tcp --ads): its K-bus, lock and saving are `station`'s
+  // (ServeOptions::cycle_us, save_state and save_delay_ms are not used).
+  ModbusServer(ServedStation& station, ServeOptions opt);
   ~ModbusServer();
   ModbusServer(const ModbusServer&) = delete;
   ModbusServer& operator=(const ModbusServer&) = delete;
@@ -78,8 +84,12 @@ class ModbusServer {
   // Serves until `stop()` says so (the CLI: its cancellation token signalled).
   void run(const std::function<bool()>& stop);
   ServeStats stats() const;
+  // Its part in a poll loop that serves other servers too (run_poll_loop); run() is that loop
+  // with this server alone.
+  PollSource& poll_source();
 
  private:
+  ModbusServer(ServedStation* shared, EmulatedStation& station, ServeOptions opt);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

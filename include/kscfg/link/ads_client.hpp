@@ -18,6 +18,7 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/link/ams.hpp"
+#include "kscfg/link/busy.hpp"
 #include "kscfg/link/port_uri.hpp"
 
 namespace kscfg {
@@ -46,6 +47,9 @@ struct AdsOptions {
   unsigned connect_timeout_ms = 1000;
   unsigned window = 16;          // requests in flight on the connection at most
   unsigned idle_cut_ms = 10000;  // the coupler closes a connection idle this long
+  // A server whose connections are all in use closes (or resets, or refuses) a new one before it
+  // answers anything: tried again this many times, busy::kPause apart, as a busy Modbus server is.
+  unsigned busy_retries = busy::kRetries;
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): every wait looks at it at least every 50 ms and ends
   // with Error(Exit::interrupted) once it is cancelled. Null: never cancelled.
@@ -114,6 +118,7 @@ class AdsClient {
  private:
   struct Pending;
   void connect();
+  void connect_once();
   void disconnect();
   bool peer_closed();  // the coupler has closed the connection (an idle cut) while nothing was pending
   void send_all(const std::vector<std::uint8_t>& frame);
@@ -126,6 +131,8 @@ class AdsClient {
   ams::NetId target_id_{}, source_id_{};
   std::vector<std::uint8_t> in_;
   std::uint32_t next_invoke_ = 1;
+  int connect_errno_ = 0;  // why the last connect_once() failed
+  bool answered_ = false;  // a frame came on this connection (a full server closes one before any)
   std::chrono::steady_clock::time_point last_activity_{};
   std::size_t exchanges_ = 0, connects_ = 0, strays_ = 0;
 };

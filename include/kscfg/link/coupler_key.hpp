@@ -18,6 +18,12 @@
 // the test suite's many serves side by side on 127.0.0.1) the key is address and port,
 // "ip-127.0.0.1-5020": only one listener can have a port, so the protocol need not be in it.
 //
+// A listener that serves one coupler on two ports of its own (`kscfg serve --tcp P1 --ads P2`, as a
+// BK9000 answers Modbus TCP on 502 and ADS on 48898) records that the second port's key stands for
+// the first's while it lives (CouplerAlias): clients over both protocols then take one lock and turns.
+// A record is used only for a listener of this computer ("ip-127.0.0.1-PORT" for another such key),
+// and only when it is a regular file whose owner runs the kscfg process it names.
+//
 // A serial device is keyed by its real path (realpath: a /dev/serial/by-id/ link and its target
 // are one key), whatever the unit: one master at a time on a line. "rtu-_dev_ttyUSB0".
 #pragma once
@@ -37,6 +43,20 @@ std::string host_key_address(const std::string& host);
 // "rtu-DEVICE". Modbus TCP and ADS to one coupler give one key.
 std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
+
+// While it lives, coupler key `also` stands for `key` (the rule above): recorded in the lock directory
+// (base/owner_lock.hpp lock_dir()) as "alias-ALSO" holding "PID\nKEY\n", removed when it dies.
+// Error(Exit::file) when it cannot be written.
+class CouplerAlias {
+ public:
+  CouplerAlias(const std::string& also, const std::string& key);
+  ~CouplerAlias();
+  CouplerAlias(const CouplerAlias&) = delete;
+  CouplerAlias& operator=(const CouplerAlias&) = delete;
+
+ private:
+  std::string path_;
+};
 
 // The station behind a Modbus coupler at its unit id (scan caches and session journals are kept
 // per unit, decision 24): "ip-10.0.3.11-unit1", "rtu-_dev_ttyUSB0-unit3".

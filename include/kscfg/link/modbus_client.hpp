@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/link/busy.hpp"
 #include "kscfg/link/port_uri.hpp"
 
 typedef struct _modbus modbus_t;
@@ -75,7 +76,7 @@ int open_serial(const std::string& device, unsigned baud, char parity, unsigned 
 struct ModbusOptions {
   unsigned response_timeout_ms = 500;  // one request/response
   unsigned connect_timeout_ms = 1000;
-  unsigned retries = 3;                // extra attempts after busy, CRC or garbled replies
+  unsigned retries = busy::kRetries;   // extra attempts after busy, CRC or garbled replies
   unsigned timeout_retries = 1;        // extra attempts after a timeout
   unsigned poll_us = 500;  // between two polls of the input image (pause())
   std::function<void(const std::string&)> trace;
