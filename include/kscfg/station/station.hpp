@@ -63,6 +63,9 @@ struct TerminalSpec {
   // `position = N` (plug position, 1-based) in a partial station file: it names only the terminals
   // it configures, each checked against the station's type there. 0: a full file, plug order.
   unsigned position = 0;
+  // A digital terminal known only by its bits and direction (an ADS coupler's table 9): `type` is
+  // one catalog type with that image, not a type anyone named. Never set by a station file.
+  bool inferred = false;
 };
 
 struct StationSpec {
