@@ -133,6 +133,19 @@ def main():
               and not any(p == 300 for _, _, p, _, _ in peer.log),
               "map --online: R34 of terminal number 1 asked on port 100, nothing on port 300")
         peer.log = None
+        # map over ADS in ADS terms: port-300 index group and offset, port-100 index group per terminal.
+        r = run([a.kscfg, "--port", uri, "map"], 120)
+        check(r.returncode == 0 and "(ADS: image on port 300, registers on port 100)" in r.stdout
+              and "0xF020:8 " in r.stdout and "0xF030:16 " in r.stdout and "Modbus" not in r.stdout
+              and "3   KL3022  index group 3   offsets 0x00000000-0x0001003F" in r.stdout,
+              f"map over ADS: port-300 index groups and offsets, port-100 index groups: {r.stdout.strip()[:900]}")
+        r = run([a.kscfg, "--port", uri, "--json", "map"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        t3 = (j.get("terminals") or [{}] * 3)[2]
+        check(j.get("ads") is True and j.get("modbus") is False
+              and t3.get("inputs", {}).get("ads") == {"port": 300, "index_group": 0xF020, "index_offset": 8}
+              and [(x["position"], x["index_group"]) for x in j.get("ads_registers", [])] == [(1, 1), (3, 3)],
+              f"map --json over ADS: {t3} {j.get('ads_registers')}")
         st = os.path.join(env["XDG_CACHE_HOME"], "scanned.toml")
         os.makedirs(env["XDG_CACHE_HOME"], exist_ok=True)
         r = run([a.kscfg, "--port", uri, "scan", "--write", st, "--force"], 120)
