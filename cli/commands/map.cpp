@@ -49,7 +49,7 @@ nlohmann::json ads_registers_json(const StationLayout& L, unsigned only) {
     for (unsigned c = 0; c < t->type->channels; ++c)
       ch.push_back({{"channel", c + 1}, {"first_offset", adsreg::terminal_offset(c, 0)},
                     {"last_offset", adsreg::terminal_offset(c, 63)}});
-    a.push_back({{"position", t->position}, {"type", t->type->type}, {"port", 100}, {"index_group", n},
+    a.push_back({{"position", t->position}, {"type", t->type->type}, {"ads_port", 100}, {"index_group", n},
                  {"channels", ch}});
   }
   return a;

@@ -28,7 +28,7 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
     j[input ? "inputs" : "outputs"] = img;
   }
   auto ads_json = [](bool input, std::size_t offset) {
-    return json{{"port", kAdsImagePort}, {"index_group", input ? kAdsInputGroup : kAdsOutputGroup},
+    return json{{"ads_port", kAdsImagePort}, {"index_group", input ? kAdsInputGroup : kAdsOutputGroup},
                 {"index_offset", offset}};
   };
   auto byte_json = [&](const ImageByte& b, bool input) {

@@ -143,7 +143,7 @@ def main():
         j = json.loads(r.stdout) if r.returncode == 0 else {}
         t3 = (j.get("terminals") or [{}] * 3)[2]
         check(j.get("ads") is True and j.get("modbus") is False
-              and t3.get("inputs", {}).get("ads") == {"port": 300, "index_group": 0xF020, "index_offset": 8}
+              and t3.get("inputs", {}).get("ads") == {"ads_port": 300, "index_group": 0xF020, "index_offset": 8}
               and [(x["position"], x["index_group"]) for x in j.get("ads_registers", [])] == [(1, 1), (3, 3)],
               f"map --json over ADS: {t3} {j.get('ads_registers')}")
         st = os.path.join(env["XDG_CACHE_HOME"], "scanned.toml")
