@@ -82,6 +82,7 @@ const StationLayout& Context::layout_upto(unsigned position) {
     StationSpec spec = load_station_arg(opt_.station, catalog());
     StationLayout L = compute_layout(spec, catalog());
     if (auto* mb = l.modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), opt_.station);
+    else discovery_->check_described(L, spec, input_name(opt_.station));
     set_layout(std::move(L), true);
     recover_dead_sessions_once();
     return *layout_;

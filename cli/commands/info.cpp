@@ -96,6 +96,14 @@ class Info : public Command {
       const TerminalImage& t = L.terminal(pos);
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
                        {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
+      std::string title = t.type->title;
+      if (t.inferred) {
+        // Table 9 gives a digital terminal's bits and direction, not its type.
+        j["type"] = nullptr;
+        title = fmt::format("{} (the coupler gives no type): {}", digital_label(t), fits_text(t));
+        j["title"] = digital_label(t);
+        j["fits"] = t.fits;
+      }
       std::string r8 = "-", ver = "-";
       if (auto it = job_of.find(pos); it != job_of.end()) {
         const ChannelReads& job = jobs[it->second];
@@ -109,17 +117,35 @@ class Info : public Command {
                                    t.position, v8, t.type->type);
       }
       arr.push_back(j);
-      rows.push_back({fmt::format("{}", t.position), t.type->type, r8, ver, image_ranges(t), t.type->title});
+      rows.push_back({fmt::format("{}", t.position), shown_type(t), r8, ver, image_ranges(t), title});
     }
+    // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
+    // Modbus the digital terminals, seen only as bit totals.
+    bool discovered = ctx.discovery() && ctx.options().station.empty() && !ctx.terminal_given();
+    std::string digital = L.unidentified_digital();
+    if (discovered)
+      rows.push_back({"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});
     if (ctx.json()) {
       nlohmann::json j{{"coupler", L.coupler}};
       j.update(ctx.link_json());
       j["terminals"] = arr;
+      if (discovered) j["end_terminal"] = {{"type", "KL9010"}, {"inferred", true}};
+      if (!digital.empty()) {
+        std::size_t din = 0, dout = 0;
+        for (const auto& t : L.terminals)
+          if (!t.complex) din += t.bits_in, dout += t.bits_out;
+        j["unidentified_digital_bits"] = {{"in", L.digital_in_bits - std::min(din, L.digital_in_bits)},
+                                          {"out", L.digital_out_bits - std::min(dout, L.digital_out_bits)}};
+      }
       print_json(j);
       return 0;
     }
     std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
     print_table(rows);
+    if (!digital.empty())
+      std::cout << fmt::format("digital terminals: {} in the image, not listed: the coupler reports them as bit "
+                               "totals only, not their types or number\n",
+                               digital);
     return 0;
   }
 
@@ -164,8 +190,10 @@ class Info : public Command {
 
   // "type     KL5101  Incremental encoder ...", the title wrapped under itself to the output width.
   static std::string type_line(const TerminalImage& t) {
-    std::string head = fmt::format("type     {}  ", t.type->type);
-    return head + wrap(t.type->title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
+    std::string head = fmt::format("type     {}  ", shown_type(t));
+    std::string title = t.inferred ? fmt::format("{} (the coupler gives no type): {}", digital_label(t), fits_text(t, 16))
+                                   : t.type->title;
+    return head + wrap(title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
   }
 
   bool rescanned_ = false;
@@ -173,6 +201,11 @@ class Info : public Command {
   int one(Context& ctx, unsigned pos) {
     const TerminalImage& t = ctx.layout_upto(pos).terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
+    if (t.inferred) {
+      j["type"] = nullptr;
+      j["title"] = digital_label(t);
+      j["fits"] = t.fits;
+    }
     if (!t.type->has_registers) {
       if (ctx.json()) print_json(j);
       else

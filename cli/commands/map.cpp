@@ -7,6 +7,8 @@
 #include <optional>
 
 #include "../command.hpp"
+#include "kscfg/link/ads_registers.hpp"
+#include "kscfg/link/port_uri.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/station/map.hpp"
@@ -15,6 +17,44 @@
 namespace kscfg::cli {
 
 namespace {
+
+// Port 100 of an ADS coupler: a terminal's registers at index group = its terminal number (passive
+// terminals have none), index offset = channel (high word, from 0) and register (low word)
+// (link/ads_registers.hpp).
+std::vector<std::pair<const TerminalImage*, unsigned>> ads_numbered(const StationLayout& L, unsigned only) {
+  std::vector<std::pair<const TerminalImage*, unsigned>> v;
+  for (const auto& t : L.terminals) {
+    if (!t.type->has_registers || (only && t.position != only)) continue;
+    v.emplace_back(&t, adsreg::terminal_number(L, t.position));
+  }
+  return v;
+}
+
+std::string ads_registers_text(const StationLayout& L, unsigned only) {
+  auto v = ads_numbered(L, only);
+  if (v.empty()) return {};
+  std::string out = "\nRegisters: ADS port 100, index group = terminal number, index offset = channel << 16 | "
+                    "register (2 bytes):\n";
+  for (const auto& [t, n] : v)
+    out += fmt::format("  {:<3} {:<7} index group {:<3} offsets 0x{:08X}-0x{:08X}{}\n", t->position, t->type->type, n,
+                       adsreg::terminal_offset(0, 0), adsreg::terminal_offset(t->type->channels - 1, 63),
+                       t->type->channels > 1 ? fmt::format(" (channel 1..{})", t->type->channels) : "");
+  return out;
+}
+
+nlohmann::json ads_registers_json(const StationLayout& L, unsigned only) {
+  nlohmann::json a = nlohmann::json::array();
+  for (const auto& [t, n] : ads_numbered(L, only)) {
+    nlohmann::json ch = nlohmann::json::array();
+    for (unsigned c = 0; c < t->type->channels; ++c)
+      ch.push_back({{"channel", c + 1}, {"first_offset", adsreg::terminal_offset(c, 0)},
+                    {"last_offset", adsreg::terminal_offset(c, 63)}});
+    a.push_back({{"position", t->position}, {"type", t->type->type}, {"ads_port", 100}, {"index_group", n},
+                 {"channels", ch}});
+  }
+  return a;
+}
+
 
 std::optional<bool> parse_switch(const std::string& text, const char* option) {
   if (text.empty()) return std::nullopt;
@@ -45,7 +85,10 @@ class Map : public Command {
            "terminals take no space. The table gives for each channel its byte offset, size, terminal position and "
            "type, channel and what each byte is (CT/ST, Ser-CT/ST, D0..D4, reserved), for digital terminals the "
            "bit range (byte.bit); on Modbus couplers (BK7xx0, BK9xx0) also the Modbus register of each word (input "
-           "image at 0x0000 + offset/2, output image at 0x0800 + offset/2) and the discrete-input or coil numbers.\n"
+           "image at 0x0000 + offset/2, output image at 0x0800 + offset/2) and the discrete-input or coil numbers. On an "
+           "\\fBads://\\fR port the table gives instead the ADS index group and offset of each entry on port 300 "
+           "(0xF020 inputs, 0xF030 outputs, offset = byte offset), and the map ends with each terminal's port-100 "
+           "index group (its terminal number) and index offsets (channel << 16 | register).\n"
            ".PP\n"
            "\\fBOffline\\fR: from \\fB\\-\\-station\\fR \\fIFILE\\fR (see \\fBkscfg-station\\fR(5)) or from terminal "
            "types given on the command line, laid out for \\fB\\-\\-coupler\\fR (default BK9000) with the terminals' "
@@ -120,6 +163,8 @@ class Map : public Command {
       L = compute_layout(spec, cat);
     } else {
       const StationLayout& current = ctx.layout();
+      // The coupler contradicts the layout (an ADS coupler's image lengths): shown, but said.
+      if (!current.image_refused.empty()) notes.push_back(current.image_refused);
       StationSpec spec;
       if (!station_file.empty()) spec = load_station_arg(station_file, cat);
       else if (const StationSpec* s = ctx.discovery() ? ctx.discovery()->station() : ctx.link().station()) spec = *s;
@@ -149,7 +194,14 @@ class Map : public Command {
                             {"value", r.value}});
       source = ctx.link().describe();
     }
-    const CouplerProfile& p = coupler_profile(L.coupler);
+    CouplerProfile p = coupler_profile(L.coupler);
+    // Over ADS the image is port 300's and the registers port 100's: the map says so in those terms
+    // (index group and offset a TwinCAT PLC program uses), not in Modbus registers.
+    bool ads = parse_port_uri(ctx.options().port).scheme == "ads";
+    if (ads) {
+      p.ads = true;
+      p.modbus = false;
+    }
     check_image_limits(L, p);
     for (const auto& n : notes) std::cerr << "kscfg: note: " << n << '\n';
 
@@ -174,6 +226,7 @@ class Map : public Command {
         j["terminals"] = nlohmann::json::array({j["terminals"].at(pos - 1)});
         if (next) j["next_start"]["terminals"] = nlohmann::json::array({j["next_start"]["terminals"].at(pos - 1)});
       }
+      if (ads) j["ads_registers"] = ads_registers_json(L, pos);
       print_json(j);
       return 0;
     }
@@ -188,11 +241,13 @@ class Map : public Command {
     if (pos) {
       if (next) std::cout << "In effect now:\n";
       std::cout << render_terminal(L, p, pos);
+      if (ads) std::cout << ads_registers_text(L, pos);
       if (next) std::cout << after << render_terminal(*next, p, pos);
       return 0;
     }
     if (next) std::cout << "In effect now:\n";
     std::cout << render_table(L, p);
+    if (ads) std::cout << ads_registers_text(L, 0);
     if (next) std::cout << after << render_table(*next, p);
     if (grid_ || tty || color_ == "always") std::cout << '\n' << render_grid(L, color);
     return 0;

@@ -134,7 +134,14 @@ class Scan : public Command {
       if (!ads && (r.digital_in_bits || r.digital_out_bits))
         text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                             r.digital_out_bits);
-      text += station_to_toml(r.spec);
+      StationSpec file = r.spec;
+      // A digital terminal from table 9 is known by its bits: the file says so where it names a type.
+      file.comments.resize(file.terminals.size());
+      for (std::size_t i = 0; i < r.layout.terminals.size() && i < file.terminals.size(); ++i)
+        if (const auto& t = r.layout.terminals[i]; t.inferred)
+          file.comments[i] = fmt::format("{} (table 9 gives no type): {} fits, as does {}; name the terminal's type",
+                                         digital_label(t), t.type->type, fits_text(t, 8));
+      text += station_to_toml(file);
       write_output(write_, text);
     }
     for (const auto& n : r.notes) std::cerr << "kscfg: note: " << n << '\n';
@@ -144,8 +151,13 @@ class Scan : public Command {
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
         // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-        nlohmann::json term = {{"position", t.position}, {"type", t.type->type},
+        nlohmann::json term = {{"position", t.position},
+                               {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
                                {"r8", i < r.r8.size() ? r.r8[i] : 0}, {"image", image_json(t)}};
+        if (t.inferred) {
+          term["digital"] = digital_label(t);
+          term["fits"] = t.fits;
+        }
         if (ads) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
         terms.push_back(std::move(term));
       }
@@ -204,8 +216,9 @@ class Scan : public Command {
         const auto& t = r.layout.terminals[i];
         // The notation of info and map: "in 0-7 out 0-7", digital bits (over ADS) "in 48.0-48.3".
         if (!t.complex) {
-          std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type, "-", t.format,
-                                   image_ranges(t));
+          std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}{}\n", t.position, shown_type(t), "-", t.format,
+                                   image_ranges(t),
+                                   t.inferred ? fmt::format("  {}: {}", digital_label(t), fits_text(t)) : "");
           continue;
         }
         std::cout << fmt::format("{:<4} {:<7} {:<6} {:<12} {}\n", t.position, t.type->type,

@@ -7,6 +7,7 @@
 #include <set>
 
 #include "kscfg/discovery/ads_station.hpp"
+#include "kscfg/discovery/ads_image.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/link/ads_registers.hpp"
 
@@ -102,15 +103,32 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
   }
 
   auto t9 = read_table9(client, timeout_ms);
+  // Table 100 registers 15 and 26: whether the coupler serves Modbus TCP, and on which port; there
+  // it reports its image lengths, which confirm or contradict the layout (discovery/ads_image.hpp).
+  CouplerImage image;
+  if (opt.check_image) {
+    std::vector<AdsClient::Call> t100{table_call(adsreg::kTable100, 15, timeout_ms),
+                                      table_call(adsreg::kTable100, 26, timeout_ms)};
+    auto rep = client.transact(t100);
+    std::optional<std::uint16_t> r15, r26;
+    for (std::size_t i = 0; i < rep.size(); ++i) {
+      if (rep[i].result != 0 && not_served(rep[i].result)) continue;
+      if (auto e = access.reply_error(rep[i], t100[i], true)) throw *e;
+      (i == 0 ? r15 : r26) = ams::get16(rep[i].data.data());
+    }
+    image = read_coupler_image(client.target(), r15, r26, timeout_ms, opt.trace, opt.cancel);
+  }
   // Each terminal: its table 9 entry (or none, walked by number), its type.
   struct Found {
     const TerminalType* type = nullptr;
     unsigned number = 0;  // on port 100
     std::optional<std::uint16_t> r8;
+    bool inferred = false;  // a digital terminal: table 9 gives its bits and direction, not its type
   };
   std::vector<Found> found;
   unsigned coupler_number = 0;
   unsigned unidentified = 0;
+  bool unknown_tail = false;  // without table 9: digital terminals after the last complex one are unknown
   std::vector<std::string> digital;
   if (t9) {
     coupler_number = (*t9)[0];
@@ -125,17 +143,26 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
                               : fmt::format("terminal number {} reports type {}, which the catalog does not know", i,
                                             e.type_number),
                     "describe it with --catalog DIR, or give --station FILE");
-      found.push_back({t, static_cast<unsigned>(i), std::nullopt});
+      found.push_back({t, static_cast<unsigned>(i), std::nullopt, e.digital});
       if (e.digital) digital.push_back(std::to_string(i));
     }
     if (!digital.empty())
-      r.notes.push_back(fmt::format("digital terminal(s) {}: table 9 gives their bit counts only; each is shown as a "
-                                    "catalog type with those bits. Passive terminals (power feeds, the end terminal) "
-                                    "are not in table 9: with any between others, give --station FILE",
+      r.notes.push_back(fmt::format("digital terminal(s) {}: table 9 gives their bits and direction only, not their "
+                                    "types; each is shown as \"digital\" with the catalog types that fit (a station "
+                                    "file or --station names which one it is). Passive terminals (power feeds, the end "
+                                    "terminal) are not in table 9: with any between others, give --station FILE",
                                     fmt::join(digital, ", ")));
   } else {
     r.notes.push_back("the coupler does not serve table 9 (its terminal list); walked by terminal number instead");
-    // R8 of terminal numbers 1, 2, ... in batches of 16 until the coupler has no such terminal.
+    // R8 of every terminal number, 16 in flight at a time. A number without registers answers an
+    // ADS error, and no manual says which: a digital terminal and no terminal at all may answer
+    // alike (0x702 or 0x703). So the walk does not end at the first such answer: it asks every
+    // number (to kMaxTerminals), and the numbers without registers before the last one with
+    // registers are digital terminals. Only the coupler's image lengths showing no digital bit at
+    // all make the first such number the end.
+    bool no_digital = image.bits && (*image.bits)[2] == 0 && (*image.bits)[3] == 0;
+    std::vector<unsigned> none;  // numbers that answered without registers
+    unsigned last = 0;           // the last number with registers
     bool end = false;
     for (unsigned first = 1; !end && first <= adsreg::kMaxTerminals; first += 16) {
       std::vector<AdsClient::Call> calls;
@@ -144,10 +171,9 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       auto replies = client.transact(calls);
       for (std::size_t i = 0; i < replies.size() && !end; ++i) {
         unsigned n = first + static_cast<unsigned>(i);
-        if (replies[i].result == kNoGroup) {
-          end = true;
-        } else if (replies[i].result != 0 && not_served(replies[i].result)) {
-          ++unidentified;  // a terminal without registers: digital
+        if (replies[i].result != 0 && not_served(replies[i].result)) {
+          none.push_back(n);
+          end = no_digital;
         } else if (auto e = access.reply_error(replies[i], calls[i], true)) {
           throw *e;
         } else {
@@ -158,8 +184,28 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
                         fmt::format("terminal number {} reports type {} (R8), which the catalog does not know", n, v),
                         "describe it with --catalog DIR, or give --station FILE");
           found.push_back({t, n, v});
+          last = n;
         }
       }
+    }
+    unidentified = static_cast<unsigned>(std::count_if(none.begin(), none.end(), [&](unsigned n) { return n < last; }));
+    bool after = !no_digital && last < adsreg::kMaxTerminals;  // digital terminals after the last: unknown
+    if (after && (!image.bits || (*image.bits)[2] || (*image.bits)[3])) {
+      if (!opt.check)
+        throw Error(Exit::usage,
+                    fmt::format("the coupler at {} does not serve table 9 (its terminal list), and after terminal "
+                                "number {} it answers no terminal with registers: digital terminals there cannot be "
+                                "told from the end of the station, so kscfg cannot lay it out",
+                                client.target().where(), last),
+                    "describe the station: --station FILE ('kscfg scan --write FILE' starts one)");
+      r.notes.push_back(fmt::format("after terminal number {} the coupler answers no terminal with registers: digital "
+                                    "terminals there (if any) cannot be told from the end of the station{}",
+                                    last,
+                                    image.bits ? fmt::format(" (the coupler reports {} output and {} input bit(s) of "
+                                                             "digital terminals)",
+                                                             (*image.bits)[2], (*image.bits)[3])
+                                               : std::string()));
+      unknown_tail = true;
     }
     if (unidentified && !opt.check)
       // Their bit counts are unknown, so the image cannot be laid out, and plug positions would
@@ -263,16 +309,29 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       }
     }
     add_scanned_terminal(r, t, r8, regs[i]);
+    r.spec.terminals.back().inferred = found[i].inferred;
   }
-  if (unidentified) r.matches = false;
+  if (unidentified || unknown_tail) r.matches = false;
 
-  r.layout = compute_layout(r.spec, catalog, r.settings, [&](unsigned pos, unsigned ch) {
+  RegisterSource regsource = [&](unsigned pos, unsigned ch) {
     const TerminalType& t = catalog.get(r.spec.terminals.at(pos - 1).type);
     auto vals = t.defaults();
     if (pos - 1 < r.regs.size() && ch < r.regs[pos - 1].size())
       for (auto [k, v] : r.regs[pos - 1][ch]) vals[k] = v;
     return vals;
-  });
+  };
+  r.layout = compute_layout(r.spec, catalog, r.settings, regsource);
+  if (opt.check_image && !unidentified && !unknown_tail) {
+    judge_image(r.layout, image, r.spec, catalog, regsource,
+                t9 ? "the station from table 9" : "the station walked by terminal number");
+    if (!r.layout.image_refused.empty()) {
+      r.matches = false;
+      r.notes.push_back(r.layout.image_refused);
+    } else if (!r.layout.image_unconfirmed.empty()) {
+      r.notes.push_back(r.layout.image_unconfirmed);
+    }
+  }
+  out.image = image;
   // The image lengths are the layout's: a coupler on ADS has no registers for them.
   r.complex_out_bits = static_cast<unsigned>(r.layout.complex_out * 8);
   r.complex_in_bits = static_cast<unsigned>(r.layout.complex_in * 8);

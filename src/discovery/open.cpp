@@ -12,6 +12,7 @@
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
@@ -26,32 +27,79 @@ namespace {
 class AdsDiscovery : public StationDiscovery {
  public:
   AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace)
-      : link_(link), catalog_(catalog), timeout_ms_(timeout_ms), trace_(std::move(trace)) {}
+               std::function<void(const std::string&)> trace, const CancelToken* cancel)
+      : link_(link), catalog_(catalog), timeout_ms_(timeout_ms), trace_(std::move(trace)), cancel_(cancel) {}
 
   const StationLayout* layout_upto(unsigned) override {
     if (!searched_) {
       searched_ = true;
       AdsScanOptions so;
       so.check = false;  // table 9 and the registers that decide an image only
-      ScanResult r = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so)).result;
+      so.trace = trace_;
+      so.cancel = cancel_;
+      AdsScan s = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so));
+      ScanResult& r = s.result;
       if (trace_)
         for (const auto& n : r.notes) trace_("ads: " + n);
-      found_ = Found{std::move(r.spec), std::move(r.layout)};
+      found_ = Found{std::move(r.spec), std::move(r.layout), std::move(s.image)};
     }
     return found_ ? &found_->layout : nullptr;
   }
   const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
 
+  // The file's terminals with a number on port 100 against table 9, in order: a complex one by its
+  // type, a digital one by its bits and direction (the file names which type it is); then its
+  // layout against the coupler's image lengths.
+  void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override {
+    const StationLayout* found = nullptr;
+    try {
+      found = layout();
+    } catch (const Error& e) {
+      if (e.code() != Exit::usage) throw;
+      if (trace_) trace_(fmt::format("ads: {} is not checked against the coupler: {}", origin, e.what()));
+      return;
+    }
+    if (!found) return;
+    std::vector<const TerminalImage*> mine;
+    for (const auto& t : L.terminals)
+      if (adsreg::numbered(*t.type)) mine.push_back(&t);
+    for (std::size_t k = 0; k < std::max(mine.size(), found->terminals.size()); ++k) {
+      const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
+      const TerminalImage* have = k < found->terminals.size() ? &found->terminals[k] : nullptr;
+      auto what = [](const TerminalImage& t) {
+        return t.inferred ? digital_label(t) : t.type->type;
+      };
+      if (want && have && fits_type(*have, want->type->type)) continue;
+      throw Error(Exit::refused,
+                  want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
+                                             origin, want->position, want->type->type, k + 1, what(*have))
+                  : want       ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) with a number on "
+                                             "port 100 (table 9)",
+                                             origin, want->position, want->type->type, found->terminals.size())
+                               : fmt::format("{} describes {} terminal(s) with a number on port 100, table 9 lists "
+                                             "{}: terminal number {} is {}",
+                                             origin, mine.size(), found->terminals.size(), k + 1, what(*have)),
+                  "'kscfg scan' lists what the coupler has; nothing was done");
+    }
+    judge_image(L, found_->image, spec, catalog_,
+                [&](unsigned pos, unsigned ch) {
+                  const TerminalSpec& ts = spec.terminals.at(pos - 1);
+                  return channel_registers(catalog_.get(ts.type), &ts, ch);
+                },
+                origin);
+  }
+
  private:
   struct Found {
     StationSpec spec;
     StationLayout layout;
+    CouplerImage image;
   };
   AdsImageLink& link_;
   const Catalog& catalog_;
   unsigned timeout_ms_;
   std::function<void(const std::string&)> trace_;
+  const CancelToken* cancel_;
   std::optional<Found> found_;
   bool searched_ = false;
 };
@@ -103,7 +151,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     // next kscfg relocks what a killed one left (session/ads_access.hpp).
     if (opt.journal && !opt.journal_dir.empty())
       opt.journal->open(opt.journal_dir, station_key(target));
-    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace);
+    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel);
     OpenedPort port{std::move(link), nullptr, nullptr, nullptr};
     SessionOptions so = port_session(opt);
     std::function<const StationLayout&()> layout = opt.layout;

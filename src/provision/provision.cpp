@@ -118,10 +118,11 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
     const auto& have = layout.terminals[i];
-    if (catalog.get(want.type).type != have.type->type)
+    // A digital terminal the coupler knows only by its bits (ADS table 9): the file names which one.
+    if (!fits_type(have, catalog.get(want.type).type))
       throw Error(Exit::refused,
                   fmt::format("{}position {} is {} in the file but {} in the station", where(want.line), i + 1,
-                              want.type, have.type->type),
+                              want.type, have.inferred ? digital_label(have) : have.type->type),
                   "nothing was written");
   }
   // 2. Every register the file names must be writable.

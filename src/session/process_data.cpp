@@ -17,6 +17,9 @@
 namespace kscfg {
 
 ImageSnapshot read_image(Link& link, const StationLayout& layout) {
+  // The coupler contradicts this layout (an ADS coupler's image lengths): its bytes would be
+  // decoded as what they are not, so not one is read (docs/design.md 4.9).
+  if (!layout.image_refused.empty()) throw Error(Exit::refused, layout.image_refused, layout.image_refused_hint);
   ImageSnapshot s;
   s.in.assign(layout.in_bytes, 0);
   s.out.assign(layout.out_bytes, 0);
@@ -138,7 +141,8 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
   const TerminalType& type = *t.type;
   nlohmann::json j{{"position", t.position}};
   if (t.complex) j["channel"] = ch + 1;
-  j["type"] = type.type;
+  j["type"] = shown_type(t);
+  if (t.inferred) j["fits"] = t.fits;  // a digital terminal known by its bits (ADS table 9)
   j["family"] = type.family;
   j["format"] = t.format;
   if (!t.complex) {

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <map>
 
 #include "kscfg/base/error.hpp"
@@ -20,6 +21,32 @@ const TerminalImage& StationLayout::terminal(unsigned position) const {
                 "give --station FILE with the terminals in plug order ('kscfg scan --write FILE' starts one)");
   throw Error(Exit::usage,
               fmt::format("no terminal at position {} (the station has {} terminals)", position, terminals.size()));
+}
+
+std::string digital_label(const TerminalImage& t) {
+  auto n = [](unsigned k, const char* what) { return fmt::format("{} {}{}", k, what, k == 1 ? "" : "s"); };
+  if (t.bits_in && t.bits_out) return fmt::format("digital, {} and {}", n(t.bits_in, "input"), n(t.bits_out, "output"));
+  return "digital, " + (t.bits_out ? n(t.bits_out, "output") : n(t.bits_in, "input"));
+}
+
+std::string shown_type(const TerminalImage& t) { return t.inferred ? "digital" : t.type->type; }
+
+bool fits_type(const TerminalImage& t, const std::string& type) {
+  auto up = [](std::string s) {
+    for (auto& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+    return s;
+  };
+  std::string want = up(type);
+  if (!t.inferred) return up(t.type->type) == want;
+  return std::any_of(t.fits.begin(), t.fits.end(), [&](const std::string& f) { return up(f) == want; });
+}
+
+std::string fits_text(const TerminalImage& t, std::size_t max) {
+  std::string s;
+  std::size_t n = std::min(max, t.fits.size());
+  for (std::size_t i = 0; i < n; ++i) s += (i == 0 ? "" : i + 1 == t.fits.size() ? " or " : ", ") + t.fits[i];
+  if (t.fits.size() > n) s += fmt::format(" or {} other{}", t.fits.size() - n, t.fits.size() - n == 1 ? "" : "s");
+  return s.empty() ? "no catalog type" : s;
 }
 
 std::string StationLayout::unidentified_digital() const {
@@ -210,6 +237,13 @@ StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog, co
     } else if (f) {
       t.bits_in = f->bits_in;
       t.bits_out = f->bits_out;
+    }
+    if (spec.terminals[i].inferred && !t.complex) {
+      t.inferred = true;
+      for (const auto& [name, other] : catalog.types())
+        if (!other->has_registers && other->images.size() == 1 && !other->images[0].complex() &&
+            other->images[0].bits_in == t.bits_in && other->images[0].bits_out == t.bits_out)
+          t.fits.push_back(other->type);
     }
     L.terminals.push_back(std::move(t));
   }

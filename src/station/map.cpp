@@ -55,7 +55,7 @@ std::vector<MapEntry> map_entries(const StationLayout& L, bool input) {
         e.offset = bytes.front().offset;
         e.size = bytes.back().offset + 1 - bytes.front().offset;
         e.position = t.position;
-        e.type = t.type->type;
+        e.type = shown_type(t);
         e.channel = static_cast<unsigned>(c + 1);
         e.bytes = bytes;
         v.push_back(std::move(e));
@@ -72,7 +72,7 @@ std::vector<MapEntry> map_entries(const StationLayout& L, bool input) {
       e.size = bits;
       e.bit_offset = abs - complex * 8;
       e.position = t.position;
-      e.type = t.type->type;
+      e.type = shown_type(t);
       v.push_back(std::move(e));
     }
   }

@@ -15,6 +15,7 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
   j["coupler"] = p.name;
   j["family"] = p.family;
   j["modbus"] = p.modbus;
+  j["ads"] = p.ads;
   j["settings"] = {{"complete_evaluation", L.settings.complete_evaluation},
                    {"motorola", L.settings.motorola},
                    {"word_alignment", L.settings.word_alignment}};
@@ -26,21 +27,34 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
     img["limit"] = limit ? json(limit) : json(nullptr);
     j[input ? "inputs" : "outputs"] = img;
   }
+  auto ads_json = [](bool input, std::size_t offset) {
+    return json{{"ads_port", kAdsImagePort}, {"index_group", input ? kAdsInputGroup : kAdsOutputGroup},
+                {"index_offset", offset}};
+  };
   auto byte_json = [&](const ImageByte& b, bool input) {
     json x = {{"offset", b.offset}, {"name", b.name}, {"reserved", b.index < 0}};
     if (p.modbus) {
       x["modbus_register"] = base_register(input) + b.offset / 2;
       x["half"] = b.offset % 2 ? "high" : "low";
     }
+    if (p.ads) x["ads"] = ads_json(input, b.offset);
     return x;
   };
   json terms = json::array();
   for (const auto& t : L.terminals) {
-    json x = {{"position", t.position}, {"type", t.type->type}, {"family", t.type->family}, {"format", t.format},
-              {"complex", t.complex}};
+    json x = {{"position", t.position}, {"type", t.inferred ? json(nullptr) : json(t.type->type)},
+              {"family", t.type->family}, {"format", t.format}, {"complex", t.complex}};
+    if (t.inferred) {
+      x["digital"] = digital_label(t);
+      x["fits"] = t.fits;
+    }
     if (t.complex) {
       x["inputs"] = {{"offset", t.in_offset}, {"size", t.in_size}};
       x["outputs"] = {{"offset", t.out_offset}, {"size", t.out_size}};
+      if (p.ads) {
+        x["inputs"]["ads"] = ads_json(true, t.in_offset);
+        x["outputs"]["ads"] = ads_json(false, t.out_offset);
+      }
       json chans = json::array();
       for (std::size_t c = 0; c < t.channels.size(); ++c) {
         const auto& ch = t.channels[c];
@@ -68,6 +82,7 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
             d["modbus_register"] = base_register(input) + e.offset / 2;
             d["modbus_bit"] = (e.offset % 2) * 8 + e.bit;
           }
+          if (p.ads) d["ads"] = ads_json(input, e.offset);
           x[input ? "inputs" : "outputs"] = d;
         }
       }

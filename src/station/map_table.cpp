@@ -38,7 +38,11 @@ void table_section(std::string& out, const StationLayout& L, const CouplerProfil
     std::string offset, size, pos, type, ch, reg, content;
   };
   std::vector<Row> rows;
-  rows.push_back({"offset", "size", "pos", "type", "ch", p.modbus ? "register" : "", "content"});
+  rows.push_back({"offset", "size", "pos", "type", "ch", p.modbus ? "register" : p.ads ? "ADS group:offset" : "",
+                  "content"});
+  auto ads = [&](std::size_t offset) {
+    return fmt::format("0x{:04X}:{}", input ? kAdsInputGroup : kAdsOutputGroup, offset);
+  };
   for (const auto& e : entries) {
     Row r;
     if (e.digital) {
@@ -46,14 +50,14 @@ void table_section(std::string& out, const StationLayout& L, const CouplerProfil
       r.size = fmt::format("{} bit", e.size);
       r.ch = "-";
       std::size_t last = e.offset * 8 + e.bit + e.size - 1;
-      r.reg = p.modbus ? register_range(input, e.offset, last / 8) : "";
+      r.reg = p.modbus ? register_range(input, e.offset, last / 8) : p.ads ? ads(e.offset) : "";
       r.content = "bits " + bit_range(e);
       if (p.modbus) r.content += " (" + bit_numbers(e) + ")";
     } else {
       r.offset = fmt::format("{}", e.offset);
       r.size = fmt::format("{}", e.size);
       r.ch = fmt::format("{}", e.channel);
-      r.reg = p.modbus ? register_range(input, e.offset, e.offset + e.size - 1) : "";
+      r.reg = p.modbus ? register_range(input, e.offset, e.offset + e.size - 1) : p.ads ? ads(e.offset) : "";
       r.content = byte_names(e.bytes);
     }
     r.pos = fmt::format("{}", e.position);
@@ -72,7 +76,7 @@ void table_section(std::string& out, const StationLayout& L, const CouplerProfil
   for (const auto& r : rows) {
     std::string line = fmt::format("  {:<{}}  {:>{}}  {:>{}}  {:<{}}  {:>{}}  ", r.offset, w[0], r.size, w[1], r.pos,
                                    w[2], r.type, w[3], r.ch, w[4]);
-    if (p.modbus) line += fmt::format("{:<{}}  ", r.reg, w[5]);
+    if (p.modbus || p.ads) line += fmt::format("{:<{}}  ", r.reg, w[5]);
     line += r.content;
     while (!line.empty() && line.back() == ' ') line.pop_back();
     out += line + '\n';
@@ -80,18 +84,23 @@ void table_section(std::string& out, const StationLayout& L, const CouplerProfil
 }
 
 std::string terminal_header(const TerminalImage& t) {
+  if (t.inferred) return fmt::format("Terminal {}: {} ({})", t.position, digital_label(t), fits_text(t));
   return fmt::format("Terminal {}: {} ({})", t.position, t.type->type, t.type->title);
 }
 
 }  // namespace
 
 std::string render_table(const StationLayout& L, const CouplerProfile& p) {
-  std::string out = fmt::format("{} ({}{}): {}\n", p.name, p.family, p.modbus ? ", Modbus" : "", settings_text(L));
+  std::string out = fmt::format("{} ({}): {}\n", p.name,
+                                p.ads      ? "ADS: image on port 300, registers on port 100"
+                                : p.modbus ? p.family + ", Modbus"
+                                           : p.family,
+                                settings_text(L));
   table_section(out, L, p, true);
   table_section(out, L, p, false);
   std::vector<std::string> none;
   for (const auto& t : L.terminals)
-    if (!t.complex && !t.bits_in && !t.bits_out) none.push_back(fmt::format("{} {}", t.position, t.type->type));
+    if (!t.complex && !t.bits_in && !t.bits_out) none.push_back(fmt::format("{} {}", t.position, shown_type(t)));
   if (!none.empty()) {
     out += "\nNo process image:";
     for (std::size_t i = 0; i < none.size(); ++i) out += (i ? ", " : " ") + none[i];
@@ -101,6 +110,10 @@ std::string render_table(const StationLayout& L, const CouplerProfile& p) {
     out += fmt::format("\nModbus: input register n = input bytes 2n (low) and 2n+1 (high) at 0x{:04X}+n; outputs at "
                        "0x{:04X}+n; discrete inputs and coils count from the first digital bit.\n",
                        kModbusInputBase, kModbusOutputBase);
+  if (p.ads)
+    out += fmt::format("\nADS: port {}, index group 0x{:04X} (inputs) or 0x{:04X} (outputs), index offset = the byte "
+                       "offset (0..511), length in bytes; a digital terminal's bits are read with their bytes.\n",
+                       kAdsImagePort, kAdsInputGroup, kAdsOutputGroup);
   return out;
 }
 
@@ -177,6 +190,9 @@ std::string render_terminal(const StationLayout& L, const CouplerProfile& p, uns
         if (p.modbus)
           out += fmt::format(" (register {}, {})", register_range(input, e.offset, (e.offset * 8 + e.bit + e.size - 1) / 8),
                              bit_numbers(e));
+        if (p.ads)
+          out += fmt::format(" (ADS port {}, index group 0x{:04X}, offset {})", kAdsImagePort,
+                             input ? kAdsInputGroup : kAdsOutputGroup, e.offset);
         out += '\n';
       }
     }
@@ -184,6 +200,10 @@ std::string render_terminal(const StationLayout& L, const CouplerProfile& p, uns
   }
   out += fmt::format("  format {}; inputs {} bytes at {}, outputs {} bytes at {}\n", t.format, t.in_size, t.in_offset,
                      t.out_size, t.out_offset);
+  if (p.ads)
+    out += fmt::format("  ADS port {}: index group 0x{:04X} offset {} ({} bytes), 0x{:04X} offset {} ({} bytes)\n",
+                       kAdsImagePort, kAdsInputGroup, t.in_offset, t.in_size, kAdsOutputGroup, t.out_offset,
+                       t.out_size);
   out += "  (I/O offset in words from the terminal's first byte, as in the manuals' annex tables)\n";
   for (std::size_t c = 0; c < t.channels.size(); ++c) {
     const auto& ch = t.channels[c];

@@ -89,8 +89,9 @@ std::vector<unsigned> select_terminals(const TerminalSelection& sel, const Stati
     std::vector<std::string> present;
     bool found = false;
     for (const auto& t : L.terminals) {
-      present.push_back(t.type->type);
-      if (upper(t.type->type) != type) continue;
+      if (!t.inferred) present.push_back(t.type->type);
+      // A digital terminal known only by its bits (ADS table 9) is selected by any type that fits.
+      if (!fits_type(t, type)) continue;
       found = true;
       if (usable(t)) out.insert(t.position);
     }

@@ -15,6 +15,20 @@ What it is built from:
   register n of a table is element n.
 - A BK9050 answers ReadState with AMS error 0x8 (unknown command ID).
 - Terminal registers: R8 type, R31 code word 0x1235 unlocks R32..R47 (terminal manuals).
+- Table 100 (BK9000 "Register settings, Table 100"): register 15 bit 0 clear = Modbus TCP enabled,
+  register 26 = the Modbus TCP port. The peer's Modbus TCP side (FC 3 and 4, MBAP header; BC9000
+  "Modbus TCP interface") serves the image lengths 0x1010..0x1013 in bits (complex out, complex in,
+  digital out, digital in) and answers exception 2 for anything else.
+- The K-bus settings change the image (complete evaluation on here): with word alignment on each
+  complex channel starts on an even byte and a data word follows a reserved byte (KL3022: CT/ST,
+  reserved, D0, D1 per channel; without: CT/ST, D0, D1; the analog terminals' mapping tables), the
+  KL6001 in the alternative format takes 8 bytes with word alignment and 6 without (KL6001 annex,
+  alternative format). --no-word-alignment plays a coupler set so (KS2000 sets it; no register of
+  it is documented over ADS).
+
+A terminal without registers (a digital one) answers a register access with ADS 0x703 and a number
+no terminal has with 0x702 ("invalid index offset" / "group"); no manual says which a coupler
+answers for a digital terminal, so --digital-answers 0x702 plays one that answers as for no terminal.
 
 Each connection is served by a thread of its own, requests one after the other; every register
 access takes --latency-ms (a coupler's K-bus register handshake), so a client's time for N
@@ -43,8 +57,9 @@ CODE_WORD = 0x1235
 class Terminal:
     """One terminal: its type, the number of channels with registers, its process image bits."""
 
-    def __init__(self, name, number, channels=1, digital_bits=0, digital_out=False, passive=False):
+    def __init__(self, name, number, channels=1, digital_bits=0, digital_out=False, passive=False, image=(0, 0)):
         self.name, self.number, self.channels = name, number, channels
+        self.image = image  # complex: bytes in each image (input and output) with word alignment on, off
         self.digital_bits, self.digital_out, self.passive = digital_bits, digital_out, passive
         self.regs = [[0] * 64 for _ in range(channels)] if number else []
         for ch in self.regs:
@@ -59,10 +74,10 @@ class Terminal:
 
 def default_station():
     t = [
-        Terminal("KL6001", 6001),
+        Terminal("KL6001", 6001, image=(8, 6)),
         Terminal("KL1104", 0, digital_bits=4),
         Terminal("KL9100", 0, passive=True),  # a power feed: no number on port 100
-        Terminal("KL3022", 3022, channels=2),
+        Terminal("KL3022", 3022, channels=2, image=(8, 6)),
         Terminal("KL2134", 0, digital_bits=4, digital_out=True),
         Terminal("KL9010", 0, passive=True),
     ]
@@ -75,8 +90,12 @@ def default_station():
 
 
 class Peer:
-    def __init__(self, latency_ms=0.0, idle_s=10.0, netid=None, routes=(), overlap=False):
+    def __init__(self, latency_ms=0.0, idle_s=10.0, netid=None, routes=(), overlap=False, word_alignment=True,
+                 modbus=True, digital_answers=ADS_OFFSET):
         self.overlap = overlap
+        self.word_alignment = word_alignment
+        self.digital_answers = digital_answers  # ADS result of a register access to a digital terminal
+        self.modbus_requests = 0
         self.station = default_station()
         self.numbered = [t for t in self.station if not t.passive]
         self.latency = latency_ms / 1000.0
@@ -108,16 +127,82 @@ class Peer:
                          26: 502, 27: 10}
         for i in range(10):
             self.table100[4 + i] = name[2 * i] | (name[2 * i + 1] << 8)
+        self.mb_sock = None
+        if modbus:
+            self.mb_sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            self.mb_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.mb_sock.bind(("127.0.0.1", 0))
+            self.mb_sock.listen(4)
+            self.mb_sock.settimeout(0.2)
+            self.table100[26] = self.mb_sock.getsockname()[1]
+        else:
+            self.table100[15] = 1  # Modbus TCP disabled
         self.thread = threading.Thread(target=self.serve, daemon=True)
+        self.mb_thread = threading.Thread(target=self.serve_modbus, daemon=True) if modbus else None
+
+    def image_lengths(self):
+        """0x1010..0x1013: bits of complex outputs, complex inputs, digital outputs, digital inputs."""
+        complex_bytes = sum(t.image[0 if self.word_alignment else 1] for t in self.station)
+        dout = sum(t.digital_bits for t in self.station if t.digital_out)
+        din = sum(t.digital_bits for t in self.station if t.digital_bits and not t.digital_out)
+        return [complex_bytes * 8, complex_bytes * 8, dout, din]
+
+    def serve_modbus(self):
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.mb_sock.accept()
+            except socket.timeout:
+                continue
+            threading.Thread(target=self.modbus_client, args=(conn,), daemon=True).start()
+
+    def modbus_client(self, conn):
+        conn.settimeout(0.1)
+        buf = b""
+        try:
+            while not self.stop.is_set():
+                try:
+                    chunk = conn.recv(4096)
+                except socket.timeout:
+                    continue
+                except OSError:
+                    return
+                if not chunk:
+                    return
+                buf += chunk
+                while len(buf) >= 8:
+                    tid, pid, length, unit = struct.unpack_from(">HHHB", buf)
+                    if len(buf) < 6 + length:
+                        break
+                    pdu, buf = buf[7:6 + length], buf[6 + length:]
+                    with self.lock:
+                        self.modbus_requests += 1
+                    fc = pdu[0]
+                    if fc in (3, 4) and len(pdu) == 5:
+                        addr, count = struct.unpack_from(">HH", pdu, 1)
+                        if 0x1010 <= addr and addr + count <= 0x1014 and count:
+                            vals = self.image_lengths()[addr - 0x1010:addr - 0x1010 + count]
+                            body = bytes([fc, 2 * count]) + struct.pack(f">{count}H", *vals)
+                        else:
+                            body = bytes([fc | 0x80, 2])
+                    else:
+                        body = bytes([(fc | 0x80) & 0xFF, 1])
+                    conn.sendall(struct.pack(">HHHB", tid, 0, len(body) + 1, unit) + body)
+        finally:
+            conn.close()
 
     def start(self):
         self.thread.start()
+        if self.mb_thread:
+            self.mb_thread.start()
         return self
 
     def close(self):
         self.stop.set()
         self.thread.join(5)
         self.sock.close()
+        if self.mb_thread:
+            self.mb_thread.join(5)
+            self.mb_sock.close()
 
     def serve(self):
         while not self.stop.is_set():
@@ -234,6 +319,8 @@ class Peer:
             return ADS_GROUP, None, 0, 0
         t = self.numbered[group - 1]
         ch, reg = offset >> 16, offset & 0xFFFF
+        if not t.regs:
+            return self.digital_answers, None, 0, 0
         if ch >= len(t.regs) or reg > 63:
             return ADS_OFFSET, None, 0, 0
         return 0, t, ch, reg
@@ -310,8 +397,13 @@ def main():
     ap.add_argument("--latency-ms", type=float, default=0.0)
     ap.add_argument("--idle-s", type=float, default=10.0)
     ap.add_argument("--overlap", action="store_true", help="work on a connection's requests at once, answer out of order")
+    ap.add_argument("--no-word-alignment", action="store_true", help="a coupler set to word alignment off")
+    ap.add_argument("--no-modbus", action="store_true", help="Modbus TCP disabled (table 100 register 15 bit 0)")
+    ap.add_argument("--digital-answers", default="0x703", choices=["0x702", "0x703"],
+                    help="the ADS result of a register access to a digital terminal")
     a = ap.parse_args()
-    peer = Peer(a.latency_ms, a.idle_s, overlap=a.overlap).start()
+    peer = Peer(a.latency_ms, a.idle_s, overlap=a.overlap, word_alignment=not a.no_word_alignment,
+                modbus=not a.no_modbus, digital_answers=int(a.digital_answers, 16)).start()
     print(f"ads://127.0.0.1:{peer.port}", flush=True)
     try:
         while True:

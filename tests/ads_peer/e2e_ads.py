@@ -106,8 +106,11 @@ def main():
         r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
         j = json.loads(r.stdout) if r.returncode == 0 else {}
         terms = [(t["position"], t["type"], t["r8"], t["r9"]) for t in j.get("terminals", [])]
-        check(terms == [(1, "KL6001", 6001, 0x3141), (2, "KL1104", 0, None), (3, "KL3022", 3022, 0x3141),
-                        (4, "KL2114", 0, None)],
+        check(terms == [(1, "KL6001", 6001, 0x3141), (2, None, 0, None), (3, "KL3022", 3022, 0x3141),
+                        (4, None, 0, None)]
+              and [t.get("digital") for t in j.get("terminals", [])] == [None, "digital, 4 inputs", None,
+                                                                           "digital, 4 outputs"]
+              and "KL2134" in j["terminals"][3]["fits"] and "KL2404" in j["terminals"][3]["fits"],
               f"scan --json: table 9's terminals with R8 and R9 read on port 100: {terms} {r.stderr.strip()[:300]}")
         check(j.get("identification") == "BK9000 2.11.0" and j.get("coupler") == "BK9000" and j.get("matches") is True
               and j.get("image_bits") == {"complex_out": 128, "complex_in": 128, "digital_out": 4, "digital_in": 4}
@@ -130,6 +133,19 @@ def main():
               and not any(p == 300 for _, _, p, _, _ in peer.log),
               "map --online: R34 of terminal number 1 asked on port 100, nothing on port 300")
         peer.log = None
+        # map over ADS in ADS terms: port-300 index group and offset, port-100 index group per terminal.
+        r = run([a.kscfg, "--port", uri, "map"], 120)
+        check(r.returncode == 0 and "(ADS: image on port 300, registers on port 100)" in r.stdout
+              and "0xF020:8 " in r.stdout and "0xF030:16 " in r.stdout and "Modbus" not in r.stdout
+              and "3   KL3022  index group 3   offsets 0x00000000-0x0001003F" in r.stdout,
+              f"map over ADS: port-300 index groups and offsets, port-100 index groups: {r.stdout.strip()[:900]}")
+        r = run([a.kscfg, "--port", uri, "--json", "map"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        t3 = (j.get("terminals") or [{}] * 3)[2]
+        check(j.get("ads") is True and j.get("modbus") is False
+              and t3.get("inputs", {}).get("ads") == {"ads_port": 300, "index_group": 0xF020, "index_offset": 8}
+              and [(x["position"], x["index_group"]) for x in j.get("ads_registers", [])] == [(1, 1), (3, 3)],
+              f"map --json over ADS: {t3} {j.get('ads_registers')}")
         st = os.path.join(env["XDG_CACHE_HOME"], "scanned.toml")
         os.makedirs(env["XDG_CACHE_HOME"], exist_ok=True)
         r = run([a.kscfg, "--port", uri, "scan", "--write", st, "--force"], 120)
@@ -142,14 +158,20 @@ def main():
         r = run([a.kscfg, "--port", uri, "-t", "all", "--json", "read", "R8"], 120)
         check(r.returncode == 0 and r.stdout.count('"type": "KL6001"') + r.stdout.count('"type":"KL6001"') >= 1
               and "3022" in r.stdout, f"-t all read R8 over ADS: rc {r.returncode} {r.stderr.strip()[:200]}")
-        # A coupler without table 9: walked by terminal number, the digital ones counted.
+        # A coupler without table 9: walked by terminal number, the digital ones counted. No manual
+        # says whether a digital terminal answers 0x703 or 0x702 (as no terminal at all): the walk
+        # ends on neither, and both give the same station (issue 35).
         peer.table9 = False
-        r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
-        j = json.loads(r.stdout) if r.returncode == 0 else {}
-        terms = [(t["position"], t["type"], t["r8"]) for t in j.get("terminals", [])]
-        check(terms == [(1, "KL6001", 6001), (2, "KL3022", 3022)] and j.get("matches") is False
-              and "2 terminal(s) without registers" in r.stderr,
-              f"scan without table 9: R8 by terminal number until 0x702: {terms}")
+        for code in (ads_peer.ADS_OFFSET, ads_peer.ADS_GROUP):
+            peer.digital_answers = code
+            r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
+            j = json.loads(r.stdout) if r.returncode == 0 else {}
+            terms = [(t["position"], t["type"], t["r8"]) for t in j.get("terminals", [])]
+            check(terms == [(1, "KL6001", 6001), (2, "KL3022", 3022)] and j.get("matches") is False
+                  and "1 terminal(s) without registers" in r.stderr and "after terminal number 3" in r.stderr,
+                  f"scan without table 9, a digital terminal answering {code:#x}: the walk goes past it: {terms} "
+                  f"{r.stderr.strip()[-300:]}")
+        peer.digital_answers = ads_peer.ADS_OFFSET
         # Without table 9 and with terminals that have no registers, the station cannot be laid out:
         # a command asks for --station (positions are not terminal numbers then).
         r = run([a.kscfg, "--port", uri, "-t", "2", "read", "--raw", "R8"], 120)
@@ -159,6 +181,62 @@ def main():
         check(r.returncode == 0 and r.stdout == "0x0BCE\n",
               f"without table 9, with --station: position 3 is the KL3022: {r.stdout.strip()} {r.stderr.strip()[:200]}")
         peer.table9 = True
+
+        # Digital terminals as what they are: -t by any type that fits, a station file naming one
+        # that fits (checked), the end terminal inferred.
+        r = run([a.kscfg, "--port", uri, "-t", "KL2134", "info"], 120)
+        check(r.returncode == 0 and r.stdout.startswith("terminal 4\n") and "digital, 4 outputs" in r.stdout,
+              f"-t KL2134 selects the digital output terminal: rc {r.returncode} {r.stdout.strip()[:200]} "
+              f"{r.stderr.strip()[:200]}")
+        r = run([a.kscfg, "--port", uri, "info"], 120)
+        check(r.returncode == 0 and "KL2114" not in r.stdout.split("TITLE")[1].split("\n")[6]
+              and "-   KL9010" in r.stdout and "inferred" in r.stdout,
+              f"info: the digital terminals as digital, the end terminal inferred: {r.stdout.strip()[:600]}")
+        named = os.path.join(env["XDG_CACHE_HOME"], "named.toml")
+        with open(named, "w") as f:
+            f.write('coupler = "BK9000"\n' + "".join(f'[[terminal]]\ntype = "{t}"\n' for t in
+                                                   ("KL6001", "KL1104", "KL9100", "KL3022", "KL2404", "KL9010")))
+        r = run([a.kscfg, "--port", uri, "--station", named, "-t", "KL2404", "--json", "data", "--once"], 120)
+        check(r.returncode == 0 and '"KL2404"' in r.stdout,
+              f"--station naming the real KL2404 at position 5: checked by its bits, selected by -t KL2404: rc "
+              f"{r.returncode} {r.stdout.strip()[:200]} {r.stderr.strip()[:300]}")
+        with open(named, "w") as f:
+            f.write('coupler = "BK9000"\n' + "".join(f'[[terminal]]\ntype = "{t}"\n' for t in
+                                                   ("KL6001", "KL1104", "KL3022", "KL1104", "KL9010")))
+        r = run([a.kscfg, "--port", uri, "--station", named, "data", "--once"], 120)
+        check(r.returncode == 5 and "digital, 4 outputs" in r.stderr and r.stderr.count("\n") == 1,
+              f"--station naming an input terminal where table 9 has 4 outputs: refused: rc {r.returncode} "
+              f"{r.stderr.strip()[:300]}")
+
+        # A layout the coupler confirms: its image lengths on its Modbus TCP side (table 100
+        # registers 15 and 26). Word alignment off on the coupler: refused, naming the setting,
+        # nothing read from port 300; with the setting given, the bytes where the coupler puts them.
+        peer.word_alignment = False
+        peer.log = []
+        r = run([a.kscfg, "--port", uri, "data", "--once"], 120)
+        check(r.returncode == 5 and r.stderr.count("\n") == 1 and "set to word alignment off" in r.stderr
+              and "word-alignment = false" in r.stderr and not any(p == 300 for _, _, p, _, _ in peer.log),
+              f"word alignment off on the coupler: data --once refused, nothing read: rc {r.returncode} "
+              f"{r.stderr.strip()[:400]}")
+        peer.log = None
+        wa = os.path.join(env["XDG_CACHE_HOME"], "wa-off.toml")
+        r = run([a.kscfg, "--port", uri, "scan", "--word-alignment", "off", "--write", wa, "--force"], 120)
+        check(r.returncode == 0 and "word alignment off" in r.stdout and "set to word" not in r.stderr,
+              f"scan --word-alignment off: confirmed by the coupler: rc {r.returncode} {r.stderr.strip()[:300]}")
+        peer.inputs[0:13] = bytes([0, 0, 0, 0, 0, 0, 0x00, 0x00, 0x40, 0x00, 0x00, 0x00, 0x05])
+        r = run([a.kscfg, "--port", uri, "--station", wa, "--json", "data", "--once"], 120)
+        rows = [json.loads(l) for l in r.stdout.splitlines() if l.startswith("{")] if r.returncode == 0 else []
+        got = {(x["position"], x.get("channel")): x for x in rows}
+        check(got.get((3, 1), {}).get("word") == 16384 and got.get((2, None), {}).get("inputs") == [1, 0, 1, 0],
+              f"--station with word-alignment = false: the KL3022 word at byte 7, the inputs at byte 12: rc "
+              f"{r.returncode} {r.stdout.strip()[:500]} {r.stderr.strip()[:300]}")
+        peer.word_alignment = True
+        peer.inputs[0:13] = bytes(13)
+        peer.table100[15] = 1  # Modbus TCP disabled: nothing confirms the layout, and kscfg says so
+        r = run([a.kscfg, "--port", uri, "scan"], 120)
+        check(r.returncode == 0 and "not confirmed by the coupler" in r.stderr and "Modbus TCP disabled" in r.stderr,
+              f"Modbus TCP disabled: the layout not confirmed, said: {r.stderr.strip()[-300:]}")
+        peer.table100[15] = 0
 
         # Replies out of order (a coupler that overlaps requests): matched by invoke id only.
         peer.overlap, peer.latency = True, 0.004

@@ -1,6 +1,7 @@
 // kscfg scan over ads:// end to end against `kscfg serve --ads` (a child process), set against the
 // Modbus scan of the same emulated station through `kscfg serve --tcp`: the same terminals, R8s,
 // image placement and --json shape; a station file written by it drives later commands.
+#include <algorithm>
 #include <catch2/catch.hpp>
 
 #include <nlohmann/json.hpp>
@@ -25,7 +26,8 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     CHECK(r.out.find("coupler   BK9000 (identification \"BK9000") == 0);
     CHECK(r.out.find("watchdog  1000 ms (ADS watchdog, table 100 register 14)") != std::string::npos);
     CHECK(r.out.find("4    KL3022  3022") != std::string::npos);
-    CHECK(r.out.find("5    KL1104  -      standard     in 48.0-48.3\n") != std::string::npos);  // the map's notation
+    // The map's notation; a digital terminal as table 9 gives it, with the catalog types that fit.
+    CHECK(r.out.find("5    digital -      standard     in 48.0-48.3  digital, 4 inputs: KL1104, ") != std::string::npos);
     // The station file found drives commands: the KL3022's second channel at plug position 4.
     r = run_kscfg({"--port", s.uri, "--station", d.file("st.toml"), "-t", "4", "-c", "2", "read", "--raw", "R8"}, env);
     CHECK(r.out == "0x0BCE\n");
@@ -70,7 +72,10 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     CHECK(at[i].at("r9").is_number());
     for (const auto& [k, v] : mt[i].items()) CHECK(at[i].contains(k));
   }
-  CHECK(at[4].at("type") == "KL1104");
+  // Table 9 gives a digital terminal's bits and direction, not its type (issue 35).
+  CHECK(at[4].at("type").is_null());
+  CHECK(at[4].at("digital") == "digital, 4 inputs");
+  CHECK(std::find(at[4].at("fits").begin(), at[4].at("fits").end(), "KL1104") != at[4].at("fits").end());
   CHECK(at[4].at("r8") == 0);
   CHECK(at[4].at("r9").is_null());
   CHECK(at[5].at("image").at("complex") == false);

@@ -6,6 +6,7 @@
 #include <optional>
 
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/ads_image.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/modbus_link.hpp"
@@ -16,12 +17,15 @@ namespace kscfg {
 // The station and `kscfg scan` over ADS (docs/design.md section 4.9): what a Modbus scan reports,
 // from port 100.
 // The identification is ReadDeviceInfo's name and version; the terminals are table 9's (every
-// numbered terminal, digital ones as a catalog type of their bits), each terminal with registers
+// numbered terminal; a digital one as an inferred catalog type of its bits, TerminalSpec::inferred),
+// each terminal with registers
 // checked by its R8 and R9 and the registers that decide its image, all read in one batch (in
 // flight together); the image lengths are the layout's, the watchdog is table 100 register 14 (the
 // ADS watchdog). A coupler that does not serve table 9 is walked by terminal number instead: R8 of
-// terminal 1, 2, ... until the coupler has no such terminal (ADS 0x702); terminals without
-// registers are then counted, not identified (as over Modbus). The mapping settings are the
+// every number to kMaxTerminals (the error code of a number without registers tells a digital
+// terminal from the end on no documented coupler), the first such number the end only when the
+// coupler's image lengths show no digital bit; terminals without registers before the last one
+// with registers are counted, not identified (as over Modbus). The mapping settings are the
 // coupler family's defaults, passed through `settings` when given (the caller's overrides).
 struct AdsScanOptions {
   // The whole scan (kscfg scan): ReadDeviceInfo, each terminal's R8 and R9, the ADS watchdog.
@@ -30,9 +34,15 @@ struct AdsScanOptions {
   bool check = true;
   std::function<MappingSettings(MappingSettings)> settings;
   std::string origin;  // the station file's origin
+  // Check the layout against the image lengths the coupler reports on its Modbus TCP side
+  // (discovery/ads_image.hpp): result.layout.image_refused / image_unconfirmed, with a note.
+  bool check_image = true;
+  std::function<void(const std::string&)> trace;
+  const CancelToken* cancel = nullptr;
 };
 struct AdsScan {
   ScanResult result;
+  CouplerImage image;  // what the coupler reported of its image (check_image)
   std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
 };
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt = {});

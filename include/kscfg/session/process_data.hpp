@@ -20,6 +20,8 @@ namespace kscfg {
 struct ImageSnapshot {
   std::vector<std::uint8_t> in, out;
 };
+// Error(refused) when the coupler contradicts the layout (StationLayout::image_refused): nothing
+// is read.
 ImageSnapshot read_image(Link& link, const StationLayout& layout);
 
 // One JSON object per channel of a complex terminal, one per digital terminal; nothing for

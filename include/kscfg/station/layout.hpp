@@ -46,7 +46,21 @@ struct TerminalImage {
   std::size_t in_offset = 0, in_size = 0, out_offset = 0, out_size = 0;  // complex: byte range
   std::size_t in_bit = 0, out_bit = 0;  // digital: absolute bit offset in the image
   unsigned bits_in = 0, bits_out = 0;
+  // A digital terminal whose type is unknown (TerminalSpec::inferred): `type` stands for its bits
+  // and direction; `fits` are the catalog types with that image (digital_label(), fits_type()).
+  bool inferred = false;
+  std::vector<std::string> fits;
 };
+
+// "digital, 4 outputs", "digital, 2 inputs and 2 outputs": what an inferred terminal is known to be.
+std::string digital_label(const TerminalImage& t);
+// The type to show: the catalog type, or "digital" for an inferred terminal.
+std::string shown_type(const TerminalImage& t);
+// Whether `type` (upper case or as the catalog spells it) can be this terminal: its type, or one
+// of the types that fit an inferred terminal.
+bool fits_type(const TerminalImage& t, const std::string& type);
+// "KL2114, KL2134, KL2404 or 6 others": the types that fit an inferred terminal, at most `max` named.
+std::string fits_text(const TerminalImage& t, std::size_t max = 4);
 
 struct StationLayout {
   std::string coupler;
@@ -55,6 +69,13 @@ struct StationLayout {
   std::size_t in_bytes = 0, out_bytes = 0;
   std::size_t complex_in = 0, complex_out = 0;
   std::size_t digital_in_bits = 0, digital_out_bits = 0;
+  // The coupler contradicts this layout (an ADS coupler's image lengths, read over its Modbus TCP
+  // side, differ from it): process data laid out so would be decoded wrong. read_image() refuses
+  // with Error(refused, image_refused, image_refused_hint) (docs/design.md 4.9). Empty: not
+  // contradicted.
+  std::string image_refused, image_refused_hint;
+  // Not contradicted and not confirmed either: why the coupler could not be asked (a note).
+  std::string image_unconfirmed;
 
   const TerminalImage& terminal(unsigned position) const;  // throws Error(usage)
   // The digital bits the coupler reports that no terminal of the layout accounts for (a Modbus

@@ -17,6 +17,11 @@ namespace kscfg {
 constexpr unsigned kModbusInputBase = 0x0000;
 constexpr unsigned kModbusOutputBase = 0x0800;
 constexpr std::size_t kModbusImageBytes = 512;  // 0x0000-0x00FF / 0x0800-0x08FF: 256 registers
+// ADS port 300 of the BK9000 family: index group 0xF020 inputs, 0xF030 outputs, index offset = the
+// byte offset (BK/BC9000 "ADS services"; link/ads_link.hpp holds the same for the link).
+constexpr unsigned kAdsImagePort = 300;
+constexpr unsigned kAdsInputGroup = 0xF020;
+constexpr unsigned kAdsOutputGroup = 0xF030;
 
 // Registers that decide a terminal's image: the `when` registers of its formats and the count
 // registers of `bytes PREFIX Rn` elements (KL6001: R34, R35). Sorted, unique.

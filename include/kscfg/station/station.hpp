@@ -24,6 +24,9 @@ struct CouplerProfile {
   std::size_t max_in_bytes = 0;    // process-image limits (0 = no limit known)
   std::size_t max_out_bytes = 0;
   bool modbus = false;             // exposes the image as Modbus registers (BK7xx0, BK9xx0)
+  // Shown as reached over ADS (the map of an ads:// port): the image by port-300 index group and
+  // offset (0xF020 inputs, 0xF030 outputs), no Modbus register. Set by the caller, never by a profile.
+  bool ads = false;
   // Settings the coupler does not let anyone change ("complete_evaluation", "word_alignment"):
   // the BK2000 always maps the control/status byte and puts the register value on a word.
   std::vector<std::string> fixed;
@@ -63,6 +66,9 @@ struct TerminalSpec {
   // `position = N` (plug position, 1-based) in a partial station file: it names only the terminals
   // it configures, each checked against the station's type there. 0: a full file, plug order.
   unsigned position = 0;
+  // A digital terminal known only by its bits and direction (an ADS coupler's table 9): `type` is
+  // one catalog type with that image, not a type anyone named. Never set by a station file.
+  bool inferred = false;
 };
 
 struct StationSpec {
