@@ -160,6 +160,7 @@ class Serve : public Command {
         // One station, one K-bus, one saver; both servers in one loop.
         ServedStation shared(station, ServedStation::Options{so->cycle_us, save, so->save_delay_ms, so->warn});
         ModbusServer m(shared, *so);
+        ao->modbus_port = port_of(m.endpoint());  // table 100 register 26: where the image lengths are
         AdsServer a(shared, *ao);
         // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and
         // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).

@@ -58,10 +58,10 @@ std::uint16_t AdsRequestHandler::table(unsigned table, unsigned reg) const {
     case 2: return two(0xFF, 0xFF);     // IP mask 255.255.0.0 (the documented default)
     case 3: return 0;
     case 14: return static_cast<std::uint16_t>(opt_.watchdog_ms);  // watchdog AMS/ADS, ms
-    case 15: return 0;                   // bit 0: Modbus TCP enabled (0), bit 1: ADS enabled (0)
+    case 15: return opt_.modbus_port ? 0 : 1;  // bit 0 set: Modbus TCP disabled; bit 1 set: ADS disabled
     case 16: return 0x3100;              // full duplex, autobaud, 100 Mbaud (the defaults)
     case 24: return 1000;                // watchdog Modbus TCP, ms
-    case 26: return 502;                 // Modbus TCP port
+    case 26: return static_cast<std::uint16_t>(opt_.modbus_port.value_or(502));  // Modbus TCP port
     case 27: return 10;                  // ADS connection service life, s
     default:
       if (reg >= 4 && reg <= 13) {       // device name, two characters per register

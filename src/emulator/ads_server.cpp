@@ -96,6 +96,7 @@ AdsServer::AdsServer(ServedStation* shared, EmulatedStation& station, AdsServeOp
   ho.routes = I.opt.routes;
   ho.watchdog_ms = I.opt.watchdog_ms;
   ho.register_ms = I.opt.register_ms;
+  ho.modbus_port = I.opt.modbus_port;
   ho.trace = I.opt.trace;
   ho.lock = &(*I.host)->lock();
   I.handler.emplace(station, ho);

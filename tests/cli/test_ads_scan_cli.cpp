@@ -24,6 +24,9 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     r = run_kscfg({"--port", s.uri, "scan", "--write", d.file("st.toml")}, env);
     REQUIRE(r.rc == 0);
     CHECK(r.out.find("coupler   BK9000 (identification \"BK9000") == 0);
+    // serve --ads alone serves no Modbus TCP, and says so in table 100 register 15 bit 0: the layout
+    // is not confirmed, and no Modbus connection is tried (issue 35).
+    CHECK_THAT(r.err, Catch::Contains("Modbus TCP disabled (table 100 register 15 bit 0)"));
     CHECK(r.out.find("watchdog  1000 ms (ADS watchdog, table 100 register 14)") != std::string::npos);
     CHECK(r.out.find("4    KL3022  3022") != std::string::npos);
     // The map's notation; a digital terminal as table 9 gives it, with the catalog types that fit.

@@ -28,6 +28,10 @@ struct AdsServeOptions {
   // "If no data are transmitted for 10 seconds, the TCP/IP connection is disconnected from the
   // BC/BK9000" (BK/BC9000 "ADS services", https://infosys.beckhoff.com/content/1033/bc9000/2802215435.html).
   unsigned idle_cut_ms = 10000;
+  // The Modbus TCP port of the same station when serve answers both protocols (table 100 register
+  // 26, register 15 bit 0 clear); empty: Modbus TCP is not served (register 15 bit 0 set), so an
+  // ADS client does not look for the image lengths there (discovery/ads_image.hpp).
+  std::optional<unsigned> modbus_port;
   unsigned max_connections = 64;    // one more is closed at once
   unsigned frame_timeout_ms = 2000; // a frame must arrive whole within this time from its first byte
   std::function<void(const std::string&)> save_state;  // as ServeOptions::save_state
