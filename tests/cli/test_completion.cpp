@@ -130,7 +130,7 @@ TEST_CASE("bash, zsh and fish complete from the catalog, the station and the com
        {},
        {{"bash", {files.file("line3.toml")}}}},
       // commands and sub-commands, options of the command and the global ones
-      {"kscfg emu ", {"reset", "fault", "path"}, {"info"}},
+      {"kscfg emu ", {"reset", "restart", "fault", "path"}, {"info"}},
       {"kscfg emu re", {"reset"}, {"restore", "read"}},
       {"kscfg help emu ", {"reset", "fault", "path"}, {}},
       {"kscfg read --r", {"--raw"}, {"--yes"}},
