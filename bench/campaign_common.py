@@ -1,13 +1,18 @@
 """What bench/campaign.py and its campaign modules share (each module gets this one as C): the kscfg
-binary (KSCFG), running it (run, outcome), `kscfg serve` (Serve), the emulated station's state
-file (load_state, register, leftovers) and the row of counts (Tally).
+binary (KSCFG), running it (run, outcome; kscfg_at with a target's own environment, isolated_env),
+`kscfg serve` (Serve), the peers' modules (use_peer), the emulated station's state file
+(load_state, register, leftovers) and the row of counts (Tally).
 """
 import json
+import os
 import signal
 import struct
 import subprocess
+import sys
 import tempfile
 import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
 
 KSCFG = "build/kscfg"
 CLEAN = {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12}  # distinct failure classes (not 70: "a bug")
@@ -25,6 +30,36 @@ def run(args, port=None, timeout=60, stdin=None):
         return p.returncode, p.stdout, p.stderr
     except subprocess.TimeoutExpired:
         return "hang", "", ""
+
+
+def use_peer(name):
+    """Makes tests/NAME importable: "peer" (peerproc, nstation: the pymodbus peer) or "ads_peer"."""
+    path = os.path.join(HERE, "..", "tests", name)
+    if path not in sys.path:
+        sys.path.insert(0, path)
+
+
+def isolated_env(d):
+    """kscfg's environment for one target: its scan cache, state (journals) and locks under D, and
+    no KSCFG_PORT."""
+    env = dict(os.environ, XDG_CACHE_HOME=os.path.join(d, "cache"), XDG_STATE_HOME=os.path.join(d, "state"),
+               KSCFG_LOCK_DIR=os.path.join(d, "locks"))
+    env.pop("KSCFG_PORT", None)
+    return env
+
+
+def kscfg_at(uri, args, env, timeout=120, options=()):
+    """kscfg --port URI OPTIONS... ARGS... in ENV: (exit status or "hang", stdout, stderr, seconds)."""
+    t0 = time.monotonic()
+    p = subprocess.Popen([KSCFG, "--port", uri, *options, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, env=env)
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.communicate()
+        return "hang", "", "", time.monotonic() - t0
+    return p.returncode, out, err, time.monotonic() - t0
 
 
 def outcome(rc, err, ok=(0,)):
