@@ -90,15 +90,15 @@ class EmuRestart : public Command {
     }
     bool same = r.changed.empty() && r.in_before == r.in_after && r.out_before == r.out_after;
     if (ctx.json()) {
-      nlohmann::json changed = nlohmann::json::array();
+      nlohmann::json terminals = nlohmann::json::array();
       for (const auto& c : r.changed)
-        changed.push_back({{"position", c.position}, {"type", c.type}, {"format_before", c.format_before},
-                           {"format", c.format_after}});
+        terminals.push_back({{"position", c.position}, {"type", c.type}, {"format", c.format_after},
+                             {"format_before", c.format_before}});
       print_json({{"state", path},
-                  {"restarted", true},
+                  {"changed", !same},
                   {"before", {{"in_bytes", r.in_before}, {"out_bytes", r.out_before}}},
                   {"after", {{"in_bytes", r.in_after}, {"out_bytes", r.out_after}}},
-                  {"changed", changed}});
+                  {"terminals", terminals}});
       return 0;
     }
     if (same) {
