@@ -143,7 +143,7 @@ void own_server(const Options& o, const std::string& station, std::vector<Row>& 
 
 void emulator(const Options& o, std::vector<Row>& rows) {
   std::string port = "emu:" + (o.tmp / "emu.json").string();
-  std::vector<double> ms;
+  Samples samples;
   run_kscfg(o, {"--port", port, "read", "R8"}, o.tmp / "cache-emu");
   Stats st;
   for (unsigned i = 0; i < std::max(30u, o.runs); ++i) {
@@ -153,9 +153,9 @@ void emulator(const Options& o, std::vector<Row>& rows) {
       st.error = r.err;
       continue;
     }
-    ms.push_back(r.ms);
+    samples.add(r);
   }
-  st.ms = median(ms);
+  samples.medians(st);
   rows.push_back({"emulator (state file)", "`read R8` whole process", st, 0, 0, "target <= 10 ms"});
 }
 

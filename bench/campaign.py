@@ -27,141 +27,16 @@ import json
 import os
 import random
 import select
-import signal
 import socket
-import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 
-KSCFG = "build/kscfg"
-CLEAN = {1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12}  # distinct failure classes (not 70: "a bug")
-COLUMNS = ["tried", "failed cleanly", "wrong value", "left unlocked", "left in register mode", "crashed"]
-
-
-# ----------------------------------------------------------------------------------------------
-# Running kscfg
-
-
-def run(args, port=None, timeout=60, stdin=None):
-    cmd = [KSCFG] + (["--port", port] if port else []) + args
-    try:
-        p = subprocess.run(cmd, input=stdin, capture_output=True, text=True, timeout=timeout)
-        return p.returncode, p.stdout, p.stderr
-    except subprocess.TimeoutExpired:
-        return "hang", "", ""
-
-
-def outcome(rc, err, ok=(0,)):
-    """'ok', 'clean' or 'crashed' for one finished command. The error is one line; only a rollback that
-    failed adds one line per terminal after it ("kscfg:   terminal ...", docs/design.md 6.4)."""
-    if rc in ok:
-        return "ok"
-    lines = err.splitlines()
-    if (rc in CLEAN and err.endswith("\n") and lines and lines[0].startswith("kscfg: error: ")
-            and all(l.startswith("kscfg:   terminal ") for l in lines[1:])):
-        return "clean"
-    return "crashed"
-
-
-class Serve:
-    """kscfg serve in a child process; .uri is what it printed."""
-
-    def __init__(self, state, *args, env=None):
-        self.err = tempfile.TemporaryFile(mode="w+")
-        self.p = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--tcp", "127.0.0.1:0"] + list(args),
-                                  stdout=subprocess.PIPE, stderr=self.err, text=True, env=env)
-        self.uri = self.p.stdout.readline().strip()
-        if not self.uri.startswith("tcp://"):
-            raise SystemExit("serve did not start: " + self.errors())
-        host, port = self.uri[6:].rsplit(":", 1)
-        self.addr = (host, int(port))
-
-    def alive(self):
-        return self.p.poll() is None
-
-    def errors(self):
-        self.err.seek(0)
-        return self.err.read()
-
-    def stop(self, sig=signal.SIGTERM):
-        if self.p.poll() is None:
-            self.p.send_signal(sig)
-        try:
-            return self.p.wait(30)
-        except subprocess.TimeoutExpired:
-            self.p.kill()
-            return "hang"
-
-
-# ----------------------------------------------------------------------------------------------
-# Looking at the emulated station through its state file
-
-
-def load_state(path):
-    for _ in range(50):
-        try:
-            with open(path) as f:
-                return json.load(f)
-        except (OSError, ValueError):
-            time.sleep(0.02)  # replaced under us: the next open sees the new file
-    raise RuntimeError("state file unreadable: " + path)
-
-
-CONTROL = {}  # (position, channel) -> output offset of its control byte
-
-
-def learn_layout():
-    rc, out, err = run(["--json", "map"], port="emu:mem")
-    for t in json.loads(out)["terminals"]:
-        for c in t.get("channels", []):
-            for o in c.get("outputs", []):
-                if o["name"] == "CT/ST":
-                    CONTROL[(t["position"], c["channel"])] = o["offset"]
-
-
-def register(state, pos, ch, reg):
-    for c in state["channels"]:
-        if c["position"] == pos and c["channel"] == ch - 1:
-            return c["registers"][reg]
-    raise KeyError((pos, ch))
-
-
-def leftovers(state):
-    """(unlocked channels, channels in register mode) in a state."""
-    outputs = bytes.fromhex(state["outputs"])
-    unlocked = [f"{c.get('position', '?')}" for c in state["channels"] if c["registers"][31] == 0x1235]
-    reg_mode = [f"{t[0]}.{t[1]}" for t, off in CONTROL.items() if off < len(outputs) and outputs[off] & 0x80]
-    return unlocked, reg_mode
-
-
-class Tally:
-    def __init__(self, name):
-        self.name = name
-        self.c = dict.fromkeys(COLUMNS, 0)
-        self.notes = []
-
-    def add(self, col, n=1):
-        self.c[col] += n
-
-    def note(self, s):
-        if len(self.notes) < 8:
-            self.notes.append(s)
-
-    def row(self):
-        return "| {} | {} |".format(self.name, " | ".join(str(self.c[k]) for k in COLUMNS))
-
-
-def check_leftovers(t, state, what):
-    u, r = leftovers(state)
-    if u:
-        t.add("left unlocked")
-        t.note(f"unlocked (terminal {', '.join(u)}) after " + what)
-    if r:
-        t.add("left in register mode")
-        t.note(f"register mode (terminal {', '.join(r)}) after " + what)
+import campaign_common as common
+from campaign_common import (COLUMNS, Serve, Tally, check_leftovers, learn_layout, load_state, mbap, outcome,
+                             register, run)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -297,7 +172,7 @@ def campaign_kill9(n, seed, work, via_serve):
         run(["emu", "reset"], port="emu:" + state)  # each trial on its own: no leftovers carried over
         old = register(load_state(state), pos, 1, reg)
         start()
-        p = subprocess.Popen([KSCFG, "--port", port, "-t", str(pos), "write", f"R{reg}", f"0x{v:04X}"],
+        p = subprocess.Popen([common.KSCFG, "--port", port, "-t", str(pos), "write", f"R{reg}", f"0x{v:04X}"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(rnd.uniform(0, span * 1.2))
         p.kill()
@@ -328,10 +203,6 @@ def campaign_kill9(n, seed, work, via_serve):
 
 # ----------------------------------------------------------------------------------------------
 # 3. 1000 concurrent connections plus slow clients against serve
-
-
-def mbap(tid, pdu, unit=1):
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + bytes(pdu)
 
 
 def campaign_connections(n_ops, seed, work, limit):
@@ -550,22 +421,23 @@ def campaign_durability(n, seed, work):
 # ----------------------------------------------------------------------------------------------
 
 
-# Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick)).
+# Campaigns in files of their own: name -> module (each has run(C, name, seed, work, quick); C is
+# campaign_common).
 ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
              **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"),
-             **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"), **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings")}
+             **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"),
+             **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings")}
 
 
 def main():
-    global KSCFG
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--kscfg", default=KSCFG)
+    ap.add_argument("--kscfg", default=common.KSCFG)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("campaigns", nargs="*",
                     default=["mixed", "kill9", "connections", "writers", "durability", *ELSEWHERE])
     a = ap.parse_args()
-    KSCFG = os.path.abspath(a.kscfg)
+    common.KSCFG = os.path.abspath(a.kscfg)
     q = 10 if a.quick else 1
     learn_layout()
     rows = []
@@ -586,7 +458,7 @@ def main():
                 campaign_durability(400 // q, a.seed, work)
                 continue
             elif c in ELSEWHERE:
-                rows += importlib.import_module(ELSEWHERE[c]).run(sys.modules[__name__], c, a.seed, work, a.quick)
+                rows += importlib.import_module(ELSEWHERE[c]).run(common, c, a.seed, work, a.quick)
             else:
                 raise SystemExit("unknown campaign " + c)
             print(f"({c}: {time.time() - t0:.0f} s)", file=sys.stderr)

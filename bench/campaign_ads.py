@@ -23,12 +23,12 @@ import signal
 import socket
 import struct
 import subprocess
-import sys
 import threading
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests", "ads_peer"))
+import campaign_common
+
+campaign_common.use_peer("ads_peer")
 
 
 class Target:
@@ -39,9 +39,7 @@ class Target:
         d = os.path.join(work, name)
         os.makedirs(d, exist_ok=True)
         self.dir = d
-        self.env = dict(os.environ, XDG_CACHE_HOME=os.path.join(d, "cache"), XDG_STATE_HOME=os.path.join(d, "state"),
-                        KSCFG_LOCK_DIR=os.path.join(d, "locks"))
-        self.env.pop("KSCFG_PORT", None)
+        self.env = C.isolated_env(d)
         self.srv = self.peer = None
         if kind == "serve":
             self.state = os.path.join(d, "emu.json")
@@ -98,15 +96,7 @@ class Target:
             return len(self.peer.image_writes)
 
     def kscfg(self, uri, args, timeout=120):
-        p = subprocess.Popen([self.C.KSCFG, "--port", uri, "--timeout", "1000"] + args, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, env=self.env)
-        try:
-            out, err = p.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.communicate()
-            return "hang", "", ""
-        return p.returncode, out, err
+        return self.C.kscfg_at(uri, args, self.env, timeout, ("--timeout", "1000"))[:3]
 
     def close(self):
         if self.peer:

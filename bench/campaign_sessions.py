@@ -24,8 +24,9 @@ import sys
 import threading
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests", "peer"))
+import campaign_common
+
+campaign_common.use_peer("peer")
 
 STATION = ["KL6001", "KL5101", "KL6031", "KL3022", "KL1104", "KL2134", "KL9010"]
 CTRL = [(1, 1, 0), (2, 1, 8), (3, 1, 16), (4, 1, 40), (4, 2, 44)]  # (position, channel, control byte)
@@ -38,9 +39,7 @@ class Coupler:
 
     def __init__(self, C, kind, work, name, serve_args=()):
         self.C, self.kind = C, kind
-        self.env = dict(os.environ, XDG_CACHE_HOME=os.path.join(work, name, "cache"),
-                        XDG_STATE_HOME=os.path.join(work, name, "state"), KSCFG_LOCK_DIR=os.path.join(work, name, "locks"))
-        self.env.pop("KSCFG_PORT", None)
+        self.env = C.isolated_env(os.path.join(work, name))
         os.makedirs(os.path.join(work, name), exist_ok=True)
         if kind == "serve":
             self.state_path = os.path.join(work, name, "emu.json")
@@ -56,16 +55,7 @@ class Coupler:
         self.key = "ip-" + self.uri[6:].replace(":", "-") + "-unit1"  # station_key (link/coupler_key.hpp)
 
     def kscfg(self, args, timeout=120):
-        t0 = time.monotonic()
-        p = subprocess.Popen([self.C.KSCFG, "--port", self.uri] + args, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, env=self.env)
-        try:
-            out, err = p.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.communicate()
-            return "hang", "", "", time.monotonic() - t0
-        return p.returncode, out, err, time.monotonic() - t0
+        return self.C.kscfg_at(self.uri, args, self.env, timeout)
 
     def start(self, args):
         return subprocess.Popen([self.C.KSCFG, "--port", self.uri] + args, stdout=subprocess.DEVNULL,

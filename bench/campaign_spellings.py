@@ -193,16 +193,7 @@ def twoprotocols(C, writers, writes, seed, work):
 
 
 def _kscfg(C, uri, args, env, timeout=180):
-    import subprocess
-    p = subprocess.Popen([C.KSCFG, "--port", uri, "--lock-wait", "120"] + args, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, env=env)
-    try:
-        out, err = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        p.kill()
-        p.communicate()
-        return "hang", "", ""
-    return p.returncode, out, err
+    return C.kscfg_at(uri, args, env, timeout, ("--lock-wait", "120"))[:3]
 
 
 def run(C, name, seed, work, quick):

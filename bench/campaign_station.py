@@ -24,11 +24,11 @@ import os
 import random
 import signal
 import subprocess
-import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "tests", "peer"))
+import campaign_common
+
+campaign_common.use_peer("peer")
 
 N = 12
 OLD = {32: 0x0006, 33: 0x0003}  # 9600 baud, 8N1 (the defaults)

@@ -173,10 +173,24 @@ double median(std::vector<double> v) {
   return v.size() % 2 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
 }
 
+void Samples::add(const RunResult& r, const Traffic& t) {
+  ms.push_back(r.ms);
+  exchanges.push_back(static_cast<double>(t.requests));
+  line_ms.push_back(t.line_s() * 1000);
+  floor_ms.push_back(t.floor_s * 1000);
+}
+
+void Samples::medians(Stats& st) const {
+  st.ms = median(ms);
+  st.exchanges = median(exchanges);
+  st.line_ms = median(line_ms);
+  st.floor_ms = median(floor_ms);
+}
+
 Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache,
               const std::string& tag, unsigned runs, const std::string& expect) {
   fs::path warm = o.tmp / ("cache-" + tag);
-  std::vector<double> ms, ex, line, floor;
+  Samples samples;
   Stats st;
   std::vector<std::string> full{"--port", relay.endpoint()};
   full.insert(full.end(), args.begin(), args.end());
@@ -197,15 +211,9 @@ Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& ar
       st.error = fmt::format("exit {}: {}", r.rc, e.empty() ? r.out.substr(0, 80) : e);
       continue;
     }
-    ms.push_back(r.ms);
-    ex.push_back(static_cast<double>(t.requests));
-    line.push_back(t.line_s() * 1000);
-    floor.push_back(t.floor_s * 1000);
+    samples.add(r, t);
   }
-  st.ms = median(ms);
-  st.exchanges = median(ex);
-  st.line_ms = median(line);
-  st.floor_ms = median(floor);
+  samples.medians(st);
   return st;
 }
 

@@ -379,6 +379,15 @@ struct Stats {
   std::string error;
 };
 
+// What a case's counted runs measured, one sample each; medians() gives the case's Stats figures
+// (measure(), station_sweep.cpp and bench_modbus.cpp's emulator row collect through it).
+struct Samples {
+  std::vector<double> ms, exchanges, line_ms, floor_ms;
+  void add(const RunResult& r, const Traffic& t);       // a run through a relay
+  void add(const RunResult& r) { ms.push_back(r.ms); }  // a run without one: its wall time
+  void medians(Stats& st) const;
+};
+
 enum class Cache { none, warm, cold };
 
 Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache,

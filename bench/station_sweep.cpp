@@ -79,7 +79,7 @@ Stats apply_turns(const Options& o, Relay& relay, const std::string& station, co
     return v;
   };
   run_kscfg(o, args(a), cache);  // the first run, not counted
-  std::vector<double> ms, ex, line, floor;
+  Samples samples;
   Stats st;
   for (unsigned i = 0; i < o.runs; ++i) {
     relay.reset();
@@ -90,15 +90,9 @@ Stats apply_turns(const Options& o, Relay& relay, const std::string& station, co
       st.error = fmt::format("exit {}: {}", r.rc, r.err.substr(0, r.err.find('\n')));
       continue;
     }
-    ms.push_back(r.ms);
-    ex.push_back(static_cast<double>(t.requests));
-    line.push_back(t.line_s() * 1000);
-    floor.push_back(t.floor_s * 1000);
+    samples.add(r, t);
   }
-  st.ms = median(ms);
-  st.exchanges = median(ex);
-  st.line_ms = median(line);
-  st.floor_ms = median(floor);
+  samples.medians(st);
   return st;
 }
 

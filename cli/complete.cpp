@@ -198,6 +198,7 @@ void ports(Completions& c, const std::string& cur) {
   add(c, "emu:mem", "the emulator without a state file");
   add(c, "tcp://", "Modbus TCP coupler: tcp://HOST[:PORT][?unit=N]");
   add(c, "rtu:", "Modbus RTU coupler: rtu:DEVICE[?baud=..&parity=..]");
+  add(c, "ads://", "ADS coupler (BK9000 over AMS/TCP): ads://HOST[:PORT][?netid=..&source=..]");
 }
 
 void terminals(Completions& c, const Scene& s, const Catalog& cat) {

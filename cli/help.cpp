@@ -93,7 +93,7 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
   out += '\n';
   std::string what = cmd ? cmd->brief() + "." : std::string("kscfg configures Bus Terminals (KL6001, KL5101, KL6031, ...) "
                                                             "through their register interface, over the embedded "
-                                                            "emulator, Modbus TCP or Modbus RTU.");
+                                                            "emulator, Modbus TCP, Modbus RTU or ADS.");
   out += wrap(what, width, 0, 0);
 
   auto subs = node->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); });

@@ -110,14 +110,14 @@ bool wait_for(const std::function<bool()>& cond, double timeout_s) {
   }
 }
 
-Child::Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env) {
+Child::Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, int stdin_fd) {
   const std::string& cache = test_cache_dir();
   std::string out = dir.file("out"), err = dir.file("err");
   pid = fork();
   if (pid == 0) {
     int o = open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     int e = open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    int n = open("/dev/null", O_RDONLY);
+    int n = stdin_fd >= 0 ? stdin_fd : open("/dev/null", O_RDONLY);
     dup2(o, 1);
     dup2(e, 2);
     dup2(n, 0);

@@ -61,7 +61,9 @@ std::size_t widest_line(const std::string& text);
 // the environment of run_kscfg() and `env`; stdout and stderr go to files. Killed (SIGKILL) when the
 // object dies, so no test leaves one behind.
 struct Child {
-  explicit Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {});
+  // `stdin_fd`: the child's stdin (a dup of it); -1: /dev/null.
+  explicit Child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
+                 int stdin_fd = -1);
   ~Child();
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;

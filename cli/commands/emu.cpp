@@ -52,6 +52,82 @@ class EmuReset : public Command {
   std::string station_;
 };
 
+class EmuRestart : public Command {
+ public:
+  std::string name() const override { return "restart"; }
+  std::string brief() const override {
+    return "Power-cycle the emulated coupler: what takes effect at its next start does";
+  }
+  std::string man() const override {
+    return "Switches the emulated coupler off and on. At its start a coupler lays out its process image from "
+           "the terminals' registers (e.g. KL6001 R34 and R35), and keeps that image until it is switched off: "
+           "a change that \\fBset\\fR, \\fBwrite\\fR or \\fBapply\\fR says takes effect at the coupler's next start "
+           "(\\fBset alternative\\-format off\\fR, \\fBwrite R35 5\\fR) does so after this command, and until then "
+           "online \\fBmap\\fR shows the image in effect and the one of the next start. The emulator keeps the "
+           "registers of the last start in its state file. What the coupler and its terminals hold in RAM is "
+           "lost: the outputs (cleared), the code word (R31), a register request under way, the serial "
+           "terminals' FIFOs and handshake, the KL5101's counter and latch; the registers, the faults of "
+           "\\fBemu fault\\fR and the far ends of the lines and encoders stay. Prints the image sizes before and "
+           "after and the terminals whose image changed. A state file that \\fBkscfg serve\\fR holds is "
+           "refused (exit status 11): stop the serve, restart, and start the serve again (a serve runs the "
+           "image of the last start).";
+  }
+  std::vector<std::string> examples() const override {
+    return {"emu restart", "set alternative-format off && kscfg emu restart && kscfg map"};
+  }
+  void add_cli(CLI::App&) override {}
+  int run(Context& ctx) override {
+    std::string path = state_path(ctx);
+    EmulatorRestart r;
+    try {
+      r = restart_emulator_state(path, ctx.catalog(), ctx.lock_wait());
+    } catch (const Error& e) {
+      if (e.code() != Exit::busy || e.hint().find("-p ") == std::string::npos) throw;
+      // Held by a serve: the serve runs the coupler; it cannot be switched off underneath it.
+      throw Error(Exit::busy, e.what(),
+                  "stop the serve, run 'kscfg emu restart', and serve again: a serve runs the image of the "
+                  "coupler's last start");
+    }
+    bool same = r.changed.empty() && r.in_before == r.in_after && r.out_before == r.out_after;
+    if (ctx.json()) {
+      nlohmann::json terminals = nlohmann::json::array();
+      for (const auto& c : r.changed)
+        terminals.push_back({{"position", c.position}, {"type", c.type}, {"format", c.format_after},
+                             {"format_before", c.format_before}});
+      print_json({{"state", path},
+                  {"changed", !same},
+                  {"before", {{"in_bytes", r.in_before}, {"out_bytes", r.out_before}}},
+                  {"after", {{"in_bytes", r.in_after}, {"out_bytes", r.out_after}}},
+                  {"terminals", terminals}});
+      return 0;
+    }
+    if (same) {
+      std::cout << fmt::format("emulator restarted: the same process image, {} input and {} output bytes ({})\n",
+                               r.in_after, r.out_after, path);
+      return 0;
+    }
+    std::cout << fmt::format("emulator restarted: process image {} input and {} output bytes (was {} and {}) ({})\n",
+                             r.in_after, r.out_after, r.in_before, r.out_before, path);
+    std::string moved;
+    for (const auto& c : r.changed) {
+      if (c.format_before == c.format_after && c.in_before == c.in_after && c.out_before == c.out_after) {
+        moved += fmt::format("{}{}", moved.empty() ? "" : ", ", c.position);
+        continue;
+      }
+      const char* unit = c.digital ? "bits" : "bytes";
+      if (c.format_before != c.format_after)
+        std::cout << fmt::format("terminal {} ({}): {} format, {} input and {} output {} (was {}, {} and {})\n",
+                                 c.position, c.type, c.format_after, c.in_after, c.out_after, unit, c.format_before,
+                                 c.in_before, c.out_before);
+      else
+        std::cout << fmt::format("terminal {} ({}): {} input and {} output {} (was {} and {})\n", c.position, c.type,
+                                 c.in_after, c.out_after, unit, c.in_before, c.out_before);
+    }
+    if (!moved.empty()) std::cout << fmt::format("moved: terminal(s) {}\n", moved);
+    return 0;
+  }
+};
+
 class EmuFault : public Command {
  public:
   std::string name() const override { return "fault"; }
@@ -248,20 +324,21 @@ class EmuPath : public Command {
 class Emu : public Command {
  public:
   std::string name() const override { return "emu"; }
-  std::string brief() const override { return "Manage the embedded emulator (reset, fault, encoder, path)"; }
+  std::string brief() const override { return "Manage the embedded emulator (reset, restart, fault, encoder, path)"; }
   std::string man() const override {
     return "The embedded emulator is a fake of the hardware: a coupler whose terminals look at their "
            "control byte every K\\-bus cycle and answer in their status byte, with the register tables and "
            "defaults of the manuals. Its state (registers and output image) persists between invocations in "
-           "a state file; each invocation starts the emulated coupler anew, so it lays out the process image "
-           "from the terminals' current registers.";
+           "a state file, with the process image the emulated coupler laid out at its last start (\\fBemu "
+           "restart\\fR switches it off and on; \\fBemu reset\\fR starts it from the factory state).";
   }
   void add_cli(CLI::App&) override {}
   int run(Context&) override { return 0; }
-  std::vector<Command*> children() override { return {&reset_, &fault_, &encoder_, &path_}; }
+  std::vector<Command*> children() override { return {&reset_, &restart_, &fault_, &encoder_, &path_}; }
 
  private:
   EmuReset reset_;
+  EmuRestart restart_;
   EmuFault fault_;
   EmuEncoder encoder_;
   EmuPath path_;

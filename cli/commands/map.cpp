@@ -186,8 +186,9 @@ class Map : public Command {
         L = current;
         notes.push_back(fmt::format("the terminals' mapping registers give another process image at the coupler's "
                                     "next start ({} input and {} output bytes instead of {} and {}): restart the "
-                                    "coupler (power off and on) to apply them; the map shows both",
-                                    next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes));
+                                    "coupler ({}) to apply them; the map shows both",
+                                    next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes,
+                                    ctx.link().emulator() ? "'kscfg emu restart'" : "power off and on"));
       }
       for (const auto& r : m.readings)
         readings.push_back({{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg},

@@ -242,6 +242,13 @@ class SerialSend : public Command {
           if (ctx.cancel()->cancelled()) throw Error(Exit::interrupted, "interrupted before anything was sent");
           continue;
         }
+        if (k < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+          // A non-blocking stdin with nothing yet is not its end: wait for it as a blocking read does.
+          pollfd p{STDIN_FILENO, POLLIN, 0};
+          if (::poll(&p, 1, -1) < 0 && errno == EINTR && ctx.cancel()->cancelled())
+            throw Error(Exit::interrupted, "interrupted before anything was sent");
+          continue;
+        }
         if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
         if (k == 0) break;
         n += static_cast<std::size_t>(k);

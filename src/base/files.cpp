@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <poll.h>
 #include <signal.h>
 #include <sys/file.h>
 #include <sys/stat.h>
@@ -113,6 +114,12 @@ std::string read_input_fd(int fd, std::string_view what, std::string_view name, 
     ssize_t n = ::read(fd, buf, sizeof buf);
     if (n < 0) {
       if (errno == EINTR) continue;
+      if (errno == EAGAIN || errno == EWOULDBLOCK) {
+        // A non-blocking input (a shared stdin) with nothing yet is not its end: wait as read(2) would.
+        pollfd p{fd, POLLIN, 0};
+        ::poll(&p, 1, -1);
+        continue;
+      }
       throw fail(std::strerror(errno));
     }
     if (n == 0) break;

@@ -47,6 +47,17 @@ void ChannelModel::factory_reset() {
     if (r != proto::kCodeWordRegister && type_->regs[r].storage == proto::Storage::seerom) regs_[r] = d[r];
 }
 
+void ChannelModel::power_cycle() {
+  regs_[proto::kCodeWordRegister] = 0;  // RAM: write protection is on again
+  reg_mode_ = false;
+  req_ctrl_ = 0;
+  req_value_ = 0;
+  req_seen_ = 0;
+  executed_ = false;
+  if (serial_) serial_->power_cycle();
+  if (encoder_) encoder_->power_cycle();
+}
+
 void ChannelModel::write_register(unsigned r, std::uint16_t v) {
   if (r >= proto::kRegisterCount || !proto::is_implemented(r)) return;  // not implemented: ignored
   if (faults.ignore_writes.count(r)) return;
@@ -131,16 +142,26 @@ EmulatedStation::EmulatedStation(const StationSpec& spec, const Catalog& catalog
     const TerminalType& type = catalog.get(ts.type);
     if (!has_model(type)) continue;
     for (unsigned ch = 0; ch < type.channels; ++ch)
-      slots_.push_back({static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}});
+      slots_.push_back({static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}, {}});
   }
   // Settings of the file now live in the terminals' registers; the spec keeps the composition.
   for (auto& t : spec_.terminals) t.channels.clear();
-  power_on();
+  for (auto& s : slots_) s.at_start = s.model.registers();
+  lay_out();
 }
 
-void EmulatedStation::power_on() {
+void EmulatedStation::restart() {
+  for (auto& s : slots_) {
+    s.model.power_cycle();
+    s.at_start = s.model.registers();
+  }
+  lay_out();  // outputs and inputs cleared, as a coupler starts
+}
+
+void EmulatedStation::lay_out() {
   layout_ = compute_layout(spec_, *catalog_, spec_.settings(), [&](unsigned pos, unsigned ch) {
-    if (has_channel(pos, ch)) return channel(pos, ch).registers();
+    for (const auto& s : slots_)
+      if (s.position == pos && s.channel == ch) return s.at_start;
     return catalog_->get(spec_.terminals.at(pos - 1).type).defaults();
   });
   out_.assign(layout_.out_bytes, 0);
@@ -195,6 +216,8 @@ nlohmann::json EmulatedStation::to_json() const {
     c["channel"] = s.channel;
     c["type"] = spec_.terminals.at(s.position - 1).type;
     c["registers"] = s.model.registers();
+    // Registers written since the coupler's last start (R35, ...) have not laid out its image yet.
+    if (s.at_start != s.model.registers()) c["start_registers"] = s.at_start;
     if (!s.model.faults.ignore_writes.empty()) c["ignore_writes"] = s.model.faults.ignore_writes;
     if (s.model.faults.mute) c["mute"] = true;
     if (const auto* ser = s.model.serial()) c["serial"] = ser->to_json();
@@ -229,26 +252,38 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
       if (c.at("position").get<unsigned>() != slot.position || c.at("channel").get<unsigned>() != slot.channel ||
           c.at("type").get<std::string>() != spec.terminals.at(slot.position - 1).type)
         throw bad(fmt::format("channel {} does not match the station", i));
-      auto regs = c.at("registers").get<std::vector<unsigned>>();
-      if (regs.size() != proto::kRegisterCount) throw bad("a register set must have 64 values");
-      std::array<std::uint16_t, proto::kRegisterCount> r{};
-      for (unsigned k = 0; k < proto::kRegisterCount; ++k) {
-        if (regs[k] > 0xFFFF) throw bad("register value out of range");
-        r[k] = static_cast<std::uint16_t>(regs[k]);
+      auto registers = [&](const char* key) {
+        auto regs = c.at(key).get<std::vector<unsigned>>();
+        if (regs.size() != proto::kRegisterCount) throw bad("a register set must have 64 values");
+        std::array<std::uint16_t, proto::kRegisterCount> r{};
+        for (unsigned k = 0; k < proto::kRegisterCount; ++k) {
+          if (regs[k] > 0xFFFF) throw bad("register value out of range");
+          r[k] = static_cast<std::uint16_t>(regs[k]);
+        }
+        return r;
+      };
+      slot.model = ChannelModel(catalog.get(spec.terminals.at(slot.position - 1).type), registers("registers"));
+      slot.at_start = slot.model.registers();
+      if (c.contains("start_registers")) {
+        auto r = registers("start_registers");
+        for (unsigned k = 8; k < 15; ++k) r[k] = slot.at_start[k];  // ROM, as ChannelModel keeps it
+        slot.at_start = r;
       }
-      slot.model = ChannelModel(catalog.get(spec.terminals.at(slot.position - 1).type), r);
       if (c.contains("ignore_writes")) slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
       slot.model.faults.mute = c.value("mute", false);
       if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
       if (auto* enc = slot.model.encoder(); enc && c.contains("encoder")) enc->from_json(c.at("encoder"));
     }
-    st->power_on();  // the coupler lays out the image from the terminals' registers
+    // The image the coupler laid out at its last start, from the registers it read then (a state
+    // without start_registers: from the registers as they are, as before they were kept).
+    st->lay_out();
     auto hex = j.at("outputs").get<std::string>();
+    // Outputs of another size: a state written before start_registers were kept, after a new R35
+    // (its image was laid out anew at every load); they start cleared, as at a coupler's start.
     if (hex.size() == st->out_.size() * 2) {
       for (std::size_t i = 0; i < st->out_.size(); ++i)
         st->out_[i] = static_cast<std::uint8_t>(std::stoul(hex.substr(2 * i, 2), nullptr, 16));
     }
-    // A changed layout (e.g. after a new R35) starts with cleared outputs, as a coupler would.
     return st;
   } catch (const Error& e) {
     // The station inside a state is part of the file: a type the catalog does not know or an
@@ -414,6 +449,27 @@ void EmulatorLink::commit() {
 }  // namespace kscfg
 
 namespace kscfg {
+
+EmulatorRestart restart_emulator_state(const std::string& path, const Catalog& catalog, const LockWait& wait) {
+  EmulatorStore store(path, catalog, wait);
+  EmulatedStation& st = store.station();
+  StationLayout before = st.layout();
+  st.restart();
+  const StationLayout& after = st.layout();
+  EmulatorRestart r{before.in_bytes, before.out_bytes, after.in_bytes, after.out_bytes, {}};
+  for (std::size_t i = 0; i < after.terminals.size() && i < before.terminals.size(); ++i) {
+    const auto &x = before.terminals[i], &y = after.terminals[i];
+    auto in = [](const TerminalImage& t) { return t.complex ? t.in_size : t.bits_in; };
+    auto out = [](const TerminalImage& t) { return t.complex ? t.out_size : t.bits_out; };
+    if (!in(x) && !out(x) && !in(y) && !out(y)) continue;  // no image (end, power terminals)
+    if (x.format != y.format || x.in_offset != y.in_offset || x.in_size != y.in_size ||
+        x.out_offset != y.out_offset || x.out_size != y.out_size || x.in_bit != y.in_bit || x.out_bit != y.out_bit)
+      r.changed.push_back({y.position, y.type->type, x.format, y.format, in(x), out(x), in(y), out(y),
+                           !y.complex});
+  }
+  store.save();
+  return r;
+}
 
 void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog,
                           const LockWait& wait) {

@@ -259,6 +259,15 @@ constexpr std::int64_t kMaxPosition = std::int64_t{1} << 60;
 
 }  // namespace
 
+void EncoderModel::power_cycle() {
+  counter_ = latch_ = 0;
+  overflow_ = underflow_ = latc_val_ = lat_ext_val_ = cntset_acc_ = false;
+  ctrl_ = 0;
+  c_used_ = ext_used_ = false;
+  credit_ = 0;
+  c_pulse_ = false;
+}
+
 nlohmann::json EncoderModel::to_json() const {
   nlohmann::json far_j{{"speed_hz", far.speed_hz}, {"up", far.up},          {"lines", far.lines},
                        {"gate", far.gate},         {"latch_input", far.latch_input},

@@ -43,6 +43,11 @@ std::vector<std::uint8_t> from_hex(const std::string& s) {
 
 }  // namespace
 
+void SerialModel::power_cycle() {
+  init();
+  ia_ = false;
+}
+
 nlohmann::json SerialModel::to_json() const {
   nlohmann::json j;
   j["far_end"] = far_spec_;

@@ -102,6 +102,7 @@ constexpr Field kChannel[] = {
     integer("channel", 0, 255, true),
     text("type", 256, true),
     integers("registers", 0, 0xFFFF, 64, 64, true),
+    integers("start_registers", 0, 0xFFFF, 64, 64),  // at the coupler's last start, when they differ
     integers("ignore_writes", 0, 63, 0, 64),
     flag("mute"),
     {"serial", Kind::object, 0, 0, 0, 0, kSerial},

@@ -123,14 +123,16 @@ TEST_CASE("bash, zsh and fish complete from the catalog, the station and the com
       {"kscfg completion ", {"bash", "zsh", "fish"}, {}},
       {"kscfg serial term --omap ", {"crlf", "crcrlf", "lfcrlf", "delbs"}, {"on"}},
       // port schemes; emu: must survive the ':' word break of bash
-      {"kscfg --port ", {"emu", "emu:", "emu:mem", "tcp://", "rtu:"}, {}},
+      {"kscfg --port ", {"emu", "emu:", "emu:mem", "tcp://", "rtu:", "ads://"}, {}},
+      {"kscfg -p ", {"emu", "tcp://", "rtu:", "ads://"}, {}},
+      {"kscfg -p a", {"ads://"}, {"tcp://"}},
       {"kscfg --port emu:m", {"emu:mem"}, {}, {{"bash", {"mem"}}}},
       {"kscfg --port emu:" + files.path + "/li",
        {"emu:" + files.file("line3.toml")},
        {},
        {{"bash", {files.file("line3.toml")}}}},
       // commands and sub-commands, options of the command and the global ones
-      {"kscfg emu ", {"reset", "fault", "path"}, {"info"}},
+      {"kscfg emu ", {"reset", "restart", "fault", "path"}, {"info"}},
       {"kscfg emu re", {"reset"}, {"restore", "read"}},
       {"kscfg help emu ", {"reset", "fault", "path"}, {}},
       {"kscfg read --r", {"--raw"}, {"--yes"}},

@@ -213,6 +213,7 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(J("emu encoder", {"emu", "encoder", "--step", "1"})["position"] == 2);
   CHECK(J("data", {"-t", "2", "data", "--once"})["counter"] == 4);  // one channel: one JSON line
   CHECK(J("emu reset", {"emu", "reset"})["terminal_count"] == 7);
+  CHECK(J("emu restart", {"emu", "restart"})["changed"] == false);
 
   // A Modbus link: scan, and the unit of the provisioning commands.
   kscfg::test::Server srv(d.file("served.json"), {"--json", "--tcp", "127.0.0.1:0"}, d.file("serve.err"));

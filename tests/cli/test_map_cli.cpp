@@ -68,8 +68,18 @@ TEST_CASE("map online follows KL6001 R34/R35 written through the emulator", "[cl
   CHECK(saw_r35);
 
   // Standard format (R34 bit 1 = 0) with R35 = 3: CT/ST + 3 data bytes = 4 bytes.
+  // The coupler lays its image out at its start: until the emulated one is restarted, the map shows
+  // the image in effect and, as next_start, the one the registers give.
   REQUIRE(emu({"-t", "1", "write", "R34", "0x0001"}).rc == 0);
+  auto pending = nlohmann::json::parse(emu({"--json", "map"}).out);
+  CHECK(terminal(pending, 1)["format"] == "alternative");
+  CHECK(terminal(pending, 2)["inputs"]["offset"] == 8);
+  REQUIRE(pending["next_start"].is_object());
+  CHECK(terminal(pending["next_start"], 1)["format"] == "standard");
+  CHECK(terminal(pending["next_start"], 2)["inputs"]["offset"] == 4);
+  REQUIRE(emu({"emu", "restart"}).rc == 0);
   auto mid = nlohmann::json::parse(emu({"--json", "map"}).out);
+  CHECK(mid["next_start"].is_null());
   CHECK(terminal(mid, 1)["format"] == "standard");
   CHECK(terminal(mid, 1)["inputs"]["size"] == 4);
   CHECK(terminal(mid, 2)["inputs"]["offset"] == 4);
@@ -77,6 +87,7 @@ TEST_CASE("map online follows KL6001 R34/R35 written through the emulator", "[cl
 
   // R35 = 5: CT/ST + 5 data bytes = 6 bytes; every later complex terminal moves by 2.
   REQUIRE(emu({"-t", "1", "write", "R35", "5"}).rc == 0);
+  REQUIRE(emu({"emu", "restart"}).rc == 0);
   Run c = emu({"--json", "map"});
   REQUIRE(c.rc == 0);
   auto after = nlohmann::json::parse(c.out);

@@ -192,6 +192,7 @@ TEST_CASE("writes that would lock kscfg out are refused with exit 5 and leave th
       CHECK(f.rc == 0);
       CHECK_THAT(f.err, Catch::Contains("kscfg: warning: --force: writing although after the coupler's next start"));
       CHECK_THAT(f.err, Catch::Contains("KS2000"));
+      REQUIRE(st({"emu", "restart"}).rc == 0);  // the next start, when the written registers take effect
       Run a = st(c.after_force);
       CHECK(a.rc == c.rc);
       CHECK_THAT(c.rc == 0 ? a.out : a.err, Catch::Contains(c.expect));
@@ -203,7 +204,8 @@ TEST_CASE("a terminal without a register window names the real cause", "[safety]
   Station st;
   REQUIRE(st({"set", "alternative-format", "off"}).rc == 0);
   REQUIRE(st({"-t", "1", "write", "R35", "1", "--force"}).rc == 0);
-  // The emulated coupler starts with every run: from now on R35 = 1 is in effect.
+  // The emulated coupler switched off and on: from now on R35 = 1 is in effect.
+  REQUIRE(st({"emu", "restart"}).rc == 0);
   Run r = st({"-t", "1", "read", "R8"});
   CHECK(r.rc == 5);
   CHECK(one_line_error(r));
@@ -212,6 +214,7 @@ TEST_CASE("a terminal without a register window names the real cause", "[safety]
   CHECK(r.err.find("mapped without its control/status byte") == std::string::npos);
   Station ce(kBK7300);
   REQUIRE(ce({"-t", "1", "set", "alternative-format", "on", "--force"}).rc == 0);
+  REQUIRE(ce({"emu", "restart"}).rc == 0);
   Run r2 = ce({"-t", "1", "reset", "-y"});
   CHECK(r2.rc == 5);
   CHECK_THAT(r2.err, Catch::Contains("maps the control/status byte only with complete evaluation, which the "

@@ -141,10 +141,49 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
     s.close();
     link.commit();
   }
+  {
+    // Loaded again, the coupler has not been switched off: the image of its last start holds.
+    EmulatorLink link(path, Catalog::standard());
+    CHECK(link.layout()->terminal(1).format == "alternative");
+    CHECK(link.layout()->terminal(2).in_offset == kl5101_at);
+    CHECK(link.emulated().channel(1, 0).read_register(35) == 5);
+  }
+  EmulatorRestart r = restart_emulator_state(path, Catalog::standard());
+  CHECK(r.in_after + 2 == r.in_before);  // 8 bytes (alternative) -> 6 (CT/ST + D0..D4)
+  REQUIRE(r.changed.size() >= 2);
+  CHECK(r.changed[0].position == 1);
+  CHECK(r.changed[0].format_before == "alternative");
+  CHECK(r.changed[0].format_after == "standard");
   EmulatorLink link(path, Catalog::standard());
   const auto& L = *link.layout();
   CHECK(L.terminal(1).format == "standard");
   CHECK(L.terminal(1).in_size == 6);  // CT/ST + D0..D4
   CHECK(L.terminal(2).in_offset == 6);
   CHECK(L.terminal(2).in_offset != kl5101_at);
+}
+
+TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and keeps the registers",
+          "[emulator]") {
+  test::TempDir dir;
+  std::string path = dir.file("emu.json");
+  {
+    EmulatorLink link(path, Catalog::standard());
+    EmulatedStation& st = link.emulated();
+    st.outputs()[40] = 0x12;  // somewhere in the KL3022's output bytes
+    st.channel(1, 0).write_register(31, 0x1235);
+    REQUIRE(st.channel(1, 0).unlocked());
+    st.channel(1, 0).write_register(32, 0x0007);
+    st.channel(1, 0).faults.mute = true;
+    st.channel(1, 0).serial()->inject(std::vector<std::uint8_t>{'h', 'i'}, st.channel(1, 0).registers());
+    REQUIRE(st.channel(1, 0).serial()->rx_fifo().size() == 2);
+    link.commit();
+  }
+  restart_emulator_state(path, Catalog::standard());
+  EmulatorLink link(path, Catalog::standard());
+  EmulatedStation& st = link.emulated();
+  CHECK(st.outputs()[40] == 0);
+  CHECK_FALSE(st.channel(1, 0).unlocked());                 // R31 is RAM
+  CHECK(st.channel(1, 0).read_register(32) == 0x0007);      // EEPROM
+  CHECK(st.channel(1, 0).faults.mute);                      // kept until emu fault --clear
+  CHECK(st.channel(1, 0).serial()->rx_fifo().empty());
 }

@@ -36,6 +36,10 @@ class ChannelModel {
   bool unlocked() const { return regs_[proto::kCodeWordRegister] == proto::kCodeWord; }
   const std::array<std::uint16_t, proto::kRegisterCount>& registers() const { return regs_; }
   void factory_reset();
+  // Switched off and on: what the terminal holds in RAM is lost (the code word R31, a register
+  // request under way, a serial terminal's FIFOs and handshake, a KL5101's counter and latch); its
+  // EEPROM registers, the faults and whatever is on the far end of its line stay.
+  void power_cycle();
 
   // One K-bus cycle. `out` is the channel's K-bus structure as the coupler passes it (unmapped
   // bytes are 0), `in` the structure the terminal returns. `cycle_us`: emulated time of one cycle
@@ -73,7 +77,13 @@ class EmulatedStation {
   std::uint64_t cycles() const { return cycle_; }
   std::vector<std::uint8_t>& outputs() { return out_; }
   const std::vector<std::uint8_t>& inputs() const { return in_; }
+  // The process image in force: laid out by the coupler at its last start from the terminals'
+  // registers as they were then (KL6001 R34/R35, ...). A register written since takes effect at
+  // the next restart(); the state file keeps the registers of the last start.
   const StationLayout& layout() const { return layout_; }
+  // The coupler's power cycle (kscfg emu restart): it lays its image out again from the terminals'
+  // registers as they are now, with the outputs cleared; each terminal is power-cycled too.
+  void restart();
   const StationSpec& spec() const { return spec_; }
   ChannelModel& channel(unsigned position, unsigned ch);  // throws Error(usage)
   // Whether a terminal of this type is emulated by a ChannelModel (has_channel then holds).
@@ -87,12 +97,14 @@ class EmulatedStation {
   static std::unique_ptr<EmulatedStation> from_json(const nlohmann::json& j, const Catalog& catalog);
 
  private:
-  void power_on();
+  // The coupler lays the image out from each channel's `at_start` registers.
+  void lay_out();
   struct Slot {
     unsigned position;
     unsigned channel;
     ChannelModel model;
     std::vector<std::uint8_t> in_struct;
+    std::array<std::uint16_t, proto::kRegisterCount> at_start{};  // the registers at the coupler's last start
   };
   StationSpec spec_;
   const Catalog* catalog_;
@@ -166,4 +178,20 @@ namespace kscfg {
 // exceeds its coupler's image limits (check_image_limits, as `map` applies them).
 void reset_emulator_state(const std::string& path, const StationSpec& spec, const Catalog& catalog,
                           const LockWait& wait = {});
+
+// What `kscfg emu restart` did: the image sizes before and after, and which terminals' images changed.
+struct EmulatorRestart {
+  std::size_t in_before = 0, out_before = 0, in_after = 0, out_after = 0;
+  struct Changed {
+    unsigned position;
+    std::string type;
+    std::string format_before, format_after;  // the same when only its place moved
+    std::size_t in_before, out_before, in_after, out_after;  // its bytes (digital: bits)
+    bool digital;
+  };
+  std::vector<Changed> changed;  // terminals with an image whose format, place or size differ
+};
+// Power-cycles the emulated coupler of the state at `path` (EmulatedStation::restart) and saves
+// it, under the state file's lock: a file a `kscfg serve` holds is refused (Exit::busy).
+EmulatorRestart restart_emulator_state(const std::string& path, const Catalog& catalog, const LockWait& wait = {});
 }  // namespace kscfg

@@ -77,6 +77,10 @@ class EncoderModel {
   bool c_level() const;         // the C input now
   std::int64_t position() const { return pos_; }  // encoder position in quarter periods (edges)
 
+  // Switched off and on (kscfg emu restart): counter, latch, status and control as at power-on;
+  // the far end (the encoder's shaft and inputs) stays.
+  void power_cycle();
+
   nlohmann::json to_json() const;
   void from_json(const nlohmann::json& j);  // Error(Exit::file) for a wrong type or a value out of range
 

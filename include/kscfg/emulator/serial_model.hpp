@@ -73,6 +73,10 @@ class SerialModel {
   void far_send(std::span<const std::uint8_t> bytes);
   std::string far_end_description() const;    // e.g. the pty's slave path once it exists
 
+  // Switched off and on (kscfg emu restart): FIFOs, handshake and R6 as at power-on (IA clear);
+  // the far end and its frame stay.
+  void power_cycle();
+
   // Emulated state (FIFOs, toggles, flags) for the state file.
   nlohmann::json to_json() const;
   void from_json(const nlohmann::json& j);  // tolerant: missing keys keep their defaults

@@ -12,14 +12,16 @@ module: kscfg_facts
 short_description: Read a station of Bus Terminals into facts with kscfg
 version_added: "0.1.0"
 description:
-  - Reads the coupler's identification and every terminal's type, version and plug position
+  - Reads, over the coupler's emulator, Modbus TCP, Modbus RTU or ADS (I(port)), the coupler's
+    identification and every terminal's type, version and plug position
     (C(kscfg --json info)) and the named parameters of each terminal channel (C(kscfg backup) to
     a temporary station file, read back) and returns them as the fact C(kscfg).
   - Reads only; nothing is written to the station. Runs in check mode too.
 options:
   port:
     description:
-      - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11).
+      - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11) or
+        C(ads://10.0.3.11).
       - Default, kscfg's default (C(KSCFG_PORT), else its emulator).
     type: str
   unit:

@@ -14,7 +14,7 @@ version_added: "0.1.0"
 description:
   - Makes the Bus Terminals behind a coupler match a station file (C(man 5 kscfg-station)) by
     running C(kscfg --json apply) on the host the task runs on, which reaches the coupler
-    through I(port) (Modbus TCP or RTU) or is the coupler's emulator.
+    through I(port) (Modbus TCP, Modbus RTU or ADS) or is the coupler's emulator.
   - kscfg first checks that every terminal type and position matches and refuses before any
     write if one does not. It writes only what differs, verifies every write by reading it back,
     and saves the touched registers first to a backup station file that C(kscfg restore) (or this
@@ -62,7 +62,7 @@ options:
   port:
     description:
       - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11),
-        C(tcp://10.0.3.11:502) or C(rtu:/dev/ttyUSB0?baud=19200&parity=E).
+        C(tcp://10.0.3.11:502), C(rtu:/dev/ttyUSB0?baud=19200&parity=E) or C(ads://10.0.3.11).
       - Default, kscfg's default (the environment variable C(KSCFG_PORT), else its emulator).
     type: str
   unit:
