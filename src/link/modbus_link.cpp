@@ -26,22 +26,6 @@ static void check_image(std::size_t offset, std::size_t n, const char* what) {
                                         offset + n));
 }
 
-ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
-  auto it = timings_.find(position);
-  if (it == timings_.end()) {
-    // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
-    // may be too long (probed after its first acknowledges, session/ack_latency.hpp). One still
-    // learning counts with the longest acknowledge it timed: a cold scan reads only a few registers
-    // of each terminal, too few to finish learning, and every terminal of the walk would otherwise
-    // poll from 500 us again.
-    AckTiming t;
-    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
-    t.suspect = t.guessed = t.wait.count() > 0;
-    it = timings_.emplace(position, t).first;
-  }
-  return &it->second;
-}
-
 void ModbusLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "input");
   std::size_t w0 = offset / 2, w1 = (offset + dst.size() - 1) / 2;

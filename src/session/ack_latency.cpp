@@ -14,14 +14,32 @@ constexpr microseconds kProbeFloor{500};
 microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
 
 // An answer came after the wait, which now stands at t.wait: the probes stay above it for a while.
-void slow_seen(Link::AckTiming& t) {
+void slow_seen(AckTiming& t) {
   t.slow = std::max(t.slow, t.wait);
   t.slow_age = 0;
 }
 
 }  // namespace
 
-AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
+AckTiming& AckTimings::at(unsigned position) {
+  auto it = by_position_.find(position);
+  if (it == by_position_.end()) {
+    AckTiming t;
+    for (const auto& [p, o] : by_position_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
+    t.suspect = t.guessed = t.wait.count() > 0;
+    it = by_position_.emplace(position, t).first;
+  }
+  return it->second;
+}
+
+void AckTimings::keep(unsigned position, microseconds wait, bool suspect) {
+  AckTiming& t = by_position_[position];
+  t.wait = wait;
+  t.suspect = suspect;
+  t.guessed = false;
+}
+
+AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout) {
   AckPlan p;
   if (t.wait.count() <= 0) {
     p.first = kAckLearnFirst;
@@ -35,7 +53,7 @@ AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
   return p;
 }
 
-void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
+void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
               std::chrono::milliseconds timeout) {
   ++t.acks;
   const microseconds cap = cap_of(timeout);
@@ -74,13 +92,13 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
   }
 }
 
-void ack_early(Link::AckTiming& t, const AckPlan& p) {
+void ack_early(AckTiming& t, const AckPlan& p) {
   if (!p.known() || p.probe) return;
   t.missed = true;
   ++t.misses;
 }
 
-void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout) {
+void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout) {
   // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
   if (t.wait.count() <= 0) return;
   t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
@@ -93,7 +111,7 @@ bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {
 
 bool ack_suspect_when_kept(microseconds kept, std::chrono::milliseconds timeout) { return 4 * kept >= cap_of(timeout); }
 
-microseconds ack_keep(const Link::AckTiming& t) {
+microseconds ack_keep(const AckTiming& t) {
   if (t.wait.count() > 0) return t.wait;
   if (t.samples > 0) return t.longest;  // a run too short to learn (a single read): what it timed
   return microseconds(0);

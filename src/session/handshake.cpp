@@ -54,7 +54,7 @@ void HandshakeAccess::open(const TerminalImage& t, unsigned channel) {
   }
   c.saved_at = lo;
   c.saved.assign(hi - lo + 1, 0);
-  if (link_.pipelines()) c.timing = link_.ack_timing(t.position);
+  if (link_.pipelines()) c.timing = &timings_.at(t.position);
   chans_.insert_or_assign(key, std::move(c));
 }
 

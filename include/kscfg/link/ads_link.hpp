@@ -39,7 +39,6 @@ class AdsImageLink : public Link {
   void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
                                  std::span<std::uint8_t> dst) override;
   void pause(unsigned poll_number) override;
-  AckTiming* ack_timing(unsigned position) override { return &timings_[position]; }
   std::size_t exchanges() const override { return client_.exchanges(); }
 
   AdsClient& client() { return client_; }
@@ -49,7 +48,6 @@ class AdsImageLink : public Link {
   void count() { exchanges_ = client_.exchanges(); }
   OwnerLock lock_;  // declared before the client: released after it has closed
   AdsClient client_;
-  std::map<unsigned, AckTiming> timings_;
 };
 
 }  // namespace kscfg

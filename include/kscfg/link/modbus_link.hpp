@@ -37,17 +37,6 @@ class ModbusLink : public Link {
   void pause(unsigned poll_number) override;
   std::optional<Error> explain_no_ack() override;
 
-  AckTiming* ack_timing(unsigned position) override;
-  // Learned acknowledge latencies by terminal position (for the scan cache).
-  const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
-  // A latency kept from an earlier run (discovery gives the scan cache's before the first session);
-  // `suspect`: it may be too long (ack_latency.hpp).
-  void set_ack_wait(unsigned position, std::chrono::microseconds wait, bool suspect = false) {
-    timings_[position].wait = wait;
-    timings_[position].suspect = suspect;
-    timings_[position].guessed = false;
-  }
-
   // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).
   bool other_masters_possible() const override { return true; }
   std::size_t exchanges() const override { return client_.exchanges(); }
@@ -67,7 +56,6 @@ class ModbusLink : public Link {
   ModbusClient client_;
   std::vector<int> out_cache_;  // output image bytes as the coupler holds them, -1 unknown
   std::optional<std::pair<std::size_t, std::size_t>> last_written_;  // offset and size of the last write
-  std::map<unsigned, AckTiming> timings_;
 };
 
 }  // namespace kscfg

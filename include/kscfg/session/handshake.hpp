@@ -81,6 +81,7 @@ class HandshakeAccess final : public RegisterAccess {
   void lock_unverified(ChannelKey key) noexcept override;
   std::optional<Error> explain_no_ack() override { return link_.explain_no_ack(); }
   std::size_t exchanges() const override { return link_.exchanges(); }
+  AckTimings* ack_timings() override { return link_.pipelines() ? &timings_ : nullptr; }
 
   // Journal entries of a dead process: the channel's process-data bytes as that session found them
   // (restored instead of the idle bytes a leftover gets), and the process named in notes.
@@ -121,7 +122,7 @@ class HandshakeAccess final : public RegisterAccess {
     Program* prog = nullptr;
     std::optional<Request> req;    // in the control byte, waiting for its acknowledge
     std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
-    Link::AckTiming* timing = nullptr;
+    AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
     Clock::time_point last_poll{};
     // This exchange.
     Act act = Act::none;
@@ -162,6 +163,7 @@ class HandshakeAccess final : public RegisterAccess {
 
   Link& link_;
   HandshakeOptions opt_;
+  AckTimings timings_;
   std::map<ChannelKey, Chan> chans_;
 };
 
