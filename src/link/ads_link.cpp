@@ -46,27 +46,6 @@ void AdsImageLink::write_outputs(std::size_t offset, std::span<const std::uint8_
   count();
 }
 
-void AdsImageLink::write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
-                                             std::size_t in_offset, std::span<std::uint8_t> dst) {
-  check_image(out_offset, src.size(), "output");
-  check_image(in_offset, dst.size(), "input");
-  std::string wwhat = fmt::format("writing output bytes {}+{}", out_offset, src.size());
-  std::string rwhat = fmt::format("reading input bytes {}+{}", in_offset, dst.size());
-  AdsClient::Call calls[2] = {
-      {adsport::kProcessData, ams::kWrite,
-       ams::write_request(adsimage::kOutputs, static_cast<std::uint32_t>(out_offset), src), true, 0, wwhat},
-      {adsport::kProcessData, ams::kRead,
-       ams::read_request(adsimage::kInputs, static_cast<std::uint32_t>(in_offset), static_cast<std::uint32_t>(dst.size())),
-       true, 0, rwhat}};
-  auto r = client_.transact(calls);
-  count();
-  if (r[0].result) throw client_.ads_error(r[0].result, adsport::kProcessData, wwhat);
-  if (r[1].result) throw client_.ads_error(r[1].result, adsport::kProcessData, rwhat);
-  if (r[1].data.size() != dst.size())
-    throw Error(Exit::link, fmt::format("{} answered {} with {} bytes", client_.target().where(), rwhat, r[1].data.size()));
-  std::copy(r[1].data.begin(), r[1].data.end(), dst.begin());
-}
-
 void AdsImageLink::pause(unsigned poll_number) {
   std::this_thread::sleep_for(std::chrono::microseconds(poll_number > 20 ? 2000 : 500));
 }

@@ -90,8 +90,8 @@ void ModbusLink::write_outputs(std::size_t offset, std::span<const std::uint8_t>
   count();
 }
 
-void ModbusLink::write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
-                                           std::size_t in_offset, std::span<std::uint8_t> dst) {
+void ModbusLink::write_read(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
+                            std::span<std::uint8_t> dst) {
   check_image(in_offset, dst.size(), "input");
   auto words = merge_words(out_offset, src);
   std::size_t w0 = out_offset / 2;
@@ -184,7 +184,7 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
       }
     }
     std::vector<std::uint8_t> in(r.empty() ? 0 : r.hi - r.lo);
-    if (!w.empty() && !r.empty()) write_outputs_read_inputs(w.lo, out, r.lo, in);
+    if (!w.empty() && !r.empty()) write_read(w.lo, out, r.lo, in);
     else if (!w.empty()) write_outputs(w.lo, out);
     else if (!r.empty()) read_inputs(r.lo, in);
     for (std::size_t i : group) {  // the group's transfers, then the peeks it carried

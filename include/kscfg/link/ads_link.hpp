@@ -34,10 +34,7 @@ class AdsImageLink : public Link {
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
-  // The write and the read go out together (two requests in flight on the connection).
   bool pipelines() const override { return true; }
-  void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
-                                 std::span<std::uint8_t> dst) override;
   void pause(unsigned poll_number) override;
   std::size_t exchanges() const override { return client_.exchanges(); }
 

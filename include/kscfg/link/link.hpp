@@ -49,15 +49,10 @@ class Link {
   // Waits a little between two polls of the input image (bounded by the caller's timeout).
   virtual void pause(unsigned poll_number) { (void)poll_number; }
 
-  // Writes output bytes, then reads input bytes, in one exchange when the link can (Modbus FC23).
-  // On a link that pipelines, the read sees the image as it was before the K-bus carried the
-  // write: it shows the answer to the previous request, so register reads can overlap.
+  // On a link that pipelines, the reads of a transfer() see the image as it was before the K-bus
+  // carried its writes: they show the answer to the previous request, so register reads can overlap
+  // (Modbus FC23, ADS requests in flight together).
   virtual bool pipelines() const { return false; }
-  virtual void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
-                                         std::size_t in_offset, std::span<std::uint8_t> dst) {
-    write_outputs(out_offset, src);
-    read_inputs(in_offset, dst);
-  }
 
   // Writes the output bytes of every transfer, then reads the input bytes of every transfer, in as
   // few exchanges as the link allows: the station engine advances the handshakes of many terminals

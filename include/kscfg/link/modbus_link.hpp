@@ -29,8 +29,6 @@ class ModbusLink : public Link {
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   bool pipelines() const override { return true; }
-  void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
-                                 std::span<std::uint8_t> dst) override;
   // One FC23 for the transfers that fit its limits (121 registers written, 125 read); over RTU a
   // gap is bridged only where its bytes cost less line time than a request of their own.
   void transfer(std::span<const ImageTransfer> t) override;
@@ -49,6 +47,9 @@ class ModbusLink : public Link {
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
   // from what the link last read or wrote, or are read first (never clobbered).
   std::vector<std::uint16_t> merge_words(std::size_t offset, std::span<const std::uint8_t> src);
+  // Writes output bytes, then reads input bytes, in one FC23.
+  void write_read(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
+                  std::span<std::uint8_t> dst);
   void remember_outputs(std::size_t first_word, std::span<const std::uint16_t> words);
   void count() { exchanges_ = client_.exchanges(); }
 
