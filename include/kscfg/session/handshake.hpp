@@ -42,6 +42,7 @@
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/ack_latency.hpp"
 #include "kscfg/session/journal.hpp"
+#include "kscfg/session/open_channels.hpp"
 
 namespace kscfg {
 
@@ -73,9 +74,9 @@ class HandshakeAccess final : public RegisterAccess {
   std::string describe() const override { return link_.describe(); }
   void open(const TerminalImage& t, unsigned channel) override;
   ChannelFound found(ChannelKey key) const override;
-  void submit(Program& p) override;
+  void submit(Program& p) override { chans_.submit(p); }
   std::vector<Program*> advance() override;
-  bool busy() const override;
+  bool busy() const override { return chans_.busy(); }
   void close_now(ChannelKey key, bool quiet) noexcept override;
   void close_all() noexcept override;
   void lock_unverified(ChannelKey key) noexcept override;
@@ -102,7 +103,7 @@ class HandshakeAccess final : public RegisterAccess {
     AckPlan ack;                 // when its first poll goes out (ack_latency.hpp)
   };
   enum class Act { none, look, send, poll, close };
-  struct Chan {
+  struct Chan : OpenChannel {
     ChannelKey key;
     TerminalImage image;
     RegisterWindow w;
@@ -110,16 +111,14 @@ class HandshakeAccess final : public RegisterAccess {
     std::size_t saved_at = 0;
     std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
     std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
-    bool ready = false, closed = false, journaled = false;
+    bool ready = false, journaled = false;
     // An exchange that carried its output bytes failed: what the coupler holds of them is unknown,
     // so the close puts every byte of the window back, not only those the shadow says changed.
     bool out_unsure = false;
     unsigned close_fails = 0;  // exchanges of its close program that failed
-    unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
     std::optional<std::uint8_t> last_status;  // known status after our last acknowledged request
-    Program* prog = nullptr;
     std::optional<Request> req;    // in the control byte, waiting for its acknowledge
     std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
     AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
@@ -164,7 +163,7 @@ class HandshakeAccess final : public RegisterAccess {
   Link& link_;
   HandshakeOptions opt_;
   AckTimings timings_;
-  std::map<ChannelKey, Chan> chans_;
+  OpenChannels<Chan> chans_;  // the bytes of a channel go back when its last user closes it
 };
 
 }  // namespace kscfg
