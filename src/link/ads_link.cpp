@@ -139,8 +139,8 @@ void AdsImageLink::transfer(std::span<const ImageTransfer> t) {
   deliver();
 }
 
-void AdsImageLink::pause(unsigned poll_number) {
-  std::this_thread::sleep_for(std::chrono::microseconds(poll_number > 20 ? 2000 : 500));
+std::chrono::microseconds AdsImageLink::poll_gap(unsigned poll_number) const {
+  return std::chrono::microseconds(poll_number > 20 ? 2000 : 500);
 }
 
 }  // namespace kscfg

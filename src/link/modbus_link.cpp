@@ -197,10 +197,9 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
   }
 }
 
-void ModbusLink::pause(unsigned poll_number) {
+std::chrono::microseconds ModbusLink::poll_gap(unsigned poll_number) const {
   // Early polls come quickly; a terminal that needs long gets polled less often.
-  unsigned us = client_.options().poll_us * (poll_number > 20 ? 4 : 1);
-  std::this_thread::sleep_for(std::chrono::microseconds(us));
+  return std::chrono::microseconds(client_.options().poll_us * (poll_number > 20 ? 4 : 1));
 }
 
 std::optional<Error> ModbusLink::explain_no_ack() {

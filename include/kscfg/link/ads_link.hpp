@@ -45,7 +45,7 @@ class AdsImageLink : public Link {
   void transfer(std::span<const ImageTransfer> t) override;
   // Whether the coupler is still taken to serve sum commands (false once it refused one).
   bool sums() const { return sums_; }
-  void pause(unsigned poll_number) override;
+  std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   std::size_t exchanges() const override { return client_.exchanges(); }
 
   AdsClient& client() { return client_; }

@@ -1,5 +1,6 @@
 // The one seam: a Link moves bytes of a coupler's process image. It knows nothing of registers.
 #pragma once
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -46,8 +47,14 @@ class Link {
   // kscfg on another computer, KS2000). The emulator's state file is locked: never.
   virtual bool other_masters_possible() const { return false; }
 
-  // Waits a little between two polls of the input image (bounded by the caller's timeout).
-  virtual void pause(unsigned poll_number) { (void)poll_number; }
+  // How long to leave between two polls of the input image, the `poll_number`-th since a wait
+  // began (the caller sleeps it, bounded by its timeout): the link's pace, a fact of the transport
+  // (the emulator runs a K-bus cycle on every read and needs none; a Modbus coupler the client's
+  // poll interval, longer once a terminal takes long).
+  virtual std::chrono::microseconds poll_gap(unsigned poll_number) const {
+    (void)poll_number;
+    return std::chrono::microseconds(0);
+  }
 
   // On a link that pipelines, the reads of a transfer() see the image as it was before the K-bus
   // carried its writes: they show the answer to the previous request, so register reads can overlap

@@ -32,7 +32,7 @@ class ModbusLink : public Link {
   // One FC23 for the transfers that fit its limits (121 registers written, 125 read); over RTU a
   // gap is bridged only where its bytes cost less line time than a request of their own.
   void transfer(std::span<const ImageTransfer> t) override;
-  void pause(unsigned poll_number) override;
+  std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   std::optional<Error> explain_no_ack() override;
 
   // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).
