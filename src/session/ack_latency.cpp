@@ -53,12 +53,17 @@ AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout) {
   return p;
 }
 
+microseconds ack_late_slack(const AckPlan& p) { return std::max(microseconds(1000), p.wait / 4); }
+
 void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
-              std::chrono::milliseconds timeout) {
+              std::chrono::milliseconds timeout, bool late) {
   ++t.acks;
+  if (late) ++t.late;
   const microseconds cap = cap_of(timeout);
   if (!p.known()) {
-    // Learning: time a few acknowledges, then trust the longest.
+    // Learning: time a few acknowledges, then trust the longest; a poll this process sent late
+    // timed its own delay, not the terminal's.
+    if (late) return;
     t.longest = std::max(t.longest, took);
     if (++t.samples >= kLearnSamples) t.wait = std::min(t.longest, cap);
     return;
@@ -83,7 +88,7 @@ void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
     // that poll took would add the poll's own round trip every time: a ratchet.)
     if (poll == 2) return;
   }
-  if (poll > 1 && took > p.wait) {
+  if (poll > 1 && took > p.wait && !late) {
     // Slower than the wait: up to what it took, at most twice the wait (one slow answer on a
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
     t.wait = std::min({took, 2 * p.wait, cap});

@@ -298,6 +298,7 @@ std::vector<Program*> HandshakeAccess::advance() {
   if (!fresh.empty()) {
     try {
       save(fresh, done);
+      link_free_ = Clock::now();
     } catch (const Error& e) {
       for (Chan* c : fresh)
         if (!c->ready) fail(*c, e, done);
@@ -377,8 +378,10 @@ std::vector<Program*> HandshakeAccess::advance() {
   std::optional<ShieldScope> shield;
   if (std::none_of(act.begin(), act.end(), [](const Chan* c) { return !c->prog->shielded; }))
     shield.emplace(opt_.cancel);
+  poll_floor_ = link_free_;
   try {
     link_.transfer(xs);
+    link_free_ = Clock::now();
   } catch (const Error& e) {
     // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
     // rules above the seam decide whether to ask again (a write's answer lost: read first).

@@ -158,3 +158,34 @@ TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on
   t1->wait = std::chrono::microseconds(3000);
   CHECK(timings.at(3).wait == std::chrono::microseconds(3000));
 }
+
+TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learning sample, no raise (issue 34)",
+          "[ack]") {
+  AckTiming t;
+  AckPlan p = ack_plan(t, milliseconds(1000));  // learning
+  REQUIRE_FALSE(p.known());
+  // Three acknowledges, the second timed by a poll that went out 9 ms late (the machine was loaded).
+  ack_seen(t, p, 2, microseconds(2100), milliseconds(1000));
+  ack_seen(t, p, 9, microseconds(9300), milliseconds(1000), true);
+  ack_seen(t, p, 2, microseconds(2300), milliseconds(1000));
+  CHECK(t.wait.count() == 0);  // two samples: still learning
+  ack_seen(t, p, 2, microseconds(2200), milliseconds(1000));
+  CHECK(t.wait == microseconds(2300));  // the longest of the three on time, not 9.3 ms
+  CHECK(t.late == 1);
+  CHECK(t.acks == 4);
+  // Known: an answer seen only by a later poll raises the wait, unless that poll was late.
+  AckPlan q = ack_plan(t, milliseconds(1000));
+  REQUIRE(q.known());
+  REQUIRE_FALSE(q.probe);
+  ack_seen(t, q, 3, microseconds(8000), milliseconds(1000), true);
+  CHECK(t.wait == microseconds(2300));
+  CHECK_FALSE(t.suspect);
+  ack_seen(t, q, 3, microseconds(4000), milliseconds(1000));
+  CHECK(t.wait == microseconds(4000));  // on time: raised as before
+  CHECK(t.suspect);
+  // The slack: a millisecond, or a quarter of a long estimate.
+  CHECK(ack_late_slack(q) == microseconds(1000));
+  AckPlan slow;
+  slow.wait = microseconds(20000);
+  CHECK(ack_late_slack(slow) == microseconds(5000));
+}

@@ -59,6 +59,8 @@ struct AckTiming {
   std::chrono::microseconds slow{0};  // the slowest recent answer that came after the wait (this run):
                                       // a probe never lowers the wait below it
   unsigned slow_age = 0;              // acknowledges since `slow` was last raised
+  unsigned late = 0;                  // acknowledges seen by a poll this process sent late (this run):
+                                      // not learned (ack_seen)
 };
 
 // The timings of the terminals of one coupler, by position: kept by the port's register access.
@@ -91,9 +93,15 @@ constexpr std::chrono::microseconds kAckLearnFirst{500};
 
 // What the first poll of the next request does.
 AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout);
-// The acknowledge showed at poll `poll` (1: the first), `took` after the request.
+// The acknowledge showed at poll `poll` (1: the first), `took` after the request. `late`: that poll
+// went out later than planned by more than ack_late_slack() (this process was not scheduled, or
+// slept past its time: issue 34): `took` then tells of the machine's load, not of the terminal, and
+// it neither teaches a learning estimate nor raises one (it still counts as an acknowledge).
 void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, std::chrono::microseconds took,
-              std::chrono::milliseconds timeout);
+              std::chrono::milliseconds timeout, bool late = false);
+// How much later than planned a poll may go out and still time the terminal: a millisecond, or a
+// quarter of the estimate when that is longer (a sleep overshoots by far less on an idle machine).
+std::chrono::microseconds ack_late_slack(const AckPlan& p);
 // The first poll at the estimate (not a probe) came too early.
 void ack_early(AckTiming& t, const AckPlan& p);
 // The request was replaced (read-ahead, restore) before the terminal answered it.

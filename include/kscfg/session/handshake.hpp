@@ -123,6 +123,7 @@ class HandshakeAccess final : public RegisterAccess {
     std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
     AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
     Clock::time_point last_poll{};
+    Clock::time_point due{};  // when the poll of this exchange was planned to go out
     // This exchange.
     Act act = Act::none;
     bool with_ahead = false, with_restore = false, look_with_send = false;
@@ -163,6 +164,10 @@ class HandshakeAccess final : public RegisterAccess {
   Link& link_;
   HandshakeOptions opt_;
   AckTimings timings_;
+  // When the link's last exchange returned, and that time as this exchange began: a poll cannot go
+  // out before the exchange ahead of it has returned (over RTU one takes tens of milliseconds), so
+  // it is late only by what passed after both that and its planned time.
+  Clock::time_point link_free_{}, poll_floor_{};
   OpenChannels<Chan> chans_;  // the bytes of a channel go back when its last user closes it
 };
 
