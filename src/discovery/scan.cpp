@@ -441,7 +441,7 @@ class ScanDiscovery : public StationDiscovery {
   }
 
   // What is kept for this port without asking the coupler (acknowledge latencies, given to the
-  // link), also for commands that never scan (--station): before the link's first session.
+  // port's register access), also for commands that never scan (--station): before the link's first session.
   void prime() noexcept {
     if (primed_ || !cache_) return;
     primed_ = true;
@@ -462,7 +462,8 @@ class ScanDiscovery : public StationDiscovery {
                             pos, w.count(), so_.timeout.count()));
           continue;
         }
-        link_.set_ack_wait(pos, w, c->ack_suspect.count(pos) > 0 || ack_suspect_when_kept(w, so_.timeout));
+        if (AckTimings* t = engine_.access().ack_timings())
+          t->keep(pos, w, c->ack_suspect.count(pos) > 0 || ack_suspect_when_kept(w, so_.timeout));
       }
       if (!forgotten_ && !opt_.rescan) kept_ = std::move(c->scan);
     } catch (...) {
@@ -476,12 +477,13 @@ class ScanDiscovery : public StationDiscovery {
       if (r_) c.scan = *r_;
       else if (kept_) c.scan = *kept_;  // a command with --station: the scan kept stays
       // The estimate as it stands (ack_latency.hpp), and whether it may be too long.
-      for (const auto& [pos, t] : link_.ack_timings()) {
-        auto keep = ack_keep(t);
-        if (keep.count() <= 0) continue;
-        c.ack_wait[pos] = keep;
-        if (t.suspect) c.ack_suspect.insert(pos);
-      }
+      if (const AckTimings* timings = engine_.access().ack_timings())
+        for (const auto& [pos, t] : timings->all()) {
+          auto keep = ack_keep(t);
+          if (keep.count() <= 0) continue;
+          c.ack_wait[pos] = keep;
+          if (t.suspect) c.ack_suspect.insert(pos);
+        }
       bool changed = dirty_ || c.ack_wait != saved_wait_ || c.ack_suspect != saved_suspect_;
       if (!changed || (!c.scan && c.ack_wait.empty())) {
         cache_->unlock();

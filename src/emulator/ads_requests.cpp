@@ -2,6 +2,7 @@
 #include "kscfg/emulator/ads_requests.hpp"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 
@@ -211,10 +212,41 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
                                      : ams::result_response(result);
       break;
     }
-    case ams::kReadWrite:
-      data = ams::data_response(kNotSupported, {});
-      rep.what = "ReadWrite: not supported";
+    case ams::kReadWrite: {
+      // An ADS sum command on port 300 (ams.hpp: 0xF082): each image read and write carried out in
+      // order, as one telegram (it retriggers the watchdog once). Any other ReadWrite: not served.
+      auto r = ams::parse_request(h.command, frame->data);
+      if (!r || h.target_port != adsport::kProcessData || r->group != ams::kSumReadWrite) {
+        data = ams::data_response(kNotSupported, {});
+        rep.what = "ReadWrite: not supported";
+        break;
+      }
+      auto sub = ams::parse_sum_read_write(r->offset, r->data);
+      std::uint32_t want = 0;
+      if (sub)
+        for (const auto& c : *sub) want += 8 + c.read_length;
+      if (!sub || r->read_length < want) {
+        data = ams::data_response(kBadSize, {});
+        rep.what = "malformed sum request";
+        break;
+      }
+      std::vector<ams::Response> answers;
+      std::vector<std::string> whats;
+      for (const auto& c : *sub) {
+        ams::Header one = h;
+        one.command = c.data.empty() ? ams::kRead : ams::kWrite;
+        ams::Request q{c.group, c.offset, c.read_length, c.data};
+        ams::Response a;
+        AdsReply part;
+        a.result = c.data.empty() || c.read_length == 0 ? image(one, q, a.data, part, now) : kNotSupported;
+        rep.changed = rep.changed || part.changed;
+        whats.push_back(part.what + (a.result ? ": " + ams::error_text(a.result) : ""));
+        answers.push_back(std::move(a));
+      }
+      data = ams::sum_read_write_response(answers);
+      rep.what = fmt::format("sum of {}: {}", sub->size(), fmt::join(whats, "; "));
       break;
+    }
     default:
       // A BK9050 answered ReadState with "unknown command ID" (ads-client issue 116).
       return ams_error(kUnknownCommand, ams::command_name(h.command));

@@ -436,10 +436,10 @@ void EmulatorLink::write_outputs(std::size_t offset, std::span<const std::uint8_
   std::copy(src.begin(), src.end(), out.begin() + static_cast<std::ptrdiff_t>(offset));
 }
 
-void EmulatorLink::pause(unsigned poll_number) {
+std::chrono::microseconds EmulatorLink::poll_gap(unsigned poll_number) const {
   // The emulated K-bus runs on every read; only a terminal that does not answer makes the
   // caller poll long, and then there is no need to spin.
-  if (poll_number > 64) std::this_thread::sleep_for(std::chrono::microseconds(200));
+  return std::chrono::microseconds(poll_number > 64 ? 200 : 0);
 }
 
 void EmulatorLink::commit() {

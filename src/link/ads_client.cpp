@@ -440,6 +440,14 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
       const Call& c = calls[it->second.index];
       std::size_t index = it->second.index;
       pending.erase(it);
+      if (h.error != 0 && c.may_be_unserved) {
+        replies[index] = Reply{0, {}, h.error};
+        if (!done[index]) {
+          done[index] = true;
+          ++finished;
+        }
+        continue;
+      }
       if (h.error != 0) {
         disconnect();
         throw ads_error(h.error, c.port, c.what.empty() ? ams::command_name(c.command) : c.what);

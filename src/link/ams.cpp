@@ -206,6 +206,63 @@ std::optional<Request> parse_request(std::uint16_t command, std::span<const std:
   }
 }
 
+std::vector<std::uint8_t> sum_read_write_request(std::span<const SumCall> calls) {
+  std::vector<std::uint8_t> w;
+  std::uint32_t read = 0;
+  for (const auto& c : calls) {
+    put32(w, c.group);
+    put32(w, c.offset);
+    put32(w, c.read_length);
+    put32(w, static_cast<std::uint32_t>(c.data.size()));
+    read += 8 + c.read_length;
+  }
+  for (const auto& c : calls) w.insert(w.end(), c.data.begin(), c.data.end());
+  return read_write_request(kSumReadWrite, static_cast<std::uint32_t>(calls.size()), read, w);
+}
+
+std::optional<std::vector<SumCall>> parse_sum_read_write(std::uint32_t count, std::span<const std::uint8_t> d) {
+  if (count == 0 || count > d.size() / 16) return std::nullopt;
+  std::vector<SumCall> calls(count);
+  std::size_t at = 16 * static_cast<std::size_t>(count);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const std::uint8_t* p = d.data() + 16 * i;
+    calls[i].group = get32(p);
+    calls[i].offset = get32(p + 4);
+    calls[i].read_length = get32(p + 8);
+    std::uint32_t n = get32(p + 12);
+    if (n > d.size() - at) return std::nullopt;
+    calls[i].data = d.subspan(at, n);
+    at += n;
+  }
+  if (at != d.size()) return std::nullopt;
+  return calls;
+}
+
+std::vector<std::uint8_t> sum_read_write_response(std::span<const Response> answers) {
+  std::vector<std::uint8_t> v;
+  for (const auto& a : answers) {
+    put32(v, a.result);
+    put32(v, static_cast<std::uint32_t>(a.data.size()));
+  }
+  for (const auto& a : answers) v.insert(v.end(), a.data.begin(), a.data.end());
+  return data_response(0, v);
+}
+
+std::optional<std::vector<Response>> parse_sum_read_write_response(std::size_t count, std::span<const std::uint8_t> d) {
+  if (count == 0 || count > d.size() / 8) return std::nullopt;
+  std::vector<Response> r(count);
+  std::size_t at = 8 * count;
+  for (std::size_t i = 0; i < count; ++i) {
+    r[i].result = get32(d.data() + 8 * i);
+    std::uint32_t n = get32(d.data() + 8 * i + 4);
+    if (n > d.size() - at) return std::nullopt;
+    r[i].data.assign(d.begin() + static_cast<std::ptrdiff_t>(at), d.begin() + static_cast<std::ptrdiff_t>(at + n));
+    at += n;
+  }
+  if (at != d.size()) return std::nullopt;
+  return r;
+}
+
 std::vector<std::uint8_t> result_response(std::uint32_t result) {
   std::vector<std::uint8_t> d;
   put32(d, result);

@@ -26,22 +26,6 @@ static void check_image(std::size_t offset, std::size_t n, const char* what) {
                                         offset + n));
 }
 
-ModbusLink::AckTiming* ModbusLink::ack_timing(unsigned position) {
-  auto it = timings_.find(position);
-  if (it == timings_.end()) {
-    // A terminal not timed yet: start from the slowest one known on this coupler, a guess that
-    // may be too long (probed after its first acknowledges, session/ack_latency.hpp). One still
-    // learning counts with the longest acknowledge it timed: a cold scan reads only a few registers
-    // of each terminal, too few to finish learning, and every terminal of the walk would otherwise
-    // poll from 500 us again.
-    AckTiming t;
-    for (const auto& [p, o] : timings_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
-    t.suspect = t.guessed = t.wait.count() > 0;
-    it = timings_.emplace(position, t).first;
-  }
-  return &it->second;
-}
-
 void ModbusLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "input");
   std::size_t w0 = offset / 2, w1 = (offset + dst.size() - 1) / 2;
@@ -106,8 +90,8 @@ void ModbusLink::write_outputs(std::size_t offset, std::span<const std::uint8_t>
   count();
 }
 
-void ModbusLink::write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
-                                           std::size_t in_offset, std::span<std::uint8_t> dst) {
+void ModbusLink::write_read(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
+                            std::span<std::uint8_t> dst) {
   check_image(in_offset, dst.size(), "input");
   auto words = merge_words(out_offset, src);
   std::size_t w0 = out_offset / 2;
@@ -200,7 +184,7 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
       }
     }
     std::vector<std::uint8_t> in(r.empty() ? 0 : r.hi - r.lo);
-    if (!w.empty() && !r.empty()) write_outputs_read_inputs(w.lo, out, r.lo, in);
+    if (!w.empty() && !r.empty()) write_read(w.lo, out, r.lo, in);
     else if (!w.empty()) write_outputs(w.lo, out);
     else if (!r.empty()) read_inputs(r.lo, in);
     for (std::size_t i : group) {  // the group's transfers, then the peeks it carried
@@ -213,10 +197,9 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
   }
 }
 
-void ModbusLink::pause(unsigned poll_number) {
+std::chrono::microseconds ModbusLink::poll_gap(unsigned poll_number) const {
   // Early polls come quickly; a terminal that needs long gets polled less often.
-  unsigned us = client_.options().poll_us * (poll_number > 20 ? 4 : 1);
-  std::this_thread::sleep_for(std::chrono::microseconds(us));
+  return std::chrono::microseconds(client_.options().poll_us * (poll_number > 20 ? 4 : 1));
 }
 
 std::optional<Error> ModbusLink::explain_no_ack() {

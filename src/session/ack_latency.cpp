@@ -14,14 +14,32 @@ constexpr microseconds kProbeFloor{500};
 microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
 
 // An answer came after the wait, which now stands at t.wait: the probes stay above it for a while.
-void slow_seen(Link::AckTiming& t) {
+void slow_seen(AckTiming& t) {
   t.slow = std::max(t.slow, t.wait);
   t.slow_age = 0;
 }
 
 }  // namespace
 
-AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
+AckTiming& AckTimings::at(unsigned position) {
+  auto it = by_position_.find(position);
+  if (it == by_position_.end()) {
+    AckTiming t;
+    for (const auto& [p, o] : by_position_) t.wait = std::max(t.wait, o.wait.count() > 0 ? o.wait : o.longest);
+    t.suspect = t.guessed = t.wait.count() > 0;
+    it = by_position_.emplace(position, t).first;
+  }
+  return it->second;
+}
+
+void AckTimings::keep(unsigned position, microseconds wait, bool suspect) {
+  AckTiming& t = by_position_[position];
+  t.wait = wait;
+  t.suspect = suspect;
+  t.guessed = false;
+}
+
+AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout) {
   AckPlan p;
   if (t.wait.count() <= 0) {
     p.first = kAckLearnFirst;
@@ -35,12 +53,17 @@ AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout) {
   return p;
 }
 
-void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
-              std::chrono::milliseconds timeout) {
+microseconds ack_late_slack(const AckPlan& p) { return std::max(microseconds(1000), p.wait / 4); }
+
+void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
+              std::chrono::milliseconds timeout, bool late) {
   ++t.acks;
+  if (late) ++t.late;
   const microseconds cap = cap_of(timeout);
   if (!p.known()) {
-    // Learning: time a few acknowledges, then trust the longest.
+    // Learning: time a few acknowledges, then trust the longest; a poll this process sent late
+    // timed its own delay, not the terminal's.
+    if (late) return;
     t.longest = std::max(t.longest, took);
     if (++t.samples >= kLearnSamples) t.wait = std::min(t.longest, cap);
     return;
@@ -65,7 +88,7 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
     // that poll took would add the poll's own round trip every time: a ratchet.)
     if (poll == 2) return;
   }
-  if (poll > 1 && took > p.wait) {
+  if (poll > 1 && took > p.wait && !late) {
     // Slower than the wait: up to what it took, at most twice the wait (one slow answer on a
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
     t.wait = std::min({took, 2 * p.wait, cap});
@@ -74,13 +97,13 @@ void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, microseconds 
   }
 }
 
-void ack_early(Link::AckTiming& t, const AckPlan& p) {
+void ack_early(AckTiming& t, const AckPlan& p) {
   if (!p.known() || p.probe) return;
   t.missed = true;
   ++t.misses;
 }
 
-void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout) {
+void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout) {
   // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
   if (t.wait.count() <= 0) return;
   t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
@@ -93,7 +116,7 @@ bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {
 
 bool ack_suspect_when_kept(microseconds kept, std::chrono::milliseconds timeout) { return 4 * kept >= cap_of(timeout); }
 
-microseconds ack_keep(const Link::AckTiming& t) {
+microseconds ack_keep(const AckTiming& t) {
   if (t.wait.count() > 0) return t.wait;
   if (t.samples > 0) return t.longest;  // a run too short to learn (a single read): what it timed
   return microseconds(0);

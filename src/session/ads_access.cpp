@@ -43,10 +43,7 @@ void AdsAccess::leave(ChannelKey key, Chan& c) noexcept {
 
 void AdsAccess::open(const TerminalImage& t, unsigned channel) {
   ChannelKey key{t.position, channel};
-  if (auto it = chans_.find(key); it != chans_.end()) {
-    ++it->second.users;
-    return;
-  }
+  if (chans_.reopen(key)) return;
   unsigned n = number_(t.position);
   if (n == 0)
     throw Error(Exit::refused,
@@ -57,22 +54,6 @@ void AdsAccess::open(const TerminalImage& t, unsigned channel) {
   c.addr.terminal = n;
   c.addr.channel = channel;
   chans_.emplace(key, c);
-}
-
-void AdsAccess::submit(Program& p) {
-  auto it = chans_.find(p.key);
-  if (it == chans_.end())
-    throw Error(Exit::internal, fmt::format("register access: terminal {} channel {} is not open", p.key.position,
-                                            p.key.channel + 1));
-  if (it->second.prog) throw Error(Exit::internal, "register access: a channel runs one program at a time");
-  p.values.clear();
-  p.error.reset();
-  p.closed = false;
-  it->second.prog = &p;
-}
-
-bool AdsAccess::busy() const {
-  return std::any_of(chans_.begin(), chans_.end(), [](const auto& kv) { return kv.second.prog != nullptr; });
 }
 
 std::vector<Program*> AdsAccess::advance() {

@@ -32,10 +32,7 @@ std::string HandshakeAccess::who(const Chan& c) const {
 
 void HandshakeAccess::open(const TerminalImage& t, unsigned channel) {
   ChannelKey key{t.position, channel};
-  if (auto it = chans_.find(key); it != chans_.end() && !it->second.closed) {
-    ++it->second.users;
-    return;
-  }
+  if (chans_.reopen(key)) return;
   if (channel >= t.channels.size() || !t.channels[channel].window)
     throw Error(Exit::refused, fmt::format("terminal {} ({}): no register window", t.position, t.type->type));
   Chan c;
@@ -54,7 +51,7 @@ void HandshakeAccess::open(const TerminalImage& t, unsigned channel) {
   }
   c.saved_at = lo;
   c.saved.assign(hi - lo + 1, 0);
-  if (link_.pipelines()) c.timing = link_.ack_timing(t.position);
+  if (link_.pipelines()) c.timing = &timings_.at(t.position);
   chans_.insert_or_assign(key, std::move(c));
 }
 
@@ -67,22 +64,6 @@ void HandshakeAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry& e,
   Chan& c = chans_.at(key);
   c.found.dead_pid = pid;
   c.dead_entry = e;
-}
-
-void HandshakeAccess::submit(Program& p) {
-  auto it = chans_.find(p.key);
-  if (it == chans_.end() || it->second.closed)
-    throw Error(Exit::internal, fmt::format("register access: terminal {} channel {} is not open", p.key.position,
-                                            p.key.channel + 1));
-  if (it->second.prog) throw Error(Exit::internal, "register access: a channel runs one program at a time");
-  p.values.clear();
-  p.error.reset();
-  p.closed = false;
-  it->second.prog = &p;
-}
-
-bool HandshakeAccess::busy() const {
-  return std::any_of(chans_.begin(), chans_.end(), [](const auto& kv) { return kv.second.prog != nullptr; });
 }
 
 void HandshakeAccess::finish(Chan& c, std::vector<Program*>& done) {
@@ -317,6 +298,7 @@ std::vector<Program*> HandshakeAccess::advance() {
   if (!fresh.empty()) {
     try {
       save(fresh, done);
+      link_free_ = Clock::now();
     } catch (const Error& e) {
       for (Chan* c : fresh)
         if (!c->ready) fail(*c, e, done);
@@ -396,8 +378,10 @@ std::vector<Program*> HandshakeAccess::advance() {
   std::optional<ShieldScope> shield;
   if (std::none_of(act.begin(), act.end(), [](const Chan* c) { return !c->prog->shielded; }))
     shield.emplace(opt_.cancel);
+  poll_floor_ = link_free_;
   try {
     link_.transfer(xs);
+    link_free_ = Clock::now();
   } catch (const Error& e) {
     // The exchange failed: what the control bytes hold now is unknown. Each program is told; the
     // rules above the seam decide whether to ask again (a write's answer lost: read first).

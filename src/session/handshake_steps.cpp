@@ -93,6 +93,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
     return;
   }
   c.act = Act::poll;
+  c.due = when;
   // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes. The poll at the
   // estimate (the first, or the one after a probe that found nothing) may.
   bool at_estimate = r.polls == 0 ? !r.ack.probe : r.polls == 1 && r.ack.probe;
@@ -163,6 +164,7 @@ void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Prog
     return;
   }
   c.act = Act::poll;
+  c.due = t;  // not planned: never late
   note_trace(fmt::format("{}: R{} answered, seen with another terminal's exchange", who(c), c.req->reg));
   result(c, t, done);
 }
@@ -213,13 +215,20 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
   bool known = timed && r.ack.known();
   if (proto::is_ack(st, r.reg)) {
     if (!r.probe) {
-      if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout);
+      // A poll that went out late (this process not scheduled, a sleep overshot) times the load.
+      const auto planned = std::max(c.due, poll_floor_);
+      const bool late = timed && t - planned > ack_late_slack(r.ack);
+      if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout, late);
       if (opt_.trace)
         opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
                                r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
                                r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls,
                                r.polls == 1 ? "" : "s",
-                               c.timing ? fmt::format(", {} us after the request", us(t - r.sent).count()) : "",
+                               c.timing ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
+                                                      late ? fmt::format(" (the poll {} us late: not learned)",
+                                                                         us(t - planned).count())
+                                                           : "")
+                                        : "",
                                c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
                                c.with_restore ? ", control byte restored with the poll" : ""));
       p.values.push_back(value());

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cctype>
 #include <map>
+#include <thread>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
@@ -52,7 +53,7 @@ ImageSnapshot read_image_settled(Link& link, const StationLayout& layout, std::c
         if (answers_register(t, c, s.in) && !in_register_mode(t, c, s.out)) settled = false;
     }
     if (settled || std::chrono::steady_clock::now() >= deadline || (cancel && cancel->cancelled())) return s;
-    link.pause(poll);
+    std::this_thread::sleep_for(link.poll_gap(poll));
   }
 }
 

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <thread>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
@@ -241,7 +242,7 @@ void SerialPort::send(std::span<const std::uint8_t> bytes, bool receive) {
                   "the send FIFO is full and the line does not move (XOFF, or the far end does not take data)? "
                   "raise --timeout");
     }
-    link_.pause(++idle);
+    std::this_thread::sleep_for(link_.poll_gap(++idle));
   }
 }
 
@@ -287,7 +288,7 @@ std::size_t SerialPort::send_stream(const std::function<long(std::uint8_t*, std:
                               status_ & serial::kIA ? ", IA set: run 'kscfg serial init'" : ""),
                   "the send FIFO is full and the line does not move (XOFF, or the far end does not take data)? "
                   "raise --timeout");
-    link_.pause(++idle);
+    std::this_thread::sleep_for(link_.poll_gap(++idle));
   }
   return accepted_;
 }
@@ -304,7 +305,7 @@ void SerialPort::receive(std::size_t count, std::chrono::milliseconds idle_timeo
       continue;
     }
     if (std::chrono::steady_clock::now() - last >= idle_timeout) break;
-    link_.pause(++idle);
+    std::this_thread::sleep_for(link_.poll_gap(++idle));
   }
   if (rx_.empty())
     throw Error(Exit::timeout,
@@ -331,7 +332,7 @@ void SerialPort::wait_status(std::uint8_t mask, std::uint8_t want, const char* w
                               what, opt_.timeout.count(), sent, status_),
                   "check the terminal and the link, or raise --timeout");
     }
-    link_.pause(poll);
+    std::this_thread::sleep_for(link_.poll_gap(poll));
   }
 }
 

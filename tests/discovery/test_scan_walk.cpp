@@ -16,6 +16,7 @@
 #include "kscfg/station/station.hpp"
 
 using namespace kscfg;
+using kscfg::test::expect;
 using kscfg::test::ScriptedCoupler;
 
 namespace {
@@ -45,11 +46,11 @@ Walked walk_station(const std::string& text) {
   // Two K-bus cycles per exchange (an answer is there at the next exchange) and every terminal's
   // latency known: the walk's exchanges do not depend on the machine's speed.
   ScriptedCoupler link(st, {0, 0}, 0, 2);
-  for (const auto& t : L.terminals) link.expect(t.position, std::chrono::microseconds(300));
   Walked w{begin_scan(head_of(L), "test", std::nullopt), 0, {}};
   SessionOptions so;
   so.trace = [&](const std::string& s) { w.trace.push_back(s); };
   HandshakeEngine port(link, so);
+  for (const auto& t : L.terminals) expect(port.own_access, t.position, std::chrono::microseconds(300));
   walk(w.r, port.own_engine, link, cat(), so);
   w.exchanges = link.exchanges_seen;
   // What the walk found lays the station out as the coupler does.
@@ -131,7 +132,6 @@ TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, no
   const StationLayout& L = st.layout();
   st.channel(3, 0).faults.mute = true;
   ScriptedCoupler link(st, {0, 0}, 0, 2);
-  for (const auto& t : L.terminals) link.expect(t.position, std::chrono::microseconds(300));
   const std::size_t ctrl3 = L.terminal(3).out_offset;
   unsigned r8_requests = 0;  // exchanges that put an R8 request into terminal 3's control byte
   std::uint8_t last = 0;
@@ -144,6 +144,7 @@ TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, no
   so.timeout = std::chrono::milliseconds(40);
   try {
     HandshakeEngine port(link, so);
+    for (const auto& t : L.terminals) expect(port.own_access, t.position, std::chrono::microseconds(300));
     walk(r, port.own_engine, link, cat(), so);
     FAIL("the walk went past a mute terminal");
   } catch (const Error& e) {

@@ -14,6 +14,7 @@
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
+#include "kscfg/session/ack_latency.hpp"
 #include "kscfg/session/session.hpp"
 
 using namespace kscfg;
@@ -238,8 +239,6 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
   auto port = s.port();
   auto& link = port.link;
   const StationLayout& L = *port.discovery->layout();
-  auto* m = dynamic_cast<ModbusLink*>(link.get());
-  REQUIRE(m);
   std::size_t ctrl = L.terminals[0].channels[0].window->ctrl;
   auto control_byte = [&] {
     std::uint8_t ct[1];
@@ -254,23 +253,25 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
   };
   SECTION("the terminal has answered when the poll goes out: three exchanges in all") {
     // Far longer than the server's 1 ms K-bus cycle, so the answer is there even on a loaded machine.
-    m->set_ack_wait(1, std::chrono::milliseconds(200));
     ImageSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    AckTimings& timings = *ses.RegisterSession::engine().access().ack_timings();
+    timings.keep(1, std::chrono::milliseconds(200));
     std::size_t before = link->exchanges();
     auto v = ses.read_then_close({10});  // a register the scan did not read: no stale acknowledge
     CHECK(v.at(0) == s.station.channel(1, 0).read_register(10));
     CHECK(traced("control byte restored with the poll"));
     // The channel's output bytes saved, FC23 request, FC23 restore + answer; close() writes nothing.
     CHECK(link->exchanges() - before == 3);
-    CHECK(m->ack_timings().at(1).misses == 0);
+    CHECK(timings.all().at(1).misses == 0);
   }
   SECTION("the poll came too early: the restore replaced the request, which is asked again") {
-    m->set_ack_wait(1, std::chrono::microseconds(1));
     ImageSession ses(*link, register_terminal(L, 1, 0), 0, so);
+    AckTimings& timings = *ses.RegisterSession::engine().access().ack_timings();
+    timings.keep(1, std::chrono::microseconds(1));
     auto v = ses.read_then_close({32, 8});
     CHECK(v.at(0) == s.station.channel(1, 0).read_register(32));
     CHECK(v.at(1) == 6001);
-    CHECK(m->ack_timings().at(1).misses >= 1);
+    CHECK(timings.all().at(1).misses >= 1);
   }
   // Either way the terminal is back in process-data mode, as the session found it.
   CHECK((control_byte() & 0x80) == 0);
@@ -386,21 +387,3 @@ TEST_CASE("peeks ride with an exchange: over TCP anywhere, over RTU only inside 
   }
 }
 
-TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on the coupler, also one still learning",
-          "[modbus][ack]") {
-  Served s;
-  auto link = s.link();
-  Link::AckTiming* t1 = link->ack_timing(1);
-  REQUIRE(t1);
-  CHECK(t1->wait.count() == 0);  // nothing known: learn
-  // Terminal 1 timed one acknowledge of 1.5 ms (a cold scan reads too few registers to finish learning).
-  t1->samples = 1;
-  t1->longest = std::chrono::microseconds(1500);
-  Link::AckTiming* t2 = link->ack_timing(2);
-  CHECK(t2->wait == std::chrono::microseconds(1500));
-  CHECK(t2->suspect);  // a guess: probed below, after its first acknowledges
-  CHECK(t2->guessed);
-  // A learned wait counts as it is.
-  t1->wait = std::chrono::microseconds(3000);
-  CHECK(link->ack_timing(3)->wait == std::chrono::microseconds(3000));
-}

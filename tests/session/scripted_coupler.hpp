@@ -1,7 +1,8 @@
 // A pipelining coupler in one process for tests of the station engine (test_peek.cpp) and the
 // scan's walk: a read shows the inputs of the last K-bus cycle, then the writes reach the
 // terminals and `cycles` K-bus cycles run. The bytes of `slow_range` reach the terminals `lag`
-// exchanges late (a slower terminal). Acknowledge estimates per position are set with expect().
+// exchanges late (a slower terminal). Acknowledge estimates per position are set on the register
+// access with expect().
 #pragma once
 #include <algorithm>
 #include <chrono>
@@ -13,6 +14,8 @@
 
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/access.hpp"
+#include "kscfg/session/ack_latency.hpp"
 
 namespace kscfg::test {
 
@@ -23,7 +26,6 @@ class ScriptedCoupler : public Link {
       : st_(st), master_(st.outputs()), slow_(slow_range), lag_(lag), cycles_(cycles), history_(lag, st.outputs()) {}
   std::string describe() const override { return "scripted coupler"; }
   bool pipelines() const override { return true; }
-  AckTiming* ack_timing(unsigned position) override { return &timing_[position]; }
   void read_inputs(std::size_t o, std::span<std::uint8_t> d) override {
     std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(o), d.size(), d.begin());
     exchange();
@@ -47,7 +49,6 @@ class ScriptedCoupler : public Link {
   }
   std::size_t exchanges_seen = 0;
   std::function<void(const std::vector<std::uint8_t>&)> on_exchange;  // the outputs as each exchange leaves them
-  void expect(unsigned position, std::chrono::microseconds wait) { timing_[position].wait = wait; }
 
  private:
   void exchange() {
@@ -66,7 +67,12 @@ class ScriptedCoupler : public Link {
   unsigned lag_;
   unsigned cycles_;
   std::deque<std::vector<std::uint8_t>> history_;
-  std::map<unsigned, AckTiming> timing_;
 };
+
+// An acknowledge estimate as if kept from an earlier run, on the access that times the polls.
+inline AckTiming& expect(RegisterAccess& access, unsigned position, std::chrono::microseconds wait) {
+  access.ack_timings()->keep(position, wait);
+  return access.ack_timings()->at(position);
+}
 
 }  // namespace kscfg::test

@@ -11,8 +11,8 @@ using std::chrono::milliseconds;
 
 namespace {
 
-Link::AckTiming suspect_at(microseconds wait) {
-  Link::AckTiming t;
+AckTiming suspect_at(microseconds wait) {
+  AckTiming t;
   t.wait = wait;
   t.suspect = true;  // raised, or kept from an earlier run at a quarter of the timeout: probed below
   return t;
@@ -23,7 +23,7 @@ Link::AckTiming suspect_at(microseconds wait) {
 TEST_CASE("ack latency: a probe that found nothing, then the answer at the poll at the wait: confirmed, kept, "
           "trusted",
           "[ack]") {
-  Link::AckTiming t = suspect_at(microseconds(1860));
+  AckTiming t = suspect_at(microseconds(1860));
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE(p.probe);
   CHECK(p.first == microseconds(930));
@@ -37,7 +37,7 @@ TEST_CASE("ack latency: a probe that found nothing, then the answer at the poll 
 }
 
 TEST_CASE("ack latency: far past the wait after a probe stays suspect (a slow moment, not the terminal)", "[ack]") {
-  Link::AckTiming t = suspect_at(microseconds(1000));
+  AckTiming t = suspect_at(microseconds(1000));
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE(p.probe);
   ack_seen(t, p, 3, microseconds(5000), milliseconds(1000));
@@ -46,7 +46,7 @@ TEST_CASE("ack latency: far past the wait after a probe stays suspect (a slow mo
 }
 
 TEST_CASE("ack latency: an answer past the wait without a probe stays suspect", "[ack]") {
-  Link::AckTiming t;
+  AckTiming t;
   t.wait = microseconds(1000);
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE_FALSE(p.probe);
@@ -56,7 +56,7 @@ TEST_CASE("ack latency: an answer past the wait without a probe stays suspect", 
 }
 
 TEST_CASE("ack latency: a probe that finds the answer lowers the wait by at most a quarter", "[ack]") {
-  Link::AckTiming t = suspect_at(microseconds(4000));
+  AckTiming t = suspect_at(microseconds(4000));
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE(p.probe);
   // One fast answer (the terminal answered in the cycle that saw the request) is one sample.
@@ -67,7 +67,7 @@ TEST_CASE("ack latency: a probe that finds the answer lowers the wait by at most
 }
 
 TEST_CASE("ack latency: after an answer past the wait, a probe never lowers the wait below it", "[ack]") {
-  Link::AckTiming t;
+  AckTiming t;
   t.wait = microseconds(3000);
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE_FALSE(p.probe);
@@ -85,7 +85,7 @@ TEST_CASE("ack latency: after an answer past the wait, a probe never lowers the 
 }
 
 TEST_CASE("ack latency: the slowest answer is forgotten after kSlowFor acknowledges", "[ack]") {
-  Link::AckTiming t;
+  AckTiming t;
   t.wait = microseconds(2000);
   AckPlan p = ack_plan(t, milliseconds(1000));
   ack_early(t, p);
@@ -105,7 +105,7 @@ TEST_CASE("ack latency: the slowest answer is forgotten after kSlowFor acknowled
 }
 
 TEST_CASE("ack latency: a request written ahead that replaced the one waited for keeps the wait up", "[ack]") {
-  Link::AckTiming t;
+  AckTiming t;
   t.wait = microseconds(4000);
   ack_replaced(t, milliseconds(1000));
   CHECK(t.wait == microseconds(4500));
@@ -118,8 +118,8 @@ TEST_CASE("ack latency: a request written ahead that replaced the one waited for
 
 TEST_CASE("ack latency: a wait guessed from another terminal goes unprobed for its first acknowledges, then is probed",
           "[ack]") {
-  Link::AckTiming t = suspect_at(microseconds(2000));
-  t.guessed = true;  // a terminal seeded from another's estimate (ModbusLink::ack_timing)
+  AckTiming t = suspect_at(microseconds(2000));
+  t.guessed = true;  // a terminal seeded from another's estimate (AckTimings::at)
   for (unsigned i = 0; i < kGuessTrusted; ++i) {
     AckPlan p = ack_plan(t, milliseconds(1000));
     REQUIRE_FALSE(p.probe);  // a cold scan's R8, R34, R35: polled at the guess, no exchange spent on a probe
@@ -133,11 +133,59 @@ TEST_CASE("ack latency: a wait guessed from another terminal goes unprobed for i
 }
 
 TEST_CASE("ack latency: a guessed wait that is too short is raised at once, as any other", "[ack]") {
-  Link::AckTiming t = suspect_at(microseconds(1000));
+  AckTiming t = suspect_at(microseconds(1000));
   t.guessed = true;
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE_FALSE(p.probe);
   ack_seen(t, p, 2, microseconds(1700), milliseconds(1000));
   CHECK(t.wait == microseconds(1700));
   CHECK(t.suspect);
+}
+
+TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on the coupler, also one still learning",
+          "[session][ack]") {
+  AckTimings timings;
+  AckTiming* t1 = &timings.at(1);
+  CHECK(t1->wait.count() == 0);  // nothing known: learn
+  // Terminal 1 timed one acknowledge of 1.5 ms (a cold scan reads too few registers to finish learning).
+  t1->samples = 1;
+  t1->longest = std::chrono::microseconds(1500);
+  AckTiming* t2 = &timings.at(2);
+  CHECK(t2->wait == std::chrono::microseconds(1500));
+  CHECK(t2->suspect);  // a guess: probed below, after its first acknowledges
+  CHECK(t2->guessed);
+  // A learned wait counts as it is.
+  t1->wait = std::chrono::microseconds(3000);
+  CHECK(timings.at(3).wait == std::chrono::microseconds(3000));
+}
+
+TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learning sample, no raise (issue 34)",
+          "[ack]") {
+  AckTiming t;
+  AckPlan p = ack_plan(t, milliseconds(1000));  // learning
+  REQUIRE_FALSE(p.known());
+  // Three acknowledges, the second timed by a poll that went out 9 ms late (the machine was loaded).
+  ack_seen(t, p, 2, microseconds(2100), milliseconds(1000));
+  ack_seen(t, p, 9, microseconds(9300), milliseconds(1000), true);
+  ack_seen(t, p, 2, microseconds(2300), milliseconds(1000));
+  CHECK(t.wait.count() == 0);  // two samples: still learning
+  ack_seen(t, p, 2, microseconds(2200), milliseconds(1000));
+  CHECK(t.wait == microseconds(2300));  // the longest of the three on time, not 9.3 ms
+  CHECK(t.late == 1);
+  CHECK(t.acks == 4);
+  // Known: an answer seen only by a later poll raises the wait, unless that poll was late.
+  AckPlan q = ack_plan(t, milliseconds(1000));
+  REQUIRE(q.known());
+  REQUIRE_FALSE(q.probe);
+  ack_seen(t, q, 3, microseconds(8000), milliseconds(1000), true);
+  CHECK(t.wait == microseconds(2300));
+  CHECK_FALSE(t.suspect);
+  ack_seen(t, q, 3, microseconds(4000), milliseconds(1000));
+  CHECK(t.wait == microseconds(4000));  // on time: raised as before
+  CHECK(t.suspect);
+  // The slack: a millisecond, or a quarter of a long estimate.
+  CHECK(ack_late_slack(q) == microseconds(1000));
+  AckPlan slow;
+  slow.wait = microseconds(20000);
+  CHECK(ack_late_slack(slow) == microseconds(5000));
 }

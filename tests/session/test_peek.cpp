@@ -17,6 +17,7 @@
 #include "scripted_coupler.hpp"
 
 using namespace kscfg;
+using kscfg::test::expect;
 using kscfg::test::ScriptedCoupler;
 
 namespace {
@@ -36,12 +37,12 @@ TEST_CASE("a terminal that answers later is seen with the other terminal's excha
   // As kept from an earlier run: terminal 1 answers in a fraction of a millisecond, terminal 2 was
   // once slow. Its own first poll is due long after terminal 1's exchanges have shown its answer,
   // however loaded the machine.
-  link.expect(1, std::chrono::microseconds(300));
-  link.expect(2, std::chrono::milliseconds(200));
   std::vector<std::string> trace;
   SessionOptions so;
   so.trace = [&](const std::string& s) { trace.push_back(s); };
   HandshakeAccess access(link, handshake_options(so));
+  expect(access, 1, std::chrono::microseconds(300));
+  expect(access, 2, std::chrono::milliseconds(200));
   Engine engine(access);
   std::vector<unsigned> regs{8, 9, 32, 33, 34, 35};
   std::vector<ChannelReads> jobs{{1, 0, regs, 6001, {}, {}}, {2, 0, regs, 6001, {}, {}}};
@@ -99,14 +100,14 @@ TEST_CASE("terminals whose requests went out together are first polled together,
   ScriptedCoupler link(st, {t3.out_offset, t3.out_offset + t3.out_size}, 12, 2);
   // Estimates as a coupler whose terminals answer in one or two cycles at random leaves them:
   // spread, but within kAlignSpread of each other. Terminal 3 is far slower and keeps its own.
-  link.expect(1, std::chrono::microseconds(1000));
-  link.expect(2, std::chrono::microseconds(2500));
-  link.expect(3, std::chrono::milliseconds(500));
   std::vector<std::string> trace;
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(5000);
   so.trace = [&](const std::string& s) { trace.push_back(s); };
   HandshakeAccess access(link, handshake_options(so));
+  expect(access, 1, std::chrono::microseconds(1000));
+  expect(access, 2, std::chrono::microseconds(2500));
+  expect(access, 3, std::chrono::milliseconds(500));
   Engine engine(access);
   std::vector<unsigned> regs{8, 9, 32, 33, 34, 35, 36, 37};
   std::vector<ChannelReads> jobs{{1, 0, regs, 6001, {}, {}}, {2, 0, regs, 6001, {}, {}}, {3, 0, {8}, 6001, {}, {}}};
@@ -149,12 +150,11 @@ TEST_CASE("after a probe that found nothing, the poll at the estimate carries th
   // The terminal sees its control byte one exchange late: a probe (the first poll, at half the
   // estimate) finds nothing, the poll at the estimate finds the answer.
   ScriptedCoupler link(st, {t1.out_offset, t1.out_offset + t1.out_size}, 1, 2);
-  link.expect(1, std::chrono::microseconds(2000));
-  link.ack_timing(1)->suspect = true;  // a guess: probed below
   std::vector<std::string> trace;
   SessionOptions so;
   so.trace = [&](const std::string& s) { trace.push_back(s); };
   HandshakeAccess access(link, handshake_options(so));
+  expect(access, 1, std::chrono::microseconds(2000)).suspect = true;  // a guess: probed below
   Engine engine(access);
   std::vector<ChannelReads> jobs{{1, 0, {8, 9}, 6001, {}, {}}};
   read_channels(engine, st.layout(), jobs, so);

@@ -157,7 +157,7 @@ class EmulatorLink : public Link {
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
-  void pause(unsigned poll_number) override;
+  std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   const StationLayout* layout() override { return &station_->layout(); }
   const StationSpec* station() override { return &station_->spec(); }
   void commit() override;

@@ -113,6 +113,27 @@ struct Request {  // a Read, Write or ReadWrite request's fields, as a server se
 // nullopt when the data does not hold the command's fields (or their lengths disagree).
 std::optional<Request> parse_request(std::uint16_t command, std::span<const std::uint8_t> data);
 
+// ADS sum commands: several reads and writes in one ReadWrite request, whose index group says
+// which sum and whose index offset is the number of sub-commands (Beckhoff "ADS-sum command",
+// https://infosys.beckhoff.com/content/1033/tc3_adsdll2/124835083.html: 0xF080 reads, 0xF081
+// writes, 0xF082 reads and writes). kscfg sends 0xF082: the write data carries N x (index group,
+// index offset, read length, write length), then every sub-command's write data in order; the
+// answer carries N x (result, length read), then every sub-command's data read in order. The
+// sub-commands are carried out in order. Not in the BK9000's documented ADS services: a coupler
+// that does not serve it answers ADS error 0x701 or 0x702, or AMS error 0x8 (AdsImageLink falls
+// back to one request per span).
+constexpr std::uint32_t kSumRead = 0xF080, kSumWrite = 0xF081, kSumReadWrite = 0xF082;
+struct SumCall {
+  std::uint32_t group = 0, offset = 0;
+  std::uint32_t read_length = 0;
+  std::span<const std::uint8_t> data;  // written (points into the caller's or the frame's bytes)
+};
+// The ReadWrite request data of a 0xF082 sum of `calls`.
+std::vector<std::uint8_t> sum_read_write_request(std::span<const SumCall> calls);
+// The sub-commands of a 0xF082 sum (`count` of them in `data`, the ReadWrite's write data);
+// nullopt when their lengths disagree with the data.
+std::optional<std::vector<SumCall>> parse_sum_read_write(std::uint32_t count, std::span<const std::uint8_t> data);
+
 // Responses: result (ADS return code), then for Read and ReadWrite the length and the data;
 // ReadDeviceInfo: result, major, minor, build, 16-byte name.
 std::vector<std::uint8_t> result_response(std::uint32_t result);
@@ -125,6 +146,10 @@ struct Response {
 };
 // nullopt when the data is too short for the command's response or its length field disagrees.
 std::optional<Response> parse_response(std::uint16_t command, std::span<const std::uint8_t> data);
+// The ReadWrite response data of a 0xF082 sum (the outer result first), and its parse: nullopt when
+// it does not hold `count` answers whose lengths add up.
+std::vector<std::uint8_t> sum_read_write_response(std::span<const Response> answers);
+std::optional<std::vector<Response>> parse_sum_read_write_response(std::size_t count, std::span<const std::uint8_t> data);
 
 // ADS return codes, by name (Beckhoff "ADS Return Codes",
 // https://infosys.beckhoff.com/content/1033/tcdbserver/11407885707.html and

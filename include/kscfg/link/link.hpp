@@ -47,43 +47,19 @@ class Link {
   // kscfg on another computer, KS2000). The emulator's state file is locked: never.
   virtual bool other_masters_possible() const { return false; }
 
-  // Waits a little between two polls of the input image (bounded by the caller's timeout).
-  virtual void pause(unsigned poll_number) { (void)poll_number; }
-
-  // How fast the terminals behind a link answer (session read-ahead). A pipelining link keeps one
-  // per terminal position; a Modbus link keeps them with its scan cache between runs. What the
-  // fields mean and how they move: session/ack_latency.hpp.
-  struct AckTiming {
-    std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
-    bool suspect = false;               // `wait` may be too long (raised, or guessed): probe below it
-    bool guessed = false;               // `wait` was taken from another terminal of the coupler (this run):
-                                        // the first acknowledges go at it unprobed (ack_latency.hpp)
-    unsigned samples = 0;               // acknowledges timed while learning (this run)
-    std::chrono::microseconds longest{0};  // longest latency timed while learning
-    bool missed = false;                // a poll at `wait` came too early (this run)
-    unsigned misses = 0;                // how often (this run); after three, no more read-ahead
-    unsigned acks = 0;                  // acknowledges seen this run
-    unsigned streak = 0;                // first polls at `wait` that found the answer since the last probe
-    unsigned probes = 0;                // polls below `wait` (this run), and how many found the answer
-    unsigned probe_hits = 0;
-    std::chrono::microseconds slow{0};  // the slowest recent answer that came after the wait (this run):
-                                        // a probe never lowers the wait below it (ack_latency.hpp)
-    unsigned slow_age = 0;              // acknowledges since `slow` was last raised
-  };
-  virtual AckTiming* ack_timing(unsigned position) {
-    (void)position;
-    return nullptr;
+  // How long to leave between two polls of the input image, the `poll_number`-th since a wait
+  // began (the caller sleeps it, bounded by its timeout): the link's pace, a fact of the transport
+  // (the emulator runs a K-bus cycle on every read and needs none; a Modbus coupler the client's
+  // poll interval, longer once a terminal takes long).
+  virtual std::chrono::microseconds poll_gap(unsigned poll_number) const {
+    (void)poll_number;
+    return std::chrono::microseconds(0);
   }
 
-  // Writes output bytes, then reads input bytes, in one exchange when the link can (Modbus FC23).
-  // On a link that pipelines, the read sees the image as it was before the K-bus carried the
-  // write: it shows the answer to the previous request, so register reads can overlap.
+  // On a link that pipelines, the reads of a transfer() see the image as it was before the K-bus
+  // carried its writes: they show the answer to the previous request, so register reads can overlap
+  // (Modbus FC23, ADS requests in flight together).
   virtual bool pipelines() const { return false; }
-  virtual void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src,
-                                         std::size_t in_offset, std::span<std::uint8_t> dst) {
-    write_outputs(out_offset, src);
-    read_inputs(in_offset, dst);
-  }
 
   // Writes the output bytes of every transfer, then reads the input bytes of every transfer, in as
   // few exchanges as the link allows: the station engine advances the handshakes of many terminals

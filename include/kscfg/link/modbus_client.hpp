@@ -78,7 +78,7 @@ struct ModbusOptions {
   unsigned connect_timeout_ms = 1000;
   unsigned retries = busy::kRetries;   // extra attempts after busy, CRC or garbled replies
   unsigned timeout_retries = 1;        // extra attempts after a timeout
-  unsigned poll_us = 500;  // between two polls of the input image (pause())
+  unsigned poll_us = 500;  // between two polls of the input image (ModbusLink::poll_gap())
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): a request or the wait for its reply ends with
   // Error(Exit::interrupted) once it is cancelled. Null: never cancelled.

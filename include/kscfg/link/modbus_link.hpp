@@ -29,24 +29,11 @@ class ModbusLink : public Link {
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   bool pipelines() const override { return true; }
-  void write_outputs_read_inputs(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
-                                 std::span<std::uint8_t> dst) override;
   // One FC23 for the transfers that fit its limits (121 registers written, 125 read); over RTU a
   // gap is bridged only where its bytes cost less line time than a request of their own.
   void transfer(std::span<const ImageTransfer> t) override;
-  void pause(unsigned poll_number) override;
+  std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   std::optional<Error> explain_no_ack() override;
-
-  AckTiming* ack_timing(unsigned position) override;
-  // Learned acknowledge latencies by terminal position (for the scan cache).
-  const std::map<unsigned, AckTiming>& ack_timings() const { return timings_; }
-  // A latency kept from an earlier run (discovery gives the scan cache's before the first session);
-  // `suspect`: it may be too long (ack_latency.hpp).
-  void set_ack_wait(unsigned position, std::chrono::microseconds wait, bool suspect = false) {
-    timings_[position].wait = wait;
-    timings_[position].suspect = suspect;
-    timings_[position].guessed = false;
-  }
 
   // Other masters may share a Modbus coupler (another computer, KS2000 on its service port).
   bool other_masters_possible() const override { return true; }
@@ -60,6 +47,9 @@ class ModbusLink : public Link {
   // Words [first, last] with the bytes of `src` at `offset`; the other bytes of those words come
   // from what the link last read or wrote, or are read first (never clobbered).
   std::vector<std::uint16_t> merge_words(std::size_t offset, std::span<const std::uint8_t> src);
+  // Writes output bytes, then reads input bytes, in one FC23.
+  void write_read(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
+                  std::span<std::uint8_t> dst);
   void remember_outputs(std::size_t first_word, std::span<const std::uint16_t> words);
   void count() { exchanges_ = client_.exchanges(); }
 
@@ -67,7 +57,6 @@ class ModbusLink : public Link {
   ModbusClient client_;
   std::vector<int> out_cache_;  // output image bytes as the coupler holds them, -1 unknown
   std::optional<std::pair<std::size_t, std::size_t>> last_written_;  // offset and size of the last write
-  std::map<unsigned, AckTiming> timings_;
 };
 
 }  // namespace kscfg

@@ -32,6 +32,8 @@
 
 namespace kscfg {
 
+class AckTimings;  // session/ack_latency.hpp
+
 // A terminal channel: plug position (1-based) and channel (0-based).
 struct ChannelKey {
   unsigned position = 0;
@@ -125,6 +127,11 @@ class RegisterAccess {
   // A terminal did not acknowledge: a cause beyond the terminal that the access knows (e.g. the
   // coupler's watchdog has switched the outputs off), to report instead.
   virtual std::optional<Error> explain_no_ack() { return std::nullopt; }
+
+  // How fast the terminals answer, by position (session/ack_latency.hpp), on an access that times
+  // its polls by them (the handshake over a link that pipelines); nullptr on others. The Modbus
+  // scan cache keeps them between runs (discovery/scan.cpp).
+  virtual AckTimings* ack_timings() { return nullptr; }
 
   // Requests sent so far (image exchanges for the handshake, ADS requests for direct access).
   virtual std::size_t exchanges() const = 0;

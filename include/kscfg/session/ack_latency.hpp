@@ -2,7 +2,7 @@
 // first poll, per terminal, and how that wait follows the line (issue 21 item 4, docs/design.md
 // section 4).
 //
-// The wait is an estimate of the terminal's acknowledge latency (Link::AckTiming::wait), never a
+// The wait is an estimate of the terminal's acknowledge latency (AckTiming::wait), never a
 // ratchet:
 //  - learned from the first acknowledges of a terminal (the longest of three, polled from 500 us);
 //  - never longer than the ack timeout (--timeout): a longer one would only make a read sleep past
@@ -29,14 +29,57 @@
 // requests only, and the probe after them brings it down.
 // The scan cache keeps the wait and whether it is suspect; --rescan starts from nothing.
 //
+// Where it lives: the port's register access keeps one AckTiming per terminal position
+// (AckTimings, below; HandshakeAccess::ack_timings()), and the Modbus scan discovery gives it what
+// the scan cache kept before the first session and saves it at the end (discovery/scan.cpp). The
+// link only moves bytes: it knows nothing of terminals or of how fast they answer.
+//
 // A station engine (issue 22) that runs several terminals' handshakes at once uses the same
 // functions per terminal.
 #pragma once
 #include <chrono>
-
-#include "kscfg/link/link.hpp"
+#include <map>
 
 namespace kscfg {
+
+// How fast one terminal answers: what the fields mean and how they move is said above.
+struct AckTiming {
+  std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
+  bool suspect = false;               // `wait` may be too long (raised, or guessed): probe below it
+  bool guessed = false;               // `wait` was taken from another terminal of the coupler (this run):
+                                      // the first acknowledges go at it unprobed
+  unsigned samples = 0;               // acknowledges timed while learning (this run)
+  std::chrono::microseconds longest{0};  // longest latency timed while learning
+  bool missed = false;                // a poll at `wait` came too early (this run)
+  unsigned misses = 0;                // how often (this run); after three, no more read-ahead
+  unsigned acks = 0;                  // acknowledges seen this run
+  unsigned streak = 0;                // first polls at `wait` that found the answer since the last probe
+  unsigned probes = 0;                // polls below `wait` (this run), and how many found the answer
+  unsigned probe_hits = 0;
+  std::chrono::microseconds slow{0};  // the slowest recent answer that came after the wait (this run):
+                                      // a probe never lowers the wait below it
+  unsigned slow_age = 0;              // acknowledges since `slow` was last raised
+  unsigned late = 0;                  // acknowledges seen by a poll this process sent late (this run):
+                                      // not learned (ack_seen)
+};
+
+// The timings of the terminals of one coupler, by position: kept by the port's register access.
+class AckTimings {
+ public:
+  // The timing of the terminal at `position`. A terminal not timed yet starts from the slowest one
+  // known on this coupler, a guess that may be too long (probed after its first acknowledges). One
+  // still learning counts with the longest acknowledge it timed: a cold scan reads only a few
+  // registers of each terminal, too few to finish learning, and every terminal of the walk would
+  // otherwise poll from 500 us again. The reference stays valid as long as the store.
+  AckTiming& at(unsigned position);
+  // A latency kept from an earlier run (the scan cache's, before the first session); `suspect`: it
+  // may be too long.
+  void keep(unsigned position, std::chrono::microseconds wait, bool suspect = false);
+  const std::map<unsigned, AckTiming>& all() const { return by_position_; }
+
+ private:
+  std::map<unsigned, AckTiming> by_position_;
+};
 
 struct AckPlan {
   std::chrono::microseconds wait{0};   // the estimate in use (clamped to the timeout); 0: learning
@@ -49,14 +92,20 @@ struct AckPlan {
 constexpr std::chrono::microseconds kAckLearnFirst{500};
 
 // What the first poll of the next request does.
-AckPlan ack_plan(const Link::AckTiming& t, std::chrono::milliseconds timeout);
-// The acknowledge showed at poll `poll` (1: the first), `took` after the request.
-void ack_seen(Link::AckTiming& t, const AckPlan& p, unsigned poll, std::chrono::microseconds took,
-              std::chrono::milliseconds timeout);
+AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout);
+// The acknowledge showed at poll `poll` (1: the first), `took` after the request. `late`: that poll
+// went out later than planned by more than ack_late_slack() (this process was not scheduled, or
+// slept past its time: issue 34): `took` then tells of the machine's load, not of the terminal, and
+// it neither teaches a learning estimate nor raises one (it still counts as an acknowledge).
+void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, std::chrono::microseconds took,
+              std::chrono::milliseconds timeout, bool late = false);
+// How much later than planned a poll may go out and still time the terminal: a millisecond, or a
+// quarter of the estimate when that is longer (a sleep overshoots by far less on an idle machine).
+std::chrono::microseconds ack_late_slack(const AckPlan& p);
 // The first poll at the estimate (not a probe) came too early.
-void ack_early(Link::AckTiming& t, const AckPlan& p);
+void ack_early(AckTiming& t, const AckPlan& p);
 // The request was replaced (read-ahead, restore) before the terminal answered it.
-void ack_replaced(Link::AckTiming& t, std::chrono::milliseconds timeout);
+void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout);
 // A latency kept from an earlier run is used only when it is shorter than the timeout; one of a
 // quarter of the timeout or more is suspect.
 bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
@@ -65,6 +114,6 @@ constexpr unsigned kProbeEvery = 32;
 constexpr unsigned kGuessTrusted = 3;
 constexpr unsigned kSlowFor = 2 * kProbeEvery;
 // What the scan cache keeps for the next run (0: nothing learned).
-std::chrono::microseconds ack_keep(const Link::AckTiming& t);
+std::chrono::microseconds ack_keep(const AckTiming& t);
 
 }  // namespace kscfg

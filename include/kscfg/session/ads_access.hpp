@@ -24,6 +24,7 @@
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
+#include "kscfg/session/open_channels.hpp"
 
 namespace kscfg {
 
@@ -38,19 +39,17 @@ class AdsAccess final : public RegisterAccess {
   void open(const TerminalImage& t, unsigned channel) override;
   ChannelFound found(ChannelKey key) const override;
   void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) override;
-  void submit(Program& p) override;
+  void submit(Program& p) override { chans_.submit(p); }
   std::vector<Program*> advance() override;
-  bool busy() const override;
+  bool busy() const override { return chans_.busy(); }
   void close_now(ChannelKey key, bool quiet) noexcept override;
   void lock_unverified(ChannelKey key) noexcept override;
   void close_all() noexcept override;
   std::size_t exchanges() const override { return client_.exchanges(); }
 
  private:
-  struct Chan {
+  struct Chan : OpenChannel {  // erased once its last user closed it
     adsreg::RegisterAccess::Address addr;  // terminal number and channel; the register per request
-    unsigned users = 1;
-    Program* prog = nullptr;
     bool journaled = false;  // the journal has its "u" entry open
     bool unsure = false;     // a request of it went unanswered: the entry stays at the end
     long dead_pid = 0;       // adopt_dead()
@@ -64,7 +63,7 @@ class AdsAccess final : public RegisterAccess {
 #ifdef KSCFG_TEST_HOOKS
   std::function<void(unsigned reg)> after_write_;  // SessionOptions::after_write
 #endif
-  std::map<ChannelKey, Chan> chans_;
+  OpenChannels<Chan> chans_;
 };
 
 }  // namespace kscfg

@@ -42,6 +42,7 @@
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/ack_latency.hpp"
 #include "kscfg/session/journal.hpp"
+#include "kscfg/session/open_channels.hpp"
 
 namespace kscfg {
 
@@ -73,14 +74,15 @@ class HandshakeAccess final : public RegisterAccess {
   std::string describe() const override { return link_.describe(); }
   void open(const TerminalImage& t, unsigned channel) override;
   ChannelFound found(ChannelKey key) const override;
-  void submit(Program& p) override;
+  void submit(Program& p) override { chans_.submit(p); }
   std::vector<Program*> advance() override;
-  bool busy() const override;
+  bool busy() const override { return chans_.busy(); }
   void close_now(ChannelKey key, bool quiet) noexcept override;
   void close_all() noexcept override;
   void lock_unverified(ChannelKey key) noexcept override;
   std::optional<Error> explain_no_ack() override { return link_.explain_no_ack(); }
   std::size_t exchanges() const override { return link_.exchanges(); }
+  AckTimings* ack_timings() override { return link_.pipelines() ? &timings_ : nullptr; }
 
   // Journal entries of a dead process: the channel's process-data bytes as that session found them
   // (restored instead of the idle bytes a leftover gets), and the process named in notes.
@@ -101,7 +103,7 @@ class HandshakeAccess final : public RegisterAccess {
     AckPlan ack;                 // when its first poll goes out (ack_latency.hpp)
   };
   enum class Act { none, look, send, poll, close };
-  struct Chan {
+  struct Chan : OpenChannel {
     ChannelKey key;
     TerminalImage image;
     RegisterWindow w;
@@ -109,20 +111,19 @@ class HandshakeAccess final : public RegisterAccess {
     std::size_t saved_at = 0;
     std::vector<std::uint8_t> saved;   // the channel's output bytes as found (what close puts back)
     std::vector<std::uint8_t> shadow;  // the window's output bytes [out_lo, out_hi] as last written
-    bool ready = false, closed = false, journaled = false;
+    bool ready = false, journaled = false;
     // An exchange that carried its output bytes failed: what the coupler holds of them is unknown,
     // so the close puts every byte of the window back, not only those the shadow says changed.
     bool out_unsure = false;
     unsigned close_fails = 0;  // exchanges of its close program that failed
-    unsigned users = 1;  // Channels open on it: the bytes go back when the last one closes
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
     std::optional<std::uint8_t> last_status;  // known status after our last acknowledged request
-    Program* prog = nullptr;
     std::optional<Request> req;    // in the control byte, waiting for its acknowledge
     std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
-    Link::AckTiming* timing = nullptr;
+    AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
     Clock::time_point last_poll{};
+    Clock::time_point due{};  // when the poll of this exchange was planned to go out
     // This exchange.
     Act act = Act::none;
     bool with_ahead = false, with_restore = false, look_with_send = false;
@@ -162,7 +163,12 @@ class HandshakeAccess final : public RegisterAccess {
 
   Link& link_;
   HandshakeOptions opt_;
-  std::map<ChannelKey, Chan> chans_;
+  AckTimings timings_;
+  // When the link's last exchange returned, and that time as this exchange began: a poll cannot go
+  // out before the exchange ahead of it has returned (over RTU one takes tens of milliseconds), so
+  // it is late only by what passed after both that and its planned time.
+  Clock::time_point link_free_{}, poll_floor_{};
+  OpenChannels<Chan> chans_;  // the bytes of a channel go back when its last user closes it
 };
 
 }  // namespace kscfg
