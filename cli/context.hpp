@@ -13,123 +13,13 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/resolver.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/select.hpp"
 #include "kscfg/station/station.hpp"
-
-namespace kscfg {
-
-// How a StationResolver finds the station behind a port besides the port itself.
-struct ResolverOptions {
-  // A station file that describes the station (--station; "" none): it replaces a coupler's
-  // discovery (checked against the image lengths a Modbus coupler reports), and must describe the
-  // emulator's own station. `load_station` reads and parses it; `station_name` names it in messages.
-  std::string station_file;
-  std::function<StationSpec()> load_station;
-  std::string station_name;
-  // The options of every session the resolver opens (checks, recovery, sessions it hands out).
-  std::function<SessionOptions()> session_options;
-  // -v: why a kept scan is dropped.
-  std::function<void(const std::string&)> trace;
-};
-
-// The station a run works on, resolved once: the port (open_port_uri) and its discovery, or a
-// station file; the terminals of a layout kept from an earlier run checked (their R8); what dead
-// kscfg processes left on the port finished once the layout is known.
-class StationResolver {
- public:
-  // Opens `uri` with `lo` (over ADS the access numbers terminals from this resolver's layout()).
-  StationResolver(const std::string& uri, const Catalog& catalog, LinkOptions lo, ResolverOptions ro);
-  ~StationResolver();
-
-  Link& link() { return *port_.link; }
-  Engine& engine() { return *port_.engine; }
-  StationDiscovery* discovery() { return port_.discovery.get(); }
-
-  // The whole station as laid out by the coupler: from the link, or from the station file
-  // (checked against the image lengths a Modbus coupler reports).
-  const StationLayout& layout();
-  // Terminals 1..position at least (0: all of them): a Modbus coupler is scanned only as far as
-  // that.
-  const StationLayout& layout_upto(unsigned position);
-  // As layout(), but a layout from an earlier run's scan (the scan cache) is not checked here
-  // terminal by terminal: the caller reads every terminal's R8 itself and calls
-  // forget_layout() when one differs.
-  const StationLayout& layout_unchecked();
-  // The layout covers the whole station (a scan may have walked only part of it).
-  bool layout_complete() const { return layout_complete_; }
-  // The layout comes from an earlier run's scan, validated by the image lengths only.
-  bool layout_from_cache() const;
-  // R8 of the terminal as read in this run (by the scan, or to check a cached layout).
-  std::optional<std::uint16_t> known_r8(unsigned position) const;
-  // The station is not what the layout says: drop it (and the scan cache); the next layout()
-  // scans again.
-  void forget_layout();
-  // The station with the positions of a station file that will be compared with it (diff, apply,
-  // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
-  // order and its digital terminals by bit totals (docs/design.md section 4); otherwise layout().
-  const StationLayout& layout_for(const StationSpec& file);
-  // The terminal at `position` that a command selected: a terminal of a layout kept from an earlier
-  // run tells its type (R8) first, and the session that read it on `channel` is kept for
-  // session(). False when it is another type: the layout was forgotten (forget_layout()).
-  bool check_selected(unsigned position, unsigned channel);
-  // A register session with the terminal at `position` on `channel`.
-  std::unique_ptr<RegisterSession> session(unsigned position, unsigned channel);
-  // Reads regs_of(terminal) on `channel` of every terminal in `positions` at once (Context::read_terminals).
-  std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
-      const std::vector<unsigned>& positions, unsigned channel,
-      const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
-      const std::function<void(unsigned done, unsigned total)>& progress = {});
-  // Closes the session kept from checking the selected terminal's R8 (register mode until it closes).
-  void close_kept_session() { kept_.reset(); }
-
-  // The end of the run: the kept session closed, what discovery learned kept, the station's
-  // state made durable.
-  void finish();
-
- private:
-  void set_layout(StationLayout L, bool complete);
-  // Once per run, when the layout is first known: what dead kscfg processes left on this port
-  // (their journals), checked against the layout, is finished before any session of this run.
-  void recover_dead_sessions_once();
-  // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
-  const ScanResult* scan() const { return port_.discovery ? port_.discovery->scan() : nullptr; }
-  bool check_terminal(const TerminalImage& t, bool keep, unsigned channel);
-  void check_cached_terminals();
-  // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when
-  // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
-  // any other error is thrown.
-  bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
-  SessionOptions session_options() const { return ro_.session_options ? ro_.session_options() : SessionOptions{}; }
-  void trace(const std::string& line) const {
-    if (ro_.trace) ro_.trace(line);
-  }
-
-  std::string uri_;
-  const Catalog& catalog_;
-  ResolverOptions ro_;
-  std::shared_ptr<SessionJournal> journal_;
-  OpenedPort port_;  // before the layouts, as the link was in the CLI's Context
-  std::unique_ptr<StationLayout> layout_;
-  std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
-  bool layout_complete_ = false;
-  bool recovered_ = false;
-  bool check_cached_ = true;                      // layout(): check a cached layout's R8s
-  std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
-  std::optional<StationLayout> matched_;
-  // The session that checked the selected terminal's R8, handed out by session().
-  struct Kept {
-    unsigned position = 0, channel = 0;
-    std::unique_ptr<RegisterSession> session;
-  };
-  std::optional<Kept> kept_;
-};
-
-}  // namespace kscfg
 
 namespace kscfg::cli {
 
