@@ -97,8 +97,7 @@ bool Context::several_terminals() {
   return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
 }
 
-SessionOptions Context::session_options() {
-  if (resolver_) resolver_->close_kept_session();
+SessionOptions Context::session_options() const {
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };

@@ -55,8 +55,10 @@ class Context {
   // The link named by --port (opened on first use).
   Link& link() { return resolver().link(); }
   // The station engine over the port's one register access (open_port_uri: whole-station work,
-  // every session(), the scan, the online map and journal recovery run on it).
-  Engine& engine() { return resolver().engine(); }
+  // every session(), the scan, the online map and journal recovery run on it), for a library call
+  // that may open sessions on any terminal: the session kept from checking the selected terminal's
+  // R8 is closed here (StationResolver::library_engine()).
+  Engine& engine() { return resolver().library_engine(); }
   bool link_open() const { return resolver_ != nullptr; }
   // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
   // scan, an ADS coupler's table 9; opens the link); nullptr for the emulator.
@@ -85,11 +87,9 @@ class Context {
   // The selection means several terminals (a list, a range, all, or a type several have): output
   // then names the terminal of each line, and JSON is {"terminals": [...]}.
   bool several_terminals();
-  // The options of every session of this run. A library call given them may open sessions on any
-  // terminal, so the session kept from checking the selected terminal's R8 (in register mode until
-  // it closes) is closed first: another session on that terminal would find register mode and take
-  // this run's own request for a dead session's leftover (issue 23 item 5).
-  SessionOptions session_options();
+  // The options of every session of this run (no side effect: engine() closes the session kept
+  // from checking the selected terminal's R8 before a library call opens sessions).
+  SessionOptions session_options() const;
   // The outputs a dead `kscfg data force` left forced, found with what dead processes left when the
   // layout is first known: put back (`release`: data force and data release with --yes) or named
   // in a warning; `seen` is told of each. Set before the layout is asked for.

@@ -73,6 +73,7 @@ const StationLayout& StationResolver::layout_upto(unsigned position) {
 void StationResolver::recover_dead_sessions_once() {
   if (recovered_ || !journal_ || !journal_->enabled()) return;
   recovered_ = true;
+  close_kept_session();  // recovery opens sessions on any terminal
   // The layout of the whole station may be needed (an entry beyond what this command walked): a
   // nested layout_upto() scans on, and does not come back here.
   kscfg::recover_dead_sessions(engine(), link(), catalog_, session_options(),
@@ -123,6 +124,7 @@ bool StationResolver::check_terminal(const TerminalImage& t, bool keep, unsigned
     ch = 0;
     if (t.channels.empty() || !t.channels[0].window) return true;
   }
+  close_kept_session();  // one kept session at most
   auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
   std::uint16_t r8 = 0;
   std::exception_ptr failed;
@@ -155,6 +157,7 @@ void StationResolver::check_cached_terminals() {
     bool stale = false;
     if (!jobs.empty()) {
       const StationLayout& L = *layout_;
+      close_kept_session();  // sessions on every terminal
       read_channels(engine(), L, jobs, session_options());
       for (auto& j : jobs)
         if (!r8_as_kept(L.terminal(j.position), j.error ? 0 : j.values[0], j.error)) stale = true;
@@ -243,6 +246,7 @@ std::map<unsigned, std::vector<std::uint16_t>> StationResolver::read_terminals(
     return out;
   }
   const StationLayout& L = layout_upto(*std::max_element(positions.begin(), positions.end()));
+  close_kept_session();  // sessions on every terminal in `positions`
   SessionOptions so = session_options();
   std::vector<ChannelReads> jobs;
   for (unsigned pos : positions) {

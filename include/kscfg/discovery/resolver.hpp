@@ -45,8 +45,17 @@ class StationResolver {
   ~StationResolver();
 
   Link& link() { return *port_.link; }
-  Engine& engine() { return *port_.engine; }
   StationDiscovery* discovery() { return port_.discovery.get(); }
+  // The port's engine for a library call that may open sessions on any terminal (make_plan,
+  // read_channels, the verdict, map_online, scan_station, a RegisterSession of the caller's): the
+  // session kept from checking the selected terminal's R8 (check_selected()), in register mode
+  // until it closes, is closed here first; another session on that terminal would take this run's
+  // own request for a dead session's leftover (issue 23 item 5). The sessions the resolver opens
+  // itself close it where they need to.
+  Engine& library_engine() {
+    close_kept_session();
+    return *port_.engine;
+  }
 
   // The whole station as laid out by the coupler: from the link, or from the station file
   // (checked against the image lengths a Modbus coupler reports).
@@ -77,7 +86,12 @@ class StationResolver {
   bool check_selected(unsigned position, unsigned channel);
   // A register session with the terminal at `position` on `channel`.
   std::unique_ptr<RegisterSession> session(unsigned position, unsigned channel);
-  // Reads regs_of(terminal) on `channel` of every terminal in `positions` at once (Context::read_terminals).
+  // Reads regs_of(terminal) on `channel` of every terminal in `positions` at once (the station
+  // engine, session/station_work.hpp). A terminal of a layout kept from an earlier run that was not
+  // checked yet has its R8 read ahead with its first reads; another type drops the kept scan
+  // (Error(refused), as session() does). One terminal: its session(), which goes on from the check
+  // of its type, reads them. The values by position, in the order of regs_of(); the first error
+  // in plug order is thrown.
   std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
       const std::vector<unsigned>& positions, unsigned channel,
       const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
@@ -102,6 +116,7 @@ class StationResolver {
   // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
   // any other error is thrown.
   bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
+  Engine& engine() { return *port_.engine; }  // for the resolver's own sessions
   SessionOptions session_options() const { return ro_.session_options ? ro_.session_options() : SessionOptions{}; }
   void trace(const std::string& line) const {
     if (ro_.trace) ro_.trace(line);
