@@ -60,9 +60,9 @@ class Context {
   // R8 is closed here (StationResolver::library_engine()).
   Engine& engine() { return resolver().library_engine(); }
   bool link_open() const { return resolver_ != nullptr; }
-  // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
-  // scan, an ADS coupler's table 9; opens the link); nullptr for the emulator.
-  StationDiscovery* discovery() { return resolver().discovery(); }
+  // How the station behind the port is found (a Modbus coupler's scan, an ADS coupler's table 9,
+  // the emulated station; opens the link).
+  StationDiscovery& discovery() { return resolver().discovery(); }
   // The station this run works on (StationResolver: the port opened on first use, --station).
   StationResolver& resolver();
   // The resolver's (terminal_position() and session() need no more than the terminal they select;

@@ -56,6 +56,18 @@ class AdsDiscovery : public StationDiscovery {
   bool searched_ = false;
 };
 
+// The emulator's station: the emulated coupler lays its image out itself, and tells it.
+class EmulatorDiscovery : public StationDiscovery {
+ public:
+  explicit EmulatorDiscovery(EmulatedStation& station) : station_(station) {}
+  const StationLayout* layout_upto(unsigned) override { return &station_.layout(); }
+  const StationSpec* station() override { return &station_.spec(); }
+  bool lays_out_itself() const override { return true; }
+
+ private:
+  EmulatedStation& station_;
+};
+
 // The options of the port's access and of discovery's sessions (LinkOptions::session).
 SessionOptions port_session(const LinkOptions& opt) {
   SessionOptions so = opt.session;
@@ -83,6 +95,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     OpenedPort port{std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait), nullptr, nullptr, nullptr};
     port.access = open_register_access(*port.link, port_session(opt), {});
     port.engine = std::make_unique<Engine>(*port.access);
+    port.discovery = std::make_unique<EmulatorDiscovery>(*port.link->emulator());
     return port;
   }
   if (p.scheme == "ads") {

@@ -37,18 +37,18 @@ const StationLayout& StationResolver::layout_upto(unsigned position) {
   if (layout_ && (layout_complete_ || (position && layout_->terminals.size() >= position))) return *layout_;
   // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
   // --station (checked against the image lengths it reports) or discovered by a scan.
-  Link& l = link();
+  StationDiscovery& d = *port_.discovery;
   const bool given = !ro_.station_file.empty();
-  if (given && port_.discovery) {
+  if (given && !d.lays_out_itself()) {
     StationSpec spec = ro_.load_station();
     StationLayout L = compute_layout(spec, catalog_);
-    if (auto* mb = l.modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), ro_.station_file);
+    if (auto* mb = link().modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), ro_.station_file);
     set_layout(std::move(L), true);
     recover_dead_sessions_once();
     return *layout_;
   }
-  const StationLayout* found = port_.discovery ? port_.discovery->layout_upto(position) : l.layout();
-  if (found && given && !port_.discovery) {
+  const StationLayout* found = d.layout_upto(position);
+  if (found && given) {
     // The emulator lays its station out itself; a --station FILE given with it must still be a
     // readable station file (exit 7 otherwise, as over Modbus) that describes that station.
     StationLayout described = compute_layout(ro_.load_station(), catalog_);
@@ -105,7 +105,7 @@ std::optional<std::uint16_t> StationResolver::known_r8(unsigned position) const 
 
 void StationResolver::forget_layout() {
   kept_.reset();
-  if (port_.discovery) port_.discovery->forget();
+  port_.discovery->forget();
   if (layout_) retired_.push_back(std::move(layout_));
   matched_.reset();
   layout_complete_ = false;
@@ -191,7 +191,7 @@ bool StationResolver::r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::
 }
 
 const StationLayout& StationResolver::layout_for(const StationSpec& file) {
-  if (!port_.discovery || !ro_.station_file.empty()) return layout_upto(0);
+  if (!ro_.station_file.empty()) return layout_upto(0);
   if (!matched_) {
     layout_upto(0);
     if (!scan()) return *layout_;
@@ -280,7 +280,7 @@ std::map<unsigned, std::vector<std::uint16_t>> StationResolver::read_terminals(
 
 void StationResolver::finish() {
   kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
-  if (port_.discovery) port_.discovery->save();  // the scan cache, with the latencies learned
+  port_.discovery->save();  // the scan cache, with the latencies learned
   link().commit();
 }
 

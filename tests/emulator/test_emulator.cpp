@@ -94,7 +94,7 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
   std::string path = dir.file("state/emu.json");
   {
     EmulatorLink link(path, Catalog::standard());
-    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write(32, 7);
     s.close();
     link.commit();
@@ -135,14 +135,14 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   std::size_t kl5101_at = 0;
   {
     EmulatorLink link(path, Catalog::standard());
-    kl5101_at = link.layout()->terminal(2).in_offset;
-    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    kl5101_at = link.emulated().layout().terminal(2).in_offset;
+    ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write_all({{34, 0x0001}, {35, 5}});  // standard format, 5 data bytes
     s.close();
     link.commit();
   }
   EmulatorLink link(path, Catalog::standard());
-  const auto& L = *link.layout();
+  const auto& L = link.emulated().layout();
   CHECK(L.terminal(1).format == "standard");
   CHECK(L.terminal(1).in_size == 6);  // CT/ST + D0..D4
   CHECK(L.terminal(2).in_offset == 6);

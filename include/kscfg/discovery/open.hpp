@@ -48,7 +48,7 @@ struct LinkOptions {
 };
 
 // A port opened: its link, its one register access and engine, and how the station behind it is
-// found when the link cannot tell it. Every register operation on the port (commands, the scan,
+// found. Every register operation on the port (commands, the scan,
 // the online map, journal recovery, the lock-out guard) runs on `engine`: one access per port, so a
 // channel's bytes are saved and put back once however many users it has, and over ADS no register
 // request ever goes through the process image (docs/design.md 1.2).
@@ -56,8 +56,8 @@ struct OpenedPort {
   std::unique_ptr<Link> link;
   std::unique_ptr<RegisterAccess> access;  // open_register_access(); refers to `link`
   std::unique_ptr<Engine> engine;          // over `access`
-  // A Modbus coupler's scan, an ADS coupler's table 9; nullptr when the link knows its station
-  // (the emulator: Link::layout()). Refers to `link` and `engine`, and is destroyed before them.
+  // A Modbus coupler's scan, an ADS coupler's table 9, the emulated station's own layout (never
+  // nullptr). Refers to `link` and `engine`, and is destroyed before them.
   std::unique_ptr<StationDiscovery> discovery;
 };
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);

@@ -45,7 +45,7 @@ class StationResolver {
   ~StationResolver();
 
   Link& link() { return *port_.link; }
-  StationDiscovery* discovery() { return port_.discovery.get(); }
+  StationDiscovery& discovery() { return *port_.discovery; }
   // The port's engine for a library call that may open sessions on any terminal (make_plan,
   // read_channels, the verdict, map_online, scan_station, a RegisterSession of the caller's): the
   // session kept from checking the selected terminal's R8 (check_selected()), in register mode
@@ -109,7 +109,7 @@ class StationResolver {
   // (their journals), checked against the layout, is finished before any session of this run.
   void recover_dead_sessions_once();
   // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
-  const ScanResult* scan() const { return port_.discovery ? port_.discovery->scan() : nullptr; }
+  const ScanResult* scan() const { return port_.discovery->scan(); }
   bool check_terminal(const TerminalImage& t, bool keep, unsigned channel);
   void check_cached_terminals();
   // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when

@@ -1,5 +1,5 @@
-// How the station behind a coupler is found when the link cannot tell it (Modbus: a scan; ADS: the
-// coupler's table 9). Owned above the link (docs/design.md section 1): a Link only moves bytes,
+// How the station behind a port is found (Modbus: a scan; ADS: the coupler's table 9; the emulator:
+// its emulated station). Owned above the link (docs/design.md section 1): a Link only moves bytes,
 // and discovery, which opens register sessions on that link, runs beside it, never inside it.
 #pragma once
 
@@ -19,6 +19,10 @@ class StationDiscovery {
   const StationLayout* layout() { return layout_upto(0); }
   // The terminals found, as a station file would list them (nullptr: none).
   virtual const StationSpec* station() = 0;
+  // The station behind the port lays its image out itself and says so (the emulator): a station
+  // file given with it must describe that station. A coupler's discovery (false) gives way to a
+  // station file.
+  virtual bool lays_out_itself() const { return false; }
   // What a Modbus scan found so far (nullptr: nothing yet, or not a Modbus coupler).
   virtual const ScanResult* scan() const { return nullptr; }
   // The station is not what was found (a terminal reports another type): find it again.

@@ -146,8 +146,6 @@ class EmulatorLink : public Link {
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   void pause(unsigned poll_number) override;
-  const StationLayout* layout() override { return &station_->layout(); }
-  const StationSpec* station() override { return &station_->spec(); }
   void commit() override;
   EmulatedStation& emulated() { return *station_; }
   EmulatedStation* emulator() override { return station_; }

@@ -8,8 +8,6 @@
 #include <string>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/station/layout.hpp"
-#include "kscfg/station/station.hpp"
 
 namespace kscfg {
 
@@ -92,13 +90,6 @@ class Link {
   // that pipelines, the reads see the image as it was before the terminals saw the writes.
   // Default: each output span written, then one read covering every input span.
   virtual void transfer(std::span<const ImageTransfer> t);
-
-  // The station behind the link as the coupler laid it out, when the link itself knows it (the
-  // emulator). A coupler's station is found above the link (discovery/station_discovery.hpp: a
-  // Modbus scan, an ADS coupler's table 9) or given by a station file.
-  // The pointer stays valid as long as the link.
-  virtual const StationLayout* layout() { return nullptr; }
-  virtual const StationSpec* station() { return nullptr; }
 
   // A terminal did not acknowledge: the link may know a cause beyond the terminal (a coupler
   // whose watchdog switched the outputs off). Returns the error to report instead, if any.
