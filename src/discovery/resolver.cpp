@@ -281,7 +281,7 @@ std::map<unsigned, std::vector<std::uint16_t>> StationResolver::read_terminals(
 void StationResolver::finish() {
   kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
   port_.discovery->save();  // the scan cache, with the latencies learned
-  link().commit();
+  port_.commit();  // the emulator's state file
 }
 
 }  // namespace kscfg

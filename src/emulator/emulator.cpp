@@ -364,8 +364,7 @@ bool EmulatorStore::save_text(const std::string& text) {
 // ---------------------------------------------------------------------------------------------
 // EmulatorLink
 
-EmulatorLink::EmulatorLink(std::string path, const Catalog& catalog, const LockWait& wait)
-    : store_(std::make_unique<EmulatorStore>(std::move(path), catalog, wait)), station_(&store_->station()) {}
+EmulatorLink::EmulatorLink(EmulatorStore& store) : store_(&store), station_(&store.station()) {}
 
 EmulatorLink::EmulatorLink(EmulatedStation& station) : station_(&station) {}
 
@@ -405,10 +404,6 @@ void EmulatorLink::pause(unsigned poll_number) {
   // The emulated K-bus runs on every read; only a terminal that does not answer makes the
   // caller poll long, and then there is no need to spin.
   if (poll_number > 64) std::this_thread::sleep_for(std::chrono::microseconds(200));
-}
-
-void EmulatorLink::commit() {
-  if (store_) store_->save();
 }
 
 }  // namespace kscfg

@@ -93,23 +93,25 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
   test::TempDir dir;
   std::string path = dir.file("state/emu.json");
   {
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write(32, 7);
     s.close();
-    link.commit();
+    store.save();
   }
   CHECK(std::filesystem::exists(path));
   for (const auto& e : std::filesystem::directory_iterator(dir.file("state")))
     CHECK(e.path().string().find(".tmp.") == std::string::npos);
   {
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     CHECK(link.emulated().channel(1, 0).registers()[32] == 7);
   }
   SECTION("a corrupt file is reported, not replaced") {
     test::write_text(path, "{ not json");
     try {
-      EmulatorLink link(path, Catalog::standard());
+      EmulatorStore store(path, Catalog::standard());
       FAIL("no error");
     } catch (const Error& e) {
       CHECK(e.code() == Exit::file);
@@ -118,14 +120,15 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
     }
     CHECK(test::read_text(path) == "{ not json");
     reset_emulator_state(path, default_station(), Catalog::standard());
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     CHECK(link.emulated().channel(1, 0).registers()[32] == 6);
   }
   SECTION("a valid JSON that is not a station state is corrupt too") {
     auto j = nlohmann::json::parse(test::read_text(path));
     j["channels"][0]["registers"][32] = 70000;
     test::write_text(path, j.dump());
-    CHECK_THROWS_AS(EmulatorLink(path, Catalog::standard()), Error);
+    CHECK_THROWS_AS(EmulatorStore(path, Catalog::standard()), Error);
   }
 }
 
@@ -134,14 +137,16 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   std::string path = dir.file("emu.json");
   std::size_t kl5101_at = 0;
   {
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     kl5101_at = link.emulated().layout().terminal(2).in_offset;
     ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write_all({{34, 0x0001}, {35, 5}});  // standard format, 5 data bytes
     s.close();
-    link.commit();
+    store.save();
   }
-  EmulatorLink link(path, Catalog::standard());
+  EmulatorStore store(path, Catalog::standard());
+  EmulatorLink link(store);
   const auto& L = link.emulated().layout();
   CHECK(L.terminal(1).format == "standard");
   CHECK(L.terminal(1).in_size == 6);  // CT/ST + D0..D4

@@ -101,9 +101,6 @@ class Link {
   // of the last ones a journal keeps (docs/design.md 6.2).
   virtual bool proven_dead() const { return false; }
 
-  // Makes the station's state durable (emulator: saves its state file). Called once at the end.
-  virtual void commit() {}
-
   // Capabilities: what callers need of one kind of link, asked for instead of a downcast (as
   // libmodbus keeps one backend table per transport); nullptr when the link has none.
   // A Modbus coupler's registers beyond the image (identification, image lengths, watchdog).
