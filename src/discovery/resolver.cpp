@@ -58,7 +58,7 @@ const StationLayout& StationResolver::layout_upto(unsigned position) {
                         ro_.station_name);
   }
   if (found) {
-    set_layout(*found, !scan() || scan()->complete);
+    set_layout(*found, d.complete());
     recover_dead_sessions_once();
     if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
   } else if (given) {
@@ -93,14 +93,13 @@ const StationLayout& StationResolver::layout_unchecked() {
 }
 
 bool StationResolver::layout_from_cache() const {
-  return layout_ && ro_.station_file.empty() && scan() && scan()->from_cache;
+  return layout_ && ro_.station_file.empty() && port_.discovery->kept();
 }
 
 std::optional<std::uint16_t> StationResolver::known_r8(unsigned position) const {
   if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
-  if (ro_.station_file.empty() && scan() && !scan()->from_cache && position >= 1 && position <= scan()->r8.size())
-    return static_cast<std::uint16_t>(scan()->r8[position - 1]);
-  return std::nullopt;
+  if (!ro_.station_file.empty()) return std::nullopt;
+  return port_.discovery->r8(position);
 }
 
 void StationResolver::forget_layout() {
@@ -194,8 +193,8 @@ const StationLayout& StationResolver::layout_for(const StationSpec& file) {
   if (!ro_.station_file.empty()) return layout_upto(0);
   if (!matched_) {
     layout_upto(0);
-    if (!scan()) return *layout_;
-    matched_ = match_scan(*scan(), file, catalog_);
+    matched_ = port_.discovery->match(file);
+    if (!matched_) return *layout_;
   }
   return *matched_;
 }

@@ -57,8 +57,8 @@ class StationResolver {
     return *port_.engine;
   }
 
-  // The whole station as laid out by the coupler: from the link, or from the station file
-  // (checked against the image lengths a Modbus coupler reports).
+  // The whole station as laid out by the coupler: from the port's discovery, or from the station
+  // file (checked against the image lengths a Modbus coupler reports).
   const StationLayout& layout();
   // Terminals 1..position at least (0: all of them): a Modbus coupler is scanned only as far as
   // that.
@@ -108,8 +108,6 @@ class StationResolver {
   // Once per run, when the layout is first known: what dead kscfg processes left on this port
   // (their journals), checked against the layout, is finished before any session of this run.
   void recover_dead_sessions_once();
-  // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
-  const ScanResult* scan() const { return port_.discovery->scan(); }
   bool check_terminal(const TerminalImage& t, bool keep, unsigned channel);
   void check_cached_terminals();
   // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when
