@@ -65,8 +65,8 @@ Scene scene_of(const ArgvWalk& w, const Catalog& cat) {
       // (a serve holding it): completion goes on from the catalog alone.
       LinkOptions lo;
       lo.lock_wait.limit = std::chrono::milliseconds(0);
-      auto link = open_link(port, cat, lo);
-      if (const StationLayout* l = link->layout()) s.layout = *l;
+      OpenedPort opened = open_port_uri(port, cat, lo);
+      if (const StationLayout* l = opened.discovery->layout()) s.layout = *l;
     }
   } catch (const std::exception&) {
     // an unreadable station: complete from the catalog alone

@@ -27,8 +27,8 @@ Context::~Context() = default;
 
 const Catalog& Context::catalog() const { return Catalog::standard(); }
 
-Link& Context::link() {
-  if (!link_) {
+StationResolver& Context::resolver() {
+  if (!resolver_) {
     LinkOptions lo;
     lo.timeout_ms = opt_.timeout_ms;
     if (opt_.verbose) lo.trace = [this](const std::string& s) { trace(s); };
@@ -38,205 +38,17 @@ Link& Context::link() {
     lo.journal_dir = state_dir() + "/sessions";
     lo.lock_wait = lock_wait();
     lo.session = session_options();
-    // ADS: terminals are numbered on port 100 from the station this command uses (--station too).
-    lo.layout = [this]() -> const StationLayout& { return layout(); };
     lo.cancel = opt_.cancel;
-    OpenedPort port = open_port_uri(opt_.port, catalog(), lo);
-    link_ = std::move(port.link);
-    access_ = std::move(port.access);
-    engine_ = std::move(port.engine);
-    discovery_ = std::move(port.discovery);
-    if (opt_.verbose) trace(fmt::format("link {}", link_->describe()));
+    ResolverOptions ro;
+    ro.station_file = opt_.station;
+    ro.load_station = [this] { return load_station_arg(opt_.station, catalog()); };
+    ro.station_name = input_name(opt_.station);
+    ro.session_options = [this] { return session_options(); };
+    if (opt_.verbose) ro.trace = [this](const std::string& s) { trace(s); };
+    resolver_ = std::make_unique<StationResolver>(opt_.port, catalog(), std::move(lo), std::move(ro));
+    if (opt_.verbose) trace(fmt::format("link {}", resolver_->link().describe()));
   }
-  return *link_;
-}
-
-StationDiscovery* Context::discovery() {
-  link();
-  return discovery_.get();
-}
-
-Engine& Context::engine() {
-  link();  // the port's one access and engine come with it (open_port_uri)
-  return *engine_;
-}
-
-void Context::set_layout(StationLayout L, bool complete) {
-  // Sessions may point into the layout they were opened with: an older one stays alive.
-  if (layout_) retired_.push_back(std::move(layout_));
-  layout_ = std::make_unique<StationLayout>(std::move(L));
-  layout_complete_ = complete;
-}
-
-const StationLayout& Context::layout() {
-  if (layout_ && layout_complete_) return *layout_;
-  return layout_upto(0);
-}
-
-const StationLayout& Context::layout_upto(unsigned position) {
-  if (layout_ && (layout_complete_ || (position && layout_->terminals.size() >= position))) return *layout_;
-  // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
-  // --station (checked against the image lengths it reports) or discovered by a scan.
-  Link& l = link();
-  if (!opt_.station.empty() && discovery_) {
-    StationSpec spec = load_station_arg(opt_.station, catalog());
-    StationLayout L = compute_layout(spec, catalog());
-    if (auto* mb = l.modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), opt_.station);
-    else discovery_->check_described(L, spec, input_name(opt_.station));
-    set_layout(std::move(L), true);
-    recover_dead_sessions_once();
-    return *layout_;
-  }
-  const StationLayout* found = discovery_ ? discovery_->layout_upto(position) : l.layout();
-  if (found && !opt_.station.empty() && !discovery_) {
-    // The emulator lays its station out itself; a --station FILE given with it must still be a
-    // readable station file (exit 7 otherwise, as over Modbus) that describes that station.
-    StationLayout described = compute_layout(load_station_arg(opt_.station, catalog()), catalog());
-    check_image_lengths(described,
-                        {static_cast<unsigned>(found->complex_out * 8), static_cast<unsigned>(found->complex_in * 8),
-                         static_cast<unsigned>(found->digital_out_bits), static_cast<unsigned>(found->digital_in_bits)},
-                        input_name(opt_.station));
-  }
-  if (found) {
-    set_layout(*found, !scan() || scan()->complete);
-    recover_dead_sessions_once();
-    if (position == 0 && check_cached_ && layout_from_cache()) check_cached_terminals();
-  } else if (!opt_.station.empty()) {
-    set_layout(compute_layout(load_station_arg(opt_.station, catalog()), catalog()), true);
-  } else {
-    throw Error(Exit::usage, fmt::format("the layout of the station behind '{}' is unknown", opt_.port),
-                "give --station FILE, or run 'kscfg scan'");
-  }
-  return *layout_;
-}
-
-void Context::recover_dead_sessions_once() {
-  if (recovered_ || !journal_->enabled()) return;
-  recovered_ = true;
-  // The layout of the whole station may be needed (an entry beyond what this command walked): a
-  // nested layout_upto() scans on, and does not come back here.
-  kscfg::recover_dead_sessions(engine(), link(), catalog(), session_options(),
-                               [this](unsigned upto) -> const StationLayout& { return layout_upto(upto); });
-}
-
-const StationLayout& Context::layout_unchecked() {
-  check_cached_ = false;
-  try {
-    const StationLayout& L = layout();
-    check_cached_ = true;
-    return L;
-  } catch (...) {
-    check_cached_ = true;
-    throw;
-  }
-}
-
-bool Context::layout_from_cache() const {
-  return layout_ && opt_.station.empty() && scan() && scan()->from_cache;
-}
-
-std::optional<std::uint16_t> Context::known_r8(unsigned position) const {
-  if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
-  if (opt_.station.empty() && scan() && !scan()->from_cache && position >= 1 && position <= scan()->r8.size())
-    return static_cast<std::uint16_t>(scan()->r8[position - 1]);
-  return std::nullopt;
-}
-
-void Context::forget_layout() {
-  kept_.reset();
-  if (discovery_) discovery_->forget();
-  if (layout_) retired_.push_back(std::move(layout_));
-  matched_.reset();
-  layout_complete_ = false;
-  checked_r8_.clear();
-}
-
-// A layout from the scan cache was validated by the image lengths only: a terminal replaced by
-// another type of the same size would go unnoticed. So before kscfg relies on it, a terminal
-// tells its type (R8) once per run; on a difference the station is scanned again. Returns false
-// then. With `keep`, the session that read R8 on the selected channel is kept for session().
-bool Context::check_terminal(const TerminalImage& t, bool keep) {
-  if (checked_r8_.count(t.position) || !t.type->has_registers) return true;
-  unsigned ch = opt_.channel - 1;
-  bool own = keep && ch < t.type->channels && ch < t.channels.size() && t.channels[ch].window;
-  if (!own) {
-    ch = 0;
-    if (t.channels.empty() || !t.channels[0].window) return true;
-  }
-  auto s = std::make_unique<RegisterSession>(engine(), t, ch, session_options());
-  std::uint16_t r8 = 0;
-  std::exception_ptr failed;
-  try {
-    r8 = s->read(8);  // ROM: a read of R8 later in the session costs nothing
-  } catch (const Error&) {
-    failed = std::current_exception();
-  }
-  if (!r8_as_kept(t, r8, failed)) {
-    s->close();
-    return false;
-  }
-  if (own) kept_ = Kept{t.position, ch, std::move(s)};
-  else s->close();
-  return true;
-}
-
-void Context::check_cached_terminals() {
-  // Every terminal's R8 at once (the station engine): one run of exchanges for the station.
-  for (int round = 0; round < 2 && layout_from_cache(); ++round) {
-    std::vector<ChannelReads> jobs;
-    for (const auto& t : layout_->terminals) {
-      if (checked_r8_.count(t.position) || !t.type->has_registers) continue;
-      if (t.channels.empty() || !t.channels[0].window) continue;
-      ChannelReads j;
-      j.position = t.position;
-      j.regs = {8};
-      jobs.push_back(std::move(j));
-    }
-    bool stale = false;
-    if (!jobs.empty()) {
-      const StationLayout& L = *layout_;
-      read_channels(engine(), L, jobs, session_options());
-      for (auto& j : jobs)
-        if (!r8_as_kept(L.terminal(j.position), j.error ? 0 : j.values[0], j.error)) stale = true;
-    }
-    if (!stale) return;
-    bool complete = layout_complete_;
-    forget_layout();
-    layout_upto(complete ? 0 : 1);
-  }
-}
-
-bool Context::r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error) {
-  if (error) {
-    try {
-      std::rethrow_exception(error);
-    } catch (const Error& e) {
-      // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
-      // image lengths move every window (issue 21 item 6). The station is not what was kept.
-      if (e.code() != Exit::timeout) throw;
-      if (opt_.verbose)
-        trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
-                          t.position, t.type->type, e.what()));
-      checked_r8_[t.position] = 0;
-      return false;
-    }
-  }
-  checked_r8_[t.position] = r8;
-  if (r8 == t.type->r8) return true;
-  if (opt_.verbose)
-    trace(fmt::format("terminal {} reports type {} in R8, the scan cache says {}; scanning again", t.position, r8,
-                      t.type->type));
-  return false;
-}
-
-const StationLayout& Context::layout_for(const StationSpec& file) {
-  if (!discovery() || !opt_.station.empty()) return layout_upto(0);
-  if (!matched_) {
-    layout_upto(0);
-    if (!scan()) return *layout_;
-    matched_ = match_scan(*scan(), file, catalog());
-  }
-  return *matched_;
+  return *resolver_;
 }
 
 unsigned Context::select_position() {
@@ -259,17 +71,14 @@ unsigned Context::select_position() {
     const auto& L = layout_upto(n);
     for (const auto& t : L.terminals)
       if (t.type->has_registers) return t.position;
-    if (layout_complete_ || L.terminals.size() < n) break;
+    if (resolver().layout_complete() || L.terminals.size() < n) break;
   }
   throw Error(Exit::usage, "the station has no terminal with registers");
 }
 
 unsigned Context::terminal_position() {
   unsigned pos = select_position();
-  if (layout_from_cache() && !check_terminal(layout_->terminal(pos), true)) {
-    forget_layout();
-    pos = select_position();  // from a fresh scan now
-  }
+  if (!resolver().check_selected(pos, opt_.channel - 1)) pos = select_position();  // from a fresh scan now
   return pos;
 }
 
@@ -288,8 +97,7 @@ bool Context::several_terminals() {
   return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
 }
 
-SessionOptions Context::session_options() {
-  kept_.reset();
+SessionOptions Context::session_options() const {
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(opt_.timeout_ms);
   if (opt_.verbose) so.trace = [this](const std::string& s) { trace(s); };
@@ -334,76 +142,12 @@ LockWait Context::lock_wait() const {
 
 std::unique_ptr<RegisterSession> Context::session() { return session(terminal_position()); }
 
-std::unique_ptr<RegisterSession> Context::session(unsigned pos) {
-  unsigned ch = opt_.channel - 1;
-  if (kept_ && kept_->position == pos && kept_->channel == ch) {
-    auto s = std::move(kept_->session);
-    kept_.reset();
-    return s;
-  }
-  kept_.reset();
-  const TerminalImage& t = register_terminal(layout_upto(pos), pos, ch);
-  if (layout_from_cache() && !check_terminal(t, false)) {
-    // (terminal_position() and the whole-station layout() check before anyone gets here)
-    std::string was = t.type->type;
-    std::uint16_t r8 = checked_r8_[pos];
-    forget_layout();
-    throw Error(Exit::refused,
-                r8 ? fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8,
-                                 was)
-                   : fmt::format("terminal {} does not answer where the scan kept from an earlier run puts its {}", pos,
-                                 was),
-                "the station changed; the kept scan was dropped: run the command again");
-  }
-  return std::make_unique<RegisterSession>(engine(), t, ch, session_options());
-}
+std::unique_ptr<RegisterSession> Context::session(unsigned pos) { return resolver().session(pos, opt_.channel - 1); }
 
 std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
     const std::vector<unsigned>& positions, const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
     const std::function<void(unsigned, unsigned)>& progress) {
-  std::map<unsigned, std::vector<std::uint16_t>> out;
-  if (positions.empty()) return out;
-  if (positions.size() == 1) {
-    // One terminal: the session that checked its type goes on.
-    auto s = session(positions[0]);
-    auto regs = regs_of(s->terminal());
-    auto total = static_cast<unsigned>(regs.size());
-    std::function<void(std::size_t)> each;
-    if (progress) each = [&](std::size_t i) { progress(static_cast<unsigned>(i), total); };
-    out[positions[0]] = s->read_then_close(regs, each);
-    return out;
-  }
-  const StationLayout& L = layout_upto(*std::max_element(positions.begin(), positions.end()));
-  SessionOptions so = session_options();
-  unsigned ch = opt_.channel - 1;
-  std::vector<ChannelReads> jobs;
-  for (unsigned pos : positions) {
-    const TerminalImage& t = register_terminal(L, pos, ch);
-    ChannelReads j;
-    j.position = pos;
-    j.channel = ch;
-    j.regs = regs_of(t);
-    if (layout_from_cache() && !checked_r8_.count(pos)) j.expect_r8 = t.type->r8;
-    jobs.push_back(std::move(j));
-  }
-  read_channels(engine(), L, jobs, so, progress);
-  for (auto& j : jobs) {
-    if (j.error) {
-      try {
-        std::rethrow_exception(j.error);
-      } catch (const TypeChanged& e) {
-        std::string was = L.terminal(j.position).type->type;
-        forget_layout();
-        throw Error(Exit::refused,
-                    fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}",
-                                j.position, e.r8(), was),
-                    "the station changed; the kept scan was dropped: run the command again");
-      }
-    }
-    if (j.expect_r8) checked_r8_[j.position] = *j.expect_r8;
-    out[j.position] = std::move(j.values);
-  }
-  return out;
+  return resolver().read_terminals(positions, opt_.channel - 1, regs_of, progress);
 }
 
 nlohmann::json Context::link_json() {
@@ -414,9 +158,7 @@ nlohmann::json Context::link_json() {
 }
 
 void Context::finish() {
-  kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
-  if (discovery_) discovery_->save();  // the scan cache, with the latencies learned
-  if (link_) link_->commit();
+  if (resolver_) resolver_->finish();
 }
 
 void Context::trace(const std::string& line) const { std::cerr << "kscfg: " << line << '\n'; }

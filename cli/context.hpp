@@ -13,6 +13,7 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/resolver.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
@@ -52,35 +53,29 @@ class Context {
   const Catalog& catalog() const;
 
   // The link named by --port (opened on first use).
-  Link& link();
+  Link& link() { return resolver().link(); }
   // The station engine over the port's one register access (open_port_uri: whole-station work,
-  // every session(), the scan, the online map and journal recovery run on it).
-  Engine& engine();
-  bool link_open() const { return link_ != nullptr; }
-  // How the station behind the port is found when the link cannot tell it (a Modbus coupler's
-  // scan, an ADS coupler's table 9; opens the link); nullptr for the emulator.
-  StationDiscovery* discovery();
-  // The whole station as laid out by the coupler: from the link, or from --station (checked
-  // against the image lengths a Modbus coupler reports).
-  const StationLayout& layout();
-  // Terminals 1..position at least (0: all of them): a Modbus coupler is scanned only as far as
-  // that (terminal_position() and session() need no more than the terminal they select).
-  const StationLayout& layout_upto(unsigned position);
-  // As layout(), but a layout from an earlier run's scan (the scan cache) is not checked here
-  // terminal by terminal: the caller reads every terminal's R8 itself and calls
-  // forget_layout() when one differs (info).
-  const StationLayout& layout_unchecked();
-  // The layout comes from an earlier run's scan, validated by the image lengths only.
-  bool layout_from_cache() const;
-  // R8 of the terminal as read in this run (by the scan, or to check a cached layout).
-  std::optional<std::uint16_t> known_r8(unsigned position) const;
-  // The station is not what the layout says: drop it (and the scan cache); the next layout()
-  // scans again.
-  void forget_layout();
-  // The station with the positions of a station file that will be compared with it (diff, apply,
-  // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
-  // order and its digital terminals by bit totals (docs/design.md section 4); otherwise layout().
-  const StationLayout& layout_for(const StationSpec& file);
+  // every session(), the scan, the online map and journal recovery run on it), for a library call
+  // that may open sessions on any terminal: the session kept from checking the selected terminal's
+  // R8 is closed here (StationResolver::library_engine()).
+  Engine& engine() { return resolver().library_engine(); }
+  bool link_open() const { return resolver_ != nullptr; }
+  // How the station behind the port is found (a Modbus coupler's scan, an ADS coupler's table 9,
+  // the emulated station; opens the link).
+  StationDiscovery& discovery() { return resolver().discovery(); }
+  // The station this run works on (StationResolver: the port opened on first use, --station).
+  StationResolver& resolver();
+  // The resolver's (terminal_position() and session() need no more than the terminal they select;
+  // info reads every R8 itself with layout_unchecked()).
+  const StationLayout& layout() { return resolver().layout(); }
+  const StationLayout& layout_upto(unsigned position) { return resolver().layout_upto(position); }
+  const StationLayout& layout_unchecked() { return resolver().layout_unchecked(); }
+  bool layout_from_cache() const { return resolver_ && resolver_->layout_from_cache(); }
+  std::optional<std::uint16_t> known_r8(unsigned position) const {
+    return resolver_ ? resolver_->known_r8(position) : std::nullopt;
+  }
+  void forget_layout() { resolver().forget_layout(); }
+  const StationLayout& layout_for(const StationSpec& file) { return resolver().layout_for(file); }
   // -t was given.
   bool terminal_given() const { return !opt_.selection.empty(); }
   // The one terminal -t selects: a position, or a type the station has once (several are an
@@ -92,11 +87,9 @@ class Context {
   // The selection means several terminals (a list, a range, all, or a type several have): output
   // then names the terminal of each line, and JSON is {"terminals": [...]}.
   bool several_terminals();
-  // The options of every session of this run. A library call given them may open sessions on any
-  // terminal, so the session kept from checking the selected terminal's R8 (in register mode until
-  // it closes) is closed first: another session on that terminal would find register mode and take
-  // this run's own request for a dead session's leftover (issue 23 item 5).
-  SessionOptions session_options();
+  // The options of every session of this run (no side effect: engine() closes the session kept
+  // from checking the selected terminal's R8 before a library call opens sessions).
+  SessionOptions session_options() const;
   // The outputs a dead `kscfg data force` left forced, found with what dead processes left when the
   // layout is first known: put back (`release`: data force and data release with --yes) or named
   // in a warning; `seen` is told of each. Set before the layout is asked for.
@@ -133,19 +126,7 @@ class Context {
   nlohmann::json link_json();
 
  private:
-  void set_layout(StationLayout L, bool complete);
-  // Once per run, when the layout is first known: what dead kscfg processes left on this port
-  // (their journals), checked against the layout, is finished before any session of this run.
-  void recover_dead_sessions_once();
-  // What a scan of a Modbus coupler found so far (nullptr: none, or no Modbus coupler).
-  const ScanResult* scan() const { return discovery_ ? discovery_->scan() : nullptr; }
   unsigned select_position();
-  bool check_terminal(const TerminalImage& t, bool keep);
-  void check_cached_terminals();
-  // Judges the R8 that terminal `t` of a kept scan answered (`error`: the read failed): true when
-  // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
-  // any other error is thrown.
-  bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
 
   GlobalOptions opt_;
   // Before link_: sessions left open note it at exit. It exists from the start, so that every
@@ -154,25 +135,9 @@ class Context {
   // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
-  std::unique_ptr<Link> link_;
-  std::unique_ptr<RegisterAccess> access_;  // after link_: destroyed before it
-  std::unique_ptr<Engine> engine_;
-  std::unique_ptr<StationDiscovery> discovery_;  // after engine_: destroyed before it
-  std::unique_ptr<StationLayout> layout_;
-  std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
-  bool layout_complete_ = false;
-  bool recovered_ = false;
   bool release_forced_ = false;                        // release_forced()
   std::function<void(const DeadForce&)> dead_force_;  // release_forced()
-  bool check_cached_ = true;                      // layout(): check a cached layout's R8s
-  std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
-  std::optional<StationLayout> matched_;
-  // The session that checked the selected terminal's R8, handed out by session().
-  struct Kept {
-    unsigned position = 0, channel = 0;
-    std::unique_ptr<RegisterSession> session;
-  };
-  std::optional<Kept> kept_;
+  std::unique_ptr<StationResolver> resolver_;  // the port, opened on first use
 };
 
 // A station file named on the command line ("-": stdin); read errors carry the OS reason.

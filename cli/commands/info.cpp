@@ -121,7 +121,7 @@ class Info : public Command {
     }
     // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
     // Modbus the digital terminals, seen only as bit totals.
-    bool discovered = ctx.discovery() && ctx.options().station.empty() && !ctx.terminal_given();
+    bool discovered = !ctx.discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
     std::string digital = L.unidentified_digital();
     if (discovered)
       rows.push_back({"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});

@@ -167,7 +167,7 @@ class Map : public Command {
       if (!current.image_refused.empty()) notes.push_back(current.image_refused);
       StationSpec spec;
       if (!station_file.empty()) spec = load_station_arg(station_file, cat);
-      else if (const StationSpec* s = ctx.discovery() ? ctx.discovery()->station() : ctx.link().station()) spec = *s;
+      else if (const StationSpec* s = ctx.discovery().station()) spec = *s;
       else
         throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),
                     "give --station FILE --online, or terminal types for an offline map");

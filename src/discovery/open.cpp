@@ -104,6 +104,18 @@ class AdsDiscovery : public StationDiscovery {
   bool searched_ = false;
 };
 
+// The emulator's station: the emulated coupler lays its image out itself, and tells it.
+class EmulatorDiscovery : public StationDiscovery {
+ public:
+  explicit EmulatorDiscovery(EmulatedStation& station) : station_(station) {}
+  const StationLayout* layout_upto(unsigned) override { return &station_.layout(); }
+  const StationSpec* station() override { return &station_.spec(); }
+  bool lays_out_itself() const override { return true; }
+
+ private:
+  EmulatedStation& station_;
+};
+
 // The options of the port's access and of discovery's sessions (LinkOptions::session).
 SessionOptions port_session(const LinkOptions& opt) {
   SessionOptions so = opt.session;
@@ -128,9 +140,12 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
     std::string path = p.target.empty() ? EmulatorStore::default_path() : p.target;
-    OpenedPort port{std::make_unique<EmulatorLink>(path, catalog, opt.lock_wait), nullptr, nullptr, nullptr};
+    OpenedPort port;
+    port.emulator = std::make_unique<EmulatorStore>(path, catalog, opt.lock_wait);
+    port.link = std::make_unique<EmulatorLink>(*port.emulator);
     port.access = open_register_access(*port.link, port_session(opt), {});
     port.engine = std::make_unique<Engine>(*port.access);
+    port.discovery = std::make_unique<EmulatorDiscovery>(*port.link->emulator());
     return port;
   }
   if (p.scheme == "ads") {
@@ -152,7 +167,8 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     if (opt.journal && !opt.journal_dir.empty())
       opt.journal->open(opt.journal_dir, station_key(target));
     auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel);
-    OpenedPort port{std::move(link), nullptr, nullptr, nullptr};
+    OpenedPort port;
+    port.link = std::move(link);
     SessionOptions so = port_session(opt);
     std::function<const StationLayout&()> layout = opt.layout;
     if (!layout)
@@ -188,15 +204,16 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   // session's register mode, finished by the scan's session).
   SessionOptions so = port_session(opt);
   ModbusLink& ml = *link;
-  OpenedPort port{std::move(link), nullptr, nullptr, nullptr};
+  OpenedPort port;
+  port.link = std::move(link);
   port.access = open_register_access(ml, so, {});
   port.engine = std::make_unique<Engine>(*port.access);
   port.discovery = discover_by_scan(ml, *port.engine, catalog, so, d);
   return port;
 }
 
-std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
-  return open_port_uri(uri, catalog, opt).link;
+void OpenedPort::commit() {
+  if (emulator) emulator->save();
 }
 
 std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,

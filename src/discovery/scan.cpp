@@ -11,6 +11,7 @@
 #include <set>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/session/ack_latency.hpp"
 #include "kscfg/station/map.hpp"
@@ -422,7 +423,16 @@ class ScanDiscovery : public StationDiscovery {
 
   const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
 
-  const ScanResult* scan() const override { return found_; }
+  bool complete() const override { return !found_ || found_->complete; }
+  bool kept() const override { return found_ && found_->from_cache; }
+  std::optional<std::uint16_t> r8(unsigned position) const override {
+    if (!found_ || found_->from_cache || position < 1 || position > found_->r8.size()) return std::nullopt;
+    return static_cast<std::uint16_t>(found_->r8[position - 1]);
+  }
+  std::optional<StationLayout> match(const StationSpec& file) override {
+    if (!found_) return std::nullopt;
+    return match_scan(*found_, file, catalog_);
+  }
 
   void forget() override {
     trace("the scan does not describe the station any more; scanning again");

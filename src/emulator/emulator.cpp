@@ -399,8 +399,7 @@ bool EmulatorStore::save_text(const std::string& text) {
 // ---------------------------------------------------------------------------------------------
 // EmulatorLink
 
-EmulatorLink::EmulatorLink(std::string path, const Catalog& catalog, const LockWait& wait)
-    : store_(std::make_unique<EmulatorStore>(std::move(path), catalog, wait)), station_(&store_->station()) {}
+EmulatorLink::EmulatorLink(EmulatorStore& store) : store_(&store), station_(&store.station()) {}
 
 EmulatorLink::EmulatorLink(EmulatedStation& station) : station_(&station) {}
 
@@ -440,10 +439,6 @@ std::chrono::microseconds EmulatorLink::poll_gap(unsigned poll_number) const {
   // The emulated K-bus runs on every read; only a terminal that does not answer makes the
   // caller poll long, and then there is no need to spin.
   return std::chrono::microseconds(poll_number > 64 ? 200 : 0);
-}
-
-void EmulatorLink::commit() {
-  if (store_) store_->save();
 }
 
 }  // namespace kscfg

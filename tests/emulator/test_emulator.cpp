@@ -93,23 +93,25 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
   test::TempDir dir;
   std::string path = dir.file("state/emu.json");
   {
-    EmulatorLink link(path, Catalog::standard());
-    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
+    ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write(32, 7);
     s.close();
-    link.commit();
+    store.save();
   }
   CHECK(std::filesystem::exists(path));
   for (const auto& e : std::filesystem::directory_iterator(dir.file("state")))
     CHECK(e.path().string().find(".tmp.") == std::string::npos);
   {
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     CHECK(link.emulated().channel(1, 0).registers()[32] == 7);
   }
   SECTION("a corrupt file is reported, not replaced") {
     test::write_text(path, "{ not json");
     try {
-      EmulatorLink link(path, Catalog::standard());
+      EmulatorStore store(path, Catalog::standard());
       FAIL("no error");
     } catch (const Error& e) {
       CHECK(e.code() == Exit::file);
@@ -118,14 +120,15 @@ TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
     }
     CHECK(test::read_text(path) == "{ not json");
     reset_emulator_state(path, default_station(), Catalog::standard());
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     CHECK(link.emulated().channel(1, 0).registers()[32] == 6);
   }
   SECTION("a valid JSON that is not a station state is corrupt too") {
     auto j = nlohmann::json::parse(test::read_text(path));
     j["channels"][0]["registers"][32] = 70000;
     test::write_text(path, j.dump());
-    CHECK_THROWS_AS(EmulatorLink(path, Catalog::standard()), Error);
+    CHECK_THROWS_AS(EmulatorStore(path, Catalog::standard()), Error);
   }
 }
 
@@ -134,18 +137,20 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   std::string path = dir.file("emu.json");
   std::size_t kl5101_at = 0;
   {
-    EmulatorLink link(path, Catalog::standard());
-    kl5101_at = link.layout()->terminal(2).in_offset;
-    ImageSession s(link, register_terminal(*link.layout(), 1, 0), 0);
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
+    kl5101_at = link.emulated().layout().terminal(2).in_offset;
+    ImageSession s(link, register_terminal(link.emulated().layout(), 1, 0), 0);
     s.write_all({{34, 0x0001}, {35, 5}});  // standard format, 5 data bytes
     s.close();
-    link.commit();
+    store.save();
   }
   {
     // Loaded again, the coupler has not been switched off: the image of its last start holds.
-    EmulatorLink link(path, Catalog::standard());
-    CHECK(link.layout()->terminal(1).format == "alternative");
-    CHECK(link.layout()->terminal(2).in_offset == kl5101_at);
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
+    CHECK(link.emulated().layout().terminal(1).format == "alternative");
+    CHECK(link.emulated().layout().terminal(2).in_offset == kl5101_at);
     CHECK(link.emulated().channel(1, 0).read_register(35) == 5);
   }
   EmulatorRestart r = restart_emulator_state(path, Catalog::standard());
@@ -154,8 +159,9 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   CHECK(r.changed[0].position == 1);
   CHECK(r.changed[0].format_before == "alternative");
   CHECK(r.changed[0].format_after == "standard");
-  EmulatorLink link(path, Catalog::standard());
-  const auto& L = *link.layout();
+  EmulatorStore store(path, Catalog::standard());
+  EmulatorLink link(store);
+  const auto& L = link.emulated().layout();
   CHECK(L.terminal(1).format == "standard");
   CHECK(L.terminal(1).in_size == 6);  // CT/ST + D0..D4
   CHECK(L.terminal(2).in_offset == 6);
@@ -167,7 +173,8 @@ TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and k
   test::TempDir dir;
   std::string path = dir.file("emu.json");
   {
-    EmulatorLink link(path, Catalog::standard());
+    EmulatorStore store(path, Catalog::standard());
+    EmulatorLink link(store);
     EmulatedStation& st = link.emulated();
     st.outputs()[40] = 0x12;  // somewhere in the KL3022's output bytes
     st.channel(1, 0).write_register(31, 0x1235);
@@ -176,10 +183,11 @@ TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and k
     st.channel(1, 0).faults.mute = true;
     st.channel(1, 0).serial()->inject(std::vector<std::uint8_t>{'h', 'i'}, st.channel(1, 0).registers());
     REQUIRE(st.channel(1, 0).serial()->rx_fifo().size() == 2);
-    link.commit();
+    store.save();
   }
   restart_emulator_state(path, Catalog::standard());
-  EmulatorLink link(path, Catalog::standard());
+  EmulatorStore store(path, Catalog::standard());
+  EmulatorLink link(store);
   EmulatedStation& st = link.emulated();
   CHECK(st.outputs()[40] == 0);
   CHECK_FALSE(st.channel(1, 0).unlocked());                 // R31 is RAM

@@ -42,7 +42,8 @@ struct Served {
   std::unique_ptr<Link> link(const std::string& query = "", unsigned timeout_ms = 1000) {
     LinkOptions lo;
     lo.timeout_ms = timeout_ms;
-    return open_link(server->endpoint() + query, Catalog::standard(), lo);
+    // A coupler's link outlives the rest of its port (an emulator's would not: its store is the port's).
+    return std::move(open_port_uri(server->endpoint() + query, Catalog::standard(), lo).link);
   }
   // The link with the scan that finds the station behind it.
   OpenedPort port() { return open_port_uri(server->endpoint(), Catalog::standard(), LinkOptions{}); }

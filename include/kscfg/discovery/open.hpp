@@ -9,6 +9,7 @@
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/access.hpp"
@@ -48,21 +49,26 @@ struct LinkOptions {
 };
 
 // A port opened: its link, its one register access and engine, and how the station behind it is
-// found when the link cannot tell it. Every register operation on the port (commands, the scan,
+// found. Every register operation on the port (commands, the scan,
 // the online map, journal recovery, the lock-out guard) runs on `engine`: one access per port, so a
 // channel's bytes are saved and put back once however many users it has, and over ADS no register
 // request ever goes through the process image (docs/design.md 1.2).
 struct OpenedPort {
+  // The emulator's state file and station (emu URIs; nullptr for a coupler), which `link` moves
+  // the image of: declared first, so that it outlives the link.
+  std::unique_ptr<EmulatorStore> emulator;
   std::unique_ptr<Link> link;
   std::unique_ptr<RegisterAccess> access;  // open_register_access(); refers to `link`
   std::unique_ptr<Engine> engine;          // over `access`
-  // A Modbus coupler's scan, an ADS coupler's table 9; nullptr when the link knows its station
-  // (the emulator: Link::layout()). Refers to `link` and `engine`, and is destroyed before them.
+  // A Modbus coupler's scan, an ADS coupler's table 9, the emulated station's own layout (never
+  // nullptr). Refers to `link` and `engine`, and is destroyed before them.
   std::unique_ptr<StationDiscovery> discovery;
+
+  // Makes the station's state durable at the end of a run: the emulator saves its state file (a
+  // run that only read writes nothing); a coupler keeps its own. Error(file) when it cannot.
+  void commit();
 };
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
-// The link alone, for callers that never need a station the link cannot tell (no discovery).
-std::unique_ptr<Link> open_link(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
 
 // The register access of the port behind `link` (session/access.hpp): direct access over ADS port
 // 100 for an ads:// port, its terminals numbered on port 100 from `layout()` (the station the

@@ -1,7 +1,10 @@
-// How the station behind a coupler is found when the link cannot tell it (Modbus: a scan; ADS: the
-// coupler's table 9). Owned above the link (docs/design.md section 1): a Link only moves bytes,
+// How the station behind a port is found (Modbus: a scan; ADS: the coupler's table 9; the emulator:
+// its emulated station). Owned above the link (docs/design.md section 1): a Link only moves bytes,
 // and discovery, which opens register sessions on that link, runs beside it, never inside it.
 #pragma once
+
+#include <cstdint>
+#include <optional>
 
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
@@ -19,8 +22,29 @@ class StationDiscovery {
   const StationLayout* layout() { return layout_upto(0); }
   // The terminals found, as a station file would list them (nullptr: none).
   virtual const StationSpec* station() = 0;
-  // What a Modbus scan found so far (nullptr: nothing yet, or not a Modbus coupler).
-  virtual const ScanResult* scan() const { return nullptr; }
+  // The station behind the port lays its image out itself and says so (the emulator): a station
+  // file given with it must describe that station. A coupler's discovery (false) gives way to a
+  // station file.
+  virtual bool lays_out_itself() const { return false; }
+  // What was found covers the whole station (a Modbus scan may have walked only as far as asked).
+  virtual bool complete() const { return true; }
+  // What was found comes from an earlier run (a Modbus coupler's scan cache), checked by the image
+  // lengths only: a terminal replaced by another type of the same size would go unnoticed, so each
+  // terminal tells its type (R8) before it is relied on (StationResolver).
+  virtual bool kept() const { return false; }
+  // The type (R8) the terminal at `position` reported to this run's discovery (nullopt: not read
+  // in this run).
+  virtual std::optional<std::uint16_t> r8(unsigned position) const {
+    (void)position;
+    return std::nullopt;
+  }
+  // The station with the positions of `file`, matched with what was found (a Modbus scan: the
+  // file's complex terminals by type and order, its digital terminals by bit totals, match_scan);
+  // Error(refused) naming a difference. nullopt: nothing to match (the station found is used).
+  virtual std::optional<StationLayout> match(const StationSpec& file) {
+    (void)file;
+    return std::nullopt;
+  }
   // The station is not what was found (a terminal reports another type): find it again.
   virtual void forget() {}
   // A whole scan made elsewhere (kscfg scan) replaces what was found, and is kept.

@@ -149,24 +149,22 @@ class EmulatorStore {
   std::unique_ptr<EmulatedStation> station_;
 };
 
+// The emulated station's image as a Link. The station (or the store that keeps it in its state
+// file, and saves it) is owned by whoever made the link (open_port_uri: the opened port).
 class EmulatorLink : public Link {
  public:
-  EmulatorLink(std::string path, const Catalog& catalog, const LockWait& wait = {});
-  explicit EmulatorLink(EmulatedStation& station);  // in-process station owned elsewhere
+  explicit EmulatorLink(EmulatedStation& station);  // described as emu:mem
+  explicit EmulatorLink(EmulatorStore& store);      // its station, described by its state file
   std::string describe() const override;
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   std::chrono::microseconds poll_gap(unsigned poll_number) const override;
-  const StationLayout* layout() override { return &station_->layout(); }
-  const StationSpec* station() override { return &station_->spec(); }
-  void commit() override;
   EmulatedStation& emulated() { return *station_; }
   EmulatedStation* emulator() override { return station_; }
-  EmulatorStore* store() { return store_.get(); }
 
  private:
-  std::unique_ptr<EmulatorStore> store_;
+  const EmulatorStore* store_ = nullptr;
   EmulatedStation* station_;
 };
 

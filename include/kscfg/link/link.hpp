@@ -8,8 +8,6 @@
 #include <string>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/station/layout.hpp"
-#include "kscfg/station/station.hpp"
 
 namespace kscfg {
 
@@ -69,13 +67,6 @@ class Link {
   // Default: each output span written, then one read covering every input span.
   virtual void transfer(std::span<const ImageTransfer> t);
 
-  // The station behind the link as the coupler laid it out, when the link itself knows it (the
-  // emulator). A coupler's station is found above the link (discovery/station_discovery.hpp: a
-  // Modbus scan, an ADS coupler's table 9) or given by a station file.
-  // The pointer stays valid as long as the link.
-  virtual const StationLayout* layout() { return nullptr; }
-  virtual const StationSpec* station() { return nullptr; }
-
   // A terminal did not acknowledge: the link may know a cause beyond the terminal (a coupler
   // whose watchdog switched the outputs off). Returns the error to report instead, if any.
   virtual std::optional<Error> explain_no_ack() { return std::nullopt; }
@@ -85,9 +76,6 @@ class Link {
   // terminal: noted, the bytes of a rollback tried against it pushed the one the terminal holds out
   // of the last ones a journal keeps (docs/design.md 6.2).
   virtual bool proven_dead() const { return false; }
-
-  // Makes the station's state durable (emulator: saves its state file). Called once at the end.
-  virtual void commit() {}
 
   // Capabilities: what callers need of one kind of link, asked for instead of a downcast (as
   // libmodbus keeps one backend table per transport); nullptr when the link has none.
