@@ -115,7 +115,7 @@ TEST_CASE("ack latency: an answer past the wait without a probe stays suspect", 
   CHECK(t.suspect);
 }
 
-TEST_CASE("ack latency: one fast answer at a probe is one sample; the wait comes down to the slowest of kSampleRun",
+TEST_CASE("ack latency: one fast answer at a probe is one sample, the wait comes down to the slowest of kSampleRun",
           "[ack]") {
   AckTiming t = suspect_at(microseconds(4000));
   // One fast answer (the terminal answered in the cycle that saw the request) is one sample: the
@@ -150,7 +150,7 @@ TEST_CASE("ack latency: a probe's sample at seven eighths of the wait confirms i
   CHECK_FALSE(ack_plan(t, milliseconds(1000)).probe);
 }
 
-TEST_CASE("ack latency: the poll plan: after a probe that found nothing, on TCP at the link's pace up to the wait; "
+TEST_CASE("ack latency: the poll plan: after a probe that found nothing, on TCP at the link's pace up to the wait, "
           "elsewhere at the wait",
           "[ack]") {
   AckTiming t = suspect_at(microseconds(4000));
