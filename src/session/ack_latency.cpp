@@ -24,7 +24,7 @@ void slow_seen(AckTiming& t) {
 
 // The wait stands as it is: no longer suspect, the samples begin again.
 void settled(AckTiming& t) {
-  t.suspect = t.kept = false;
+  t.suspect = t.kept = t.measuring = false;
   t.sampled = t.sample_hits = 0;
   t.sample_max = microseconds(0);
 }
@@ -41,14 +41,16 @@ void sample(AckTiming& t, const AckPlan& p, microseconds took, bool hit) {
     settled(t);
     return;
   }
-  t.suspect = true;  // measure on
-  t.kept = false;
+  // Measure on, this run: not a suspicion the scan cache keeps (a run too short to finish would
+  // leave every next short run probing; a kept wait is checked again in the next long run).
+  t.measuring = true;
+  t.suspect = t.kept = false;
   if (t.sampled < kSampleRun) return;
   const bool hits = t.sample_hits > 0;
   t.wait = std::min(p.wait, std::max({t.sample_max, t.slow, microseconds(1)}));
   settled(t);
   // Answers that were there at the probe may have come much earlier: measured again below.
-  t.suspect = hits && t.wait < p.wait;
+  t.measuring = hits && t.wait < p.wait;
 }
 
 }  // namespace
@@ -80,10 +82,10 @@ AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout, bool che
   }
   p.wait = std::min(t.wait, cap_of(timeout));
   // A wait guessed from another terminal is probed only after its first acknowledges
-  // (kGuessTrusted); so is the check of a wait kept from an earlier run: a single read never pays
-  // for it.
-  const bool suspect = t.suspect && !(t.guessed && t.acks < kGuessTrusted);
-  const bool check = t.kept && check_kept && t.acks >= kGuessTrusted;
+  // (kGuessTrusted). A wait kept from an earlier run is checked only in a run long enough to pay
+  // for it (kKeptCheckAfter): a read, an info or a warm scan's check never probes for it.
+  const bool suspect = (t.suspect && !(t.guessed && t.acks < kGuessTrusted)) || t.measuring;
+  const bool check = t.kept && check_kept && t.acks >= kKeptCheckAfter;
   p.probe = (suspect || check || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
   if (p.probe) {
     // Half the wait while suspect, three quarters for a check; where answers begin once timed.

@@ -23,9 +23,11 @@
 //    other answer and made every other read-ahead come too early (issue 22). If a sample reaches
 //    seven eighths of the wait, or the answer is there only at the poll at the wait, the wait is
 //    confirmed and kept as it is. If some samples were there already at the probe (the answer may
-//    have come much earlier), the lowered wait stays suspect and is measured again. Every
+//    have come much earlier), the lowered wait is measured again. A measurement
+//    that is not finished is not kept as a suspicion between runs (`measuring`): a run too short
+//    to finish one (an `info`) would leave every next one probing. Every
 //    kProbeEvery-th request probes anyway, and a wait kept from an earlier run is checked once per
-//    run on TCP (after its first kGuessTrusted acknowledges): a kept wait the terminal beats is gone
+//    run on TCP (after its first kKeptCheckAfter acknowledges): a kept wait the terminal beats is gone
 //    within a run of a few dozen registers (before, a probe at half that found nothing ended the
 //    suspicion: a 9.3 ms wait against answers at 4.3-5.4 ms came down over eight runs).
 // A terminal not timed yet starts from the slowest wait known on its coupler (the terminals share
@@ -69,6 +71,7 @@ struct AckTiming {
   unsigned late = 0;                  // acknowledges seen by a poll this process sent late (this run):
                                       // not learned (ack_seen)
   bool kept = false;                  // `wait` was kept from an earlier run and not yet checked in this one
+  bool measuring = false;             // probes are timing answers below `wait` (this run; not kept)
   unsigned sampled = 0;               // answers timed below the wait by probes since the last change
   unsigned sample_hits = 0;           // of them, answers already there at the probe (an upper bound only)
   std::chrono::microseconds sample_max{0};  // the slowest of them
@@ -104,7 +107,7 @@ struct AckPlan {
 constexpr std::chrono::microseconds kAckLearnFirst{500};
 
 // What the first poll of the next request does. `check_kept`: a wait kept from an earlier run is
-// probed once in this run (after its first kGuessTrusted acknowledges): on TCP, where a probe's
+// probed once in this run (after its first kKeptCheckAfter acknowledges): on TCP, where a probe's
 // misses cost round trips, not line time.
 AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout, bool check_kept = false);
 // When the next poll of a request goes out (after the request), once `polls` polls found nothing,
@@ -140,6 +143,7 @@ constexpr unsigned kProbeEvery = 32;
 constexpr unsigned kGuessTrusted = 3;
 constexpr unsigned kSlowFor = 2 * kProbeEvery;
 constexpr unsigned kSampleRun = 4;
+constexpr unsigned kKeptCheckAfter = 8;
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const AckTiming& t);
 
