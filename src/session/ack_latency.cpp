@@ -10,6 +10,9 @@ using std::chrono::microseconds;
 constexpr unsigned kLearnSamples = 3;
 // Below this a probe saves too little to be worth an exchange.
 constexpr microseconds kProbeFloor{500};
+// Past the wait (and while learning), polls go every eighth of the time since the request, at least
+// this often.
+constexpr microseconds kStep{250};
 
 microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
 
@@ -17,6 +20,37 @@ microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::dur
 void slow_seen(AckTiming& t) {
   t.slow = std::max(t.slow, t.wait);
   t.slow_age = 0;
+}
+
+// The wait stands as it is: no longer suspect, the samples begin again.
+void settled(AckTiming& t) {
+  t.suspect = t.kept = t.measuring = false;
+  t.sampled = t.sample_hits = 0;
+  t.sample_max = microseconds(0);
+}
+
+// A probe timed an answer below the wait (`hit`: it was there already at the probe, so `took` is
+// only an upper bound).
+void sample(AckTiming& t, const AckPlan& p, microseconds took, bool hit) {
+  ++t.sampled;
+  if (hit) ++t.sample_hits;
+  else if (t.fastest.count() <= 0 || took < t.fastest) t.fastest = took;
+  t.sample_max = std::max(t.sample_max, took);
+  // The terminal does not beat the wait by much (or a recent answer came after it): confirmed.
+  if (8 * std::max(t.sample_max, t.slow) >= 7 * p.wait) {
+    settled(t);
+    return;
+  }
+  // Measure on, this run: not a suspicion the scan cache keeps (a run too short to finish would
+  // leave every next short run probing; a kept wait is checked again in the next long run).
+  t.measuring = true;
+  t.suspect = t.kept = false;
+  if (t.sampled < kSampleRun) return;
+  const bool hits = t.sample_hits > 0;
+  t.wait = std::min(p.wait, std::max({t.sample_max, t.slow, microseconds(1)}));
+  settled(t);
+  // Answers that were there at the probe may have come much earlier: measured again below.
+  t.measuring = hits && t.wait < p.wait;
 }
 
 }  // namespace
@@ -37,20 +71,44 @@ void AckTimings::keep(unsigned position, microseconds wait, bool suspect) {
   t.wait = wait;
   t.suspect = suspect;
   t.guessed = false;
+  t.kept = true;
 }
 
-AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout) {
+AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout, bool check_kept) {
   AckPlan p;
   if (t.wait.count() <= 0) {
     p.first = kAckLearnFirst;
     return p;
   }
   p.wait = std::min(t.wait, cap_of(timeout));
-  // A wait guessed from another terminal is probed only after its first acknowledges (kGuessTrusted).
-  const bool suspect = t.suspect && !(t.guessed && t.acks < kGuessTrusted);
-  p.probe = (suspect || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
-  p.first = p.probe ? p.wait / 2 : p.wait;
+  // A wait guessed from another terminal is probed only after its first acknowledges
+  // (kGuessTrusted). A wait kept from an earlier run is checked only in a run long enough to pay
+  // for it (kKeptCheckAfter): a read, an info or a warm scan's check never probes for it.
+  const bool suspect = (t.suspect && !(t.guessed && t.acks < kGuessTrusted)) || t.measuring;
+  const bool check = t.kept && check_kept && t.acks >= kKeptCheckAfter;
+  p.probe = (suspect || check || t.streak + 1 >= kProbeEvery) && p.wait >= kProbeFloor;
+  if (p.probe) {
+    // Half the wait while suspect, three quarters for a check; where answers begin once timed.
+    const microseconds lo = suspect ? p.wait / 2 : p.wait - p.wait / 4;
+    p.first = t.fastest.count() > 0 ? std::clamp(t.fastest - t.fastest / 8, p.wait / 2, p.wait - p.wait / 8) : lo;
+  } else {
+    p.first = p.wait;
+  }
   return p;
+}
+
+AckPoll ack_next_poll(const AckPlan& p, unsigned polls, microseconds last, microseconds pace) {
+  if (polls == 0) return {p.first, p.known() && !p.probe};
+  if (p.known() && p.probe && last < p.wait) {
+    // A probe below the estimate found nothing: at the link's pace up to the estimate, or at once
+    // the estimate where every poll costs line time.
+    const microseconds at = pace.count() > 0 ? std::min(last + pace, p.wait) : p.wait;
+    return {at, at >= p.wait};
+  }
+  // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the time
+  // since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
+  const microseconds step = p.known() ? std::max(kStep, p.wait / 8) : kStep;
+  return {last + std::max(step, last / 8), false};
 }
 
 microseconds ack_late_slack(const AckPlan& p) { return std::max(microseconds(1000), p.wait / 4); }
@@ -73,20 +131,17 @@ void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
   if (p.probe) {
     t.streak = 0;
     ++t.probes;
-    if (poll == 1) {
-      // The answer was there at half the wait: this one was faster than the wait. Down, by at most a
-      // quarter and not below the slowest recent answer, and probe again; if the wait stays where it
-      // is, it is as low as the answers seen allow: no longer suspect.
-      ++t.probe_hits;
-      microseconds lower = std::max({took, t.slow, p.wait - p.wait / 4, microseconds(1)});
-      if (lower >= p.wait) t.suspect = false;
-      t.wait = std::min(lower, p.wait);
+    if (poll == 1) ++t.probe_hits;
+    if (late) return;  // timed this process's delay: no sample
+    if (took < p.wait) {
+      sample(t, p, took, poll == 1);
       return;
     }
-    t.suspect = false;  // not at half: the wait is about right
-    // And the poll at the wait found it: the wait is confirmed, kept as it is. (Raising it to what
-    // that poll took would add the poll's own round trip every time: a ratchet.)
-    if (poll == 2) return;
+    // Not below the wait: there at the poll at the wait (which itself took a round trip past it),
+    // the wait is confirmed and kept as it is (raising it to what that poll took would add the
+    // poll's own round trip every time: a ratchet); seen only by a later poll, it goes up below.
+    settled(t);
+    if (took < p.wait + std::max(kStep, p.wait / 8)) return;
   }
   if (poll > 1 && took > p.wait && !late) {
     // Slower than the wait: up to what it took, at most twice the wait (one slow answer on a

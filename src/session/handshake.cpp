@@ -219,7 +219,7 @@ HandshakeAccess::Request HandshakeAccess::sent_request(Chan& c, bool write, unsi
   r.reg = reg;
   r.value = write ? value : 0;
   r.sent = r.since = t;
-  if (link_.pipelines() && c.timing) r.ack = ack_plan(*c.timing, opt_.timeout);
+  if (link_.pipelines() && c.timing) r.ack = ack_plan(*c.timing, opt_.timeout, paced_probes());
   return r;
 }
 

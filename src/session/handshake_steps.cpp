@@ -5,6 +5,7 @@
 
 #include <algorithm>
 
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/handshake.hpp"
 
@@ -15,10 +16,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::microseconds;
 
-// Timing on links that pipeline (Modbus). The first poll goes out when ack_latency.hpp says; the
-// next ones every kStep (or an eighth of the estimate, or of the time since the request, whichever
-// is longest).
-constexpr microseconds kStep{250};
 // After this many read-aheads (or restores with the last poll) that came too early in a run, no
 // more speculation on that terminal.
 constexpr unsigned kMaxMisses = 3;
@@ -74,19 +71,19 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   bool timed = link_.pipelines() && c.timing;
   bool known = timed && r.ack.known();
   Clock::time_point when = now;
+  bool at_wait = false;  // the poll at the estimate (ack_next_poll)
   if (!timed) {
     // The emulator runs a K-bus cycle on every read: poll at once; a terminal that does not
     // answer is not worth spinning on.
     if (r.polls > 64) when = c.last_poll + microseconds(200);
-  } else if (r.polls == 0) {
-    when = r.sent + r.ack.first;
-  } else if (r.polls == 1 && r.ack.probe) {
-    when = r.sent + r.ack.wait;  // a probe below the estimate came too early: the usual poll next
   } else {
-    // A terminal (or a loaded coupler) that takes long is polled less often: every eighth of the
-    // time since the request, so a 30 ms answer costs a few dozen polls, not a hundred.
-    microseconds step = known ? std::max(kStep, r.ack.wait / 8) : kStep;
-    when = c.last_poll + std::max(step, us(c.last_poll - r.sent) / 8);
+    // When ack_latency.hpp says: on Modbus TCP a probe that found nothing is followed by polls at
+    // the link's own pace (a poll costs a round trip); on RTU (every poll costs line time) and over
+    // ADS the next poll goes at the estimate.
+    const auto next = ack_next_poll(r.ack, r.polls, r.polls ? us(c.last_poll - r.sent) : microseconds(0),
+                                    paced_probes() ? link_.poll_gap(r.polls) : microseconds(0));
+    when = r.sent + next.at;
+    at_wait = next.at_wait;
   }
   if (now < when) {
     due = std::min(due, when);
@@ -96,8 +93,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   c.due = when;
   // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes. The poll at the
   // estimate (the first, or the one after a probe that found nothing) may.
-  bool at_estimate = r.polls == 0 ? !r.ack.probe : r.polls == 1 && r.ack.probe;
-  bool speculate = known && at_estimate && c.timing->misses < kMaxMisses;
+  bool speculate = known && at_wait && c.timing->misses < kMaxMisses;
   // What the poll may replace: a read, or a write that may be done twice (asked again if the poll
   // came too early). A write goes ahead only if the request it may replace can be done again after
   // it: never the code word (a relock ahead would make the write before it fail).
@@ -116,6 +112,12 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
       c.with_restore = true;
     }
   }
+}
+
+bool HandshakeAccess::paced_probes() const {
+  // A link that is Modbus TCP: a poll costs a round trip, not line time (ADS keeps its plan).
+  const ModbusRegisters* m = link_.modbus_registers();
+  return m && m->target().tcp;
 }
 
 void HandshakeAccess::align_first_polls(Clock::time_point sent) {

@@ -10,17 +10,26 @@
 //  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
 //    an eighth up when a request written ahead replaced the one waited for (how much slower the
 //    terminal was is unknown there);
-//  - down, in steps: a wait that went up (or was guessed, or kept from an earlier run at a quarter
-//    of the timeout or more) is `suspect`, and the next first poll is a probe at half of it (a plain
-//    poll, never one that writes). A probe that finds the answer lowers the wait to what it took,
-//    but by at most a quarter and never below the slowest recent answer that came after the wait
-//    (`slow`, forgotten after kSlowFor acknowledges); the next request probes again unless the wait
-//    stayed where it was. A probe that does not find the answer ends the suspicion (the usual poll
-//    at the wait follows, one exchange more, and may carry a read-ahead); when that poll finds the
-//    answer the wait is confirmed and kept as it is. Every kProbeEvery-th request probes anyway.
-//    The wait has to cover the slowest answers, not the typical one: where a terminal answers after
-//    one or two bus cycles at random, one probe that found the answer at half is one fast sample,
-//    and a wait lowered to it makes every other read-ahead come too early (issue 22).
+//  - down, by measuring (issue 34): a wait that went up (or was guessed, or kept from an earlier run
+//    at a quarter of the timeout or more) is `suspect`, and the next first poll is a probe at half of
+//    it (a plain poll, never one that writes). On TCP (ack_next_poll with a pace) a probe that finds
+//    nothing is followed by polls at the link's own pace up to the wait, so a probe times the answer
+//    to within a pace whether or not it came before half the wait; on RTU and over ADS the poll after
+//    a probe goes at the wait, as before. A probe that times the answer below the wait is a sample;
+//    once kSampleRun samples are in, the wait goes down to the slowest of them (never below the
+//    slowest recent answer that came after the wait, `slow`, forgotten after kSlowFor
+//    acknowledges). The wait has to cover the slowest answers, not the typical one: where a terminal
+//    answers after one or two bus cycles at random, one fast sample lowered the wait below every
+//    other answer and made every other read-ahead come too early (issue 22). If a sample reaches
+//    seven eighths of the wait, or the answer is there only at the poll at the wait, the wait is
+//    confirmed and kept as it is. If some samples were there already at the probe (the answer may
+//    have come much earlier), the lowered wait is measured again. A measurement
+//    that is not finished is not kept as a suspicion between runs (`measuring`): a run too short
+//    to finish one (an `info`) would leave every next one probing. Every
+//    kProbeEvery-th request probes anyway, and a wait kept from an earlier run is checked once per
+//    run on TCP (after its first kKeptCheckAfter acknowledges): a kept wait the terminal beats is gone
+//    within a run of a few dozen registers (before, a probe at half that found nothing ended the
+//    suspicion: a 9.3 ms wait against answers at 4.3-5.4 ms came down over eight runs).
 // A terminal not timed yet starts from the slowest wait known on its coupler (the terminals share
 // its K-bus cycle). That guess is suspect, but its first kGuessTrusted requests go at it unprobed: a
 // cold scan reads R8, R34 and R35 of each terminal in turn, and a probe on the first of them missed
@@ -61,6 +70,12 @@ struct AckTiming {
   unsigned slow_age = 0;              // acknowledges since `slow` was last raised
   unsigned late = 0;                  // acknowledges seen by a poll this process sent late (this run):
                                       // not learned (ack_seen)
+  bool kept = false;                  // `wait` was kept from an earlier run and not yet checked in this one
+  bool measuring = false;             // probes are timing answers below `wait` (this run; not kept)
+  unsigned sampled = 0;               // answers timed below the wait by probes since the last change
+  unsigned sample_hits = 0;           // of them, answers already there at the probe (an upper bound only)
+  std::chrono::microseconds sample_max{0};  // the slowest of them
+  std::chrono::microseconds fastest{0};     // the earliest answer a probe timed from below (this run)
 };
 
 // The timings of the terminals of one coupler, by position: kept by the port's register access.
@@ -91,8 +106,22 @@ struct AckPlan {
 // Until the latency is known, the first poll goes out this long after the request.
 constexpr std::chrono::microseconds kAckLearnFirst{500};
 
-// What the first poll of the next request does.
-AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout);
+// What the first poll of the next request does. `check_kept`: a wait kept from an earlier run is
+// probed once in this run (after its first kKeptCheckAfter acknowledges): on TCP, where a probe's
+// misses cost round trips, not line time.
+AckPlan ack_plan(const AckTiming& t, std::chrono::milliseconds timeout, bool check_kept = false);
+// When the next poll of a request goes out (after the request), once `polls` polls found nothing,
+// the last `last` after the request: the plan's first poll; after a probe that found nothing, polls
+// at `pace` up to the wait (TCP: the link's own pace), or at once the wait (pace 0: RTU, where every
+// poll costs line time, and ADS); past the wait (and while learning) every eighth of the time since
+// the request, at least every 250 us. `at_wait`: the poll at the estimate, the one that may carry a
+// read-ahead or a restore.
+struct AckPoll {
+  std::chrono::microseconds at{0};
+  bool at_wait = false;
+};
+AckPoll ack_next_poll(const AckPlan& p, unsigned polls, std::chrono::microseconds last,
+                      std::chrono::microseconds pace);
 // The acknowledge showed at poll `poll` (1: the first), `took` after the request. `late`: that poll
 // went out later than planned by more than ack_late_slack() (this process was not scheduled, or
 // slept past its time: issue 34): `took` then tells of the machine's load, not of the terminal, and
@@ -113,6 +142,8 @@ bool ack_suspect_when_kept(std::chrono::microseconds kept, std::chrono::millisec
 constexpr unsigned kProbeEvery = 32;
 constexpr unsigned kGuessTrusted = 3;
 constexpr unsigned kSlowFor = 2 * kProbeEvery;
+constexpr unsigned kSampleRun = 4;
+constexpr unsigned kKeptCheckAfter = 8;
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const AckTiming& t);
 

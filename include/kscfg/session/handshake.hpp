@@ -149,6 +149,9 @@ class HandshakeAccess final : public RegisterAccess {
   // After requests went out in the exchange at `sent`, the first polls still waiting go out
   // together, at the latest of their due times within reach (docs/design.md section 7.2).
   void align_first_polls(Clock::time_point sent);
+  // Modbus TCP: a probe's misses are followed by polls at the link's pace, and a wait kept from an
+  // earlier run is checked once per run (ack_latency.hpp); RTU and ADS keep their plan.
+  bool paced_probes() const;
   // A status that came with another channel's exchange: taken if it answers the request; if not, it
   // counts as the look a repeat poll waits after.
   void peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
