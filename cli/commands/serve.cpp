@@ -166,7 +166,7 @@ class Serve : public Command {
         // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
         std::optional<CouplerAlias> alias;
         try {
-          alias.emplace(coupler_key(local_ads(a.endpoint())), coupler_key(local_modbus(m.endpoint())));
+          alias.emplace(listener_key(local_ads(a.endpoint())), listener_key(local_modbus(m.endpoint())));
         } catch (const Error& e) {
           so->warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(),
                                a.endpoint()));
