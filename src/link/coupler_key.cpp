@@ -229,7 +229,7 @@ CouplerAlias::CouplerAlias(const std::string& also, const std::string& key) {
     if (name.rfind("alias-", 0) == 0 && name.substr(6) != also && aliased(name.substr(6)) == also)
       throw taken("a coupler key standing for " + also);
   }
-  write_file_atomic(path, fmt::format("{}\n{}\n", ::getpid(), key));
+  write_file_atomic(path, fmt::format("{}\n{}\n", ::getpid(), key), true);  // a link there replaced, not followed
   path_ = path;
 }
 
