@@ -1,13 +1,16 @@
 // kscfg data [force NAME=VALUE... --yes]: the live process data of the station, decoded per the
 // catalog (library: kscfg/session/process_data.hpp), and forcing outputs.
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <sys/ioctl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <iostream>
 #include <thread>
+#include <vector>
 
 #include "../command.hpp"
 #include "../commands.hpp"
@@ -178,7 +181,7 @@ class Data : public Command {
   std::string name() const override { return "data"; }
   std::string brief() const override { return "Show the live process data, decoded; force outputs (data force)"; }
   std::string man() const override {
-    return "Shows the process data of every terminal of the station, or of the one given with \\fB\\-t\\fR, as "
+    return "Shows the process data of every terminal of the station, or of those \\fB\\-t\\fR selects, as "
            "the coupler's image holds it now, decoded per the catalog: the handshake bits and lengths of serial "
            "terminals (status TA, RR, IA, BUF_F, IL and control TR, RA, IR, OL, with the bytes IL and OL say are "
            "valid), the counter, latch and status bits of encoder and counter terminals (KL5101: OVERFLOW, "
@@ -273,11 +276,17 @@ class Data : public Command {
     const StationLayout& L = ctx.layout();
     unsigned only = ctx.options().terminal;
     if (only) (void)L.terminal(only);  // an error for a position that does not exist
+    // -t TYPE, a list or a range: the terminals it selects (one of them: as -t POS).
+    std::vector<unsigned> shown;
+    if (!only && ctx.terminal_given()) {
+      shown = ctx.terminal_positions(false);
+      if (shown.size() == 1) only = shown.front(), shown.clear();
+    }
     Link& link = ctx.link();
     std::size_t din = 0, dout = 0;
     for (const auto& t : L.terminals)
       if (!t.complex) din += t.bits_in, dout += t.bits_out;
-    if (!only && (L.digital_in_bits > din || L.digital_out_bits > dout))
+    if (!only && shown.empty() && (L.digital_in_bits > din || L.digital_out_bits > dout))
       std::cerr << fmt::format("kscfg: note: {} digital input and {} output bits belong to no terminal here (a scan "
                                "sees only their totals); give --station FILE to see them by terminal\n",
                                L.digital_in_bits - din, L.digital_out_bits - dout);
@@ -290,6 +299,11 @@ class Data : public Command {
                   "it writes the values once and leaves them; kscfg prints it for putting outputs back by hand");
     std::string undo_cmd;
     if (force) {
+      if (!shown.empty())
+        throw Error(Exit::usage,
+                    fmt::format("-t {} selects {} terminals ({}): data force needs one", ctx.options().selection.text,
+                                shown.size(), fmt::join(shown, ", ")),
+                    "give -t POS ('kscfg data' shows the positions)");
       if (!only)
         throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
       std::vector<std::string> specs(args_.begin() + 1, args_.end());
@@ -358,7 +372,7 @@ class Data : public Command {
                                  ft->type->type);
     };
     try {
-      rc = loop(ctx, link, L, only, count, interval, hold, force ? &plan : nullptr);
+      rc = loop(ctx, link, L, only, shown, count, interval, hold, force ? &plan : nullptr);
     } catch (const Error& e) {
       // Ctrl-C during an exchange ends the view like Ctrl-C between two samples.
       if (e.code() != Exit::interrupted) {
@@ -449,7 +463,8 @@ class Data : public Command {
     return 0;
   }
 
-  int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, std::size_t count,
+  int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, const std::vector<unsigned>& shown,
+           std::size_t count,
            std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold, const ForcePlan* plan) {
     EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
@@ -462,6 +477,10 @@ class Data : public Command {
       // the input image until the terminal has seen the control byte go back.
       ImageSnapshot s = read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), ctx.cancel(), only);
       auto rows = decode_station(L, s, only);
+      if (!shown.empty())
+        std::erase_if(rows, [&](const nlohmann::json& r) {
+          return std::find(shown.begin(), shown.end(), r.value("position", 0u)) == shown.end();
+        });
       std::string out;
       if (ctx.json()) {
         for (auto& r : rows) {

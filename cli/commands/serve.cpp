@@ -96,7 +96,9 @@ class Serve : public Command {
            "that handles the requests of every client, whatever its protocol, one at a time. Both URIs are printed, "
            "the Modbus one first (\\fB\\-\\-json\\fR: \\fB\\(dqport\\(dq\\fR and \\fB\\(dqads\\(dq\\fR); the "
            "Modbus one is the \\fB\\-p\\fR URI another kscfg on the state file is sent to. "
-           "\\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR and "
+           "Both on one address (or \\fB\\-\\-tcp\\fR on 0.0.0.0 or [::]): an ADS client looks for the Modbus "
+           "port (table 100 register 26) at the address it reached, as a BK9000 answers both on its one IP "
+           "address. \\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR and "
            "\\fB\\-\\-seed\\fR to the Modbus one. Two kscfg reaching the station by tcp:// and by ads:// take "
            "the one lock of the coupler they both name, and take turns.";
   }
@@ -162,11 +164,20 @@ class Serve : public Command {
         ModbusServer m(shared, *so);
         ao->modbus_port = port_of(m.endpoint());  // table 100 register 26: where the image lengths are
         AdsServer a(shared, *ao);
+        // An ADS client asks the Modbus port at the address it reached (a BK9000 answers both on its
+        // one IP address): the Modbus server must be there too, or on every address.
+        if (host_of(m.endpoint()) != host_of(a.endpoint()) && host_of(m.endpoint()) != "0.0.0.0" &&
+            host_of(m.endpoint()) != "[::]")
+          throw Error(Exit::usage,
+                      fmt::format("--tcp {} and --ads {}: serve both on one address (or --tcp on 0.0.0.0 or [::])",
+                                  m.endpoint(), a.endpoint()),
+                      "an ADS client looks for the Modbus port (table 100 register 26) at the address it reached, as "
+                      "a BK9000 answers both on its one IP address");
         // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and
         // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
         std::optional<CouplerAlias> alias;
         try {
-          alias.emplace(coupler_key(local_ads(a.endpoint())), coupler_key(local_modbus(m.endpoint())));
+          alias.emplace(listener_key(local_ads(a.endpoint())), listener_key(local_modbus(m.endpoint())));
         } catch (const Error& e) {
           so->warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(),
                                a.endpoint()));
@@ -256,6 +267,11 @@ class Serve : public Command {
 
   // The target a client of this computer gives for a server's endpoint ("tcp://*:5020": every
   // address of this computer is one host, link/coupler_key.hpp).
+  static std::string host_of(const std::string& endpoint) {  // "tcp://[::1]:5020": "[::1]"
+    auto from = endpoint.find("://");
+    from = from == std::string::npos ? 0 : from + 3;
+    return endpoint.substr(from, endpoint.rfind(':') - from);
+  }
   static unsigned port_of(const std::string& endpoint) {
     return static_cast<unsigned>(std::stoul(endpoint.substr(endpoint.rfind(':') + 1)));
   }

@@ -59,7 +59,10 @@ void write_file_atomic(const std::string& path, const std::string& content, bool
   // A symbolic link stays one: its target is what gets replaced (unless the link itself is).
   std::string target = replace_link ? path : resolve_link(path);
   std::string tmp = target + fmt::format(".tmp.{}", ::getpid());
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  // A new file, never through a link planted at its name (a directory other users write to, as the
+  // lock directory): one left there is removed first, and if it cannot be, the write fails.
+  ::unlink(tmp.c_str());
+  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
   if (fd < 0) fail("create");
   std::size_t done = 0;
   while (done < content.size()) {

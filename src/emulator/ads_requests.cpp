@@ -222,10 +222,12 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
         break;
       }
       auto sub = ams::parse_sum_read_write(r->offset, r->data);
-      std::uint32_t want = 0;
+      // The answers' length, in 64 bits (read lengths near 4 GiB must not wrap it to a small sum): at
+      // most what the request reads, and one telegram's user data, as a coupler sends.
+      std::uint64_t want = 0;
       if (sub)
-        for (const auto& c : *sub) want += 8 + c.read_length;
-      if (!sub || r->read_length < want) {
+        for (const auto& c : *sub) want += 8 + std::uint64_t{c.read_length};
+      if (!sub || r->read_length < want || want > ams::kMaxUserData) {
         data = ams::data_response(kBadSize, {});
         rep.what = "malformed sum request";
         break;

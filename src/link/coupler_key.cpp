@@ -162,9 +162,20 @@ std::string aliased(const std::string& key) {
   return to;
 }
 
-std::string ip_key(const std::string& host, unsigned port, unsigned standard) {
+std::string raw_ip_key(const std::string& host, unsigned port, unsigned standard) {
   std::string a = safe(host_key_address(host));
-  return aliased(port == standard ? "ip-" + a : fmt::format("ip-{}-{}", a, port));
+  return port == standard ? "ip-" + a : fmt::format("ip-{}-{}", a, port);
+}
+
+std::string ip_key(const std::string& host, unsigned port, unsigned standard) {
+  return aliased(raw_ip_key(host, port, standard));
+}
+
+// The first line of the record at `path`: the PID of its writer ("" when there is none).
+std::string record_pid(const std::string& path) {
+  RegularFile r = read_regular_file(path, "coupler alias", 512);
+  if (!r.exists || !r.refused.empty()) return "";
+  return r.text.substr(0, r.text.find('\n'));
 }
 
 }  // namespace
@@ -194,17 +205,37 @@ std::string coupler_key(const ModbusTarget& t) {
 
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
 
+std::string listener_key(const ModbusTarget& t) {
+  return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : coupler_key(t);
+}
+
+std::string listener_key(const AdsTarget& t) { return raw_ip_key(t.host, t.port, ams::kTcpPort); }
+
 CouplerAlias::CouplerAlias(const std::string& also, const std::string& key) {
   if (also == key) return;
   std::error_code ec;
   std::filesystem::create_directories(lock_dir(), ec);
   std::string path = alias_path(also);
-  write_file_atomic(path, fmt::format("{}\n{}\n", ::getpid(), key));
+  // A live record of another listener of one of these keys (127.0.0.2:P and 127.0.0.1:P are one key)
+  // stays as it is: replaced, or a record made to point at a key that stands for another, clients
+  // of one coupler would take two locks.
+  auto taken = [&](const std::string& what) {
+    return Error(Exit::file, fmt::format("{} is recorded by another kscfg serve (lock directory {})", what, lock_dir()));
+  };
+  if (aliased(also) != also) throw taken("coupler key " + also);
+  if (aliased(key) != key) throw taken("coupler key " + key);
+  for (const auto& e : std::filesystem::directory_iterator(lock_dir(), ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("alias-", 0) == 0 && name.substr(6) != also && aliased(name.substr(6)) == also)
+      throw taken("a coupler key standing for " + also);
+  }
+  write_file_atomic(path, fmt::format("{}\n{}\n", ::getpid(), key), true);  // a link there replaced, not followed
   path_ = path;
 }
 
 CouplerAlias::~CouplerAlias() {
-  if (!path_.empty()) ::unlink(path_.c_str());
+  // Only its own record: not one another serve wrote since.
+  if (!path_.empty() && record_pid(path_) == std::to_string(::getpid())) ::unlink(path_.c_str());
 }
 
 std::string station_key(const ModbusTarget& t) { return fmt::format("{}-unit{}", coupler_key(t), t.unit); }

@@ -238,3 +238,37 @@ TEST_CASE("serve --tcp --ads is one coupler by both ports: kscfg over ads:// wai
   CHECK(s.srv->stop() == 0);
   CHECK_FALSE(fs::exists(alias));
 }
+
+TEST_CASE("serve --tcp --ads: a second serve whose ADS port has the first's key (another loopback address) neither "
+          "takes the first's record over nor removes it",
+          "[sessions][lock][serve][ads]") {
+  // 127.0.0.2:P and 127.0.0.1:P are two listeners of one key (every address of this computer is one
+  // host). The second serve followed the first's record for its own key and wrote a record for the
+  // first's Modbus port: kscfg over the first's tcp:// then took the second's lock, its ads:// the
+  // first's, and they no longer took turns. Its record must not replace the first's either (nor go
+  // with the second).
+  // A stale record of the first's ADS key (a serve killed with SIGKILL before it) is no other's: replaced.
+  Served gone({"--tcp", "127.0.0.1:0", "--ads", "127.0.0.1:0"});
+  const std::string ads = gone.srv->next_line(), ads_port = ads.substr(ads.rfind(':') + 1);
+  const std::string alias = kscfg_lock_dir() + "/alias-ip-127.0.0.1-" + ads_port;
+  gone.srv->kill_now();
+  REQUIRE(fs::exists(alias));
+  Served a({"--tcp", "127.0.0.1:0", "--ads", "127.0.0.1:" + ads_port});
+  const std::string record = read_text(alias);
+  REQUIRE(record == fmt::format("{}\nip-127.0.0.1-{}\n", a.srv->pid, a.port()));
+  CHECK(read_text(a.dir.file("serve.err")).find("will not take turns") == std::string::npos);
+  {
+    Served b({"--tcp", "127.0.0.2:0", "--ads", "127.0.0.2:" + ads_port});
+    REQUIRE(b.srv->next_line() == "ads://127.0.0.2:" + ads_port);
+    CHECK(read_text(alias) == record);
+    CHECK_FALSE(fs::exists(kscfg_lock_dir() + "/alias-ip-127.0.0.1-" + a.port()));
+    CHECK(b.srv->stop() == 0);
+    CHECK_THAT(read_text(b.dir.file("serve.err")), Catch::Contains("will not take turns"));
+  }
+  CHECK(read_text(alias) == record);
+  // The first's ports are still one coupler: kscfg over ads:// waits for kscfg over tcp://.
+  auto first = holder({"--port", a.srv->uri}, lock_file("ip-127.0.0.1-" + a.port()));
+  CHECK(run_kscfg({"--port", ads, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"}).rc == 11);
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+}

@@ -84,3 +84,20 @@ TEST_CASE("serve --tcp --ads: one station over Modbus TCP and ADS at once, what 
     CHECK(one_line_error(u));
   }
 }
+
+TEST_CASE("serve --tcp --ads on two addresses is refused: an ADS client finds the Modbus port at the ADS address",
+          "[serve][ads]") {
+  // Table 100 register 26 gives an ADS client the serve's Modbus port, which it asks at the address
+  // it reached over ADS, as a BK9000 answers both on its one IP address. With --tcp 127.0.0.2:P and
+  // --ads 127.0.0.1:Q, kscfg over ads:// asked 127.0.0.1:P: whatever listens there (another serve)
+  // was taken for this coupler's image lengths, and a station it contradicted was refused as "not the
+  // one described".
+  TempDir d;
+  std::map<std::string, std::string> env{{"XDG_CACHE_HOME", d.file("cache")}};
+  Run u = run_kscfg({"--port", "emu:mem", "serve", "--tcp", "127.0.0.2:0", "--ads", "127.0.0.1:0"}, env, 10);
+  INFO(u.err);
+  CHECK(u.rc == 2);
+  CHECK(one_line_error(u));
+  CHECK_THAT(u.err, Catch::Contains("one address"));
+  CHECK(u.out.empty());
+}

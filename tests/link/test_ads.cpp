@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <csignal>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <thread>
@@ -480,4 +481,43 @@ TEST_CASE("serve --ads refuses a port-300 read whose length wraps the image boun
     INFO("length " << length);
     CHECK(body->result == 0x705);
   }
+}
+
+TEST_CASE("serve --ads refuses a sum command whose answers overflow the read length or one telegram") {
+  // Found by the attack on the 0xF082 sum (issue 35): the read lengths of the sub-requests were added
+  // in 32 bits, so a sub-request of length 2^32 - 512 beside a 512-byte read made 16 of them, and the
+  // server answered 528 bytes to a request that would read 16; and 118 reads of the whole image (the
+  // most one request holds) were answered in a 61 KB frame, past the 1900 bytes of user data a coupler
+  // sends, a frame that kscfg's own client drops as not AMS. Both must be ADS error 0x705.
+  EmulatedStation station(default_station(), Catalog::standard());
+  AdsRequestHandler h(station, AdsRequestHandler::Options{});
+  const ams::NetId self{127, 0, 0, 1, 1, 1};
+  auto sum = [&](const std::vector<std::array<std::uint32_t, 3>>& subs, std::uint32_t read_length) {
+    std::vector<std::uint8_t> w;
+    for (const auto& s : subs)
+      for (std::uint32_t v : {s[0], s[1], s[2], 0u})
+        for (int b = 0; b < 4; ++b) w.push_back(static_cast<std::uint8_t>(v >> (8 * b)));
+    ams::Header hd;
+    hd.target = self;
+    hd.target_port = 300;
+    hd.source = {127, 0, 0, 254, 1, 1};
+    hd.source_port = 0x8089;
+    hd.command = ams::kReadWrite;
+    hd.flags = ams::kFlagAdsCommand;
+    hd.invoke = 9;
+    AdsReply r = h.handle(ams::encode(hd, ams::read_write_request(ams::kSumReadWrite,
+                                                                  static_cast<std::uint32_t>(subs.size()),
+                                                                  read_length, w)),
+                          std::chrono::steady_clock::now(), self);
+    CHECK(ams::check_frame(r.frame).status == ams::FrameCheck::complete);
+    auto rep = ams::decode(r.frame);
+    REQUIRE(rep);
+    auto body = ams::parse_response(ams::kReadWrite, rep->data);
+    REQUIRE(body);
+    CHECK(body->data.size() <= read_length);
+    return body->result;
+  };
+  CHECK(sum({{0xF020, 0, 512}, {0xF020, 0, 0xFFFFFE00u}}, 16) == 0x705);
+  CHECK(sum(std::vector<std::array<std::uint32_t, 3>>(118, {0xF020, 0, 512}), 118 * 520) == 0x705);
+  CHECK(sum({{0xF020, 0, 512}, {0xF030, 0, 512}, {0xF020, 100, 400}}, 3 * 8 + 1424) == 0);  // 1448 bytes: served
 }

@@ -123,3 +123,32 @@ TEST_CASE("coupler keys: a serve's record makes its ADS port the coupler of its 
   kscfg::test::write_text(d.path + "/alias-ip-127.0.0.1-40003", std::to_string(getpid()) + "\nip-10.0.3.11\n");
   CHECK(coupler_key(mb("tcp://127.0.0.1:40003")) == "ip-127.0.0.1-40003");
 }
+
+TEST_CASE("coupler keys: a serve's record is written in place of a link planted at its name or its temporary's, "
+          "never through it",
+          "[link][lock]") {
+  // The lock directory is shared by every user (/run/lock/kscfg, mode 1777): a link planted there as
+  // alias-KEY (or as the record's temporary, NAME.tmp.PID) made a serve, root's too, write its record
+  // into the file the link names, whatever file that was.
+  kscfg::test::TempDir d;
+  const char* was = std::getenv("KSCFG_LOCK_DIR");
+  std::string before = was ? was : "";
+  setenv("KSCFG_LOCK_DIR", d.path.c_str(), 1);
+  struct Restore {
+    std::string v;
+    bool had;
+    ~Restore() { had ? setenv("KSCFG_LOCK_DIR", v.c_str(), 1) : unsetenv("KSCFG_LOCK_DIR"); }
+  } restore{before, was != nullptr};
+  const std::string victim = d.path + "/victim", record = d.path + "/alias-ip-127.0.0.1-40002";
+  kscfg::test::write_text(victim, "keep\n");
+  fs::create_symlink(victim, record);
+  fs::create_symlink(victim, record + ".tmp." + std::to_string(::getpid()));
+  try {
+    CouplerAlias a("ip-127.0.0.1-40002", "ip-127.0.0.1-40001");
+    CHECK(fs::is_regular_file(fs::symlink_status(record)));
+    CHECK(kscfg::test::read_text(record) == std::to_string(::getpid()) + "\nip-127.0.0.1-40001\n");
+  } catch (const Error&) {
+    // refused: as good, as long as nothing was written through the links
+  }
+  CHECK(kscfg::test::read_text(victim) == "keep\n");
+}

@@ -8,7 +8,8 @@
 
 namespace kscfg {
 
-// Writes `content` to a temporary file beside `path`, fsyncs it and renames it over `path`.
+// Writes `content` to a temporary file beside `path` (a new one, never through a link planted at its
+// name), fsyncs it and renames it over `path`.
 // A symbolic link stays one: the file it points to is replaced (beside it); with `replace_link`,
 // a link at `path` is replaced by the file instead and what it pointed to is left alone (a cache
 // that kscfg alone writes). Temporary files that a killed kscfg left beside the target

@@ -44,9 +44,14 @@ std::string host_key_address(const std::string& host);
 std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
 
+// A listener's own key, records not followed: what a CouplerAlias is made of.
+std::string listener_key(const ModbusTarget& target);
+std::string listener_key(const AdsTarget& target);
+
 // While it lives, coupler key `also` stands for `key` (the rule above): recorded in the lock directory
-// (base/owner_lock.hpp lock_dir()) as "alias-ALSO" holding "PID\nKEY\n", removed when it dies.
-// Error(Exit::file) when it cannot be written.
+// (base/owner_lock.hpp lock_dir()) as "alias-ALSO" holding "PID\nKEY\n", removed when it dies (if
+// still its own). Error(Exit::file) when it cannot be written, or when a live record of another kscfg
+// already names `also` or `key`, or stands for `also` (another listener of one of these keys).
 class CouplerAlias {
  public:
   CouplerAlias(const std::string& also, const std::string& key);
