@@ -30,19 +30,19 @@
 //                                  [--lenient-gaps] [--baud N]
 // --lenient-gaps starts the peers with their diagnostic flag (a read spanning undocumented
 // addresses gives zeros instead of exception 2): older kscfg builds read 0x1000..0x1013 at once.
-#include "harness.hpp"
-#include "station_sweep.hpp"
-
 #include <fstream>
 #include <iterator>
+
+#include "harness.hpp"
+#include "station_sweep.hpp"
 
 namespace {
 
 using namespace bench;
 
 // The cases of issue 12's table, on one TCP peer and one pty peer.
-void reference(const Options& o, const std::string& station, std::vector<Row>& rows, double cycle_ms,
-               unsigned dmin, unsigned dmax) {
+void reference(const Options& o, const std::string& station, std::vector<Row>& rows, double cycle_ms, unsigned dmin,
+               unsigned dmax) {
   const unsigned n = o.runs;
   std::string cfg = fmt::format("peer {} ms, ack {}", cycle_ms, latency_text(dmin, dmax));
   {
@@ -67,8 +67,8 @@ void reference(const Options& o, const std::string& station, std::vector<Row>& r
     Stats is = st({"--station", station, "info"}, Cache::warm, "infos");
     Stats iw = st({"info"}, Cache::warm, "infow");
     rows.push_back({link, "`info` --station", is, 0, 0, ""});
-    rows.push_back({link, "`info` no --station, warm cache", iw, 0, 0,
-                    fmt::format("{:.2f} x `info --station`", iw.ms / is.ms)});
+    rows.push_back(
+        {link, "`info` no --station, warm cache", iw, 0, 0, fmt::format("{:.2f} x `info --station`", iw.ms / is.ms)});
     Stats d = st({"--station", station, "dump"}, Cache::warm, "dump", "R47");
     double again = asked_again_pct(o, relay, {"--station", station, "dump"}, "tcp-dump", n, 48);
     rows.push_back({link, "`dump` --station (48 registers)", d, 48, 48 * lat,
@@ -221,8 +221,9 @@ void loaded(const Options& o, const std::string& station, std::vector<Row>& rows
   second.medians(s2);
   s1.failed = rounds - static_cast<unsigned>(first.ms.size());
   s2.failed = rounds - static_cast<unsigned>(second.ms.size());
-  rows.push_back({link, "`dump` --station, 1st quiet warm run after 10 loaded", s1, 48, 0,
-                  fmt::format("{:.2f} x quiet cold (target <= 1.1); kept after load (us): {}", s1.ms / cold.ms, before)});
+  rows.push_back(
+      {link, "`dump` --station, 1st quiet warm run after 10 loaded", s1, 48, 0,
+       fmt::format("{:.2f} x quiet cold (target <= 1.1); kept after load (us): {}", s1.ms / cold.ms, before)});
   rows.push_back({link, "`dump` --station, 2nd quiet warm run after 10 loaded", s2, 48, 0,
                   fmt::format("{:.2f} x quiet cold; kept after it (us): {}", s2.ms / cold.ms, after)});
   stop(*peer);
@@ -263,8 +264,9 @@ int main(int argc, char** argv) {
     else if (a == "--lenient-gaps") o.lenient = true;
     else if (a == "--baud") o.baud = static_cast<unsigned>(std::stoul(next()));
     else if (a == "-h" || a == "--help") {
-      fmt::print("usage: bench_modbus [--runs N] [--quick] [--only SUBSTRING] [--kscfg PATH] [--lenient-gaps] "
-                 "[--baud N]\n");
+      fmt::print(
+          "usage: bench_modbus [--runs N] [--quick] [--only SUBSTRING] [--kscfg PATH] [--lenient-gaps] "
+          "[--baud N]\n");
       return 0;
     } else if (std::all_of(a.begin(), a.end(), ::isdigit)) o.runs = static_cast<unsigned>(std::stoul(a));
     else die("unknown argument " + a);

@@ -32,9 +32,10 @@ int main(int argc, char** argv) {
     n += 48;
   }
   double el = std::chrono::duration<double>(clk::now() - start).count();
-  fmt::print("in-process emulator: {} register reads in {:.2f} s = {:.0f} reads/s ({:.2f} link exchanges/read, "
-             "checksum {})\n",
-             n, el, n / el, static_cast<double>(link.exchanges()) / static_cast<double>(n), sum % 7);
+  fmt::print(
+      "in-process emulator: {} register reads in {:.2f} s = {:.0f} reads/s ({:.2f} link exchanges/read, "
+      "checksum {})\n",
+      n, el, n / el, static_cast<double>(link.exchanges()) / static_cast<double>(n), sum % 7);
 
   // One `kscfg read R8` process, state file on disk (the default port).
   auto dir = std::filesystem::temp_directory_path() / fmt::format("kscfg-bench-{}", getpid());

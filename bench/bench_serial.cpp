@@ -30,8 +30,8 @@ int main() {
   std::vector<std::uint8_t> data(n);
   for (auto& b : data) b = static_cast<std::uint8_t>(g());
   fmt::print("loopback of {} bytes, sent and received in full duplex; emulated K-bus cycle 1 ms\n", n);
-  fmt::print("{:<8} {:<12} {:>5} {:<12} {:>10} {:>10} {:>9} {:>9}\n", "type", "format", "data", "line",
-             "line B/s", "got B/s", "fraction", "wall ms");
+  fmt::print("{:<8} {:<12} {:>5} {:<12} {:>10} {:>10} {:>9} {:>9}\n", "type", "format", "data", "line", "line B/s",
+             "got B/s", "fraction", "wall ms");
   for (const auto& c : cases) {
     for (const char* baud : {"9600", c.type == "KL6001" ? "19200" : "115200"}) {
       std::string toml = fmt::format("coupler = \"BK9000\"\n[[terminal]]\ntype = \"{}\"\n{}\nbaud = \"{}\"\n", c.type,

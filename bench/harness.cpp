@@ -43,8 +43,7 @@ std::unique_ptr<Child> spawn(const std::vector<std::string>& argv) {
   // Keep reading what it prints later (events), so it never blocks on a full pipe.
   c->drain = std::thread([fd] {
     char b[512];
-    while (read(fd, b, sizeof b) > 0) {
-    }
+    while (read(fd, b, sizeof b) > 0) {}
     close(fd);
   });
   return c;
@@ -120,11 +119,16 @@ std::size_t rtu_length(const std::string& b, bool request) {
   int fc = at(1);
   if (!request && (fc & 0x80)) return 5;
   switch (fc) {
-    case 1: case 2: case 3: case 4:
+    case 1:
+    case 2:
+    case 3:
+    case 4:
       if (request) return 8;
       return at(2) < 0 ? 0 : 5 + static_cast<std::size_t>(at(2));
-    case 5: case 6: return 8;
-    case 15: case 16:
+    case 5:
+    case 6: return 8;
+    case 15:
+    case 16:
       if (!request) return 8;
       return at(6) < 0 ? 0 : 9 + static_cast<std::size_t>(at(6));
     case 23:
@@ -146,11 +150,13 @@ double probe_latency_ms(const std::string& endpoint, unsigned samples) {
   for (unsigned i = 0; i < samples + 2; ++i) {
     std::uint16_t ctrl = static_cast<std::uint16_t>(0x80 | (8 + i % 2));  // read R8, R9, R8, ...
     auto t0 = clk::now();
-    if (modbus_write_register(c, 0x0800, ctrl) != 1) die(fmt::format("probe: write failed: {}", modbus_strerror(errno)));
+    if (modbus_write_register(c, 0x0800, ctrl) != 1)
+      die(fmt::format("probe: write failed: {}", modbus_strerror(errno)));
     for (;;) {
       auto tp = clk::now();
       std::uint16_t v = 0;
-      if (modbus_read_input_registers(c, 0x0000, 1, &v) != 1) die(fmt::format("probe: read failed: {}", modbus_strerror(errno)));
+      if (modbus_read_input_registers(c, 0x0000, 1, &v) != 1)
+        die(fmt::format("probe: read failed: {}", modbus_strerror(errno)));
       if ((v & 0xFF) == ctrl) {
         if (i >= 2) {  // the first two synchronise the probe with the K-bus cycle
           total += secs(tp - t0);
@@ -187,8 +193,8 @@ void Samples::medians(Stats& st) const {
   st.floor_ms = median(floor_ms);
 }
 
-Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache,
-              const std::string& tag, unsigned runs, const std::string& expect) {
+Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache, const std::string& tag,
+              unsigned runs, const std::string& expect) {
   fs::path warm = o.tmp / ("cache-" + tag);
   Samples samples;
   Stats st;
@@ -251,13 +257,14 @@ void print_rows(const std::vector<Row>& rows, bool header) {
       continue;
     }
     std::string epr = r.registers ? fmt::format("{:.2f}", r.st.exchanges / r.registers) : "-";
-    std::string rps = r.registers && r.st.line_ms > 0 ? fmt::format("{:.0f}", r.registers / (r.st.line_ms / 1000)) : "-";
+    std::string rps =
+        r.registers && r.st.line_ms > 0 ? fmt::format("{:.0f}", r.registers / (r.st.line_ms / 1000)) : "-";
     std::string lim = r.limit_ms > 0 ? fmt::format("{:.1f}", r.limit_ms) : "-";
     std::string ratio = r.limit_ms > 0 ? fmt::format("{:.2f}", r.st.line_ms / r.limit_ms) : "-";
     std::string note = r.note;
     if (r.st.failed) note += fmt::format(" ({} run(s) failed: {})", r.st.failed, r.st.error);
-    fmt::print("| {} | {} | {:.0f} | {} | {:.1f} | {:.1f} | {} | {} | {} | {} |\n", r.link, r.what, r.st.exchanges,
-               epr, r.st.ms, r.st.line_ms, rps, lim, ratio, note);
+    fmt::print("| {} | {} | {:.0f} | {} | {:.1f} | {:.1f} | {} | {} | {} | {} |\n", r.link, r.what, r.st.exchanges, epr,
+               r.st.ms, r.st.line_ms, rps, lim, ratio, note);
     std::fflush(stdout);
   }
 }

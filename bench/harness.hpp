@@ -14,6 +14,7 @@
 #include <sys/wait.h>
 #include <termios.h>
 #include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -62,7 +63,6 @@ struct Child {
   std::thread drain;
 };
 
-
 // Starts argv with stdout on a pipe and waits (bounded) for its first line.
 std::unique_ptr<Child> spawn(const std::vector<std::string>& argv);
 
@@ -86,7 +86,7 @@ struct Traffic {
   double floor_s = 0;  // RTU: wire time of every frame plus 3.5 characters each
   double line_s() const {
     return first_request && last_response && *last_response > *first_request ? secs(*last_response - *first_request)
-                                                                              : 0;
+                                                                             : 0;
   }
 };
 
@@ -109,7 +109,6 @@ class Relay {
   std::atomic<bool> stop_{false};
   std::thread th_;
 };
-
 
 // Modbus TCP: forwards both ways at once and counts MBAP frames.
 class TcpRelay : public Relay {
@@ -390,8 +389,8 @@ struct Samples {
 
 enum class Cache { none, warm, cold };
 
-Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache,
-              const std::string& tag, unsigned runs, const std::string& expect = "");
+Stats measure(const Options& o, Relay& relay, const std::vector<std::string>& args, Cache cache, const std::string& tag,
+              unsigned runs, const std::string& expect = "");
 
 // How often a read-ahead misfires: `kscfg -v` traces "R9 answered before R8; asking again" for
 // every register it had to request a second time. Returns the share of `registers` per run (%).

@@ -108,8 +108,8 @@ std::string ratio_note(const Stats& s, const Stats* one, bool rtu) {
 }  // namespace
 
 void station_sweep(const Options& o, std::vector<Row>& rows) {
-  std::vector<Server> servers{{"serve TCP", true, false}, {"peer TCP", true, true}, {"serve RTU", false, false},
-                              {"peer RTU", false, true}};
+  std::vector<Server> servers{
+      {"serve TCP", true, false}, {"peer TCP", true, true}, {"serve RTU", false, false}, {"peer RTU", false, true}};
   for (const auto& sv : servers) {
     if (!o.only.empty() && o.only != "station" && sv.name.find(o.only) == std::string::npos) continue;
     std::map<std::string, Stats> one;  // the 1-terminal figures of this server, by case
@@ -131,8 +131,8 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
       // Issue 22's single-terminal targets: a warm `read R8` (scan cache kept, no --station) at most
       // 5 requests; the apply of one changed parameter above at most 16.
       if (n == 1 && sv.tcp)
-        row("`read R8`, warm scan cache", measure(o, *relay, {"read", "--raw", "R8"}, Cache::warm, tag + "-r8", o.runs,
-                                                  "0x1771"));
+        row("`read R8`, warm scan cache",
+            measure(o, *relay, {"read", "--raw", "R8"}, Cache::warm, tag + "-r8", o.runs, "0x1771"));
       if (sv.tcp) row("info, cold scan cache", measure(o, *relay, {"info"}, Cache::cold, tag + "-info", o.runs));
       stop(*server);
     }

@@ -1,8 +1,7 @@
 #include "app.hpp"
 
-#include <fmt/format.h>
-
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -12,13 +11,13 @@
 #include <cstdlib>
 #include <iostream>
 
+#include "help.hpp"
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/session.hpp"
-#include "help.hpp"
-#include "output.hpp"
 #include "messages.hpp"
+#include "output.hpp"
 
 namespace kscfg::cli {
 
@@ -42,7 +41,8 @@ std::unique_ptr<App> build_app() {
   const char* env_port = std::getenv("KSCFG_PORT");
   a->opt.port = env_port && *env_port ? env_port : "emu";
   cli.add_option("-p,--port", a->opt.port,
-                 "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..], ads://HOST[:PORT]")
+                 "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..], "
+                 "ads://HOST[:PORT]")
       ->option_text("URI");
   cli.add_option("-t,--terminal", a->terminal_text,
                  "Terminal(s): plug position (3), type (KL6031), list (1,3), range (2-4) or all; default: the first "
@@ -171,9 +171,7 @@ static void print_error(const std::string& msg, const std::string& hint, int cod
   for (const auto& d : details) std::cerr << "kscfg:   " << flat(d) << '\n';
 }
 
-static void print_error(const Error& e) {
-  print_error(e.what(), e.hint(), static_cast<int>(e.code()), e.details());
-}
+static void print_error(const Error& e) { print_error(e.what(), e.hint(), static_cast<int>(e.code()), e.details()); }
 
 static int run_command(int argc, char** argv) {
   std::unique_ptr<App> app;

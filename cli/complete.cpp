@@ -1,5 +1,4 @@
 #include "complete.hpp"
-#include "serial_map.hpp"
 
 #include <fmt/format.h>
 
@@ -17,6 +16,7 @@
 #include "kscfg/link/serial_ports.hpp"
 #include "kscfg/station/select.hpp"
 #include "output.hpp"
+#include "serial_map.hpp"
 
 namespace kscfg::cli {
 
@@ -25,9 +25,9 @@ namespace {
 // What the words before the cursor say about the station and the terminal.
 struct Scene {
   std::map<std::string, std::string> values;  // option name ("--port") -> its value
-  std::optional<StationLayout> layout;         // when known offline
-  const TerminalType* type = nullptr;          // the selected terminal's type, when known
-  unsigned channel = 0;                        // 0-based
+  std::optional<StationLayout> layout;        // when known offline
+  const TerminalType* type = nullptr;         // the selected terminal's type, when known
+  unsigned channel = 0;                       // 0-based
 };
 
 std::string value_of(const ArgvWalk& w, std::size_t i) {
@@ -73,8 +73,7 @@ Scene scene_of(const ArgvWalk& w, const Catalog& cat) {
   }
   try {
     if (std::string c = get("--channel"); !c.empty()) s.channel = static_cast<unsigned>(std::stoul(c)) - 1;
-  } catch (const std::exception&) {
-  }
+  } catch (const std::exception&) {}
   std::string type = get("--type");  // decode -T
   if (!type.empty()) {
     if (const TerminalType* t = cat.find(type)) s.type = t;
@@ -97,8 +96,7 @@ Scene scene_of(const ArgvWalk& w, const Catalog& cat) {
           break;
         }
     }
-  } catch (const std::exception&) {
-  }
+  } catch (const std::exception&) {}
   return s;
 }
 
@@ -303,7 +301,8 @@ void positional_value(Completions& c, const App& a, const ArgvWalk& w, const Sce
   if (text == "NAME") return param_names(c, s, cat);
   if (text == "TYPE") return types(c, cat);
   if (text == "FILE") {
-    add(c, "-", path.find("backup") != std::string::npos || path.find("init") != std::string::npos ? "stdout" : "stdin");
+    add(c, "-",
+        path.find("backup") != std::string::npos || path.find("init") != std::string::npos ? "stdout" : "stdin");
     c.files = true;
     return;
   }

@@ -10,9 +10,9 @@
 #include <iostream>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/discovery/match.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
@@ -86,9 +86,10 @@ std::vector<unsigned> Context::terminal_positions(bool registers_only) {
   if (!terminal_given() || opt_.terminal) return {terminal_position()};  // one: walk no further
   auto v = select_terminals(opt_.selection, layout(), registers_only);
   if (v.empty())
-    throw Error(Exit::usage, fmt::format("-t {} selects no terminal{}", opt_.selection.text,
-                                         registers_only ? " with registers" : ""),
-                "'kscfg info' lists the station");
+    throw Error(
+        Exit::usage,
+        fmt::format("-t {} selects no terminal{}", opt_.selection.text, registers_only ? " with registers" : ""),
+        "'kscfg info' lists the station");
   return v;
 }
 

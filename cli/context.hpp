@@ -3,38 +3,38 @@
 #include <chrono>
 #include <exception>
 #include <functional>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <map>
 #include <optional>
-#include <vector>
 #include <string>
+#include <vector>
 
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/resolver.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
-#include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
+#include "kscfg/station/layout.hpp"
 #include "kscfg/station/select.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg::cli {
 
 struct GlobalOptions {
-  std::string port;           // --port/-p, KSCFG_PORT, default "emu"
-  TerminalSelection selection;  // --terminal/-t as given (empty: not given)
-  unsigned terminal = 0;      // -t when it names one plug position (1-based; 0 = not given or not a position):
-                              // commands use Context::terminal_position(), which also resolves types
-  unsigned channel = 1;       // --channel/-c (1-based)
-  std::string station;        // --station FILE
-  std::string catalog;        // --catalog DIR
-  bool json = false;          // --json
-  unsigned timeout_ms = 1000; // --timeout
-  bool verbose = false;       // -v
-  bool rescan = false;        // --rescan: scan a Modbus coupler even if the scan cache is valid
+  std::string port;               // --port/-p, KSCFG_PORT, default "emu"
+  TerminalSelection selection;    // --terminal/-t as given (empty: not given)
+  unsigned terminal = 0;          // -t when it names one plug position (1-based; 0 = not given or not a position):
+                                  // commands use Context::terminal_position(), which also resolves types
+  unsigned channel = 1;           // --channel/-c (1-based)
+  std::string station;            // --station FILE
+  std::string catalog;            // --catalog DIR
+  bool json = false;              // --json
+  unsigned timeout_ms = 1000;     // --timeout
+  bool verbose = false;           // -v
+  bool rescan = false;            // --rescan: scan a Modbus coupler even if the scan cache is valid
   unsigned lock_wait_ms = 30000;  // --lock-wait: longest wait for a coupler another kscfg holds
   // The run's one cancellation token (app.cpp makes it; its SIGINT/SIGTERM/SIGHUP handler signals
   // it): passed explicitly to every wait (base/cancel.hpp). Null: never cancelled.
@@ -113,8 +113,7 @@ class Context {
   // control byte back with the last poll (`progress` then counts that terminal's registers).
   // The values by position, in the order of regs_of(). The first error in plug order is thrown.
   std::map<unsigned, std::vector<std::uint16_t>> read_terminals(
-      const std::vector<unsigned>& positions,
-      const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
+      const std::vector<unsigned>& positions, const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
       const std::function<void(unsigned done, unsigned total)>& progress = {});
 
   // Saves emulator state etc. Called once after the command, also after a failed command.
@@ -135,9 +134,9 @@ class Context {
   // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
-  bool release_forced_ = false;                        // release_forced()
+  bool release_forced_ = false;                       // release_forced()
   std::function<void(const DeadForce&)> dead_force_;  // release_forced()
-  std::unique_ptr<StationResolver> resolver_;  // the port, opened on first use
+  std::unique_ptr<StationResolver> resolver_;         // the port, opened on first use
 };
 
 // A station file named on the command line ("-": stdin); read errors carry the OS reason.

@@ -22,7 +22,7 @@ namespace {
 struct Node {
   std::string path;  // "emu reset"
   const CLI::App* app;
-  Command* cmd;      // null for the root
+  Command* cmd;  // null for the root
   std::vector<Node> children;
 };
 
@@ -40,11 +40,9 @@ Node tree(const App& a) {
 // Options of a command; --help is listed once, with the global options.
 std::vector<const CLI::Option*> options_of(const CLI::App* app) {
   bool root = app->get_parent() == nullptr;
-  return app->get_options([root](const CLI::Option* o) {
-    return o->nonpositional() && (root || o->get_name() != "--help");
-  });
+  return app->get_options(
+      [root](const CLI::Option* o) { return o->nonpositional() && (root || o->get_name() != "--help"); });
 }
-
 
 std::vector<std::string> names_of(const CLI::Option* o) {
   std::vector<std::string> v;
@@ -71,7 +69,6 @@ std::string option_roff(const CLI::Option* o) {
   if (takes_value(o)) s += " \\fI" + roff(o->get_option_text().empty() ? "VALUE" : o->get_option_text()) + "\\fR";
   return s;
 }
-
 
 // Inline markdown: `code` in bold, roff escapes.
 std::string md_inline(const std::string& s) {
@@ -220,7 +217,8 @@ std::string generate_manpage(const App& a) {
        "(BK9000 family), port 502 by default.\n"
        ".TP\n\\fBrtu:\\fR\\fIDEVICE\\fR[\\fB?baud=\\fR\\fIN\\fR\\fB&parity=\\fR\\fIN|E|O\\fR\\fB&data=\\fR\\fIN\\fR"
        "\\fB&stop=\\fR\\fIN\\fR\\fB&unit=\\fR\\fIN\\fR]\nA Modbus RTU coupler (BK7300 family) on a serial port.\n"
-       ".TP\n\\fBads://\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?netid=\\fR\\fINETID\\fR\\fB&source=\\fR\\fINETID\\fR]\n"
+       ".TP\n\\fBads://"
+       "\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?netid=\\fR\\fINETID\\fR\\fB&source=\\fR\\fINETID\\fR]\n"
        "A coupler or Bus Terminal Controller over ADS (AMS/TCP, port 48898 by default; BK9000 family, BC9000, "
        "BX9000), with no router: the process image over ADS port 300, the station from the coupler's table 9 "
        "on port 100. \\fBnetid\\fR is the coupler's AMS NetId (default: its IP address plus .1.1), "
@@ -256,20 +254,20 @@ std::string generate_manpage(const App& a) {
       std::string values;
       for (const auto& c : param_choices(p)) values += (values.empty() ? "" : ", ") + c;
       m << ".TP\n\\fB" << roff(p.name) << "\\fR \\fI" << roff(values) << "\\fR\n"
-        << roff(param_description(p.desc)) << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask,
-                                        decode_param(p, t->regs[p.reg].def))
+        << roff(param_description(p.desc))
+        << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask, decode_param(p, t->regs[p.reg].def))
         << (p.unit.empty() ? "" : ", " + roff(p.unit)) << ")."
-        << (p.divisor ? " Other rates by divisor: " + roff(fmt::format("{} Hz / ({} x (HB + 1))", p.divisor->clock,
-                                                                       p.divisor->prescale)) + "."
+        << (p.divisor ? " Other rates by divisor: " +
+                            roff(fmt::format("{} Hz / ({} x (HB + 1))", p.divisor->clock, p.divisor->prescale)) + "."
                       : std::string())
         << "\n";
     }
   }
   m << ".SH JSON OUTPUT\n" << md_to_roff(embedded_doc("json.md"));
   m << ".SH EXIT STATUS\n";
-  for (Exit e : {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify,
-                 Exit::file, Exit::interrupted, Exit::unverified, Exit::changed, Exit::busy,
-                 Exit::other_master, Exit::internal}) {
+  for (Exit e :
+       {Exit::ok, Exit::differences, Exit::usage, Exit::link, Exit::timeout, Exit::refused, Exit::verify, Exit::file,
+        Exit::interrupted, Exit::unverified, Exit::changed, Exit::busy, Exit::other_master, Exit::internal}) {
     static const std::map<Exit, const char*> text = {
         {Exit::ok, "Success."},
         {Exit::differences, "diff: the station differs from the file."},

@@ -91,9 +91,11 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
   if (auto it = a.command_of.find(node); it != a.command_of.end()) cmd = it->second;
   out += wrap("Usage: " + usage(node), width, 0, 7);
   out += '\n';
-  std::string what = cmd ? cmd->brief() + "." : std::string("kscfg configures Bus Terminals (KL6001, KL5101, KL6031, ...) "
-                                                            "through their register interface, over the embedded "
-                                                            "emulator, Modbus TCP, Modbus RTU or ADS.");
+  std::string what = cmd ? cmd->brief() + "."
+                         : std::string(
+                               "kscfg configures Bus Terminals (KL6001, KL5101, KL6031, ...) "
+                               "through their register interface, over the embedded "
+                               "emulator, Modbus TCP, Modbus RTU or ADS.");
   out += wrap(what, width, 0, 0);
 
   auto subs = node->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); });
@@ -152,8 +154,8 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
     out += wrap(fmt::format("More: man kscfg, section COMMANDS, \"{}\". All commands: kscfg help.", command_path(node)),
                 width, 0, 0);
   else
-    out += wrap("'kscfg help COMMAND' (or 'kscfg COMMAND --help') for a command; 'man kscfg' for everything.", width,
-                0, 0);
+    out += wrap("'kscfg help COMMAND' (or 'kscfg COMMAND --help') for a command; 'man kscfg' for everything.", width, 0,
+                0);
   return out;
 }
 

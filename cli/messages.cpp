@@ -57,11 +57,11 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
   // Empty values: `-t ''` is a mistake, never "the default".
   for (std::size_t i = 0; i < t.size(); ++i) {
     if (t[i].kind == Token::Kind::value && t[i].word.empty())
-      return Problem{fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)),
-                     ""};
+      return Problem{
+          fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)), ""};
     if (t[i].kind == Token::Kind::option && t[i].inline_value && t[i].word.back() == '=')
-      return Problem{fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)),
-                     ""};
+      return Problem{
+          fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)), ""};
   }
   if (parsed) return std::nullopt;
 
@@ -93,10 +93,9 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
   std::map<const CLI::Option*, std::vector<std::string>> given;
   for (std::size_t i = 0; i < t.size(); ++i) {
     if (t[i].kind == Token::Kind::option && takes_value(t[i].option) && t[i].option->get_expected_max() <= 1) {
-      std::string v = t[i].inline_value ? t[i].word.substr(t[i].word.find('=') == std::string::npos
-                                                               ? 2
-                                                               : t[i].word.find('=') + 1)
-                                        : (i + 1 < t.size() ? t[i + 1].word : "");
+      std::string v = t[i].inline_value
+                          ? t[i].word.substr(t[i].word.find('=') == std::string::npos ? 2 : t[i].word.find('=') + 1)
+                          : (i + 1 < t.size() ? t[i + 1].word : "");
       given[t[i].option].push_back(v);
     }
   }
@@ -125,8 +124,7 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
                    help_hint(k.app)};
   }
   // A command that needs a sub-command, or its arguments.
-  if (!w.node->get_parent())
-    return Problem{"no command given", "'kscfg help' lists the commands"};
+  if (!w.node->get_parent()) return Problem{"no command given", "'kscfg help' lists the commands"};
   auto subs = command_names(w.node);
   if (!subs.empty())
     return Problem{fmt::format("'{}' needs a command: {}", command_path(w.node), join_or(subs)), help_hint(w.node)};

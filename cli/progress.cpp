@@ -14,8 +14,8 @@
 namespace kscfg::cli {
 
 namespace {
-constexpr auto kQuiet = std::chrono::milliseconds(300);    // quicker work shows nothing
-constexpr auto kRedraw = std::chrono::milliseconds(100);   // at most ten redraws a second
+constexpr auto kQuiet = std::chrono::milliseconds(300);   // quicker work shows nothing
+constexpr auto kRedraw = std::chrono::milliseconds(100);  // at most ten redraws a second
 }  // namespace
 
 std::string duration_text(double s) {
@@ -52,9 +52,10 @@ void ProgressBar::update(std::size_t done, const std::string& item) {
   const int bar = 20;
   int fill = total_ ? static_cast<int>(std::min(done, total_) * bar / total_) : bar;
   // An open end (total 0: receiving until the line is idle) has no bar and no estimate.
-  std::string line = total_ ? fmt::format("{} [{}{}] {}/{}{}{}", what_, std::string(fill, '#'),
-                                          std::string(bar - fill, ' '), done, total_, item.empty() ? "" : " " + item, eta)
-                            : fmt::format("{} {}{}", what_, done, item.empty() ? "" : " " + item);
+  std::string line = total_
+                         ? fmt::format("{} [{}{}] {}/{}{}{}", what_, std::string(fill, '#'),
+                                       std::string(bar - fill, ' '), done, total_, item.empty() ? "" : " " + item, eta)
+                         : fmt::format("{} {}{}", what_, done, item.empty() ? "" : " " + item);
   if (line.size() > 79) line.resize(79);
   std::size_t pad = width_ > line.size() ? width_ - line.size() : 0;
   std::cerr << '\r' << line << std::string(pad, ' ') << std::flush;

@@ -11,7 +11,7 @@ namespace kscfg::cli {
 
 namespace {
 const std::pair<const char*, unsigned> kMaps[] = {
-    {"crlf", kMapCrLf},   {"crcrlf", kMapCrCrLf}, {"igncr", kMapIgnCr}, {"lfcr", kMapLfCr},
+    {"crlf", kMapCrLf},     {"crcrlf", kMapCrCrLf}, {"igncr", kMapIgnCr}, {"lfcr", kMapLfCr},
     {"lfcrlf", kMapLfCrLf}, {"ignlf", kMapIgnLf},   {"bsdel", kMapBsDel}, {"delbs", kMapDelBs},
 };
 }  // namespace

@@ -9,8 +9,7 @@
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   std::string text(reinterpret_cast<const char*>(data), size);
   kscfg::Catalog cat;
-  if (kscfg::fuzz::refuses([&] { cat.add_text("fuzz.toml", text); }, {kscfg::Exit::file, kscfg::Exit::usage}))
-    return 0;
+  if (kscfg::fuzz::refuses([&] { cat.add_text("fuzz.toml", text); }, {kscfg::Exit::file, kscfg::Exit::usage})) return 0;
   // What was added answers the queries the CLI makes.
   for (const auto& [name, type] : cat.types()) {
     FUZZ_CHECK(cat.find(name) == type.get());

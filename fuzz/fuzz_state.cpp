@@ -14,8 +14,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   nlohmann::json j = nlohmann::json::parse(data, data + size, nullptr, false);
   if (j.is_discarded()) return 0;
   std::unique_ptr<kscfg::EmulatedStation> st;
-  if (kscfg::fuzz::refuses([&] { st = kscfg::EmulatedStation::from_json(j, cat); }, {kscfg::Exit::file}))
-    return 0;
+  if (kscfg::fuzz::refuses([&] { st = kscfg::EmulatedStation::from_json(j, cat); }, {kscfg::Exit::file})) return 0;
   std::string saved = st->to_json().dump(1);
   std::unique_ptr<kscfg::EmulatedStation> back;
   try {

@@ -28,7 +28,7 @@ const std::string& test_cache_dir() {
 }  // namespace
 
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
-          const std::string& input) {
+              const std::string& input) {
   int out[2], err[2], in[2];
   if (pipe(out) || pipe(err) || pipe(in)) throw std::runtime_error("pipe");
   const std::string& cache = test_cache_dir();  // made here, in the parent: removed at its exit

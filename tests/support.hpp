@@ -12,10 +12,10 @@
 #ifdef KSCFG_TEST_HOOKS
 #define KSCFG_NEEDS_TEST_HOOKS() static_cast<void>(0)
 #else
-#define KSCFG_NEEDS_TEST_HOOKS()                                                                              \
-  do {                                                                                                       \
+#define KSCFG_NEEDS_TEST_HOOKS()                                                                                      \
+  do {                                                                                                                \
     WARN("kscfg-test-skipped: needs the test hooks, and this build has none (configure with -DKSCFG_TEST_HOOKS=ON)"); \
-    return;                                                                                                  \
+    return;                                                                                                           \
   } while (false)
 #endif
 
@@ -29,7 +29,7 @@ struct Run {
 // Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
-          double timeout_s = 60, const std::string& input = "");
+              double timeout_s = 60, const std::string& input = "");
 
 // What run_kscfg() and Child give kscfg: XDG_CACHE_HOME is this directory (one per test process),
 // XDG_STATE_HOME its state/ and KSCFG_LOCK_DIR its locks/.

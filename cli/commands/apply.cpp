@@ -7,13 +7,13 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../progress.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/verdict.hpp"
-#include "../progress.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
@@ -120,7 +120,8 @@ class Apply : public ApplyCommand {
            "and ends with the command that undoes the change (\\fIkscfg \\-\\-port PORT restore FILE\\fR, also "
            "printed on stderr and in \\fB\\-\\-json\\fR as \\fBbackup\\fR and \\fBundo\\fR). Automatic backups "
            "are kept per port under \\fI$XDG_STATE_HOME/kscfg/backups/PORT/\\fR; the newest 20 are kept "
-           "(\\fB\\-\\-keep\\-backups\\fR \\fIN\\fR or \\fBKSCFG_BACKUP_KEEP\\fR; 0 keeps all). If any write fails, every "
+           "(\\fB\\-\\-keep\\-backups\\fR \\fIN\\fR or \\fBKSCFG_BACKUP_KEEP\\fR; 0 keeps all). If any write fails, "
+           "every "
            "register this run wrote is restored and the exit status says why. Running apply twice changes "
            "nothing the second time. Exit status: 0 no change needed, 10 changed, other: failure (nothing "
            "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "

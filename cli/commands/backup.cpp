@@ -31,7 +31,9 @@ class Backup : public Command {
            "registers). With \\fB\\-\\-json\\fR and no \\fIFILE\\fR, stdout is one JSON object whose "
            "\\fBstation\\fR is the station file's text.";
   }
-  std::vector<std::string> examples() const override { return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"}; }
+  std::vector<std::string> examples() const override {
+    return {"backup station-7.toml", "--port tcp://10.0.0.7 backup > s7.toml"};
+  }
   void add_cli(CLI::App& sub) override {
     sub.add_option("FILE", file_, "Output file (default or -: stdout)")->option_text("FILE");
     sub.add_flag("--force", force_, "Replace an existing FILE");
@@ -40,10 +42,10 @@ class Backup : public Command {
     // A station file holds every terminal: a backup of "terminal 1" would restore as a whole station.
     const TerminalSelection& sel = ctx.options().selection;
     if (ctx.terminal_given() && !(sel.all && sel.ranges.empty() && sel.types.empty()))
-      throw Error(Exit::usage,
-                  fmt::format("'kscfg backup' saves the whole station; -t {} selects terminals",
-                              ctx.options().selection.text),
-                  "drop -t; 'kscfg -t " + ctx.options().selection.text + " dump' shows a terminal's registers");
+      throw Error(
+          Exit::usage,
+          fmt::format("'kscfg backup' saves the whole station; -t {} selects terminals", ctx.options().selection.text),
+          "drop -t; 'kscfg -t " + ctx.options().selection.text + " dump' shows a terminal's registers");
     refuse_to_replace(file_, force_);  // before the station is read: nothing is lost, no time wasted
     StationSpec spec;
     {
@@ -58,7 +60,8 @@ class Backup : public Command {
       write_file_atomic(file_, text);
       if (!ctx.json()) std::cout << fmt::format("backup of {} terminals written to {}\n", spec.terminals.size(), file_);
     }
-    if (ctx.json() && !file_.empty() && file_ != "-") print_json({{"file", file_}, {"terminal_count", spec.terminals.size()}});
+    if (ctx.json() && !file_.empty() && file_ != "-")
+      print_json({{"file", file_}, {"terminal_count", spec.terminals.size()}});
     return 0;
   }
 

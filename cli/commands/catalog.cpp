@@ -6,8 +6,8 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../help.hpp"
-#include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/params.hpp"
 
 namespace kscfg::cli {
 
@@ -45,7 +45,9 @@ class CatalogCmd : public Command {
            "process-image formats and where the facts come from. The description format is in "
            "\\fBkscfg\\-catalog\\fR(5).";
   }
-  std::vector<std::string> examples() const override { return {"catalog", "catalog KL6001", "--catalog ./types catalog"}; }
+  std::vector<std::string> examples() const override {
+    return {"catalog", "catalog KL6001", "--catalog ./types catalog"};
+  }
   void add_cli(CLI::App& sub) override { sub.add_option("TYPE", type_, "Terminal type")->option_text("TYPE"); }
   int run(Context& ctx) override {
     const Catalog& cat = ctx.catalog();
@@ -53,12 +55,14 @@ class CatalogCmd : public Command {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& [n, t] : cat.types()) {
         if (ctx.json())
-          arr.push_back({{"type", n}, {"family", t->family},
+          arr.push_back({{"type", n},
+                         {"family", t->family},
                          {"r8", t->has_registers ? nlohmann::json(t->r8) : nlohmann::json(nullptr)},
-                         {"title", t->title}, {"origin", t->origin}});
+                         {"title", t->title},
+                         {"origin", t->origin}});
         else
-          std::cout << fmt::format("{:<8} {:<12} {:<5} {}\n", n, t->family, t->has_registers ? std::to_string(t->r8) : "-",
-                                   t->title);
+          std::cout << fmt::format("{:<8} {:<12} {:<5} {}\n", n, t->family,
+                                   t->has_registers ? std::to_string(t->r8) : "-", t->title);
       }
       if (ctx.json()) print_json({{"types", arr}});
       return 0;
@@ -68,19 +72,34 @@ class CatalogCmd : public Command {
       nlohmann::json regs = nlohmann::json::array(), params = nlohmann::json::array(), images = nlohmann::json::array();
       for (const auto& r : t.regs)
         if (r.described || r.addr == 8 || r.addr == 9)
-          regs.push_back({{"register", r.addr}, {"name", r.name}, {"default", r.def},
-                          {"storage", proto::storage_name(r.storage)}, {"writable", r.writable}, {"description", r.desc}});
+          regs.push_back({{"register", r.addr},
+                          {"name", r.name},
+                          {"default", r.def},
+                          {"storage", proto::storage_name(r.storage)},
+                          {"writable", r.writable},
+                          {"description", r.desc}});
       for (const auto& p : t.params) {
         nlohmann::json values = nlohmann::json::array();
         for (const auto& c : param_choices(p)) values.push_back(param_json(c));
-        params.push_back({{"name", p.name}, {"register", p.reg}, {"mask", p.mask}, {"choices", values},
-                          {"default", param_json(decode_param(p, t.regs[p.reg].def))}, {"measured_in", p.unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(p.unit)},
+        params.push_back({{"name", p.name},
+                          {"register", p.reg},
+                          {"mask", p.mask},
+                          {"choices", values},
+                          {"default", param_json(decode_param(p, t.regs[p.reg].def))},
+                          {"measured_in", p.unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(p.unit)},
                           {"description", p.desc}});
       }
       for (const auto& im : t.images) images.push_back({{"name", im.name}, {"elements", elements_text(im.out)}});
-      print_json({{"type", t.type}, {"title", t.title}, {"family", t.family},
-                  {"r8", t.has_registers ? nlohmann::json(t.r8) : nlohmann::json(nullptr)}, {"channels", t.channels}, {"registers", regs},
-                  {"params", params}, {"images", images}, {"source", t.source}, {"origin", t.origin},
+      print_json({{"type", t.type},
+                  {"title", t.title},
+                  {"family", t.family},
+                  {"r8", t.has_registers ? nlohmann::json(t.r8) : nlohmann::json(nullptr)},
+                  {"channels", t.channels},
+                  {"registers", regs},
+                  {"params", params},
+                  {"images", images},
+                  {"source", t.source},
+                  {"origin", t.origin},
                   {"factory_reset", t.reset == FactoryReset::r7 ? "r7" : "defaults"}});
       return 0;
     }

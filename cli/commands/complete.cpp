@@ -1,9 +1,10 @@
 // kscfg __complete -- WORDS...: candidates for shell completion (hidden; see ../complete.hpp).
+#include "../complete.hpp"
+
 #include <iostream>
 
 #include "../app.hpp"
 #include "../commands.hpp"
-#include "../complete.hpp"
 
 namespace kscfg::cli {
 

@@ -32,7 +32,8 @@ class Coupler : public Command {
            "(\\fBemu\\fR) is no coupler: serve it with \\fBkscfg serve\\fR and read that.";
   }
   std::vector<std::string> examples() const override {
-    return {"--port tcp://10.0.3.11 coupler", "--port ads://10.0.3.11 coupler", "--port ads://10.0.3.11 --json coupler"};
+    return {"--port tcp://10.0.3.11 coupler", "--port ads://10.0.3.11 coupler",
+            "--port ads://10.0.3.11 --json coupler"};
   }
   void add_cli(CLI::App&) override {}
 
@@ -54,8 +55,7 @@ class Coupler : public Command {
       w = std::max(w, x.name.size());
       v = std::max(v, x.value.size());
     }
-    for (const auto& x : s.settings)
-      std::cout << fmt::format("{:<{}}  {:<{}}  {}\n", x.name, w, x.value, v, x.where);
+    for (const auto& x : s.settings) std::cout << fmt::format("{:<{}}  {:<{}}  {}\n", x.name, w, x.value, v, x.where);
     std::cout << "sources:\n";
     std::vector<std::string> seen;
     for (const auto& x : s.settings)

@@ -15,8 +15,8 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../output.hpp"
-#include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
@@ -43,7 +43,8 @@ std::string bits_text(const nlohmann::json& b, const TerminalType* type, const c
     for (const auto& f : table->fields)
       if (bits.contains(f.name)) s += fmt::format(" {}={}", f.name, bits.at(f.name).get<unsigned>());
   } else {
-    for (auto it = bits.begin(); it != bits.end(); ++it) s += fmt::format(" {}={}", it.key(), it.value().get<unsigned>());
+    for (auto it = bits.begin(); it != bits.end(); ++it)
+      s += fmt::format(" {}={}", it.key(), it.value().get<unsigned>());
   }
   return s;
 }
@@ -122,7 +123,8 @@ std::string line_text(const nlohmann::json& j, const Catalog& cat, std::size_t w
   const TerminalType* type = cat.find(j.at("type").get<std::string>());
   std::string format = j.value("format", "");
   std::string ch = j.contains("channel") ? std::to_string(j.at("channel").get<unsigned>()) : "-";
-  std::string s = fmt::format("{:<4}{:<3}{:<10}", j.at("position").get<unsigned>(), ch, j.at("type").get<std::string>());
+  std::string s =
+      fmt::format("{:<4}{:<3}{:<10}", j.at("position").get<unsigned>(), ch, j.at("type").get<std::string>());
   std::vector<std::string> parts;
   if (j.value("register_mode", false)) parts.push_back("REGISTER MODE");
   if (j.contains("status")) parts.push_back("status " + bits_text(j.at("status"), type, "status", format));
@@ -160,15 +162,17 @@ bool write_out(const std::string& s) {
 // The command line that writes the outputs' previous values back and leaves them (kill -9).
 std::string undo_command(Context& ctx, const TerminalImage& t, unsigned ch, const ForcePlan& plan) {
   auto quote = [](const std::string& w) {
-    bool plain = !w.empty() && w.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
-                                                   "_-+=.,:/@%") == std::string::npos;
+    bool plain = !w.empty() && w.find_first_not_of(
+                                   "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789"
+                                   "_-+=.,:/@%") == std::string::npos;
     if (plain) return w;
     std::string q = "'";
     for (char c : w) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
     return q + "'";
   };
   std::string cmd = "kscfg --port " + quote(ctx.options().port);
-  if (!ctx.options().station.empty() && ctx.options().station != "-") cmd += " --station " + quote(ctx.options().station);
+  if (!ctx.options().station.empty() && ctx.options().station != "-")
+    cmd += " --station " + quote(ctx.options().station);
   cmd += fmt::format(" -t {}", t.position);
   if (t.complex && ch > 0) cmd += fmt::format(" -c {}", ch + 1);
   cmd += " data force";
@@ -227,9 +231,14 @@ class Data : public Command {
            "\\fB\\-\\-interval\\fR of 1000 ms or more there.";
   }
   std::vector<std::string> examples() const override {
-    return {"data", "data --once", "--json data --once", "-t 2 data --count 5 --interval 100",
-            "-t 6 data force 1=on 3=on --yes", "-t 2 data force D0=0x10 D1=0x27 CT/ST=0x04 --yes --hold 2000",
-            "-p tcp://10.0.3.11 --station line3.toml -t 5 data force value=4.5 --yes", "data release --yes"};
+    return {"data",
+            "data --once",
+            "--json data --once",
+            "-t 2 data --count 5 --interval 100",
+            "-t 6 data force 1=on 3=on --yes",
+            "-t 2 data force D0=0x10 D1=0x27 CT/ST=0x04 --yes --hold 2000",
+            "-p tcp://10.0.3.11 --station line3.toml -t 5 data force value=4.5 --yes",
+            "data release --yes"};
   }
   std::vector<std::string> completions() const override { return {"force", "release"}; }
   void add_cli(CLI::App& sub) override {
@@ -257,7 +266,9 @@ class Data : public Command {
     // restore at its end (else those would be its "previous values").
     if (force && yes_ && !no_restore_) ctx.release_forced(true);
     if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
-    std::size_t count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    std::size_t count = once_            ? 1
+                        : count_.empty() ? 0
+                                         : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
     auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
     // ADS port 300: "If no further telegram arrives within 1000 ms the outputs will be switched to
@@ -287,9 +298,10 @@ class Data : public Command {
     for (const auto& t : L.terminals)
       if (!t.complex) din += t.bits_in, dout += t.bits_out;
     if (!only && shown.empty() && (L.digital_in_bits > din || L.digital_out_bits > dout))
-      std::cerr << fmt::format("kscfg: note: {} digital input and {} output bits belong to no terminal here (a scan "
-                               "sees only their totals); give --station FILE to see them by terminal\n",
-                               L.digital_in_bits - din, L.digital_out_bits - dout);
+      std::cerr << fmt::format(
+          "kscfg: note: {} digital input and {} output bits belong to no terminal here (a scan "
+          "sees only their totals); give --station FILE to see them by terminal\n",
+          L.digital_in_bits - din, L.digital_out_bits - dout);
 
     ForcePlan plan;
     const TerminalImage* ft = nullptr;
@@ -319,17 +331,18 @@ class Data : public Command {
       // kill -9 is the one way out kscfg cannot clean up after: say how to do it by hand before
       // anything is forced (said after, a kill could come between).
       if (!no_restore_)
-        std::cerr << fmt::format("kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
-                                 "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
-                                 ft->position, ft->type->type, undo_cmd);
+        std::cerr << fmt::format(
+            "kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
+            "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
+            ft->position, ft->type->type, undo_cmd);
       // Noted in the session journal before they are written: a kill -9 leaves them for the next
       // kscfg on this coupler, which names them and puts them back with --yes (data release).
       if (!no_restore_) journal_force(ctx.journal(), *ft, fch, plan);
       apply_force(link, plan);
       if (no_restore_) {
         if (ctx.json()) {
-          nlohmann::json j{{"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes},
-                           {"restored", false}};
+          nlohmann::json j{
+              {"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes}, {"restored", false}};
           if (ft->complex) j["channel"] = fch + 1;
           write_out(j.dump() + "\n");
         } else {
@@ -345,8 +358,8 @@ class Data : public Command {
     // was forgotten with it); a link error is tried again (a Modbus link reconnects). Returns the
     // error.
     auto restore = [&]() -> std::optional<Error> {
-      ShieldScope shield(ctx.cancel(), fmt::format("restoring the forced outputs of terminal {} ({})", ft->position,
-                                                   ft->type->type));
+      ShieldScope shield(ctx.cancel(),
+                         fmt::format("restoring the forced outputs of terminal {} ({})", ft->position, ft->type->type));
       std::optional<Error> failed;
       for (int attempt = 0; attempt < 3; ++attempt) {
         try {
@@ -364,9 +377,10 @@ class Data : public Command {
     auto restore_after_error = [&] {
       if (!force) return;
       if (auto e = restore())
-        std::cerr << fmt::format("kscfg: warning: restoring the outputs of terminal {} failed: {}; they may still be "
-                                 "forced: put them back with: {}\n",
-                                 ft->position, e->what(), undo_cmd);
+        std::cerr << fmt::format(
+            "kscfg: warning: restoring the outputs of terminal {} failed: {}; they may still be "
+            "forced: put them back with: {}\n",
+            ft->position, e->what(), undo_cmd);
       else
         std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
                                  ft->type->type);
@@ -394,8 +408,8 @@ class Data : public Command {
         std::cerr << fmt::format("kscfg: the reader of stdout went away; terminal {} ({}): outputs restored\n",
                                  ft->position, ft->type->type);
       if (ctx.json()) {
-        nlohmann::json j{{"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes},
-                         {"restored", true}};
+        nlohmann::json j{
+            {"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes}, {"restored", true}};
         if (ft->complex) j["channel"] = fch + 1;
         write_out(j.dump() + "\n");
       } else {
@@ -423,24 +437,24 @@ class Data : public Command {
     std::string text;
     for (const auto& f : found) {
       const auto& b = f.forced;
-      const char* state = f.state == DeadForce::State::restored ? "restored"
-                          : f.state == DeadForce::State::forced ? "forced"
+      const char* state = f.state == DeadForce::State::restored  ? "restored"
+                          : f.state == DeadForce::State::forced  ? "forced"
                           : f.state == DeadForce::State::changed ? "changed"
-                                                                  : "failed";
+                                                                 : "failed";
       still += f.state == DeadForce::State::forced;
       if (f.state == DeadForce::State::failed) {
         ++failed;
         if (!first) first = f.error;
       }
-      nlohmann::json j{{"position", b.position}, {"type", b.type},     {"offset", b.offset},
-                       {"mask", b.mask},         {"before", b.before}, {"after", b.after},
-                       {"pid", f.pid},           {"outcome", state}};
+      nlohmann::json j{{"position", b.position}, {"type", b.type},   {"offset", b.offset}, {"mask", b.mask},
+                       {"before", b.before},     {"after", b.after}, {"pid", f.pid},       {"outcome", state}};
       if (b.channel) j["channel"] = b.channel + 1;
       outs.push_back(j);
       if (f.state == DeadForce::State::restored)
-        text += fmt::format("terminal {} ({}): output byte {} bits 0x{:02X} put back to 0x{:02X} (forced by kscfg "
-                            "process {})\n",
-                            b.position, b.type, b.offset, b.mask, b.before, f.pid);
+        text += fmt::format(
+            "terminal {} ({}): output byte {} bits 0x{:02X} put back to 0x{:02X} (forced by kscfg "
+            "process {})\n",
+            b.position, b.type, b.offset, b.mask, b.before, f.pid);
     }
     if (still && yes_)
       throw Error(Exit::usage,
@@ -449,10 +463,11 @@ class Data : public Command {
                               still, still == 1 ? "" : "s", still == 1 ? "s" : ""),
                   "give --station FILE with the terminals in plug order");
     if (still)
-      throw Error(Exit::refused,
-                  fmt::format("{} output byte{} left forced by a killed 'kscfg data force' (named above); nothing written",
-                              still, still == 1 ? " is" : "s are"),
-                  "add --yes to put them back");
+      throw Error(
+          Exit::refused,
+          fmt::format("{} output byte{} left forced by a killed 'kscfg data force' (named above); nothing written",
+                      still, still == 1 ? " is" : "s are"),
+          "add --yes to put them back");
     if (failed)
       throw Error(first ? first->code() : Exit::link,
                   fmt::format("putting back {} output byte{} left forced failed: {}", failed, failed == 1 ? "" : "s",
@@ -464,8 +479,8 @@ class Data : public Command {
   }
 
   int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, const std::vector<unsigned>& shown,
-           std::size_t count,
-           std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold, const ForcePlan* plan) {
+           std::size_t count, std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold,
+           const ForcePlan* plan) {
     EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
     const auto start = std::chrono::steady_clock::now();
@@ -475,7 +490,8 @@ class Data : public Command {
       if (plan && n > 1) apply_force(link, *plan);  // held: written again every interval
       // Only outside register mode: a command that read a register just before leaves its answer in
       // the input image until the terminal has seen the control byte go back.
-      ImageSnapshot s = read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), ctx.cancel(), only);
+      ImageSnapshot s =
+          read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), ctx.cancel(), only);
       auto rows = decode_station(L, s, only);
       if (!shown.empty())
         std::erase_if(rows, [&](const nlohmann::json& r) {

@@ -6,8 +6,8 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/parameters.hpp"
 
 namespace kscfg::cli {
 
@@ -27,8 +27,8 @@ class Decode : public Command {
            "from the selected terminal of the station.";
   }
   std::vector<std::string> examples() const override {
-    return {"decode status 0x35 -T KL6001", "decode control 0x0321 -T KL6031 --image large", "decode status 0x9F -T KL6001",
-            "decode status 0x4002 -T CX-KL6xx1"};
+    return {"decode status 0x35 -T KL6001", "decode control 0x0321 -T KL6031 --image large",
+            "decode status 0x9F -T KL6001", "decode status 0x4002 -T CX-KL6xx1"};
   }
   std::vector<std::string> completions() const override { return {"control", "status"}; }
   void add_cli(CLI::App& sub) override {
@@ -59,8 +59,9 @@ class Decode : public Command {
     if (ctx.json()) {
       nlohmann::json bits = nlohmann::json::object();
       for (const auto& b : d.bits) bits[b.name] = b.value;
-      nlohmann::json j{{"type", type->type}, {"kind", kind_}, {"value", v}, {"width", d.width},
-                       {"register_mode", d.register_mode}, {"bits", bits}};
+      nlohmann::json j{
+          {"type", type->type}, {"kind", kind_}, {"value", v}, {"width", d.width}, {"register_mode", d.register_mode},
+          {"bits", bits}};
       if (d.register_mode) {
         j["register"] = d.reg;
         j["write"] = d.write;
@@ -72,16 +73,15 @@ class Decode : public Command {
     for (int i = static_cast<int>(d.width) - 1; i >= 0; --i) bin += ((v >> i) & 1) ? '1' : '0';
     std::cout << fmt::format("{} {} 0x{:0{}X} = 0b{}\n", type->type, kind_, v, d.width / 4, bin);
     if (d.register_mode) {
-      if (kind_ == "control")
-        std::cout << fmt::format("  register mode: {} R{}\n", d.write ? "write" : "read", d.reg);
+      if (kind_ == "control") std::cout << fmt::format("  register mode: {} R{}\n", d.write ? "write" : "read", d.reg);
       else
         std::cout << fmt::format("  register mode: acknowledge of R{}{}\n", d.reg,
                                  d.write ? " (bit 6 set: the text's form of a write ack)" : "");
       return 0;
     }
-    std::cout << (type->has_registers ? "  process data mode (REG = 0)\n" : "  process data (the type has no register set)\n");
-    for (const auto& b : d.bits)
-      std::cout << fmt::format("  {:<12} {:<3} {}\n", b.name, b.value, b.desc);
+    std::cout << (type->has_registers ? "  process data mode (REG = 0)\n"
+                                      : "  process data (the type has no register set)\n");
+    for (const auto& b : d.bits) std::cout << fmt::format("  {:<12} {:<3} {}\n", b.name, b.value, b.desc);
     return 0;
   }
 

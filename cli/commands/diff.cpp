@@ -5,10 +5,10 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "../progress.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/verdict.hpp"
-#include "../progress.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
@@ -20,8 +20,12 @@ nlohmann::json plan_json(const Plan& plan) {
     for (const auto& p : cp.params)
       ps.push_back({{"name", p.name}, {"before", param_json(p.from)}, {"after", param_json(p.to)}});
     for (const auto& r : cp.registers) rs.push_back({{"register", r.reg}, {"before", r.from}, {"after", r.to}});
-    terms.push_back({{"position", cp.position}, {"channel", cp.channel + 1}, {"type", cp.type},
-                     {"changed", !cp.registers.empty()}, {"params", ps}, {"registers", rs}});
+    terms.push_back({{"position", cp.position},
+                     {"channel", cp.channel + 1},
+                     {"type", cp.type},
+                     {"changed", !cp.registers.empty()},
+                     {"params", ps},
+                     {"registers", rs}});
   }
   return {{"changed", plan.changes()}, {"terminals", terms}};
 }
@@ -64,7 +68,9 @@ class Diff : public Command {
            "overall.";
   }
   std::vector<std::string> examples() const override { return {"diff line3.toml", "--json diff line3.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE");
+  }
   int run(Context& ctx) override {
     StationSpec want = load_station_arg(file_, ctx.catalog());
     if (want.partial()) want = expand_partial(want, ctx.layout());  // position = N: only those

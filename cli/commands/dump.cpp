@@ -7,8 +7,8 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../progress.hpp"
-#include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/describe.hpp"
 
 namespace kscfg::cli {
 
@@ -75,11 +75,14 @@ class Dump : public Command {
       std::string def = has_default ? hex4(d.def) : "-";
       if (ctx.json()) {
         // RAM registers (process variables, the code word) have no factory value: null.
-        arr.push_back({{"register", r}, {"value", v[r]}, {"hex", hex4(v[r])},
+        arr.push_back({{"register", r},
+                       {"value", v[r]},
+                       {"hex", hex4(v[r])},
                        {"storage", proto::storage_name(d.storage)},
                        {"default", has_default ? nlohmann::json(d.def) : nlohmann::json(nullptr)},
                        {"at_default", has_default ? nlohmann::json(v[r] == d.def) : nlohmann::json(nullptr)},
-                       {"name", d.name}, {"meaning", register_meaning(type, r, v[r], ch)}});
+                       {"name", d.name},
+                       {"meaning", register_meaning(type, r, v[r], ch)}});
       } else {
         std::cout << prefix
                   << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),

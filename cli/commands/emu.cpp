@@ -6,11 +6,11 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/session/process_data.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/port_uri.hpp"
+#include "kscfg/session/process_data.hpp"
 
 namespace kscfg::cli {
 
@@ -44,7 +44,9 @@ class EmuReset : public Command {
     StationSpec spec = station_.empty() ? default_station() : load_station_arg(station_, ctx.catalog());
     reset_emulator_state(path, spec, ctx.catalog(), ctx.lock_wait());
     if (ctx.json()) print_json({{"state", path}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}});
-    else std::cout << fmt::format("emulator reset: {} with {} terminals ({})\n", spec.coupler, spec.terminals.size(), path);
+    else
+      std::cout << fmt::format("emulator reset: {} with {} terminals ({})\n", spec.coupler, spec.terminals.size(),
+                               path);
     return 0;
   }
 
@@ -92,7 +94,9 @@ class EmuRestart : public Command {
     if (ctx.json()) {
       nlohmann::json terminals = nlohmann::json::array();
       for (const auto& c : r.changed)
-        terminals.push_back({{"position", c.position}, {"type", c.type}, {"format", c.format_after},
+        terminals.push_back({{"position", c.position},
+                             {"type", c.type},
+                             {"format", c.format_after},
                              {"format_before", c.format_before}});
       print_json({{"state", path},
                   {"changed", !same},
@@ -136,7 +140,8 @@ class EmuFault : public Command {
     return "Injects a fault into the selected emulated terminal channel, kept in the state until "
            "\\fB\\-\\-clear\\fR or \\fBemu reset\\fR: \\fB\\-\\-ignore\\-write\\fR \\fIREG\\fR acknowledges writes "
            "to \\fIREG\\fR but does not store them (the read-back catches it); \\fB\\-\\-mute\\fR stops "
-           "answering register requests and the serial handshake (requests time out); \\fB\\-\\-delay\\fR \\fIN\\fR makes every "
+           "answering register requests and the serial handshake (requests time out); \\fB\\-\\-delay\\fR \\fIN\\fR "
+           "makes every "
            "terminal answer N K-bus cycles after a request (default 1).";
   }
   std::vector<std::string> examples() const override {
@@ -186,7 +191,9 @@ class EmuFault : public Command {
 class EmuEncoder : public Command {
  public:
   std::string name() const override { return "encoder"; }
-  std::string brief() const override { return "Turn the encoder on an emulated KL5101's far end (speed, pulses, gate)"; }
+  std::string brief() const override {
+    return "Turn the encoder on an emulated KL5101's far end (speed, pulses, gate)";
+  }
   std::string man() const override {
     return "Emulator only. The selected KL5101 (default: the first of the station) has an incremental encoder "
            "on its far end: \\fB\\-\\-speed\\fR \\fIHZ\\fR is the frequency of signal A (periods per "
@@ -204,8 +211,12 @@ class EmuEncoder : public Command {
            "it prints the far end, the counter, the latch and the status bits.";
   }
   std::vector<std::string> examples() const override {
-    return {"emu encoder", "emu encoder --speed 1000 --direction down", "emu encoder --step 100 --lines 1024",
-            "emu encoder --ref-pulse", "emu encoder --gate on", "--json emu encoder"};
+    return {"emu encoder",
+            "emu encoder --speed 1000 --direction down",
+            "emu encoder --step 100 --lines 1024",
+            "emu encoder --ref-pulse",
+            "emu encoder --gate on",
+            "--json emu encoder"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--speed", speed_, "Frequency of signal A in Hz (0..250000)")->option_text("HZ");
@@ -296,8 +307,8 @@ class EmuEncoder : public Command {
                                  far.step, far.ref_pulses, far.latch_pulses);
       std::cout << fmt::format("counter {}  latch {}  status 0x{:02X}:{}{}{}{}{}\n", enc.counter(), enc.latch(), s,
                                s & encoder::kOverflow ? " OVERFLOW" : "", s & encoder::kUnderflow ? " UNDERFLOW" : "",
-                               s & encoder::kCntSetAcc ? " CNTSET_ACC" : "", s & encoder::kLatExtVal ? " LAT_EXT_VAL" : "",
-                               s & encoder::kLatcVal ? " LATC_VAL" : "");
+                               s & encoder::kCntSetAcc ? " CNTSET_ACC" : "",
+                               s & encoder::kLatExtVal ? " LAT_EXT_VAL" : "", s & encoder::kLatcVal ? " LATC_VAL" : "");
     }
     return 0;
   }

@@ -23,7 +23,9 @@ class Get : public Command {
            "so that \\fB$(kscfg get baud)\\fR works in scripts. Unknown names are an error (with the closest "
            "names), before anything is read.";
   }
-  std::vector<std::string> examples() const override { return {"get baud", "get baud frame data-bytes", "-t 2 get fold"}; }
+  std::vector<std::string> examples() const override {
+    return {"get baud", "get baud frame data-bytes", "-t 2 get fold"};
+  }
   std::vector<std::string> completions() const override { return param_name_completions(); }
   void add_cli(CLI::App& sub) override {
     sub.add_option("NAME", names_, "Parameter name(s)")->required()->option_text("NAME");
@@ -46,8 +48,8 @@ class Get : public Command {
       work.emplace_back(pos, params);
     }
     if (work.empty())
-      throw Error(Exit::usage, fmt::format("no terminal selected by -t {} has {}", ctx.options().selection.text,
-                                           names_.front()));
+      throw Error(Exit::usage,
+                  fmt::format("no terminal selected by -t {} has {}", ctx.options().selection.text, names_.front()));
     std::vector<nlohmann::json> docs;
     // Every terminal's handshake at once (the station engine); one terminal goes on from the check
     // of its type.

@@ -1,4 +1,6 @@
 // kscfg help [COMMAND...]: the help of the tool or of one command.
+#include "../help.hpp"
+
 #include <fmt/format.h>
 
 #include <iostream>
@@ -6,7 +8,6 @@
 #include "../app.hpp"
 #include "../argv.hpp"
 #include "../commands.hpp"
-#include "../help.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 

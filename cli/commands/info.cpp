@@ -1,6 +1,5 @@
 // kscfg info: what terminals are these? R8 type, R9 version, R10..R13, hardware version.
 #include <fmt/format.h>
-
 #include <unistd.h>
 
 #include <cstdlib>
@@ -10,9 +9,9 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../help.hpp"
-#include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/describe.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "kscfg/station/map.hpp"
 
@@ -21,7 +20,9 @@ namespace kscfg::cli {
 // (commands.hpp) Where the terminal's bytes are, with the names of `kscfg --json map`.
 nlohmann::json image_json(const TerminalImage& t) {
   nlohmann::json j{{"format", t.format.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.format)},
-                   {"complex", t.complex}, {"inputs", nullptr}, {"outputs", nullptr}};
+                   {"complex", t.complex},
+                   {"inputs", nullptr},
+                   {"outputs", nullptr}};
   if (t.complex) {
     if (t.in_size) j["inputs"] = {{"offset", t.in_offset}, {"size", t.in_size}};
     if (t.out_size) j["outputs"] = {{"offset", t.out_offset}, {"size", t.out_size}};
@@ -40,7 +41,6 @@ std::string image_text(const TerminalImage& t) {
   if (t.bits_in || t.bits_out) return image_ranges(t);
   return "no process image";
 }
-
 
 class Info : public Command {
  public:
@@ -95,7 +95,7 @@ class Info : public Command {
     for (unsigned pos : positions) {
       const TerminalImage& t = L.terminal(pos);
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
-                       {"r8", nullptr}, {"version", nullptr}, {"image", image_json(t)}};
+                       {"r8", nullptr},          {"version", nullptr},   {"image", image_json(t)}};
       std::string title = t.type->title;
       if (t.inferred) {
         // Table 9 gives a digital terminal's bits and direction, not its type.
@@ -124,7 +124,8 @@ class Info : public Command {
     bool discovered = !ctx.discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
     std::string digital = L.unidentified_digital();
     if (discovered)
-      rows.push_back({"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});
+      rows.push_back(
+          {"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});
     if (ctx.json()) {
       nlohmann::json j{{"coupler", L.coupler}};
       j.update(ctx.link_json());
@@ -143,9 +144,10 @@ class Info : public Command {
     std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
     print_table(rows);
     if (!digital.empty())
-      std::cout << fmt::format("digital terminals: {} in the image, not listed: the coupler reports them as bit "
-                               "totals only, not their types or number\n",
-                               digital);
+      std::cout << fmt::format(
+          "digital terminals: {} in the image, not listed: the coupler reports them as bit "
+          "totals only, not their types or number\n",
+          digital);
     return 0;
   }
 
@@ -191,8 +193,9 @@ class Info : public Command {
   // "type     KL5101  Incremental encoder ...", the title wrapped under itself to the output width.
   static std::string type_line(const TerminalImage& t) {
     std::string head = fmt::format("type     {}  ", shown_type(t));
-    std::string title = t.inferred ? fmt::format("{} (the coupler gives no type): {}", digital_label(t), fits_text(t, 16))
-                                   : t.type->title;
+    std::string title = t.inferred
+                            ? fmt::format("{} (the coupler gives no type): {}", digital_label(t), fits_text(t, 16))
+                            : t.type->title;
     return head + wrap(title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
   }
 
@@ -225,7 +228,9 @@ class Info : public Command {
     if (ctx.json()) {
       nlohmann::json regs = nlohmann::json::array();
       for (auto& [r, v] : vals)
-        regs.push_back({{"register", r}, {"value", v}, {"hex", hex4(v)},
+        regs.push_back({{"register", r},
+                        {"value", v},
+                        {"hex", hex4(v)},
                         {"name", r == 16 ? std::string("hw-version") : t.type->regs[r].name},
                         {"meaning", r == 16 ? std::string() : register_meaning(*t.type, r, v)}});
       j["registers"] = regs;
@@ -240,7 +245,9 @@ class Info : public Command {
       std::string head = fmt::format("R{:<3} {:<16} {:<12} ", r, label, format_value(v));
       std::string meaning = r == 16 ? "" : register_meaning(*t.type, r, v);
       if (meaning.empty()) std::cout << head << '\n';
-      else std::cout << head << wrap(meaning, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
+      else
+        std::cout << head
+                  << wrap(meaning, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
     }
     std::cout << fmt::format("image    {}\n", image_text(t));
     return 0;

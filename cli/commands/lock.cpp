@@ -28,9 +28,7 @@ class Lock : public Command {
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j["unlocked"] = false;
       print_json(j);
-    }
-    else
-      std::cout << fmt::format("{} locked (R31 = 0x0000)\n", s->who());
+    } else std::cout << fmt::format("{} locked (R31 = 0x0000)\n", s->who());
     return 0;
   }
 };

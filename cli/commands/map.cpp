@@ -1,4 +1,6 @@
 // kscfg map [TYPE...]: where each terminal's bytes sit in the coupler's process image.
+#include "kscfg/station/map.hpp"
+
 #include <fmt/format.h>
 #include <unistd.h>
 
@@ -7,12 +9,11 @@
 #include <optional>
 
 #include "../command.hpp"
-#include "kscfg/link/ads_registers.hpp"
-#include "kscfg/link/port_uri.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/station/map.hpp"
 #include "kscfg/discovery/online_map.hpp"
+#include "kscfg/link/ads_registers.hpp"
+#include "kscfg/link/port_uri.hpp"
 
 namespace kscfg::cli {
 
@@ -33,8 +34,9 @@ std::vector<std::pair<const TerminalImage*, unsigned>> ads_numbered(const Statio
 std::string ads_registers_text(const StationLayout& L, unsigned only) {
   auto v = ads_numbered(L, only);
   if (v.empty()) return {};
-  std::string out = "\nRegisters: ADS port 100, index group = terminal number, index offset = channel << 16 | "
-                    "register (2 bytes):\n";
+  std::string out =
+      "\nRegisters: ADS port 100, index group = terminal number, index offset = channel << 16 | "
+      "register (2 bytes):\n";
   for (const auto& [t, n] : v)
     out += fmt::format("  {:<3} {:<7} index group {:<3} offsets 0x{:08X}-0x{:08X}{}\n", t->position, t->type->type, n,
                        adsreg::terminal_offset(0, 0), adsreg::terminal_offset(t->type->channels - 1, 63),
@@ -47,14 +49,14 @@ nlohmann::json ads_registers_json(const StationLayout& L, unsigned only) {
   for (const auto& [t, n] : ads_numbered(L, only)) {
     nlohmann::json ch = nlohmann::json::array();
     for (unsigned c = 0; c < t->type->channels; ++c)
-      ch.push_back({{"channel", c + 1}, {"first_offset", adsreg::terminal_offset(c, 0)},
+      ch.push_back({{"channel", c + 1},
+                    {"first_offset", adsreg::terminal_offset(c, 0)},
                     {"last_offset", adsreg::terminal_offset(c, 63)}});
-    a.push_back({{"position", t->position}, {"type", t->type->type}, {"ads_port", 100}, {"index_group", n},
-                 {"channels", ch}});
+    a.push_back(
+        {{"position", t->position}, {"type", t->type->type}, {"ads_port", 100}, {"index_group", n}, {"channels", ch}});
   }
   return a;
 }
-
 
 std::optional<bool> parse_switch(const std::string& text, const char* option) {
   if (text.empty()) return std::nullopt;
@@ -85,14 +87,16 @@ class Map : public Command {
            "terminals take no space. The table gives for each channel its byte offset, size, terminal position and "
            "type, channel and what each byte is (CT/ST, Ser-CT/ST, D0..D4, reserved), for digital terminals the "
            "bit range (byte.bit); on Modbus couplers (BK7xx0, BK9xx0) also the Modbus register of each word (input "
-           "image at 0x0000 + offset/2, output image at 0x0800 + offset/2) and the discrete-input or coil numbers. On an "
+           "image at 0x0000 + offset/2, output image at 0x0800 + offset/2) and the discrete-input or coil numbers. On "
+           "an "
            "\\fBads://\\fR port the table gives instead the ADS index group and offset of each entry on port 300 "
            "(0xF020 inputs, 0xF030 outputs, offset = byte offset), and the map ends with each terminal's port-100 "
            "index group (its terminal number) and index offsets (channel << 16 | register).\n"
            ".PP\n"
            "\\fBOffline\\fR: from \\fB\\-\\-station\\fR \\fIFILE\\fR (see \\fBkscfg-station\\fR(5)) or from terminal "
            "types given on the command line, laid out for \\fB\\-\\-coupler\\fR (default BK9000) with the terminals' "
-           "factory settings or the file's. \\fBOnline\\fR (no types, no \\fB\\-\\-station\\fR, or \\fB\\-\\-online\\fR): "
+           "factory settings or the file's. \\fBOnline\\fR (no types, no \\fB\\-\\-station\\fR, or "
+           "\\fB\\-\\-online\\fR): "
            "reads the registers that decide each terminal's image (e.g. KL6001 R34 and R35) through the link and "
            "shows the layout the coupler will use with them. The coupler lays its image out when it starts: when "
            "those registers were changed since (\\fBkscfg set alternative\\-format off\\fR) and give another "
@@ -100,7 +104,8 @@ class Map : public Command {
            "(\\fB\\-\\-json\\fR: \\fBnext_start\\fR, null when they agree). A terminal whose control/status "
            "byte is not mapped "
            "cannot be read and keeps the described values (a note says so on stderr). \\fB\\-\\-coupler\\fR, "
-           "\\fB\\-\\-complete\\-evaluation\\fR, \\fB\\-\\-motorola\\fR and \\fB\\-\\-word\\-alignment\\fR override the "
+           "\\fB\\-\\-complete\\-evaluation\\fR, \\fB\\-\\-motorola\\fR and \\fB\\-\\-word\\-alignment\\fR override "
+           "the "
            "coupler's settings (a BK2000 always maps the control/status byte with word alignment).\n"
            ".PP\n"
            "With \\fB\\-t\\fR \\fIPOS\\fR one terminal is shown like the annex tables of the terminal manuals: I/O "
@@ -109,8 +114,12 @@ class Map : public Command {
            "\\fBnever\\fR or NO_COLOR gives plain text). An image larger than the coupler takes is an error.";
   }
   std::vector<std::string> examples() const override {
-    return {"map", "map --coupler BK3000 KL6001 KL5101 KL1104 KL9010", "map --station line3.toml -t 2",
-            "map --station line3.toml --coupler BK4000 --motorola off", "--json map", "map --list-couplers"};
+    return {"map",
+            "map --coupler BK3000 KL6001 KL5101 KL1104 KL9010",
+            "map --station line3.toml -t 2",
+            "map --station line3.toml --coupler BK4000 --motorola off",
+            "--json map",
+            "map --list-couplers"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("TYPE", types_, "Terminal types in plug order (offline map)")->option_text("TYPE");
@@ -184,15 +193,16 @@ class Map : public Command {
       if (coupler_.empty() && !ce && !mo && !wa && !same_layout(L, current)) {
         next = std::move(L);
         L = current;
-        notes.push_back(fmt::format("the terminals' mapping registers give another process image at the coupler's "
-                                    "next start ({} input and {} output bytes instead of {} and {}): restart the "
-                                    "coupler ({}) to apply them; the map shows both",
-                                    next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes,
-                                    ctx.link().emulator() ? "'kscfg emu restart'" : "power off and on"));
+        notes.push_back(
+            fmt::format("the terminals' mapping registers give another process image at the coupler's "
+                        "next start ({} input and {} output bytes instead of {} and {}): restart the "
+                        "coupler ({}) to apply them; the map shows both",
+                        next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes,
+                        ctx.link().emulator() ? "'kscfg emu restart'" : "power off and on"));
       }
       for (const auto& r : m.readings)
-        readings.push_back({{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg},
-                            {"value", r.value}});
+        readings.push_back(
+            {{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg}, {"value", r.value}});
       source = ctx.link().describe();
     }
     CouplerProfile p = coupler_profile(L.coupler);
@@ -210,9 +220,10 @@ class Map : public Command {
     if (ctx.terminal_given()) {
       auto v = select_terminals(ctx.options().selection, L, false);
       if (v.size() != 1)
-        throw Error(Exit::usage, fmt::format("'map -t' shows one terminal; -t {} selects {}", ctx.options().selection.text,
-                                             v.size()),
-                    "give one plug position or a type the station has once");
+        throw Error(
+            Exit::usage,
+            fmt::format("'map -t' shows one terminal; -t {} selects {}", ctx.options().selection.text, v.size()),
+            "give one plug position or a type the station has once");
       pos = v.front();
     }
     if (ctx.json()) {
@@ -237,8 +248,9 @@ class Map : public Command {
     const char* term = std::getenv("TERM");
     bool dumb = !term || std::string(term) == "dumb";
     bool color = color_ == "always" || (color_ == "auto" && tty && !(no_color && *no_color) && !dumb);
-    const char* after = "\nAfter the coupler's next start (the terminals' mapping registers say so; restart it to "
-                        "apply them):\n";
+    const char* after =
+        "\nAfter the coupler's next start (the terminals' mapping registers say so; restart it to "
+        "apply them):\n";
     if (pos) {
       if (next) std::cout << "In effect now:\n";
       std::cout << render_terminal(L, p, pos);
@@ -261,10 +273,16 @@ class Map : public Command {
       nlohmann::json a = nlohmann::json::array();
       for (const auto& p : all) {
         auto lim = [&](bool in) { return image_limit(p, in) ? nlohmann::json(image_limit(p, in)) : nlohmann::json(); };
-        a.push_back({{"name", p.name}, {"family", p.family}, {"title", p.title}, {"modbus", p.modbus},
-                     {"complete_evaluation", p.defaults.complete_evaluation}, {"motorola", p.defaults.motorola},
-                     {"word_alignment", p.defaults.word_alignment}, {"max_in_bytes", lim(true)},
-                     {"max_out_bytes", lim(false)}, {"fixed", p.fixed}});
+        a.push_back({{"name", p.name},
+                     {"family", p.family},
+                     {"title", p.title},
+                     {"modbus", p.modbus},
+                     {"complete_evaluation", p.defaults.complete_evaluation},
+                     {"motorola", p.defaults.motorola},
+                     {"word_alignment", p.defaults.word_alignment},
+                     {"max_in_bytes", lim(true)},
+                     {"max_out_bytes", lim(false)},
+                     {"fixed", p.fixed}});
       }
       print_json({{"couplers", a}});
       return 0;

@@ -23,7 +23,9 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
 class ApplyCommand : public Command {
  public:
   void add_cli(CLI::App& sub) override {
-    sub.add_option("FILE", file_, "Station file (desired state, or a backup; -: stdin)")->required()->option_text("FILE");
+    sub.add_option("FILE", file_, "Station file (desired state, or a backup; -: stdin)")
+        ->required()
+        ->option_text("FILE");
     sub.add_flag("--dry-run", dry_, "Print the plan only; write nothing");
     sub.add_option("--backup", backup_, "Where to save the touched registers first")->option_text("FILE");
     sub.add_flag("--force", force_,

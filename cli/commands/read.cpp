@@ -5,9 +5,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/catalog/describe.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/describe.hpp"
 
 namespace kscfg::cli {
 
@@ -45,8 +45,9 @@ class Read : public Command {
     auto positions = ctx.terminal_positions();
     for (unsigned r : regs)
       if (!proto::is_implemented(r))
-        throw Error(Exit::refused, fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
-                                               ctx.layout_upto(positions.front()).terminal(positions.front()).type->type));
+        throw Error(Exit::refused,
+                    fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
+                                ctx.layout_upto(positions.front()).terminal(positions.front()).type->type));
     std::vector<nlohmann::json> docs;
     // Every terminal's handshake at once (the station engine); one terminal goes on from the check
     // of its type.
@@ -69,8 +70,11 @@ class Read : public Command {
       for (std::size_t i = 0; i < regs.size(); ++i) {
         nlohmann::json values = nlohmann::json::object();
         for (auto& [n, v] : decode_register(type, regs[i], vals[i], ch)) values[n] = param_json(v);
-        arr.push_back({{"register", regs[i]}, {"value", vals[i]}, {"hex", hex4(vals[i])},
-                       {"name", type.regs[regs[i]].name}, {"values", values},
+        arr.push_back({{"register", regs[i]},
+                       {"value", vals[i]},
+                       {"hex", hex4(vals[i])},
+                       {"name", type.regs[regs[i]].name},
+                       {"values", values},
                        {"meaning", register_meaning(type, regs[i], vals[i], ch)}});
       }
       nlohmann::json j = terminal_json(term, ch);

@@ -7,9 +7,9 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/session/verdict.hpp"
-#include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/parameters.hpp"
+#include "kscfg/session/verdict.hpp"
 
 namespace kscfg::cli {
 
@@ -81,7 +81,8 @@ class Reset : public Command {
       print_json(j);
       return 0;
     }
-    std::cout << fmt::format("{} reset to factory settings ({})\n", s->who(), plan.r7 ? "R7 = 0x7000" : "catalog defaults");
+    std::cout << fmt::format("{} reset to factory settings ({})\n", s->who(),
+                             plan.r7 ? "R7 = 0x7000" : "catalog defaults");
     for (const auto& w : results)
       if (w.changed) std::cout << fmt::format("  R{} {} -> {}\n", w.reg, hex4(w.before), hex4(w.after));
     return 0;

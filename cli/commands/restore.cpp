@@ -15,7 +15,9 @@ class Restore : public ApplyCommand {
     return "Applies a file written by \\fBkscfg backup\\fR or saved by \\fBkscfg apply\\fR before its "
            "changes, with the same checks, verification, rollback and exit status as \\fBapply\\fR.";
   }
-  std::vector<std::string> examples() const override { return {"restore station-7.toml", "--port tcp://10.0.0.7 restore --dry-run s7.toml"}; }
+  std::vector<std::string> examples() const override {
+    return {"restore station-7.toml", "--port tcp://10.0.0.7 restore --dry-run s7.toml"};
+  }
 };
 
 }  // namespace

@@ -1,6 +1,8 @@
 // kscfg scan: what a Modbus coupler reports (identification, image lengths, watchdog) and the
 // terminals found by walking its complex area, or over ADS the coupler's table 9 and each
 // terminal's R8/R9 on port 100; optionally written as a station file.
+#include "kscfg/discovery/scan.hpp"
+
 #include <fmt/format.h>
 
 #include <filesystem>
@@ -8,15 +10,14 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/base/error.hpp"
 #include "../output.hpp"
-#include "kscfg/base/files.hpp"
-#include "kscfg/station/map.hpp"
-#include "kscfg/discovery/scan.hpp"
 #include "../progress.hpp"
+#include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
 #include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/modbus_link.hpp"
+#include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
 
@@ -82,7 +83,8 @@ class Scan : public Command {
   }
 
   int run(Context& ctx) override {
-    auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"), mo = on_off(mo_, "--motorola");
+    auto ce = on_off(ce_, "--complete-evaluation"), wa = on_off(wa_, "--word-alignment"),
+         mo = on_off(mo_, "--motorola");
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
     if (!write_.empty()) refuse_to_replace(write_, force_);
@@ -129,8 +131,8 @@ class Scan : public Command {
       if (!r.walked)
         throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
                     r.notes.empty() ? "" : r.notes.back());
-      std::string text = fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n",
-                                     link->describe(), r.ident);
+      std::string text =
+          fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", link->describe(), r.ident);
       if (!ads && (r.digital_in_bits || r.digital_out_bits))
         text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                             r.digital_out_bits);
@@ -153,7 +155,8 @@ class Scan : public Command {
         // Image placement as info and map give it: image {format, complex, inputs, outputs}.
         nlohmann::json term = {{"position", t.position},
                                {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
-                               {"r8", i < r.r8.size() ? r.r8[i] : 0}, {"image", image_json(t)}};
+                               {"r8", i < r.r8.size() ? r.r8[i] : 0},
+                               {"image", image_json(t)}};
         if (t.inferred) {
           term["digital"] = digital_label(t);
           term["fits"] = t.fits;
@@ -172,7 +175,7 @@ class Scan : public Command {
                     {"digital_in", r.digital_in_bits}}},
                   {"watchdog",
                    {{"preset_ms", r.watchdog_preset ? nlohmann::json(*r.watchdog_preset) : nlohmann::json(nullptr)},
-                    {"retrigger", !r.watchdog_type      ? nlohmann::json(nullptr)
+                    {"retrigger", !r.watchdog_type        ? nlohmann::json(nullptr)
                                   : *r.watchdog_type == 1 ? nlohmann::json("telegrams")
                                                           : nlohmann::json("write_telegrams")}}},
                   {"settings",
@@ -186,21 +189,18 @@ class Scan : public Command {
       return 0;
     }
     auto yn = [](bool b) { return b ? "on" : "off"; };
-    if (r.known_coupler)
-      std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
+    if (r.known_coupler) std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
     else
-      std::cout << fmt::format("coupler   unknown ({}); walked with {} settings\n",
-                               r.ident_read ? fmt::format("identification \"{}\"", r.ident)
-                                            : std::string("no identification"),
-                               r.coupler);
+      std::cout << fmt::format(
+          "coupler   unknown ({}); walked with {} settings\n",
+          r.ident_read ? fmt::format("identification \"{}\"", r.ident) : std::string("no identification"), r.coupler);
     std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
                              r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
     if (ads)
-      std::cout << (r.watchdog_preset ? fmt::format("watchdog  {} ms (ADS watchdog, table 100 register 14)\n",
-                                                    *r.watchdog_preset)
-                                      : std::string("watchdog  unknown (the coupler does not serve table 100)\n"));
-    else if (!r.watchdog_preset)
-      std::cout << "watchdog  unknown (the coupler does not serve 0x1120)\n";
+      std::cout << (r.watchdog_preset
+                        ? fmt::format("watchdog  {} ms (ADS watchdog, table 100 register 14)\n", *r.watchdog_preset)
+                        : std::string("watchdog  unknown (the coupler does not serve table 100)\n"));
+    else if (!r.watchdog_preset) std::cout << "watchdog  unknown (the coupler does not serve 0x1120)\n";
     else
       std::cout << fmt::format("watchdog  {} ms, {}\n", *r.watchdog_preset,
                                *r.watchdog_preset == 0 ? "off"

@@ -10,19 +10,19 @@
 #include <cstdio>
 #include <cstring>
 #include <functional>
-#include <memory>
 #include <iostream>
 #include <iterator>
+#include <memory>
 
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "../output.hpp"
 #include "../progress.hpp"
 #include "../serial_map.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/process_data.hpp"
 #include "kscfg/session/serial_port.hpp"
 #include "kscfg/session/session.hpp"
@@ -169,8 +169,7 @@ class SerialInit : public Command {
       nlohmann::json j = port_json(ctx, *port);
       j.update({{"initialised", true}, {"format", port->image().format}});
       print_json(j);
-    }
-    else std::cout << fmt::format("{} initialised ({})\n", port->who(), port->image().describe());
+    } else std::cout << fmt::format("{} initialised ({})\n", port->who(), port->image().describe());
     return 0;
   }
 };
@@ -197,9 +196,11 @@ class SerialSend : public Command {
   std::string man() const override {
     return "Hands \\fIDATA\\fR to the terminal through the process-data handshake: up to as many bytes as the "
            "image has data bytes (OL) per request, TR toggled, TA awaited. \\fIDATA\\fR is text with the escapes "
-           "\\\\r \\\\n \\\\t \\\\0 \\\\\\\\ \\\\xHH; with \\fB\\-\\-hex\\fR pairs of hex digits; \\fB\\-\\fR reads raw "
+           "\\\\r \\\\n \\\\t \\\\0 \\\\\\\\ \\\\xHH; with \\fB\\-\\-hex\\fR pairs of hex digits; \\fB\\-\\fR reads "
+           "raw "
            "bytes from stdin and sends them as it reads them, any amount in bounded memory (with \\fB\\-\\-hex\\fR, "
-           "at most 4 MiB of hex text). The command returns when the terminal has accepted the last byte into its send FIFO; "
+           "at most 4 MiB of hex text). The command returns when the terminal has accepted the last byte into its send "
+           "FIFO; "
            "when TA does not follow TR within \\fB\\-\\-timeout\\fR (send FIFO full and the line not moving) it "
            "fails with exit status 4 and says how many bytes were accepted.\n"
            ".IP\n"
@@ -212,7 +213,8 @@ class SerialSend : public Command {
            "loopback test for any amount of data.";
   }
   std::vector<std::string> examples() const override {
-    return {"serial send 'AT\\r'", "serial send --hex '41 54 0d'", "serial send --recv --count 4096 - <data.bin >echo.bin"};
+    return {"serial send 'AT\\r'", "serial send --hex '41 54 0d'",
+            "serial send --recv --count 4096 - <data.bin >echo.bin"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("DATA", data_, "Bytes to send (text with escapes; --hex: hex bytes; -: stdin)")
@@ -399,9 +401,9 @@ class SerialStatus : public Command {
     }
     std::cout << fmt::format("{}: {}\n", port->who(), img.describe());
     if (img.word)
-      std::cout << fmt::format("status word 0x{:04X}: TA {} RR {} IA {} BUF_F {} IL {}\n",
-                               (port->in_length() << 8) | s, s & serial::kTA ? 1 : 0, s & serial::kRR ? 1 : 0,
-                               s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0, port->in_length());
+      std::cout << fmt::format("status word 0x{:04X}: TA {} RR {} IA {} BUF_F {} IL {}\n", (port->in_length() << 8) | s,
+                               s & serial::kTA ? 1 : 0, s & serial::kRR ? 1 : 0, s & serial::kIA ? 1 : 0,
+                               s & serial::kBufF ? 1 : 0, port->in_length());
     else
       std::cout << fmt::format("status 0x{:02X}: TA {} RR {} IA {} BUF_F {}\n", s, s & serial::kTA ? 1 : 0,
                                s & serial::kRR ? 1 : 0, s & serial::kIA ? 1 : 0, s & serial::kBufF ? 1 : 0);
@@ -410,8 +412,7 @@ class SerialStatus : public Command {
                                d.r1, hex4(d.r6), diag_text(d.r6));
     else if (!port->terminal().type->has_registers)
       std::cout << fmt::format("R0/R1/R6: none ({} has no registers)\n", port->terminal().type->type);
-    else
-      std::cout << "R0/R1/R6: not readable (the image maps no control/status byte for register access)\n";
+    else std::cout << "R0/R1/R6: not readable (the image maps no control/status byte for register access)\n";
     return 0;
   }
 };
@@ -424,7 +425,8 @@ class Serial : public Command {
     return "Speaks the process-data handshake of the serial terminals (REG = 0): KL6001/KL6011/KL6021 with the "
            "control/status byte in the standard format or the Ser\\-CT/ST byte in the alternative format, and "
            "KL6031/KL6041 with the control byte (small and medium images, length in bits 6..4) or the 16\\-bit "
-           "control/status word (large image, length in its own byte), and the RS232/RS485 interface of a CX embedded PC "
+           "control/status word (large image, length in its own byte), and the RS232/RS485 interface of a CX embedded "
+           "PC "
            "in KL6xx1 mode (type CX\\-KL6xx1: a control/status word with OL/IL in bits 15..8 and a 64-byte data "
            "array, up to 64 bytes per handshake; it has no registers, so R0, R1 and R6 are not shown). Where the "
            "bytes are comes from the station "

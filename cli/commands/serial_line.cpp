@@ -43,16 +43,18 @@ class SerialLine : public Command {
            "as the next commands run the K\\-bus.";
   }
   std::vector<std::string> examples() const override {
-    return {"serial line", "serial line none", "-t 3 serial line pty:/tmp/kl6031",
-            "serial line echo --baud 9600 --frame 8E1", "serial line none --frame 8E1 --send 'AC'",
+    return {"serial line",
+            "serial line none",
+            "-t 3 serial line pty:/tmp/kl6031",
+            "serial line echo --baud 9600 --frame 8E1",
+            "serial line none --frame 8E1 --send 'AC'",
             "serial line --match"};
   }
   std::vector<std::string> completions() const override { return {"loopback", "echo", "none", "pty"}; }
   void add_cli(CLI::App& sub) override {
     sub.add_option("FAR_END", far_, "loopback, echo, none, pty or pty:LINK")->option_text("FAR_END");
     sub.add_option("--baud", baud_, "The far end's baud rate (its own UART)")->option_text("N");
-    sub.add_option("--frame", frame_, "The far end's data bits, parity and stop bits, e.g. 8E1")
-        ->option_text("DPS");
+    sub.add_option("--frame", frame_, "The far end's data bits, parity and stop bits, e.g. 8E1")->option_text("DPS");
     sub.add_flag("--match", match_, "The far end follows the terminal's baud rate and frame again");
     sub.add_option("--send", send_, "The far end sends DATA (text with escapes) towards the terminal")
         ->option_text("DATA");
@@ -60,8 +62,8 @@ class SerialLine : public Command {
   int run(Context& ctx) override {
     EmulatedStation* emu = ctx.link().emulator();
     if (!emu)
-      throw Error(Exit::usage, fmt::format("'kscfg serial line' works on the emulator; the port is '{}'",
-                                           ctx.options().port),
+      throw Error(Exit::usage,
+                  fmt::format("'kscfg serial line' works on the emulator; the port is '{}'", ctx.options().port),
                   "use --port emu or emu:PATH");
     if (match_ && (!baud_.empty() || !frame_.empty()))
       throw Error(Exit::usage, "give either --match or --baud/--frame, not both");
@@ -75,9 +77,9 @@ class SerialLine : public Command {
     std::optional<LineSettings> frame = ser->far_frame();
     if (!baud_.empty() || !frame_.empty()) {
       LineSettings base = frame.value_or(ls);
-      frame = parse_line_settings(baud_.empty() ? std::to_string(base.baud) : baud_,
-                                  frame_.empty() ? fmt::format("{}{}{}", base.data_bits, base.parity, base.stop_bits)
-                                                 : frame_);
+      frame = parse_line_settings(
+          baud_.empty() ? std::to_string(base.baud) : baud_,
+          frame_.empty() ? fmt::format("{}{}{}", base.data_bits, base.parity, base.stop_bits) : frame_);
     }
     if (match_) frame.reset();
     // A new far end first when it goes with a frame (loopback has none), the frame first when it goes.
@@ -95,11 +97,18 @@ class SerialLine : public Command {
       if (frame)
         far_frame = {{"baud", frame->baud},
                      {"frame", fmt::format("{}{}{}", frame->data_bits, frame->parity, frame->stop_bits)}};
-      print_json({{"position", pos}, {"channel", ctx.options().channel}, {"type", t.type->type}, {"baud", ls.baud},
+      print_json({{"position", pos},
+                  {"channel", ctx.options().channel},
+                  {"type", t.type->type},
+                  {"baud", ls.baud},
                   {"frame", fmt::format("{}{}{}", ls.data_bits, ls.parity, ls.stop_bits)},
-                  {"far_end", ser->far_end()}, {"bytes_per_second", ls.bytes_per_second()},
-                  {"tx_fifo", ser->tx_count()}, {"rx_fifo", ser->rx_count()}, {"r6", ser->diagnostics()},
-                  {"far_frame", far_frame}, {"frames_differ", differs}});
+                  {"far_end", ser->far_end()},
+                  {"bytes_per_second", ls.bytes_per_second()},
+                  {"tx_fifo", ser->tx_count()},
+                  {"rx_fifo", ser->rx_count()},
+                  {"r6", ser->diagnostics()},
+                  {"far_frame", far_frame},
+                  {"frames_differ", differs}});
     } else {
       std::cout << fmt::format("terminal {} ({}): {}, at most {:.0f} bytes/s; far end {} at {}\n", pos, t.type->type,
                                ls.describe(), ls.bytes_per_second(), ser->far_end(), far_line);

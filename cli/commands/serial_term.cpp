@@ -76,8 +76,8 @@ std::string line_text(Context& ctx, const TerminalImage& t, unsigned ch) {
   else if (xr == "on") flow.push_back("XON/XOFF when receiving");
   std::string f;
   for (const auto& x : flow) f += (f.empty() ? "" : " and ") + x;
-  return fmt::format("{} baud, {}, flow control {}", baud.empty() ? "unknown" : baud, frame.empty() ? "frame unknown" : frame,
-                     f.empty() ? "none" : f);
+  return fmt::format("{} baud, {}, flow control {}", baud.empty() ? "unknown" : baud,
+                     frame.empty() ? "frame unknown" : frame, f.empty() ? "none" : f);
 }
 
 class SerialTerm : public Command {
@@ -109,8 +109,7 @@ class SerialTerm : public Command {
            "\\fBserial line\\fR.";
   }
   std::vector<std::string> examples() const override {
-    return {"serial term", "-t 3 serial term --omap crlf --imap lfcrlf --echo",
-            "serial term --logfile session.log"};
+    return {"serial term", "-t 3 serial term --omap crlf --imap lfcrlf --echo", "serial term --logfile session.log"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--omap", omap_, "Map typed bytes: crlf, crcrlf, igncr, lfcr, lfcrlf, ignlf, bsdel, delbs")
@@ -124,8 +123,7 @@ class SerialTerm : public Command {
     std::unique_ptr<std::FILE, int (*)(std::FILE*)> log(nullptr, &std::fclose);
     if (!logfile_.empty()) {
       log.reset(std::fopen(logfile_.c_str(), "ab"));
-      if (!log)
-        throw Error(Exit::file, fmt::format("cannot open log file {}: {}", logfile_, std::strerror(errno)));
+      if (!log) throw Error(Exit::file, fmt::format("cannot open log file {}: {}", logfile_, std::strerror(errno)));
     }
     unsigned pos = serial_position(ctx);
     unsigned ch = ctx.options().channel - 1;
@@ -215,32 +213,30 @@ class SerialTerm : public Command {
           }
           escape = false;
           switch (c) {
-            case 'q': case 'x': case 0x11: case 0x18:  // q, x, Ctrl-Q, Ctrl-X
+            case 'q':
+            case 'x':
+            case 0x11:
+            case 0x18:  // q, x, Ctrl-Q, Ctrl-X
               type(keys);
               finish(*port, take_received);
               std::cerr << "\r\nkscfg: bye\r\n";
               return 0;
-            case '?': case 'h':
-              std::cerr << "\r\n" << kEscapeHelp;
-              break;
+            case '?':
+            case 'h': std::cerr << "\r\n" << kEscapeHelp; break;
             case 'e':
               echo = !echo;
               std::cerr << fmt::format("\r\n[kscfg: echo {}]\r\n", echo ? "on" : "off");
               break;
             case 's':
-              std::cerr << fmt::format("\r\n[kscfg: status 0x{:02X} (BUF_F {}, IA {}); {} bytes sent, {} received, "
-                                       "{} waiting to go out]\r\n",
-                                       port->status(), port->status() & serial::kBufF ? "on" : "off",
-                                       port->status() & serial::kIA ? "on" : "off", sent, received, port->queued());
+              std::cerr << fmt::format(
+                  "\r\n[kscfg: status 0x{:02X} (BUF_F {}, IA {}); {} bytes sent, {} received, "
+                  "{} waiting to go out]\r\n",
+                  port->status(), port->status() & serial::kBufF ? "on" : "off",
+                  port->status() & serial::kIA ? "on" : "off", sent, received, port->queued());
               break;
-            case 'b':
-              std::cerr << "\r\n" << banner();
-              break;
-            case kEscape:
-              keys.push_back(c);
-              break;
-            default:
-              std::cerr << "\r\n[kscfg: no escape key " << key_name(c) << "; Ctrl-] ? lists them]\r\n";
+            case 'b': std::cerr << "\r\n" << banner(); break;
+            case kEscape: keys.push_back(c); break;
+            default: std::cerr << "\r\n[kscfg: no escape key " << key_name(c) << "; Ctrl-] ? lists them]\r\n";
           }
         }
         type(keys);

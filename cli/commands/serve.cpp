@@ -11,17 +11,17 @@
 #include "../app.hpp"
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/discovery/open.hpp"
 #include "kscfg/emulator/ads_server.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/emulator/poll_loop.hpp"
 #include "kscfg/emulator/served_station.hpp"
-#include "kscfg/base/parse.hpp"
 #include "kscfg/link/ams.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "kscfg/discovery/open.hpp"
 
 namespace kscfg::cli {
 
@@ -69,7 +69,8 @@ class Serve : public Command {
            "kscfg)\\fR), and the exit status is 0. "
            "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
            "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
-           "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs, and records beside it (\\fIPATH\\fB.serve\\fR) "
+           "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs, and records beside it "
+           "(\\fIPATH\\fB.serve\\fR) "
            "where it serves it: another kscfg on the same file (\\fBkscfg \\-\\-port emu:\\fR\\fIPATH\\fR "
            "...) is refused at once with status 11, naming the serve's PID and the \\fB\\-p\\fR URI that "
            "reaches the same station through it (e.g. \\fB\\-p tcp://127.0.0.1:5020\\fR).\n"
@@ -98,12 +99,14 @@ class Serve : public Command {
            "Modbus one is the \\fB\\-p\\fR URI another kscfg on the state file is sent to. "
            "Both on one address (or \\fB\\-\\-tcp\\fR on 0.0.0.0 or [::]): an ADS client looks for the Modbus "
            "port (table 100 register 26) at the address it reached, as a BK9000 answers both on its one IP "
-           "address. \\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR and "
+           "address. \\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR "
+           "and "
            "\\fB\\-\\-seed\\fR to the Modbus one. Two kscfg reaching the station by tcp:// and by ads:// take "
            "the one lock of the coupler they both name, and take turns.";
   }
   std::vector<std::string> examples() const override {
-    return {"serve --tcp 127.0.0.1:5020", "--port emu:station.json serve --pty",
+    return {"serve --tcp 127.0.0.1:5020",
+            "--port emu:station.json serve --pty",
             "--port emu:station.json serve --tcp 0.0.0.0:502",
             "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
             "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7",
@@ -122,7 +125,8 @@ class Serve : public Command {
     sub.add_option("--fault", fault_, "Inject faults: drop=R,delay=R,corrupt=R,busy=R,delay_ms=N (R from 0 to 1)")
         ->option_text("SPEC");
     sub.add_option("--seed", seed_, "Seed of the fault injection (default 1)")->option_text("N");
-    sub.add_option("--max-connections", max_conn_, "TCP clients served at once (default 256; ADS: 64)")->option_text("N");
+    sub.add_option("--max-connections", max_conn_, "TCP clients served at once (default 256; ADS: 64)")
+        ->option_text("N");
     sub.add_option("--ads", ads_, "Serve ADS (AMS/TCP) as a BK9000 on ADDR:PORT (port 0: any free port)")
         ->option_text("ADDR:PORT");
     sub.add_option("--ads-route", ads_routes_, "ADS: a NetId of the AMS routing table (repeatable; empty: all served)")
@@ -140,13 +144,14 @@ class Serve : public Command {
     int modbus = !tcp_.empty() + !rtu_.empty() + pty_;
     bool ads = !ads_.empty();
     if (modbus > 1 || (modbus == 0 && !ads))
-      throw Error(Exit::usage, "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT (or --tcp and "
-                               "--ads together: both protocols on one station)");
-    if (ads && modbus && tcp_.empty())
-      throw Error(Exit::usage, "--ads goes with --tcp only: a BK9000 answers Modbus TCP and ADS, no coupler RTU and ADS");
-    if (!ads && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
       throw Error(Exit::usage,
-                  "--ads-route, --ads-netid, --ads-idle-ms and --ads-register-ms go with --ads ADDR:PORT");
+                  "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT (or --tcp and "
+                  "--ads together: both protocols on one station)");
+    if (ads && modbus && tcp_.empty())
+      throw Error(Exit::usage,
+                  "--ads goes with --tcp only: a BK9000 answers Modbus TCP and ADS, no coupler RTU and ADS");
+    if (!ads && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
+      throw Error(Exit::usage, "--ads-route, --ads-netid, --ads-idle-ms and --ads-register-ms go with --ads ADDR:PORT");
     if (!modbus && (!unit_.empty() || !fault_.empty() || !seed_.empty()))
       throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
     std::optional<ServeOptions> so;
@@ -179,8 +184,8 @@ class Serve : public Command {
         try {
           alias.emplace(listener_key(local_ads(a.endpoint())), listener_key(local_modbus(m.endpoint())));
         } catch (const Error& e) {
-          so->warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(),
-                               a.endpoint()));
+          so->warn(
+              fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(), a.endpoint()));
         }
         listening({m.endpoint(), a.endpoint()});
         run_poll_loop({&m.poll_source(), &a.poll_source()}, stop);
@@ -351,7 +356,7 @@ class Serve : public Command {
         std::cout << std::flush;
       }
     });
-    store.save();         // the servers saved already; this writes only if something is left
+    store.save();  // the servers saved already; this writes only if something is left
     // Who stopped it: a server that ended while nobody meant to stop it names the process.
     std::cerr << "kscfg: serve: stopped by " << first_signal_origin() << std::endl;
     ctx.cancel()->reset();  // stopping is how a server ends: exit status 0

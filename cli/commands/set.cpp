@@ -6,9 +6,9 @@
 #include "../command.hpp"
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/session/verdict.hpp"
-#include "kscfg/session/parameters.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/session/parameters.hpp"
+#include "kscfg/session/verdict.hpp"
 #include "param_util.hpp"
 
 namespace kscfg::cli {
@@ -31,7 +31,8 @@ class Set : public Command {
            "1920 is refused with the rate it probably meant (\\(lqdid you mean 19200?\\(rq). Another rate needs "
            "\\fB\\-\\-divisor\\fR: it is reached through the divisor form where the terminal has one "
            "(KL6001: 4 MHz / (16 x (HB + 1))), only up to the terminal's documented maximum (KL6001: 19200), "
-           "and refused when the nearest rate is off by more than the terminal's bit-distortion limit. A change that would leave a terminal without its register window "
+           "and refused when the nearest rate is off by more than the terminal's bit-distortion limit. A change that "
+           "would leave a terminal without its register window "
            "at the coupler's next start (e.g. \\fBdata\\-bytes 1\\fR on a KL6001 in the standard format, "
            "\\fBalternative\\-format on\\fR on a coupler without complete evaluation) is refused with "
            "status 5 before anything is written; so is a change that leaves apart settings that go together: "
@@ -93,7 +94,8 @@ class Set : public Command {
       std::cout << (p.from == p.to ? fmt::format("{} {} unchanged\n", p.param->name, p.to)
                                    : fmt::format("{} {} -> {}\n", p.param->name, p.from, p.to));
     for (const auto& w : r.registers)
-      if (w.changed) std::cout << fmt::format("  R{} {} -> {} written, verified\n", w.reg, hex4(w.before), hex4(w.after));
+      if (w.changed)
+        std::cout << fmt::format("  R{} {} -> {} written, verified\n", w.reg, hex4(w.before), hex4(w.after));
     return 0;
   }
 

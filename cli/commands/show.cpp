@@ -7,9 +7,9 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
+#include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/session/parameters.hpp"
-#include "kscfg/base/parse.hpp"
 #include "param_util.hpp"
 
 namespace kscfg::cli {
@@ -58,8 +58,8 @@ class Show : public Command {
     // Every terminal's handshake at once (the station engine); one terminal goes on from the check
     // of its type.
     unsigned ch = ctx.options().channel - 1;
-    auto values = ctx.read_terminals(
-        positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
+    auto values =
+        ctx.read_terminals(positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
     for (unsigned pos : positions) {
       const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
       auto params = params_of(t, ch);
@@ -72,12 +72,14 @@ class Show : public Command {
     // Columns as wide as their widest value (a KL5101's values are longer than ten characters).
     std::size_t wn = 9, wv = 5, wd = 7;
     for (const auto& r : rows)
-      if (!r.param.empty()) wn = std::max(wn, r.param.size()), wv = std::max(wv, r.value.size()), wd = std::max(wd, r.fallback.size());
+      if (!r.param.empty())
+        wn = std::max(wn, r.param.size()), wv = std::max(wv, r.value.size()), wd = std::max(wd, r.fallback.size());
     auto line = [&](const std::string& prefix, const std::string& a, const std::string& b, const std::string& c,
                     const std::string& d) {
       return fmt::format("{}{:<{}}  {:<{}} {:<{}} {}\n", prefix, a, wn, b, wv, c, wd, d);
     };
-    if (several) std::cout << line(fmt::format("{:<3} {:<7} ", "POS", "TYPE"), "PARAMETER", "VALUE", "DEFAULT", "REGISTER");
+    if (several)
+      std::cout << line(fmt::format("{:<3} {:<7} ", "POS", "TYPE"), "PARAMETER", "VALUE", "DEFAULT", "REGISTER");
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const Row& r = rows[i];
       if (!several && r.heading) {
@@ -116,9 +118,14 @@ class Show : public Command {
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& v : vals)
-        arr.push_back({{"name", v.param->name}, {"value", param_json(v.value)}, {"default", param_json(v.fallback)},
-                       {"at_default", !v.differs}, {"register", v.param->reg}, {"register_value", v.reg_value},
-                       {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)}});
+        arr.push_back(
+            {{"name", v.param->name},
+             {"value", param_json(v.value)},
+             {"default", param_json(v.fallback)},
+             {"at_default", !v.differs},
+             {"register", v.param->reg},
+             {"register_value", v.reg_value},
+             {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)}});
       nlohmann::json j = terminal_json(term, ch);
       j["params"] = arr;
       return j;
@@ -128,7 +135,8 @@ class Show : public Command {
     if (type.channels > 1) who += fmt::format(" channel {}", ch + 1);
     rows.push_back({true, prefix, fmt::format("{}  {}", who, type.title), "", "", "", ""});
     if (vals.empty())
-      rows.push_back({false, prefix, "(no named parameters in the catalog; 'kscfg dump' shows the registers)", "", "", "", ""});
+      rows.push_back(
+          {false, prefix, "(no named parameters in the catalog; 'kscfg dump' shows the registers)", "", "", "", ""});
     for (const auto& v : vals)
       rows.push_back({false, prefix, "", v.param->name, v.value + (v.differs ? " *" : ""), v.fallback,
                       fmt::format("R{} {}", v.param->reg, hex4(v.reg_value))});

@@ -6,8 +6,8 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/base/error.hpp"
 #include "../output.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/session/verdict.hpp"
 #include "kscfg/station/map.hpp"
@@ -64,8 +64,7 @@ type = "KL2134"              # digital outputs
 [[terminal]]
 type = "KL9010"              # end terminal
 )",
-      p.family, p.name, oo(p.defaults.complete_evaluation), oo(p.defaults.motorola),
-      oo(p.defaults.word_alignment));
+      p.family, p.name, oo(p.defaults.complete_evaluation), oo(p.defaults.motorola), oo(p.defaults.word_alignment));
 }
 
 namespace {
@@ -121,8 +120,12 @@ class StationCheck : public Command {
            "window is refused with status 5 and the message \\fBapply\\fR gives. A partial file is judged "
            "terminal by terminal (an image beyond the coupler's limit needs the whole station: \\fBdiff\\fR).";
   }
-  std::vector<std::string> examples() const override { return {"station check line3.toml", "--json station check line3.toml"}; }
-  void add_cli(CLI::App& sub) override { sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE"); }
+  std::vector<std::string> examples() const override {
+    return {"station check line3.toml", "--json station check line3.toml"};
+  }
+  void add_cli(CLI::App& sub) override {
+    sub.add_option("FILE", file_, "Station file (-: stdin)")->required()->option_text("FILE");
+  }
   int run(Context& ctx) override {
     StationSpec spec = load_station_arg(file_, ctx.catalog());
     // The verdict apply would give the file as a change from the factory settings (session/
@@ -137,13 +140,17 @@ class StationCheck : public Command {
         list += fmt::format("{}{} ({})", list.empty() ? "" : ", ", t.position, t.type);
       }
       if (ctx.json()) {
-        print_json({{"file", input_name(file_)}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()},
-                    {"partial", true}, {"positions", positions}});
+        print_json({{"file", input_name(file_)},
+                    {"coupler", spec.coupler},
+                    {"terminal_count", spec.terminals.size()},
+                    {"partial", true},
+                    {"positions", positions}});
         return 0;
       }
-      std::cout << fmt::format("{}: a partial station file naming {} terminal{} by position: {}; apply, diff and "
-                               "restore check each against the station's type there and leave the others alone\n",
-                               input_name(file_), spec.terminals.size(), spec.terminals.size() == 1 ? "" : "s", list);
+      std::cout << fmt::format(
+          "{}: a partial station file naming {} terminal{} by position: {}; apply, diff and "
+          "restore check each against the station's type there and leave the others alone\n",
+          input_name(file_), spec.terminals.size(), spec.terminals.size() == 1 ? "" : "s", list);
       return 0;
     }
     StationLayout L = compute_layout(spec, ctx.catalog());
@@ -152,12 +159,15 @@ class StationCheck : public Command {
     if (ctx.json()) {
       // The image sizes with the names of map: inputs and outputs {bytes, complex_bytes, digital_bits, limit}.
       nlohmann::json m = map_json(L, p);
-      print_json({{"file", input_name(file_)}, {"coupler", L.coupler}, {"terminal_count", spec.terminals.size()},
-                  {"inputs", m["inputs"]}, {"outputs", m["outputs"]}});
+      print_json({{"file", input_name(file_)},
+                  {"coupler", L.coupler},
+                  {"terminal_count", spec.terminals.size()},
+                  {"inputs", m["inputs"]},
+                  {"outputs", m["outputs"]}});
       return 0;
     }
-    std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", input_name(file_), L.coupler,
-                             spec.terminals.size(), L.in_bytes, L.out_bytes);
+    std::cout << fmt::format("{}: {} with {} terminals, {} input bytes, {} output bytes\n", input_name(file_),
+                             L.coupler, spec.terminals.size(), L.in_bytes, L.out_bytes);
     return 0;
   }
 

@@ -34,9 +34,7 @@ class Unlock : public Command {
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j["unlocked"] = true;
       print_json(j);
-    }
-    else
-      std::cout << fmt::format("{} unlocked (R31 = 0x1235)\n", s->who());
+    } else std::cout << fmt::format("{} unlocked (R31 = 0x1235)\n", s->who());
     return 0;
   }
 };

@@ -5,12 +5,12 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/catalog/describe.hpp"
-#include "kscfg/catalog/params.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "kscfg/session/verdict.hpp"
+#include "kscfg/catalog/describe.hpp"
+#include "kscfg/catalog/params.hpp"
 #include "kscfg/session/parameters.hpp"
+#include "kscfg/session/verdict.hpp"
 
 namespace kscfg::cli {
 
@@ -84,8 +84,8 @@ class Write : public Command {
     const TerminalType& type = *s->terminal().type;
     if (type.regs[reg].command) {
       if (!mask_.empty())
-        throw Error(Exit::usage, fmt::format("R{} of {} is a command register: --mask does not apply to a command",
-                                             reg, type.type));
+        throw Error(Exit::usage,
+                    fmt::format("R{} of {} is a command register: --mask does not apply to a command", reg, type.type));
       return run_command_register(ctx, *s, reg, value);
     }
     WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
@@ -95,8 +95,12 @@ class Write : public Command {
     unsigned ch = ctx.options().channel - 1;
     if (ctx.json()) {
       nlohmann::json j = terminal_json(s->terminal(), ch);
-      j.update({{"register", reg}, {"before", r.before}, {"after", r.after}, {"changed", r.changed},
-                {"verified", true}, {"meaning", register_meaning(type, reg, r.after, ch)}});
+      j.update({{"register", reg},
+                {"before", r.before},
+                {"after", r.after},
+                {"changed", r.changed},
+                {"verified", true},
+                {"meaning", register_meaning(type, reg, r.after, ch)}});
       print_json(j);
       return 0;
     }
@@ -119,9 +123,13 @@ class Write : public Command {
       for (const auto& w : r.checked)
         checked.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
       nlohmann::json j = terminal_json(s.terminal(), s.channel());
-      j.update({{"register", reg}, {"value", value}, {"command", true}, {"changed", true},
+      j.update({{"register", reg},
+                {"value", value},
+                {"command", true},
+                {"changed", true},
                 {"effect", r.effect ? nlohmann::json(r.effect->what) : nlohmann::json(nullptr)},
-                {"verified", r.verified}, {"checked", checked}});
+                {"verified", r.verified},
+                {"checked", checked}});
       print_json(j);
       return 0;
     }
@@ -132,8 +140,8 @@ class Write : public Command {
     }
     std::string regs;
     for (const auto& w : r.checked) regs += fmt::format(" R{}", w.reg);
-    std::cout << fmt::format("R{} {} command executed ({}); verified:{} read their factory values\n", reg,
-                             hex4(value), r.effect->what, regs);
+    std::cout << fmt::format("R{} {} command executed ({}); verified:{} read their factory values\n", reg, hex4(value),
+                             r.effect->what, regs);
     for (const auto& w : r.checked)
       if (w.changed) std::cout << fmt::format("  R{} {} -> {}\n", w.reg, hex4(w.before), hex4(w.after));
     return 0;

@@ -15,8 +15,8 @@
 #include <filesystem>
 #include <thread>
 
-#include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 
 namespace kscfg {
@@ -151,9 +151,9 @@ const char* not_regular(mode_t m) {
 // directory is never opened or read.
 struct OpenedFile {
   int fd = -1;
-  int err = 0;          // when the path could not be looked at or opened (errno)
-  mode_t mode = 0;      // what is there (when it is not a regular file, fd < 0)
-  bool changed = false; // replaced between the look and the open
+  int err = 0;           // when the path could not be looked at or opened (errno)
+  mode_t mode = 0;       // what is there (when it is not a regular file, fd < 0)
+  bool changed = false;  // replaced between the look and the open
   off_t size = 0;
 };
 
@@ -236,8 +236,7 @@ RegularFile read_regular_file(const std::string& path, std::string_view what, st
 
 int lock_file(const std::string& path, double timeout_s, const CancelToken* cancel) {
   int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK, 0644);
-  if (fd < 0)
-    throw Error(Exit::file, fmt::format("cannot open the lock file '{}': {}", path, std::strerror(errno)));
+  if (fd < 0) throw Error(Exit::file, fmt::format("cannot open the lock file '{}': {}", path, std::strerror(errno)));
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
   while (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
     if (errno != EWOULDBLOCK && errno != EINTR) {
@@ -284,8 +283,8 @@ namespace {
 // separators (newline = , [ ] { }) bound a key's parts; brackets and braces bound the nesting.
 void check_toml_limits(std::string_view text, std::string_view origin) {
   if (text.size() > kMaxInputFileBytes)
-    throw Error(Exit::file, fmt::format("{}: {} bytes, more than the {} KiB a TOML file may have", origin,
-                                        text.size(), kMaxInputFileBytes / 1024));
+    throw Error(Exit::file, fmt::format("{}: {} bytes, more than the {} KiB a TOML file may have", origin, text.size(),
+                                        kMaxInputFileBytes / 1024));
   std::size_t line = 1, col = 0, dots = 0, depth = 0;
   auto fail = [&](const std::string& what) {
     return Error(Exit::file, fmt::format("{}:{}:{}: {} (a limit against crafted files)", origin, line, col, what));
@@ -352,8 +351,8 @@ toml::table parse_toml(std::string_view text, std::string_view origin) {
   } catch (const toml::parse_error& e) {
     std::string line = line_of(text, e.source().begin.line);
     if (line.size() > kQuoteMax) line = quote_input(line);  // a crafted line of megabytes: its start and size
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line,
-                                        e.source().begin.column, e.description(), line));
+    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line, e.source().begin.column,
+                                        e.description(), line));
   }
 }
 

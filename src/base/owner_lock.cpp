@@ -20,8 +20,8 @@ namespace kscfg {
 
 namespace {
 
-constexpr std::size_t kMaxRecord = 1024;   // what a holder writes; more is not a record
-constexpr std::size_t kMaxCommand = 240;   // characters of the command line shown
+constexpr std::size_t kMaxRecord = 1024;  // what a holder writes; more is not a record
+constexpr std::size_t kMaxCommand = 240;  // characters of the command line shown
 
 std::string printable(std::string_view s, std::size_t max) {
   std::string o;
@@ -39,7 +39,8 @@ bool alive(long pid) { return pid > 0 && (::kill(static_cast<pid_t>(pid), 0) == 
 
 // "mallory (uid 1001)", or "uid 1001" for a uid without a name.
 std::string user_text(uid_t uid) {
-  struct passwd pw {}, *found = nullptr;
+  struct passwd pw {
+  }, *found = nullptr;
   char buf[1024];
   if (::getpwuid_r(uid, &pw, buf, sizeof buf, &found) == 0 && found && found->pw_name)
     return fmt::format("{} (uid {})", printable(found->pw_name, 64), uid);
@@ -79,9 +80,8 @@ std::optional<LockHolder> parse_record(const std::string& text) {
   auto end = text.find('\n', nl + 1);
   LockHolder h;
   h.pid = pid;
-  h.command = printable(std::string_view(text).substr(nl + 1, end == std::string::npos ? std::string::npos
-                                                                                        : end - nl - 1),
-                        kMaxCommand);
+  h.command = printable(
+      std::string_view(text).substr(nl + 1, end == std::string::npos ? std::string::npos : end - nl - 1), kMaxCommand);
   if (!alive(pid)) return std::nullopt;
   return h;
 }
@@ -90,7 +90,8 @@ std::optional<LockHolder> parse_record(const std::string& text) {
 // a file (0644) is written by its owner alone, and no one can name another user's process as the
 // holder of a coupler. A file of another user also names that user.
 std::optional<LockHolder> read_record(int fd) {
-  struct stat st {}, proc {};
+  struct stat st {
+  }, proc{};
   if (::fstat(fd, &st) != 0) return std::nullopt;
   char buf[kMaxRecord];
   ssize_t n = ::pread(fd, buf, sizeof buf, 0);
@@ -155,10 +156,10 @@ std::string lock_dir() {
     if (::mkdir(dir, 01777) == 0) ::chmod(dir, 01777);
     // Never through a link another user planted in /run/lock.
     if (::lstat(dir, &st) == 0 && !S_ISDIR(st.st_mode))
-      throw Error(Exit::file,
-                  fmt::format("the lock directory {} is {} owned by {}, not kscfg's", dir, kind_of(st),
-                              user_text(st.st_uid)),
-                  "remove it, or ask its owner to; or set KSCFG_LOCK_DIR");
+      throw Error(
+          Exit::file,
+          fmt::format("the lock directory {} is {} owned by {}, not kscfg's", dir, kind_of(st), user_text(st.st_uid)),
+          "remove it, or ask its owner to; or set KSCFG_LOCK_DIR");
     if (S_ISDIR(st.st_mode) && ::access(dir, W_OK | X_OK) == 0) return dir;
   }
   return (std::filesystem::path(state_dir()) / "locks").string();

@@ -86,8 +86,7 @@ unsigned parse_register(std::string_view text) {
   } catch (const Error&) {
     throw Error(Exit::usage, fmt::format("invalid register {}: use R0..R63, 0..63 or 0x00..0x3F", quote_input(text)));
   }
-  if (v > 63)
-    throw Error(Exit::usage, fmt::format("invalid register {}: registers are R0..R63", quote_input(text)));
+  if (v > 63) throw Error(Exit::usage, fmt::format("invalid register {}: registers are R0..R63", quote_input(text)));
   return static_cast<unsigned>(v);
 }
 
@@ -124,21 +123,20 @@ std::size_t edit_distance(std::string_view a, std::string_view b) {
   return prev[b.size()];
 }
 
-std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates,
-                                 std::size_t n) {
+std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates, std::size_t n) {
   std::vector<std::pair<std::size_t, std::string>> scored;
   if (name.size() > 4 * kQuoteMax) return {};  // no name is near a crafted megabyte (nor worth its time)
   for (const auto& c : candidates) {
     auto d = edit_distance(name, c);
     // Prefix matches count as close ("KL60" -> KL6001).
-    if (c.size() >= name.size() && !name.empty() &&
-        std::equal(name.begin(), name.end(), c.begin(),
-                   [](char x, char y) { return std::tolower((unsigned char)x) == std::tolower((unsigned char)y); }))
+    if (c.size() >= name.size() && !name.empty() && std::equal(name.begin(), name.end(), c.begin(), [](char x, char y) {
+          return std::tolower((unsigned char)x) == std::tolower((unsigned char)y);
+        }))
       d = std::min<std::size_t>(d, 1);
     // A known name with more after it counts too ("baudrate" -> baud, "frame-format" -> frame).
-    if (c.size() >= 3 && name.size() > c.size() &&
-        std::equal(c.begin(), c.end(), name.begin(),
-                   [](char x, char y) { return std::tolower((unsigned char)x) == std::tolower((unsigned char)y); }))
+    if (c.size() >= 3 && name.size() > c.size() && std::equal(c.begin(), c.end(), name.begin(), [](char x, char y) {
+          return std::tolower((unsigned char)x) == std::tolower((unsigned char)y);
+        }))
       d = std::min<std::size_t>(d, 1);
     if (d <= std::max<std::size_t>(2, name.size() / 3)) scored.emplace_back(d, c);
   }

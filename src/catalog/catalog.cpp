@@ -128,7 +128,8 @@ const TerminalType* Catalog::find(std::string_view type) const {
 const TerminalType& Catalog::get(std::string_view type) const {
   if (const auto* t = find(type)) return *t;
   auto hint = did_you_mean(type, names());
-  throw Error(Exit::usage, fmt::format("unknown terminal type {}{}", quote_input(type), hint.empty() ? "" : "; " + hint),
+  throw Error(Exit::usage,
+              fmt::format("unknown terminal type {}{}", quote_input(type), hint.empty() ? "" : "; " + hint),
               "kscfg catalog lists the known types");
 }
 

@@ -1,19 +1,18 @@
 // Catalog parsing: one TOML description (catalog/FORMAT.md) -> TerminalType, and loading a folder
 // of them. The queries on the parsed catalog are in catalog.cpp.
-#include "kscfg/catalog/catalog.hpp"
-#include "kscfg/catalog/params.hpp"
-
 #include <fmt/format.h>
+#include <toml++/toml.h>
 
 #include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <sstream>
-#include <toml++/toml.h>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/catalog.hpp"
+#include "kscfg/catalog/params.hpp"
 
 namespace kscfg {
 
@@ -45,8 +44,8 @@ struct Ctx {
     if (auto s = n->value<std::string>()) return *s;
     fail(n, key, "must be a string");
   }
-  std::int64_t num(const toml::table& t, std::string_view key, bool required, std::int64_t def,
-                   std::int64_t lo, std::int64_t hi) const {
+  std::int64_t num(const toml::table& t, std::string_view key, bool required, std::int64_t def, std::int64_t lo,
+                   std::int64_t hi) const {
     const toml::node* n = t.get(key);
     if (!n) {
       if (required) fail(t, key, "missing");
@@ -69,8 +68,7 @@ struct Ctx {
     if (auto d = n->value<double>()) return *d;
     fail(n, key, "must be a number");
   }
-  void only_keys(const toml::table& t, std::initializer_list<std::string_view> allowed,
-                 std::string_view where) const {
+  void only_keys(const toml::table& t, std::initializer_list<std::string_view> allowed, std::string_view where) const {
     for (auto&& [k, v] : t) {
       if (std::find(allowed.begin(), allowed.end(), k.str()) == allowed.end()) {
         std::vector<std::string> cands(allowed.begin(), allowed.end());
@@ -103,12 +101,12 @@ void generic_registers(TerminalType& t) {
       r.storage = Storage::ram;
     } else if (i < 16) {
       r.storage = Storage::rom;
-      static const char* names[] = {"type", "version", "shift-registers", "signal-channels",
-                                    "min-data-length", "data-structure", "", "alignment"};
-      static const char* descs[] = {"Terminal type",       "Software version (ASCII)",
-                                    "Multiplex shift register", "Signal channels",
-                                    "Minimum data length", "Data structure",
-                                    "not used",            "Alignment register"};
+      static const char* names[] = {
+          "type",           "version", "shift-registers", "signal-channels", "min-data-length",
+          "data-structure", "",        "alignment"};
+      static const char* descs[] = {"Terminal type",   "Software version (ASCII)", "Multiplex shift register",
+                                    "Signal channels", "Minimum data length",      "Data structure",
+                                    "not used",        "Alignment register"};
       r.name = names[i - 8];
       r.desc = descs[i - 8];
       if (i == 15) {
@@ -217,9 +215,8 @@ std::shared_ptr<TerminalType> parse_type(const Ctx& c, const toml::table& root) 
   if (t->type.empty()) c.fail(root, "type", "must not be empty");
   t->title = c.str(root, "title", true);
   t->family = c.str(root, "family", true);
-  static const std::vector<std::string> families = {"digital-in", "digital-out", "analog-in", "analog-out",
-                                                    "serial",     "encoder",     "counter",   "power",
-                                                    "end",        "other"};
+  static const std::vector<std::string> families = {"digital-in", "digital-out", "analog-in", "analog-out", "serial",
+                                                    "encoder",    "counter",     "power",     "end",        "other"};
   if (std::find(families.begin(), families.end(), t->family) == families.end())
     c.fail(root, "family", fmt::format("unknown family '{}'", t->family));
   bool default_regs = t->family == "serial" || t->family == "encoder" || t->family == "analog-in" ||
@@ -234,7 +231,9 @@ std::shared_ptr<TerminalType> parse_type(const Ctx& c, const toml::table& root) 
   t->channels = static_cast<unsigned>(c.num(root, "channels", false, 1, 1, t->has_registers ? 16 : 256));
   // The direction of the process data: from the family unless the file says it.
   auto dir = c.str(root, "direction", false,
-                   t->family == "analog-in" ? "in" : t->family == "analog-out" ? "out" : "both");
+                   t->family == "analog-in"    ? "in"
+                   : t->family == "analog-out" ? "out"
+                                               : "both");
   if (dir == "in") t->direction = Direction::in;
   else if (dir == "out") t->direction = Direction::out;
   else if (dir == "both") t->direction = Direction::both;
@@ -469,8 +468,9 @@ std::shared_ptr<const TerminalType> parse_description(std::string_view origin, s
       if (v.with_param.empty()) continue;
       const ParamDef* other = t->param(v.with_param);
       if (!other || other == &p)
-        c.fail(root, "param", fmt::format("'{}' value '{}': with = \"{}={}\" names no other parameter of {}", p.name,
-                                          v.name, v.with_param, v.with_value, t->type));
+        c.fail(root, "param",
+               fmt::format("'{}' value '{}': with = \"{}={}\" names no other parameter of {}", p.name, v.name,
+                           v.with_param, v.with_value, t->type));
       try {
         (void)encode_param(*other, v.with_value, 0);
       } catch (const Error& e) {

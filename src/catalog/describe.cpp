@@ -40,7 +40,8 @@ std::string data_type_name(std::uint16_t v) {
 
 std::string register_meaning(const TerminalType& type, unsigned reg, std::uint16_t value, unsigned channel) {
   switch (reg) {
-    case 8: return value == type.r8 ? fmt::format("type {}", value) : fmt::format("type {} (catalog: {})", value, type.r8);
+    case 8:
+      return value == type.r8 ? fmt::format("type {}", value) : fmt::format("type {} (catalog: {})", value, type.r8);
     case 9: return fmt::format("version {}", proto::version_text(value));
     case 10: return fmt::format("{} shift register(s) of {} bits", value >> 8, value & 0xFF);
     case 12: return fmt::format("in {} / out {} bits", value >> 8, value & 0xFF);

@@ -77,8 +77,8 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
     case ParamDef::Kind::integer: {
       auto v = parse_uint(text, UINT64_MAX, p.name);
       if (static_cast<std::int64_t>(v) < p.min || static_cast<std::int64_t>(v) > p.max)
-        throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name, p.min,
-                                             p.max, p.unit.empty() ? "" : " " + p.unit));
+        throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name,
+                                             p.min, p.max, p.unit.empty() ? "" : " " + p.unit));
       return p.with_field(current, static_cast<std::uint16_t>(v));
     }
     case ParamDef::Kind::enumeration: {
@@ -103,7 +103,8 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
           throw Error(Exit::usage,
                       fmt::format("{} {} is above the terminal's documented maximum of {} {}{}", p.name, text, d.max,
                                   p.unit.empty() ? "baud" : p.unit, dym.empty() ? "" : "; did you mean " + dym + "?"),
-                      fmt::format("rates: {}, or another{} by the divisor form (--divisor)", join(param_choices(p), ", "), upto));
+                      fmt::format("rates: {}, or another{} by the divisor form (--divisor)",
+                                  join(param_choices(p), ", "), upto));
         }
         if (!divisor) {
           auto dym = near_presets(p, text, rate);
@@ -158,8 +159,7 @@ std::string undocumented_value(const TerminalType& type, unsigned reg, std::uint
     switch (p.kind) {
       case ParamDef::Kind::boolean: break;
       case ParamDef::Kind::integer:
-        if (f < p.min || f > p.max)
-          why.push_back(fmt::format("{} {} is outside {}..{}", p.name, f, p.min, p.max));
+        if (f < p.min || f > p.max) why.push_back(fmt::format("{} {} is outside {}..{}", p.name, f, p.min, p.max));
         break;
       case ParamDef::Kind::enumeration: {
         bool listed = std::any_of(p.values.begin(), p.values.end(), [&](const EnumValue& e) { return e.code == f; });
@@ -168,15 +168,15 @@ std::string undocumented_value(const TerminalType& type, unsigned reg, std::uint
           const Divisor& d = *p.divisor;
           double rate = divisor_rate(d, value);
           if (d.max && rate > d.max * (1.0 + d.tolerance_pct / 100.0))
-            why.push_back(fmt::format("the divisor form gives {} {:.0f}, above the {}'s documented maximum of {}", p.name,
-                                      rate, type.type, d.max));
+            why.push_back(fmt::format("the divisor form gives {} {:.0f}, above the {}'s documented maximum of {}",
+                                      p.name, rate, type.type, d.max));
           break;
         }
         std::string codes;
         for (const auto& e : p.values) codes += fmt::format("{}{} ({})", codes.empty() ? "" : ", ", e.code, e.name);
-        why.push_back(fmt::format("{} code {} is none of the documented codes {}{}", p.name, f, codes,
-                                  p.divisor ? fmt::format(" nor the divisor form (low byte 0x{:02X})", p.divisor->low)
-                                            : std::string()));
+        why.push_back(fmt::format(
+            "{} code {} is none of the documented codes {}{}", p.name, f, codes,
+            p.divisor ? fmt::format(" nor the divisor form (low byte 0x{:02X})", p.divisor->low) : std::string()));
         break;
       }
     }
@@ -208,9 +208,9 @@ std::vector<SettingConflict> setting_conflicts(const TerminalType& type,
           alt.push_back(a.name);
       std::string fix = fmt::format("{} {} with {} {}", other->name, v.with_value, p.name, v.name);
       if (!alt.empty()) fix = fmt::format("{} {} with {} {}, or {}", other->name, now, p.name, join(alt, " or "), fix);
-      out.push_back({fmt::format("{} {} needs {} {}, and {} is {}", p.name, v.name, other->name, v.with_value,
-                                 other->name, now),
-                     fix});
+      out.push_back(
+          {fmt::format("{} {} needs {} {}, and {} is {}", p.name, v.name, other->name, v.with_value, other->name, now),
+           fix});
     }
   }
   return out;

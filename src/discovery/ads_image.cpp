@@ -76,9 +76,10 @@ CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint
                         (*v)[1], (*v)[2], (*v)[3]));
   } catch (const Error& e) {
     if (e.code() == Exit::interrupted) throw;
-    c.unknown = fmt::format("its Modbus TCP side (table 100: port {}), where it reports its image lengths, does not "
-                            "answer: {}",
-                            *r26, e.what());
+    c.unknown = fmt::format(
+        "its Modbus TCP side (table 100: port {}), where it reports its image lengths, does not "
+        "answer: {}",
+        *r26, e.what());
   }
   return c;
 }
@@ -89,9 +90,10 @@ void judge_image(StationLayout& L, const CouplerImage& c, const StationSpec& spe
   L.image_refused_hint.clear();
   L.image_unconfirmed.clear();
   if (!c.bits) {
-    L.image_unconfirmed = fmt::format("the coupler's image lengths are unknown ({}): the layout of {} is the "
-                                      "family's settings ({}), not confirmed by the coupler",
-                                      c.unknown, origin, settings_of(L.settings));
+    L.image_unconfirmed = fmt::format(
+        "the coupler's image lengths are unknown ({}): the layout of {} is the "
+        "family's settings ({}), not confirmed by the coupler",
+        c.unknown, origin, settings_of(L.settings));
     return;
   }
   const auto& b = *c.bits;
@@ -100,13 +102,15 @@ void judge_image(StationLayout& L, const CouplerImage& c, const StationSpec& spe
            X.digital_in_bits == b[3];
   };
   if (fits(L)) return;
-  std::string said = fmt::format("the coupler reports {} output and {} input byte(s) of complex terminals, {} and {} "
-                                 "bit(s) of digital ones ({})",
-                                 b[0] / 8, b[1] / 8, b[2], b[3], c.where);
-  std::string laid = fmt::format("{} laid out with complete evaluation {} and word alignment {} takes {} and {}, {} "
-                                 "and {}",
-                                 origin, onoff(L.settings.complete_evaluation), onoff(L.settings.word_alignment),
-                                 L.complex_out, L.complex_in, L.digital_out_bits, L.digital_in_bits);
+  std::string said = fmt::format(
+      "the coupler reports {} output and {} input byte(s) of complex terminals, {} and {} "
+      "bit(s) of digital ones ({})",
+      b[0] / 8, b[1] / 8, b[2], b[3], c.where);
+  std::string laid = fmt::format(
+      "{} laid out with complete evaluation {} and word alignment {} takes {} and {}, {} "
+      "and {}",
+      origin, onoff(L.settings.complete_evaluation), onoff(L.settings.word_alignment), L.complex_out, L.complex_in,
+      L.digital_out_bits, L.digital_in_bits);
   // Which settings lay these terminals out to the coupler's lengths (Motorola moves no byte).
   std::vector<MappingSettings> match;
   for (bool ce : {true, false})
@@ -134,11 +138,11 @@ void judge_image(StationLayout& L, const CouplerImage& c, const StationSpec& spe
       return v.size() == 2 ? v[0] + sep + v[1] : v[0];
     };
     std::string what = join(set, " and ");
-    L.image_refused = fmt::format("the coupler is set to {}: {}; {} (with {}, the coupler's)", what, said, laid,
-                                  what);
-    L.image_refused_hint = fmt::format("give the coupler's settings: --station FILE with [mapping] {} ('kscfg scan "
-                                       "{} --write FILE' writes one); nothing was read from the image",
-                                       join(keys, ", "), join(flags, " "));
+    L.image_refused = fmt::format("the coupler is set to {}: {}; {} (with {}, the coupler's)", what, said, laid, what);
+    L.image_refused_hint = fmt::format(
+        "give the coupler's settings: --station FILE with [mapping] {} ('kscfg scan "
+        "{} --write FILE' writes one); nothing was read from the image",
+        join(keys, ", "), join(flags, " "));
     return;
   }
   L.image_refused = fmt::format("{}; {}{}", said, laid,
@@ -148,8 +152,9 @@ void judge_image(StationLayout& L, const CouplerImage& c, const StationSpec& spe
                                                 "register such as R34/R35 changed, which takes effect at its next "
                                                 "start)"
                                               : ", as several settings would: which one the coupler has is unknown");
-  L.image_refused_hint = "nothing was read from the image; power the coupler off and on, then 'kscfg scan' shows "
-                         "what it has";
+  L.image_refused_hint =
+      "nothing was read from the image; power the coupler off and on, then 'kscfg scan' shows "
+      "what it has";
 }
 
 }  // namespace kscfg

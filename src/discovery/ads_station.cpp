@@ -1,12 +1,13 @@
 // The station behind an ADS coupler, and `kscfg scan` over ADS port 100 (discovery/ads_station.hpp,
 // docs/design.md section 4.9).
+#include "kscfg/discovery/ads_station.hpp"
+
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
 #include <algorithm>
 #include <set>
 
-#include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/ads_image.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/link/ads_registers.hpp"
@@ -16,8 +17,7 @@ namespace kscfg {
 namespace {
 
 // ADS results that mean "the coupler does not have this" rather than a failure of the link.
-constexpr std::uint32_t kNotSupported = 0x701, kNoGroup = 0x702, kNoOffset = 0x703, kDenied = 0x704,
-                        kBadSize = 0x705;
+constexpr std::uint32_t kNotSupported = 0x701, kNoGroup = 0x702, kNoOffset = 0x703, kDenied = 0x704, kBadSize = 0x705;
 bool not_served(std::uint32_t result) {
   return result == kNotSupported || result == kNoGroup || result == kNoOffset || result == kDenied ||
          result == kBadSize;
@@ -147,11 +147,12 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       if (e.digital) digital.push_back(std::to_string(i));
     }
     if (!digital.empty())
-      r.notes.push_back(fmt::format("digital terminal(s) {}: table 9 gives their bits and direction only, not their "
-                                    "types; each is shown as \"digital\" with the catalog types that fit (a station "
-                                    "file or --station names which one it is). Passive terminals (power feeds, the end "
-                                    "terminal) are not in table 9: with any between others, give --station FILE",
-                                    fmt::join(digital, ", ")));
+      r.notes.push_back(
+          fmt::format("digital terminal(s) {}: table 9 gives their bits and direction only, not their "
+                      "types; each is shown as \"digital\" with the catalog types that fit (a station "
+                      "file or --station names which one it is). Passive terminals (power feeds, the end "
+                      "terminal) are not in table 9: with any between others, give --station FILE",
+                      fmt::join(digital, ", ")));
   } else {
     r.notes.push_back("the coupler does not serve table 9 (its terminal list); walked by terminal number instead");
     // R8 of every terminal number, 16 in flight at a time. A number without registers answers an
@@ -198,13 +199,14 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
                                 "told from the end of the station, so kscfg cannot lay it out",
                                 client.target().where(), last),
                     "describe the station: --station FILE ('kscfg scan --write FILE' starts one)");
-      r.notes.push_back(fmt::format("after terminal number {} the coupler answers no terminal with registers: digital "
-                                    "terminals there (if any) cannot be told from the end of the station{}",
-                                    last,
-                                    image.bits ? fmt::format(" (the coupler reports {} output and {} input bit(s) of "
-                                                             "digital terminals)",
-                                                             (*image.bits)[2], (*image.bits)[3])
-                                               : std::string()));
+      r.notes.push_back(
+          fmt::format("after terminal number {} the coupler answers no terminal with registers: digital "
+                      "terminals there (if any) cannot be told from the end of the station{}",
+                      last,
+                      image.bits ? fmt::format(" (the coupler reports {} output and {} input bit(s) of "
+                                               "digital terminals)",
+                                               (*image.bits)[2], (*image.bits)[3])
+                                 : std::string()));
       unknown_tail = true;
     }
     if (unidentified && !opt.check)
@@ -216,9 +218,10 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
                               client.target().where(), unidentified),
                   "describe the station: --station FILE ('kscfg scan --write FILE' starts one)");
     if (unidentified)
-      r.notes.push_back(fmt::format("{} terminal(s) without registers (digital) cannot be identified without table 9 "
-                                    "and are not listed; plug positions count the terminals with registers",
-                                    unidentified));
+      r.notes.push_back(
+          fmt::format("{} terminal(s) without registers (digital) cannot be identified without table 9 "
+                      "and are not listed; plug positions count the terminals with registers",
+                      unidentified));
   }
 
   // The coupler: table 9 register 0 names it (9000: BK9000); without it, the device name.
@@ -303,9 +306,10 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       if (r8 != t.r8) {
         // Table 9 is what the coupler found at power-on, R8 what the terminal says now.
         r.matches = false;
-        r.notes.push_back(fmt::format("terminal number {}: table 9 lists {} but R8 reads {}: the station changed "
-                                      "since the coupler started (power it off and on)",
-                                      found[i].number, t.type, r8));
+        r.notes.push_back(
+            fmt::format("terminal number {}: table 9 lists {} but R8 reads {}: the station changed "
+                        "since the coupler started (power it off and on)",
+                        found[i].number, t.type, r8));
       }
     }
     add_scanned_terminal(r, t, r8, regs[i]);

@@ -32,11 +32,14 @@ CouplerSettings modbus_settings(ModbusRegisters& c) {
   reg(mbmap::kWatchdogReset, "watchdog-reset",
       [](unsigned v) { return fmt::format("0x{:04X} (write 0xBECF, then 0xAFFE, to reset the watchdog)", v); });
   reg(mbmap::kWatchdogType, "watchdog-type", [](unsigned v) {
-    return v == 1 ? std::string("1: retriggered by every telegram") : v == 0 ? std::string("0: retriggered by write telegrams")
-                                                                            : fmt::format("{}: undocumented", v);
+    return v == 1   ? std::string("1: retriggered by every telegram")
+           : v == 0 ? std::string("0: retriggered by write telegrams")
+                    : fmt::format("{}: undocumented", v);
   });
   reg(0x1123, "modbus-mode", [](unsigned v) {
-    return v == 1 ? std::string("1: fast Modbus") : v == 0 ? std::string("0: normal Modbus") : fmt::format("{}: undocumented", v);
+    return v == 1   ? std::string("1: fast Modbus")
+           : v == 0 ? std::string("0: normal Modbus")
+                    : fmt::format("{}: undocumented", v);
   });
   return s;
 }
@@ -65,8 +68,9 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
   add("ads-watchdog", fmt::format("{} ms", t[14]), t[14], "14");
   add("modbus-tcp", t[15] & 1 ? "disabled" : "enabled", t[15] & 1, "15 bit 0");
   add("ads", t[15] & 2 ? "disabled" : "enabled", (t[15] >> 1) & 1, "15 bit 1");
-  add("ethernet", fmt::format("{}, {}, {}", t[16] & 0x2000 ? "100 Mbaud" : "10 Mbaud",
-                              t[16] & 0x100 ? "full duplex" : "half duplex", t[16] & 0x1000 ? "autobaud" : "fixed"),
+  add("ethernet",
+      fmt::format("{}, {}, {}", t[16] & 0x2000 ? "100 Mbaud" : "10 Mbaud",
+                  t[16] & 0x100 ? "full duplex" : "half duplex", t[16] & 0x1000 ? "autobaud" : "fixed"),
       t[16], "16");
   add("gateway", ip(t[17], t[18]), (t[17] << 16) | t[18], "17..18");
   add("modbus-watchdog", fmt::format("{} ms", t[24]), t[24], "24");
@@ -80,9 +84,9 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
 CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms) {
   if (auto* m = link.modbus_registers()) return modbus_settings(*m);
   if (auto* a = link.ads_connection()) return ads_settings(*a, timeout_ms);
-  throw Error(Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator",
-                                       link.describe()),
-              "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");
+  throw Error(
+      Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator", link.describe()),
+      "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");
 }
 
 }  // namespace kscfg

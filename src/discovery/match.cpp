@@ -45,8 +45,8 @@ void check_image_lengths(const StationLayout& L, const std::array<unsigned, 4>& 
 StationLayout match_scan(const ScanResult& scan, const StationSpec& file, const Catalog& catalog) {
   std::string origin = file.origin.empty() ? "the station file" : file.origin;
   if (!scan.walked || !scan.complete)
-    throw Error(Exit::usage, fmt::format("the terminals behind the coupler are unknown, so {} cannot be matched",
-                                         origin),
+    throw Error(Exit::usage,
+                fmt::format("the terminals behind the coupler are unknown, so {} cannot be matched", origin),
                 "give --station FILE");
   StationLayout described = compute_layout(file, catalog);
   std::vector<std::string> have, want;

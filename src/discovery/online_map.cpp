@@ -26,10 +26,10 @@ OnlineMap map_online(Engine& engine, const StationLayout& current, const Station
     const TerminalImage& t = current.terminal(pos);
     for (unsigned ch = 0; ch < type.channels; ++ch) {
       if (ch >= t.channels.size() || !t.channels[ch].window) {
-        m.notes.push_back(fmt::format("terminal {} ({}){}: control/status byte not mapped, so R{} cannot be read; "
-                                      "its format follows the described settings",
-                                      pos, type.type, type.channels > 1 ? fmt::format(" channel {}", ch + 1) : "",
-                                      regs.front()));
+        m.notes.push_back(
+            fmt::format("terminal {} ({}){}: control/status byte not mapped, so R{} cannot be read; "
+                        "its format follows the described settings",
+                        pos, type.type, type.channels > 1 ? fmt::format(" channel {}", ch + 1) : "", regs.front()));
         continue;
       }
       RegisterSession s(engine, t, ch, opt);

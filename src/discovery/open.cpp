@@ -66,27 +66,26 @@ class AdsDiscovery : public StationDiscovery {
     for (std::size_t k = 0; k < std::max(mine.size(), found->terminals.size()); ++k) {
       const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
       const TerminalImage* have = k < found->terminals.size() ? &found->terminals[k] : nullptr;
-      auto what = [](const TerminalImage& t) {
-        return t.inferred ? digital_label(t) : t.type->type;
-      };
+      auto what = [](const TerminalImage& t) { return t.inferred ? digital_label(t) : t.type->type; };
       if (want && have && fits_type(*have, want->type->type)) continue;
       throw Error(Exit::refused,
                   want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
                                              origin, want->position, want->type->type, k + 1, what(*have))
                   : want       ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) with a number on "
-                                             "port 100 (table 9)",
+                                                   "port 100 (table 9)",
                                              origin, want->position, want->type->type, found->terminals.size())
                                : fmt::format("{} describes {} terminal(s) with a number on port 100, table 9 lists "
-                                             "{}: terminal number {} is {}",
+                                                   "{}: terminal number {} is {}",
                                              origin, mine.size(), found->terminals.size(), k + 1, what(*have)),
                   "'kscfg scan' lists what the coupler has; nothing was done");
     }
-    judge_image(L, found_->image, spec, catalog_,
-                [&](unsigned pos, unsigned ch) {
-                  const TerminalSpec& ts = spec.terminals.at(pos - 1);
-                  return channel_registers(catalog_.get(ts.type), &ts, ch);
-                },
-                origin);
+    judge_image(
+        L, found_->image, spec, catalog_,
+        [&](unsigned pos, unsigned ch) {
+          const TerminalSpec& ts = spec.terminals.at(pos - 1);
+          return channel_registers(catalog_.get(ts.type), &ts, ch);
+        },
+        origin);
   }
 
  private:
@@ -159,13 +158,12 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     ao.cancel = opt.cancel;
     AdsTarget target = ads_target(p, uri);
     // One kscfg at a time on a coupler of this computer, as over Modbus: before it connects.
-    OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
-                                        opt.lock_wait);
+    OwnerLock lock =
+        OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()), opt.lock_wait);
     auto link = std::make_unique<AdsImageLink>(target, ao, std::move(lock));
     // Channels unlocked over port 100 are noted in the session journal of this coupler, so that the
     // next kscfg relocks what a killed one left (session/ads_access.hpp).
-    if (opt.journal && !opt.journal_dir.empty())
-      opt.journal->open(opt.journal_dir, station_key(target));
+    if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
     auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel);
     OpenedPort port;
     port.link = std::move(link);
@@ -192,14 +190,13 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);
   // One kscfg at a time on a coupler of this computer (issue 21 item 1): before it connects.
-  OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()),
-                                      opt.lock_wait);
+  OwnerLock lock =
+      OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()), opt.lock_wait);
   auto link = std::make_unique<ModbusLink>(target, mo, std::move(lock));
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
-  if (opt.journal && !opt.journal_dir.empty())
-    opt.journal->open(opt.journal_dir, station_key(link->client().target()));
+  if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(link->client().target()));
   // The scan's sessions run on the port's engine, with its options (a notice: e.g. a dead
   // session's register mode, finished by the scan's session).
   SessionOptions so = port_session(opt);
@@ -231,10 +228,13 @@ void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, c
   auto force_fits = [&](const SessionJournal::Forced& f) { return forced_fits(layout_upto(f.position), f); };
   if (link.ads_connection()) {
     // Direct access: the channels a dead kscfg unlocked over port 100.
-    finish_dead_direct_sessions(engine, so, [&](unsigned position) -> const TerminalImage* {
-      const StationLayout& L = layout_upto(position);
-      return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
-    }, &link, force_fits);
+    finish_dead_direct_sessions(
+        engine, so,
+        [&](unsigned position) -> const TerminalImage* {
+          const StationLayout& L = layout_upto(position);
+          return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
+        },
+        &link, force_fits);
     return;
   }
   auto fits = [&](const SessionJournal::Entry& e) {

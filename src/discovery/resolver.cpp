@@ -219,12 +219,11 @@ std::unique_ptr<RegisterSession> StationResolver::session(unsigned pos, unsigned
     std::string was = t.type->type;
     std::uint16_t r8 = checked_r8_[pos];
     forget_layout();
-    throw Error(Exit::refused,
-                r8 ? fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8,
-                                 was)
-                   : fmt::format("terminal {} does not answer where the scan kept from an earlier run puts its {}", pos,
-                                 was),
-                "the station changed; the kept scan was dropped: run the command again");
+    throw Error(
+        Exit::refused,
+        r8 ? fmt::format("terminal {} reports type {} in R8, the scan kept from an earlier run says {}", pos, r8, was)
+           : fmt::format("terminal {} does not answer where the scan kept from an earlier run puts its {}", pos, was),
+        "the station changed; the kept scan was dropped: run the command again");
   }
   return std::make_unique<RegisterSession>(engine(), t, ch, session_options());
 }
@@ -279,9 +278,9 @@ std::map<unsigned, std::vector<std::uint16_t>> StationResolver::read_terminals(
 }
 
 void StationResolver::finish() {
-  kept_.reset();  // a session kept from the check of a cached layout ends here (process data restored)
+  kept_.reset();            // a session kept from the check of a cached layout ends here (process data restored)
   port_.discovery->save();  // the scan cache, with the latencies learned
-  port_.commit();  // the emulator's state file
+  port_.commit();           // the emulator's state file
 }
 
 }  // namespace kscfg

@@ -50,11 +50,13 @@ ImageFormat probe_format() {
 }
 
 bool same_window(const RegisterWindow& a, const RegisterWindow& b) {
-  return a.ctrl == b.ctrl && a.status == b.status && a.in_lo == b.in_lo && a.in_hi == b.in_hi &&
-         a.out_lo == b.out_lo && a.out_hi == b.out_hi;
+  return a.ctrl == b.ctrl && a.status == b.status && a.in_lo == b.in_lo && a.in_hi == b.in_hi && a.out_lo == b.out_lo &&
+         a.out_hi == b.out_hi;
 }
 
-std::string bytes_text(std::size_t lo, std::size_t hi) { return fmt::format("{}-{}", std::min(lo, hi), std::max(lo, hi)); }
+std::string bytes_text(std::size_t lo, std::size_t hi) {
+  return fmt::format("{}-{}", std::min(lo, hi), std::max(lo, hi));
+}
 
 }  // namespace
 
@@ -95,13 +97,13 @@ void add_scanned_terminal(ScanResult& r, const TerminalType& type, std::uint16_t
   r.regs.push_back(std::move(regs));
 }
 
-
 std::array<unsigned, 4> read_image_lengths(ModbusRegisters& client) {
   auto len = client.read_optional(mbmap::kImageLengths, 4);
   if (!len)
-    throw Error(Exit::link,
-                fmt::format("{} refuses the image lengths (0x1010..0x1013, Modbus exception 2)", client.target().where()),
-                "it does not look like a BK9000/BK7300-style coupler; check the address and the unit id (?unit=N)");
+    throw Error(
+        Exit::link,
+        fmt::format("{} refuses the image lengths (0x1010..0x1013, Modbus exception 2)", client.target().where()),
+        "it does not look like a BK9000/BK7300-style coupler; check the address and the unit id (?unit=N)");
   return {(*len)[0], (*len)[1], (*len)[2], (*len)[3]};
 }
 
@@ -135,11 +137,11 @@ ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::opti
     prof = &coupler_profile("BK9000");
     r.notes.push_back(
         r.ident_read
-            ? fmt::format("the identification \"{}\"{} names no coupler kscfg knows; going on from the image "
-                          "lengths with BK9000 settings (complete evaluation on, word alignment on, Intel)",
-                          r.ident,
-                          head.ident_other.empty() ? ""
-                                                   : fmt::format(" (\"{}\" with the other byte order)", head.ident_other))
+            ? fmt::format(
+                  "the identification \"{}\"{} names no coupler kscfg knows; going on from the image "
+                  "lengths with BK9000 settings (complete evaluation on, word alignment on, Intel)",
+                  r.ident,
+                  head.ident_other.empty() ? "" : fmt::format(" (\"{}\" with the other byte order)", head.ident_other))
             : "the coupler does not serve its identification (0x1000..0x1006); going on from the image lengths "
               "with BK9000 settings (complete evaluation on, word alignment on, Intel)");
   }
@@ -154,14 +156,16 @@ ScanResult begin_scan(const ScanHead& head, const std::string& origin, std::opti
   if (r.complex_out_bits % 8 || r.complex_in_bits % 8)
     r.notes.push_back("the complex image lengths are not whole bytes");
   if (r.digital_in_bits || r.digital_out_bits)
-    r.notes.push_back(fmt::format("digital terminals: {} input bit(s), {} output bit(s); their types cannot be read "
-                                  "over Modbus and are not listed",
-                                  r.digital_in_bits, r.digital_out_bits));
+    r.notes.push_back(
+        fmt::format("digital terminals: {} input bit(s), {} output bit(s); their types cannot be read "
+                    "over Modbus and are not listed",
+                    r.digital_in_bits, r.digital_out_bits));
   r.walked = r.settings.complete_evaluation;
   if (!r.walked) {
     r.complete = true;
-    r.notes.push_back("complete evaluation is off: the control/status bytes are not mapped, so terminals cannot be "
-                      "identified (enable it on the coupler, or describe the station with --station)");
+    r.notes.push_back(
+        "complete evaluation is off: the control/status bytes are not mapped, so terminals cannot be "
+        "identified (enable it on the coupler, or describe the station with --station)");
   }
   return r;
 }
@@ -174,10 +178,10 @@ void read_watchdog(ScanResult& r, ModbusRegisters& client) {
 namespace {
 
 Error silent_terminal(std::size_t out, const Error& e) {
-  return Error(e.code(),
-               fmt::format("scan: the terminal whose control byte would be output byte {} does not answer: {}", out,
-                           e.what()),
-               "check the coupler's mapping settings, or describe the station with --station");
+  return Error(
+      e.code(),
+      fmt::format("scan: the terminal whose control byte would be output byte {} does not answer: {}", out, e.what()),
+      "check the coupler's mapping settings, or describe the station with --station");
 }
 
 // Stations come in runs of one type. A terminal after one that answered through window `win` of
@@ -222,8 +226,8 @@ bool walk_as_before(ScanResult& r, Engine& engine, const Catalog& catalog, const
 
 }  // namespace
 
-void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
-          unsigned upto, const ScanProgress& progress) {
+void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto,
+          const ScanProgress& progress) {
   if (!r.walked || r.complete) return;
   std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   const ImageFormat probe = probe_format();
@@ -359,20 +363,19 @@ void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, con
         std::string regs;
         for (auto [k, v] : r.regs.back()[0])
           if (k != 8) regs += fmt::format("{}R{} = 0x{:04X}", regs.empty() ? "" : ", ", k, v);
-        throw Error(Exit::refused,
-                    fmt::format("scan: terminal {} ({}) answers with its register value in input bytes {}, but its "
-                                "mapping registers{} put it {}",
-                                position, type->type, bytes_text(win.in_lo, win.in_hi),
-                                regs.empty() ? "" : " (" + regs + ")",
-                                lt.channels.empty() || !lt.channels[0].window
-                                    ? std::string("nowhere (no control/status byte)")
-                                    : "in bytes " + bytes_text(lt.channels[0].window->in_lo,
-                                                               lt.channels[0].window->in_hi)),
-                    fmt::format("a coupler lays out its image when it starts: if these registers changed since, "
-                                "restart the coupler; otherwise its mapping settings differ from the {} defaults: "
-                                "give them to 'kscfg scan' (--complete-evaluation, --word-alignment, --motorola), "
-                                "or describe the station with --station",
-                                r.coupler));
+        throw Error(
+            Exit::refused,
+            fmt::format("scan: terminal {} ({}) answers with its register value in input bytes {}, but its "
+                        "mapping registers{} put it {}",
+                        position, type->type, bytes_text(win.in_lo, win.in_hi), regs.empty() ? "" : " (" + regs + ")",
+                        lt.channels.empty() || !lt.channels[0].window
+                            ? std::string("nowhere (no control/status byte)")
+                            : "in bytes " + bytes_text(lt.channels[0].window->in_lo, lt.channels[0].window->in_hi)),
+            fmt::format("a coupler lays out its image when it starts: if these registers changed since, "
+                        "restart the coupler; otherwise its mapping settings differ from the {} defaults: "
+                        "give them to 'kscfg scan' (--complete-evaluation, --word-alignment, --motorola), "
+                        "or describe the station with --station",
+                        r.coupler));
       }
     }
     // The station file keeps only what differs from the type's defaults.
@@ -388,9 +391,10 @@ void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, con
   if (r.complete) {
     r.matches = r.layout.complex_out == co && r.layout.complex_in == ci;
     if (!r.matches)
-      r.notes.push_back(fmt::format("the terminals found take {} output and {} input byte(s); the coupler reports {} "
-                                    "and {}: the mapping settings may differ from the coupler's",
-                                    r.layout.complex_out, r.layout.complex_in, co, ci));
+      r.notes.push_back(
+          fmt::format("the terminals found take {} output and {} input byte(s); the coupler reports {} "
+                      "and {}: the mapping settings may differ from the coupler's",
+                      r.layout.complex_out, r.layout.complex_in, co, ci));
   }
 }
 
@@ -467,17 +471,17 @@ class ScanDiscovery : public StationDiscovery {
       for (auto [pos, w] : c->ack_wait) {
         if (opt_.rescan) continue;
         if (!ack_plausible(w, so_.timeout)) {
-          trace(fmt::format("the scan cache's acknowledge latency of terminal {} ({} us) is longer than the timeout "
-                            "({} ms): ignored, learned again",
-                            pos, w.count(), so_.timeout.count()));
+          trace(
+              fmt::format("the scan cache's acknowledge latency of terminal {} ({} us) is longer than the timeout "
+                          "({} ms): ignored, learned again",
+                          pos, w.count(), so_.timeout.count()));
           continue;
         }
         if (AckTimings* t = engine_.access().ack_timings())
           t->keep(pos, w, c->ack_suspect.count(pos) > 0 || ack_suspect_when_kept(w, so_.timeout));
       }
       if (!forgotten_ && !opt_.rescan) kept_ = std::move(c->scan);
-    } catch (...) {
-    }
+    } catch (...) {}
   }
 
   void save() noexcept override {
@@ -508,8 +512,7 @@ class ScanDiscovery : public StationDiscovery {
         trace(fmt::format("cannot write the scan cache {}", cache_->path()));
       }
       cache_->unlock();
-    } catch (...) {
-    }
+    } catch (...) {}
   }
 
  private:
@@ -569,8 +572,8 @@ class ScanDiscovery : public StationDiscovery {
   SessionOptions so_;
   DiscoveryOptions opt_;
   std::optional<ScanCache> cache_;
-  std::optional<ScanResult> r_;     // this run's
-  std::optional<ScanResult> kept_;  // the cache's, not used (yet) in this run
+  std::optional<ScanResult> r_;        // this run's
+  std::optional<ScanResult> kept_;     // the cache's, not used (yet) in this run
   const ScanResult* found_ = nullptr;  // what layout_upto() found last (until forget())
   std::map<unsigned, std::chrono::microseconds> saved_wait_;
   std::set<unsigned> saved_suspect_;

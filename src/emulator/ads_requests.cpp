@@ -56,16 +56,16 @@ std::uint16_t AdsRequestHandler::table(unsigned table, unsigned reg) const {
   switch (reg) {
     case 0: return two(id[0], id[1]);  // IP address
     case 1: return two(id[2], id[3]);
-    case 2: return two(0xFF, 0xFF);     // IP mask 255.255.0.0 (the documented default)
+    case 2: return two(0xFF, 0xFF);  // IP mask 255.255.0.0 (the documented default)
     case 3: return 0;
     case 14: return static_cast<std::uint16_t>(opt_.watchdog_ms);  // watchdog AMS/ADS, ms
     case 15: return opt_.modbus_port ? 0 : 1;  // bit 0 set: Modbus TCP disabled; bit 1 set: ADS disabled
-    case 16: return 0x3100;              // full duplex, autobaud, 100 Mbaud (the defaults)
-    case 24: return 1000;                // watchdog Modbus TCP, ms
+    case 16: return 0x3100;                    // full duplex, autobaud, 100 Mbaud (the defaults)
+    case 24: return 1000;                      // watchdog Modbus TCP, ms
     case 26: return static_cast<std::uint16_t>(opt_.modbus_port.value_or(502));  // Modbus TCP port
-    case 27: return 10;                  // ADS connection service life, s
+    case 27: return 10;                                                          // ADS connection service life, s
     default:
-      if (reg >= 4 && reg <= 13) {       // device name, two characters per register
+      if (reg >= 4 && reg <= 13) {  // device name, two characters per register
         std::size_t i = 2 * (reg - 4);
         auto ch = [&](std::size_t k) { return k < name.size() ? static_cast<std::uint8_t>(name[k]) : std::uint8_t{0}; };
         return two(ch(i), ch(i + 1));
@@ -81,7 +81,7 @@ std::uint32_t AdsRequestHandler::registers(const ams::Header& h, const ams::Requ
   unsigned hi = r.offset >> 16, lo = r.offset & 0xFFFF;
   if (r.group == adsreg::kCouplerGroup) {
     rep.what = fmt::format("table {} register {}", hi, lo);
-    if (write) return kNotPermitted;  // the tables are read only over ADS
+    if (write) return kNotPermitted;                                          // the tables are read only over ADS
     if (hi != adsreg::kTable9 && hi != adsreg::kTable100) return kBadOffset;  // not documented for a BK9000
     if (lo > 255) return kBadOffset;  // a table has registers 0..255: no such register
     if (n == 0 || n % 2 || lo + n / 2 > 256) return kBadSize;
@@ -199,7 +199,8 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
         break;
       }
       std::vector<std::uint8_t> out;
-      std::uint32_t result = h.target_port == adsport::kRegisters ? registers(h, *r, out, rep) : image(h, *r, out, rep, now);
+      std::uint32_t result =
+          h.target_port == adsport::kRegisters ? registers(h, *r, out, rep) : image(h, *r, out, rep, now);
       if (h.target_port == adsport::kRegisters && r->group >= 1 && opt_.register_ms) {
         // A coupler works on one register access at a time, each taking register_ms.
         auto due = std::max(now, register_free_) + std::chrono::milliseconds(opt_.register_ms);

@@ -19,8 +19,8 @@
 #include <algorithm>
 #include <cstring>
 #include <list>
-#include <nlohmann/json.hpp>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "kscfg/base/error.hpp"

@@ -19,8 +19,8 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "state_schema.hpp"
 #include "kscfg/station/map.hpp"
+#include "state_schema.hpp"
 
 namespace kscfg {
 
@@ -67,7 +67,7 @@ void ChannelModel::write_register(unsigned r, std::uint16_t v) {
   }
   const RegisterDef& def = type_->regs[r];
   if (!def.writable || def.storage == proto::Storage::rom) return;  // ROM and read-only: ignored
-  if (proto::is_protected(r) && !unlocked()) return;                 // needs the code word
+  if (proto::is_protected(r) && !unlocked()) return;                // needs the code word
   if (r == proto::kCommandRegister) {
     // R7: command register. 0x7000 restores factory settings where the manual documents it.
     if (type_->reset == FactoryReset::r7 && v == proto::kFactoryResetCommand && unlocked()) factory_reset();
@@ -77,8 +77,8 @@ void ChannelModel::write_register(unsigned r, std::uint16_t v) {
   regs_[r] = v;
 }
 
-void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in,
-                         int vi, unsigned delay, double cycle_us) {
+void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std::span<std::uint8_t> in, int vi,
+                         unsigned delay, double cycle_us) {
   std::uint8_t ctrl = out.empty() ? 0 : out[0];
   auto vidx = static_cast<std::size_t>(vi);
   if (serial_) {
@@ -142,7 +142,8 @@ EmulatedStation::EmulatedStation(const StationSpec& spec, const Catalog& catalog
     const TerminalType& type = catalog.get(ts.type);
     if (!has_model(type)) continue;
     for (unsigned ch = 0; ch < type.channels; ++ch)
-      slots_.push_back({static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}, {}});
+      slots_.push_back(
+          {static_cast<unsigned>(i + 1), ch, ChannelModel(type, channel_registers(type, &ts, ch)), {}, {}});
   }
   // Settings of the file now live in the terminals' registers; the spec keeps the composition.
   for (auto& t : spec_.terminals) t.channels.clear();
@@ -269,7 +270,8 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
         for (unsigned k = 8; k < 15; ++k) r[k] = slot.at_start[k];  // ROM, as ChannelModel keeps it
         slot.at_start = r;
       }
-      if (c.contains("ignore_writes")) slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
+      if (c.contains("ignore_writes"))
+        slot.model.faults.ignore_writes = c.at("ignore_writes").get<std::set<unsigned>>();
       slot.model.faults.mute = c.value("mute", false);
       if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
       if (auto* enc = slot.model.encoder(); enc && c.contains("encoder")) enc->from_json(c.at("encoder"));
@@ -457,10 +459,9 @@ EmulatorRestart restart_emulator_state(const std::string& path, const Catalog& c
     auto in = [](const TerminalImage& t) { return t.complex ? t.in_size : t.bits_in; };
     auto out = [](const TerminalImage& t) { return t.complex ? t.out_size : t.bits_out; };
     if (!in(x) && !out(x) && !in(y) && !out(y)) continue;  // no image (end, power terminals)
-    if (x.format != y.format || x.in_offset != y.in_offset || x.in_size != y.in_size ||
-        x.out_offset != y.out_offset || x.out_size != y.out_size || x.in_bit != y.in_bit || x.out_bit != y.out_bit)
-      r.changed.push_back({y.position, y.type->type, x.format, y.format, in(x), out(x), in(y), out(y),
-                           !y.complex});
+    if (x.format != y.format || x.in_offset != y.in_offset || x.in_size != y.in_size || x.out_offset != y.out_offset ||
+        x.out_size != y.out_size || x.in_bit != y.in_bit || x.out_bit != y.out_bit)
+      r.changed.push_back({y.position, y.type->type, x.format, y.format, in(x), out(x), in(y), out(y), !y.complex});
   }
   store.save();
   return r;
@@ -475,7 +476,8 @@ void reset_emulator_state(const std::string& path, const StationSpec& spec, cons
   auto dir = std::filesystem::path(path).parent_path();
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  if (ec) throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+  if (ec)
+    throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
   OwnerLock lock = lock_state_file(path, wait);
   write_file_atomic(path, fresh.to_json().dump(1) + "\n");
 }

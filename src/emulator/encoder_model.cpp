@@ -269,13 +269,18 @@ void EncoderModel::power_cycle() {
 }
 
 nlohmann::json EncoderModel::to_json() const {
-  nlohmann::json far_j{{"speed_hz", far.speed_hz}, {"up", far.up},          {"lines", far.lines},
-                       {"gate", far.gate},         {"latch_input", far.latch_input},
-                       {"latch_pulses", far.latch_pulses}, {"ref_pulses", far.ref_pulses}, {"step", far.step}};
-  return nlohmann::json{{"counter", counter_},     {"latch", latch_},           {"overflow", overflow_},
-                        {"underflow", underflow_}, {"latc_val", latc_val_},     {"lat_ext_val", lat_ext_val_},
-                        {"cntset_acc", cntset_acc_}, {"control", ctrl_},        {"c_used", c_used_},
-                        {"ext_used", ext_used_},   {"position", pos_},          {"credit", credit_},
+  nlohmann::json far_j{{"speed_hz", far.speed_hz},
+                       {"up", far.up},
+                       {"lines", far.lines},
+                       {"gate", far.gate},
+                       {"latch_input", far.latch_input},
+                       {"latch_pulses", far.latch_pulses},
+                       {"ref_pulses", far.ref_pulses},
+                       {"step", far.step}};
+  return nlohmann::json{{"counter", counter_},       {"latch", latch_},       {"overflow", overflow_},
+                        {"underflow", underflow_},   {"latc_val", latc_val_}, {"lat_ext_val", lat_ext_val_},
+                        {"cntset_acc", cntset_acc_}, {"control", ctrl_},      {"c_used", c_used_},
+                        {"ext_used", ext_used_},     {"position", pos_},      {"credit", credit_},
                         {"far_end", far_j}};
 }
 

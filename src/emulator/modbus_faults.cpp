@@ -36,14 +36,14 @@ ServeFaults parse_faults(const std::string& spec) {
       else if (k == "delay") f.delay = rate;
       else if (k == "corrupt") f.corrupt = rate;
       else if (k == "busy") f.busy = rate;
-      else
-        throw Error(Exit::usage, fmt::format("unknown fault '{}'", k), "drop, delay, corrupt, busy, delay_ms");
+      else throw Error(Exit::usage, fmt::format("unknown fault '{}'", k), "drop, delay, corrupt, busy, delay_ms");
     }
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
   if (f.drop + f.delay + f.corrupt + f.busy > 1)
-    throw Error(Exit::usage, fmt::format("fault rates add up to {} (more than 1)", f.drop + f.delay + f.corrupt + f.busy));
+    throw Error(Exit::usage,
+                fmt::format("fault rates add up to {} (more than 1)", f.drop + f.delay + f.corrupt + f.busy));
   return f;
 }
 

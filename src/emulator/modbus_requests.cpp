@@ -70,11 +70,18 @@ FrameCheck rtu_frame(std::span<const std::uint8_t> buf, bool silent) {
   };
   if (buf.size() < 2) return c;
   switch (buf[1]) {
-    case 1: case 2: case 3: case 4: case 5: case 6:
-      return need(8);
-    case 7: case 11: case 12: case 17:
-      return need(4);
-    case 15: case 16:
+    case 1:
+    case 2:
+    case 3:
+    case 4:
+    case 5:
+    case 6: return need(8);
+    case 7:
+    case 11:
+    case 12:
+    case 17: return need(4);
+    case 15:
+    case 16:
       if (buf.size() < 7) return c;
       return need(9 + std::size_t{buf[6]});
     case 23:
@@ -262,8 +269,7 @@ std::optional<ModbusReply> ModbusRequestHandler::check(std::span<const std::uint
       if (int e = watchdog_values(wa, d + 9, wq)) return refuse(e, "watchdog value");
       return std::nullopt;
     }
-    default:
-      return refuse(kIllegalFunction, "not supported");
+    default: return refuse(kIllegalFunction, "not supported");
   }
 }
 
@@ -354,8 +360,7 @@ ModbusReply ModbusRequestHandler::execute(std::span<const std::uint8_t> adu,
   return r;
 }
 
-ModbusReply ModbusRequestHandler::handle(std::span<const std::uint8_t> adu,
-                                         std::chrono::steady_clock::time_point now) {
+ModbusReply ModbusRequestHandler::handle(std::span<const std::uint8_t> adu, std::chrono::steady_clock::time_point now) {
   if (auto refused = check(adu)) return *refused;
   return execute(adu, now);
 }

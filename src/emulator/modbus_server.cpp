@@ -51,8 +51,8 @@ bool ModbusServer::Impl::admit(Conn& c, Clock::time_point now) {
       n = st.refused;
     }
     if (n == 1 || n % 100 == 0)
-      warn(fmt::format("connection limit ({}) reached: refusing {} ({} refused so far)", opt.max_connections,
-                       c.peer, n));
+      warn(fmt::format("connection limit ({}) reached: refusing {} ({} refused so far)", opt.max_connections, c.peer,
+                       n));
     if (refusing >= kMaxRefusing) return false;
     c.refusing = true;
     c.refuse_until = now + kRefuseWait;
@@ -122,8 +122,7 @@ void ModbusServer::Impl::request(Conn& c, std::vector<std::uint8_t> adu, Clock::
       c.delayed = std::move(adu);
       c.delayed_until = now + milliseconds(F.delay_ms);
       return;
-    default:
-      execute(c, adu, fault, now);
+    default: execute(c, adu, fault, now);
   }
 }
 
@@ -138,7 +137,8 @@ void ModbusServer::Impl::execute(Conn& c, std::span<const std::uint8_t> adu, Fau
   if (fault == Fault::corrupt) {
     count(&ServeStats::corrupted);
     trace(fmt::format("FC{}: fault: reply corrupted", r.function));
-    if (!r.frame.empty()) send(c, FaultInjector::corrupt_reply(tcp ? ModbusFraming::tcp : ModbusFraming::rtu, adu), now);
+    if (!r.frame.empty())
+      send(c, FaultInjector::corrupt_reply(tcp ? ModbusFraming::tcp : ModbusFraming::rtu, adu), now);
     return;
   }
   send(c, r.frame, now);

@@ -6,17 +6,17 @@
 #include <chrono>
 #include <cstdint>
 #include <list>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <span>
 #include <string>
-#include <memory>
 #include <vector>
 
 #include "kscfg/emulator/modbus_requests.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
-#include "modbus_faults.hpp"
 #include "kscfg/emulator/served_station.hpp"
+#include "modbus_faults.hpp"
 #include "stream_server.hpp"
 
 namespace kscfg {
@@ -26,7 +26,7 @@ namespace {
 using serving::Clock;
 using std::chrono::milliseconds;
 
-constexpr unsigned kMaxRefusing = 64;              // connections over the limit awaiting their "busy"
+constexpr unsigned kMaxRefusing = 64;  // connections over the limit awaiting their "busy"
 constexpr milliseconds kRefuseWait{1000};
 
 }  // namespace
@@ -50,7 +50,7 @@ struct ModbusServer::Impl : serving::StreamServer<Conn> {
   FaultInjector faults;
   mutable std::mutex stats_mu;
   ServeStats st;
-  unsigned served = 0;    // TCP connections not refusing
+  unsigned served = 0;  // TCP connections not refusing
   unsigned refusing = 0;
   int pty_slave = -1;  // kept open so the master never sees a hang-up between clients
   std::string pty_name;

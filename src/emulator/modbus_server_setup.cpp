@@ -24,7 +24,6 @@
 
 namespace kscfg {
 
-
 // ---------------------------------------------------------------------------------------------
 // Setting up
 
@@ -66,7 +65,8 @@ void ModbusServer::Impl::open_rtu() {
   rtu_silence = std::max<Clock::duration>(t35, milliseconds(5));
 }
 
-ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt) : ModbusServer(nullptr, station, std::move(opt)) {}
+ModbusServer::ModbusServer(EmulatedStation& station, ServeOptions opt)
+    : ModbusServer(nullptr, station, std::move(opt)) {}
 
 ModbusServer::ModbusServer(ServedStation& station, ServeOptions opt)
     : ModbusServer(&station, station.station(), std::move(opt)) {}
@@ -106,8 +106,7 @@ std::string ModbusServer::endpoint() const {
     case ServeOptions::Mode::tcp:
       return I.opt.host.find(':') != std::string::npos ? fmt::format("tcp://[{}]:{}", I.opt.host, I.bound_port)
                                                        : fmt::format("tcp://{}:{}", I.opt.host, I.bound_port);
-    case ServeOptions::Mode::pty:
-      return fmt::format("rtu:{}?parity=N", I.pty_name);
+    case ServeOptions::Mode::pty: return fmt::format("rtu:{}?parity=N", I.pty_name);
     default:
       return fmt::format("rtu:{}?baud={}&parity={}&data={}&stop={}", I.opt.device, I.opt.baud, I.opt.parity,
                          I.opt.data_bits, I.opt.stop_bits);

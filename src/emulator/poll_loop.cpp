@@ -16,7 +16,7 @@ void run_poll_loop(std::span<PollSource* const> sources, const std::function<boo
   using std::chrono::milliseconds;
   std::vector<pollfd> fds;
   std::vector<std::size_t> first(sources.size() + 1);  // of each source: its first entry in fds
-  bool more = false;  // a whole frame left in a buffer after a turn
+  bool more = false;                                   // a whole frame left in a buffer after a turn
   while (!stop()) {
     auto now = Clock::now();
     fds.clear();
@@ -26,9 +26,8 @@ void run_poll_loop(std::span<PollSource* const> sources, const std::function<boo
       sources[s]->want(fds, now, next);
     }
     first[sources.size()] = fds.size();
-    int wait = more ? 0
-                    : static_cast<int>(std::clamp<long long>(
-                          std::chrono::ceil<milliseconds>(next - now).count(), 0, 50));
+    int wait =
+        more ? 0 : static_cast<int>(std::clamp<long long>(std::chrono::ceil<milliseconds>(next - now).count(), 0, 50));
     int n = ::poll(fds.data(), fds.size(), wait);
     if (n < 0) {
       if (errno == EINTR) continue;

@@ -61,8 +61,8 @@ void SerialModel::handshake(std::span<const std::uint8_t> out, std::span<std::ui
   }
   // Receive: when RA equals RR the controller has taken the last bytes; present the next ones.
   if (ra == rr_ && !rx_.empty()) {
-    std::size_t n = std::min<std::size_t>(rx_.size(), word_ ? std::min<std::size_t>(in_data_.size(), 255)
-                                                            : std::min<std::size_t>(in_data_.size(), 7));
+    std::size_t n = std::min<std::size_t>(
+        rx_.size(), word_ ? std::min<std::size_t>(in_data_.size(), 255) : std::min<std::size_t>(in_data_.size(), 7));
     shown_.assign(rx_.begin(), rx_.begin() + static_cast<std::ptrdiff_t>(n));
     rx_.erase(rx_.begin(), rx_.begin() + static_cast<std::ptrdiff_t>(n));
     rr_ = !rr_;

@@ -7,9 +7,9 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <deque>
 #include <cerrno>
 #include <cstring>
+#include <deque>
 #include <filesystem>
 
 #include "kscfg/base/error.hpp"
@@ -150,7 +150,9 @@ void SerialModel::set_far_frame(const std::optional<LineSettings>& f) {
   from_far_.clear();
 }
 
-void SerialModel::far_send(std::span<const std::uint8_t> bytes) { far_out_.insert(far_out_.end(), bytes.begin(), bytes.end()); }
+void SerialModel::far_send(std::span<const std::uint8_t> bytes) {
+  far_out_.insert(far_out_.end(), bytes.begin(), bytes.end());
+}
 
 FarEnd& SerialModel::far() {
   if (!far_) {

@@ -66,8 +66,9 @@ nlohmann::json SerialModel::to_json() const {
   j["tx_credit_us"] = tx_credit_;
   j["rx_credit_us"] = rx_credit_;
   if (prev_status_) j["prev_status"] = *prev_status_;
-  if (far_frame_) j["far_frame"] = fmt::format("{} {}{}{}", far_frame_->baud, far_frame_->data_bits,
-                                               far_frame_->parity, far_frame_->stop_bits);
+  if (far_frame_)
+    j["far_frame"] =
+        fmt::format("{} {}{}{}", far_frame_->baud, far_frame_->data_bits, far_frame_->parity, far_frame_->stop_bits);
   if (!far_out_.empty()) j["far_out"] = to_hex(far_out_);
   return j;
 }

@@ -33,7 +33,10 @@ ServedStation::ServedStation(EmulatedStation& station, Options opt)
           std::lock_guard<std::mutex> g(mu_);
           return station_.to_json().dump(1) + "\n";
         },
-        I.opt.save_state, [&I](const std::string& s) { if (I.opt.warn) I.opt.warn(s); },
+        I.opt.save_state,
+        [&I](const std::string& s) {
+          if (I.opt.warn) I.opt.warn(s);
+        },
         std::chrono::milliseconds(I.opt.save_delay_ms));
   I.kbus = std::thread([this, &I] {
     auto next = Clock::now();

@@ -17,7 +17,7 @@ namespace kscfg {
 namespace {
 
 enum class Kind {
-  string,    // max: characters
+  string,  // max: characters
   boolean,
   integer,   // min..max, an integer (never a float)
   number,    // min..max, finite
@@ -36,11 +36,17 @@ struct Field {
   bool required = false;
 };
 
-constexpr Field text(const char* k, double max_chars, bool req = false) { return {k, Kind::string, 0, max_chars, 0, 0, {}, req}; }
+constexpr Field text(const char* k, double max_chars, bool req = false) {
+  return {k, Kind::string, 0, max_chars, 0, 0, {}, req};
+}
 constexpr Field flag(const char* k) { return {k, Kind::boolean}; }
-constexpr Field integer(const char* k, double lo, double hi, bool req = false) { return {k, Kind::integer, lo, hi, 0, 0, {}, req}; }
+constexpr Field integer(const char* k, double lo, double hi, bool req = false) {
+  return {k, Kind::integer, lo, hi, 0, 0, {}, req};
+}
 constexpr Field number(const char* k, double lo, double hi) { return {k, Kind::number, lo, hi}; }
-constexpr Field hex(const char* k, double max_bytes, bool req = false) { return {k, Kind::hex, 0, max_bytes, 0, 0, {}, req}; }
+constexpr Field hex(const char* k, double max_bytes, bool req = false) {
+  return {k, Kind::hex, 0, max_bytes, 0, 0, {}, req};
+}
 constexpr Field integers(const char* k, double lo, double hi, std::size_t n0, std::size_t n1, bool req = false) {
   return {k, Kind::integers, lo, hi, n0, n1, {}, req};
 }
@@ -137,11 +143,14 @@ bool is_integer_in(const nlohmann::json& v, double lo, double hi) {
 }
 
 void check_field(const nlohmann::json& v, const Field& f, const std::string& where) {
-  auto bad = [&](const std::string& what) { return Error(Exit::file, fmt::format("{}: {} {}", where, describe(v), what)); };
+  auto bad = [&](const std::string& what) {
+    return Error(Exit::file, fmt::format("{}: {} {}", where, describe(v), what));
+  };
   switch (f.kind) {
     case Kind::string:
       if (!v.is_string()) throw bad("is not a string");
-      if (v.get_ref<const std::string&>().size() > f.max) throw bad(fmt::format("is longer than {:.0f} characters", f.max));
+      if (v.get_ref<const std::string&>().size() > f.max)
+        throw bad(fmt::format("is longer than {:.0f} characters", f.max));
       return;
     case Kind::boolean:
       if (!v.is_boolean()) throw bad("is not true or false");
@@ -156,7 +165,8 @@ void check_field(const nlohmann::json& v, const Field& f, const std::string& whe
     case Kind::hex: {
       if (!v.is_string()) throw bad("is not a string of hex digits");
       const auto& s = v.get_ref<const std::string&>();
-      if (s.size() % 2 || !std::all_of(s.begin(), s.end(), [](char c) { return std::isxdigit(static_cast<unsigned char>(c)); }))
+      if (s.size() % 2 ||
+          !std::all_of(s.begin(), s.end(), [](char c) { return std::isxdigit(static_cast<unsigned char>(c)); }))
         throw bad("is not pairs of hex digits");
       if (s.size() / 2 > f.max) throw bad(fmt::format("holds more than {:.0f} bytes", f.max));
       return;
@@ -164,12 +174,14 @@ void check_field(const nlohmann::json& v, const Field& f, const std::string& whe
     case Kind::integers:
       if (!v.is_array()) throw bad("is not an array");
       if (v.size() < f.count_min || v.size() > f.count_max)
-        throw Error(Exit::file, fmt::format("{}: {} values; {} expected", where, v.size(),
-                                            f.count_min == f.count_max ? fmt::format("{}", f.count_min)
-                                                                       : fmt::format("{} to {}", f.count_min, f.count_max)));
+        throw Error(Exit::file,
+                    fmt::format("{}: {} values; {} expected", where, v.size(),
+                                f.count_min == f.count_max ? fmt::format("{}", f.count_min)
+                                                           : fmt::format("{} to {}", f.count_min, f.count_max)));
       for (std::size_t i = 0; i < v.size(); ++i)
         if (!is_integer_in(v[i], f.min, f.max))
-          throw Error(Exit::file, fmt::format("{}[{}]: {} is not an integer {}", where, i, describe(v[i]), range(f.min, f.max)));
+          throw Error(Exit::file,
+                      fmt::format("{}[{}]: {} is not an integer {}", where, i, describe(v[i]), range(f.min, f.max)));
       return;
     case Kind::object:
       if (!v.is_object()) throw bad("is not an object");

@@ -48,9 +48,9 @@ struct StreamConn {
 };
 
 struct StreamLimits {
-  std::size_t max_buffered = 8192;    // received, not yet handled, per connection
-  std::size_t max_unsent = 64 * 1024; // replies the client does not read
-  unsigned frames_per_turn = 16;      // per connection and loop turn: fairness
+  std::size_t max_buffered = 8192;     // received, not yet handled, per connection
+  std::size_t max_unsent = 64 * 1024;  // replies the client does not read
+  unsigned frames_per_turn = 16;       // per connection and loop turn: fairness
 };
 
 // `Conn` derives from StreamConn and adds what its protocol keeps per connection.
@@ -154,9 +154,10 @@ class StreamServer : public PollSource {
     listen_fd = l.fd;
     bound_port = l.port;
     if (!l.loopback)
-      warn(fmt::format("serving {}on {} port {}, which is not a loopback address: the emulator has no "
-                       "authentication, and anyone who reaches it can change its state",
-                       what, host, bound_port));
+      warn(
+          fmt::format("serving {}on {} port {}, which is not a loopback address: the emulator has no "
+                      "authentication, and anyone who reaches it can change its state",
+                      what, host, bound_port));
     rlimit rl{};
     if (getrlimit(RLIMIT_NOFILE, &rl) == 0) {
       rlim_t want = static_cast<rlim_t>(max_connections) + spare + 32;
@@ -225,7 +226,8 @@ class StreamServer : public PollSource {
 
   void flush(Conn& c, Clock::time_point now) {
     while (!c.out.empty() && !c.dead) {
-      ssize_t n = sockets ? ::send(c.fd, c.out.data(), c.out.size(), MSG_NOSIGNAL) : ::write(c.fd, c.out.data(), c.out.size());
+      ssize_t n =
+          sockets ? ::send(c.fd, c.out.data(), c.out.size(), MSG_NOSIGNAL) : ::write(c.fd, c.out.data(), c.out.size());
       if (n < 0) {
         if (errno == EINTR) continue;
         if (errno == EAGAIN || errno == EWOULDBLOCK) break;

@@ -7,8 +7,8 @@ struct sockaddr_storage;
 namespace kscfg {
 
 struct TcpListener {
-  int fd = -1;         // non-blocking, close-on-exec, SO_REUSEADDR
-  unsigned port = 0;   // the port bound (port 0 asked: the one the system chose)
+  int fd = -1;            // non-blocking, close-on-exec, SO_REUSEADDR
+  unsigned port = 0;      // the port bound (port 0 asked: the one the system chose)
   bool loopback = false;  // bound to a loopback address
 };
 

@@ -118,7 +118,7 @@ void UartReceiver::receive(Wire& w, double now, const LineSettings& f,
       ++k;
     }
     if (!sample(k)) errors |= kFraming;  // a UART checks the first stop bit only
-    idle_from_ = t0 + (n - 0.5) * bit;     // from the middle of the stop bit it looks for the next start
+    idle_from_ = t0 + (n - 0.5) * bit;   // from the middle of the stop bit it looks for the next start
     w.forget_before(idle_from_);
     out(data, errors);
   }

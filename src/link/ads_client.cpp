@@ -27,9 +27,7 @@ using std::chrono::milliseconds;
 
 constexpr int kSlice = 50;  // longest wait before the cancellation token is looked at again (ms)
 
-long long ms_since(Clock::time_point t) {
-  return std::chrono::duration_cast<milliseconds>(Clock::now() - t).count();
-}
+long long ms_since(Clock::time_point t) { return std::chrono::duration_cast<milliseconds>(Clock::now() - t).count(); }
 
 bool cancelled(const AdsOptions& o) { return o.cancel && o.cancel->cancelled(); }
 
@@ -63,7 +61,7 @@ AdsTarget ads_target(const PortUri& p, const std::string& uri) {
 }
 
 struct AdsClient::Pending {
-  std::size_t index;       // into the batch
+  std::size_t index;  // into the batch
   std::uint32_t invoke;
   Clock::time_point sent;
   unsigned timeout_ms;
@@ -173,12 +171,10 @@ void AdsClient::connect_once() {
   if (fd_ < 0) {
     connect_errno_ = err;
     if (timed_out)
-      throw Error(Exit::link,
-                  fmt::format("no connection to {} within {} ms", target_.where(), opt_.connect_timeout_ms),
+      throw Error(Exit::link, fmt::format("no connection to {} within {} ms", target_.where(), opt_.connect_timeout_ms),
                   "check the address, the cable and that the coupler is powered");
     if (err == ECONNREFUSED)
-      throw Error(Exit::link,
-                  fmt::format("connection refused by {}", target_.where()),
+      throw Error(Exit::link, fmt::format("connection refused by {}", target_.where()),
                   "is ADS enabled on the coupler (table 100, register 15 bit 1) and the port its AMS/TCP port "
                   "(48898)? Or are all its connections in use? 'kscfg serve --ads ADDR:PORT' serves the emulator");
     throw Error(Exit::link, fmt::format("cannot connect to {}: {}", target_.where(), std::strerror(err)),
@@ -362,9 +358,10 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
         bool was_open = fd_ >= 0;
         if (fd_ < 0 || idle || peer_closed()) {
           if (opt_.trace && was_open)
-            opt_.trace(idle ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
-                                          ms_since(last_activity_), opt_.idle_cut_ms)
-                            : std::string("ads: reopening the connection (the coupler closed it)"));
+            opt_.trace(idle
+                           ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
+                                         ms_since(last_activity_), opt_.idle_cut_ms)
+                           : std::string("ads: reopening the connection (the coupler closed it)"));
           connect();
         }
       }
@@ -380,7 +377,8 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
         continue;
       }
       ++exchanges_;
-      pending[invoke] = Pending{i, invoke, Clock::now(), calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms};
+      pending[invoke] =
+          Pending{i, invoke, Clock::now(), calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms};
       last_activity_ = Clock::now();
     }
     // The earliest deadline bounds the wait.
@@ -518,15 +516,14 @@ Error AdsClient::ads_error(std::uint32_t code, std::uint16_t port, const std::st
                                "add NetId {} to the table (KS2000), or leave the table empty",
                                it, me));
     case 0x8:
-    case 0xB:
-      return Error(Exit::link, msg, "the coupler does not serve this ADS command (a BK9050 refuses ReadState)");
+    case 0xB: return Error(Exit::link, msg, "the coupler does not serve this ADS command (a BK9050 refuses ReadState)");
     case 0xE:
     case 0x1C:
       return Error(Exit::link, msg, "the request is longer than the coupler takes (at most 1900 bytes of user data)");
     case 0xF:
-      return Error(Exit::link, msg, fmt::format("the coupler does not take NetId {} or {}: give ?netid= and ?source=", it, me));
-    case 0x701:
-      return Error(Exit::refused, msg, fmt::format("port {} does not serve this command", port));
+      return Error(Exit::link, msg,
+                   fmt::format("the coupler does not take NetId {} or {}: give ?netid= and ?source=", it, me));
+    case 0x701: return Error(Exit::refused, msg, fmt::format("port {} does not serve this command", port));
     case 0x702:
       return Error(Exit::link, msg,
                    port == adsport::kRegisters
@@ -550,8 +547,7 @@ Error AdsClient::ads_error(std::uint32_t code, std::uint16_t port, const std::st
     case 0x719:
     case 0x745:
       return Error(Exit::timeout, msg, "the terminal did not answer the coupler: check that it is plugged and powered");
-    default:
-      return Error(Exit::link, msg);
+    default: return Error(Exit::link, msg);
   }
 }
 

@@ -13,8 +13,8 @@ namespace {
 
 void check_image(std::size_t offset, std::size_t n, const char* what) {
   if (n == 0 || offset + n > adsimage::kImageBytes)
-    throw Error(Exit::link, fmt::format("{} image access {}..{} outside the coupler's 512 bytes", what, offset,
-                                        offset + n));
+    throw Error(Exit::link,
+                fmt::format("{} image access {}..{} outside the coupler's 512 bytes", what, offset, offset + n));
 }
 
 }  // namespace
@@ -27,7 +27,8 @@ AdsImageLink::AdsImageLink(AdsTarget target, AdsOptions opt, OwnerLock lock)
 void AdsImageLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "input");
   auto d = client_.read(adsport::kProcessData, adsimage::kInputs, static_cast<std::uint32_t>(offset),
-                        static_cast<std::uint32_t>(dst.size()), fmt::format("reading input bytes {}+{}", offset, dst.size()));
+                        static_cast<std::uint32_t>(dst.size()),
+                        fmt::format("reading input bytes {}+{}", offset, dst.size()));
   std::copy(d.begin(), d.end(), dst.begin());
   count();
 }
@@ -35,7 +36,8 @@ void AdsImageLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) 
 void AdsImageLink::read_outputs(std::size_t offset, std::span<std::uint8_t> dst) {
   check_image(offset, dst.size(), "output");
   auto d = client_.read(adsport::kProcessData, adsimage::kOutputs, static_cast<std::uint32_t>(offset),
-                        static_cast<std::uint32_t>(dst.size()), fmt::format("reading output bytes {}+{}", offset, dst.size()));
+                        static_cast<std::uint32_t>(dst.size()),
+                        fmt::format("reading output bytes {}+{}", offset, dst.size()));
   std::copy(d.begin(), d.end(), dst.begin());
   count();
 }
@@ -89,20 +91,25 @@ void AdsImageLink::transfer(std::span<const ImageTransfer> t) {
       8 * (writes.size() + 1) + in.size() <= ams::kMaxUserData) {
     std::vector<ams::SumCall> sub;
     for (const auto& w : writes) sub.push_back({adsimage::kOutputs, static_cast<std::uint32_t>(w.offset), 0, w.bytes});
-    if (reads) sub.push_back({adsimage::kInputs, static_cast<std::uint32_t>(lo), static_cast<std::uint32_t>(in.size()), {}});
-    AdsClient::Call call{adsport::kProcessData, ams::kReadWrite, ams::sum_read_write_request(sub), true, 0,
-                         fmt::format("an image exchange ({} output span(s){})", writes.size(),
-                                     reads ? ", " + rwhat.substr(8) : "")};
+    if (reads)
+      sub.push_back({adsimage::kInputs, static_cast<std::uint32_t>(lo), static_cast<std::uint32_t>(in.size()), {}});
+    AdsClient::Call call{
+        adsport::kProcessData,
+        ams::kReadWrite,
+        ams::sum_read_write_request(sub),
+        true,
+        0,
+        fmt::format("an image exchange ({} output span(s){})", writes.size(), reads ? ", " + rwhat.substr(8) : "")};
     call.may_be_unserved = true;
     AdsClient::Reply r = client_.call(call);
     count();
     if (r.ams_error == 0x8 || r.ams_error == 0xB || r.result == 0x701 || r.result == 0x702) {
       sums_ = false;  // learned once: each span a request of its own from now on
       if (client_.options().trace)
-        client_.options().trace(fmt::format("ads: {} does not serve sum commands on port 300 ({}): one request per "
-                                            "image span from now on",
-                                            client_.target().where(),
-                                            ams::error_text(r.ams_error ? r.ams_error : r.result)));
+        client_.options().trace(
+            fmt::format("ads: {} does not serve sum commands on port 300 ({}): one request per "
+                        "image span from now on",
+                        client_.target().where(), ams::error_text(r.ams_error ? r.ams_error : r.result)));
     } else {
       if (r.ams_error) throw client_.ads_error(r.ams_error, adsport::kProcessData, call.what);
       if (r.result) throw client_.ads_error(r.result, adsport::kProcessData, call.what);
@@ -111,7 +118,8 @@ void AdsImageLink::transfer(std::span<const ImageTransfer> t) {
         throw Error(Exit::link, fmt::format("{} answered {} with a malformed sum response ({} bytes)",
                                             client_.target().where(), call.what, r.data.size()));
       for (std::size_t i = 0; i < writes.size(); ++i)
-        if ((*answers)[i].result) throw client_.ads_error((*answers)[i].result, adsport::kProcessData, wwhat(writes[i]));
+        if ((*answers)[i].result)
+          throw client_.ads_error((*answers)[i].result, adsport::kProcessData, wwhat(writes[i]));
       if (reads) {
         if (answers->back().result) throw client_.ads_error(answers->back().result, adsport::kProcessData, rwhat);
         check_read(answers->back().data);
@@ -127,10 +135,10 @@ void AdsImageLink::transfer(std::span<const ImageTransfer> t) {
                      ams::write_request(adsimage::kOutputs, static_cast<std::uint32_t>(w.offset), w.bytes), true, 0,
                      wwhat(w)});
   if (reads)
-    calls.push_back({adsport::kProcessData, ams::kRead,
-                     ams::read_request(adsimage::kInputs, static_cast<std::uint32_t>(lo),
-                                       static_cast<std::uint32_t>(in.size())),
-                     true, 0, rwhat});
+    calls.push_back(
+        {adsport::kProcessData, ams::kRead,
+         ams::read_request(adsimage::kInputs, static_cast<std::uint32_t>(lo), static_cast<std::uint32_t>(in.size())),
+         true, 0, rwhat});
   auto r = client_.transact(calls);
   count();
   for (std::size_t i = 0; i < calls.size(); ++i)

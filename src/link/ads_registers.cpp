@@ -18,8 +18,8 @@ bool numbered(const TerminalType& type) {
 
 unsigned terminal_number(const StationLayout& layout, unsigned position) {
   if (position < 1 || position > layout.terminals.size())
-    throw Error(Exit::usage, fmt::format("no terminal at position {} (the station has {})", position,
-                                         layout.terminals.size()));
+    throw Error(Exit::usage,
+                fmt::format("no terminal at position {} (the station has {})", position, layout.terminals.size()));
   if (!numbered(*layout.terminals[position - 1].type)) return 0;
   unsigned n = 0;
   for (unsigned p = 1; p <= position; ++p)

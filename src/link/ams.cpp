@@ -64,8 +64,12 @@ std::string format_netid(const NetId& id) {
 }
 
 NetId netid_of_ipv4(std::uint32_t a) {
-  return {static_cast<std::uint8_t>(a >> 24), static_cast<std::uint8_t>((a >> 16) & 0xFF),
-          static_cast<std::uint8_t>((a >> 8) & 0xFF), static_cast<std::uint8_t>(a & 0xFF), 1, 1};
+  return {static_cast<std::uint8_t>(a >> 24),
+          static_cast<std::uint8_t>((a >> 16) & 0xFF),
+          static_cast<std::uint8_t>((a >> 8) & 0xFF),
+          static_cast<std::uint8_t>(a & 0xFF),
+          1,
+          1};
 }
 
 std::optional<std::uint32_t> ipv4_of(const sockaddr_storage& sa) {
@@ -201,8 +205,7 @@ std::optional<Request> parse_request(std::uint16_t command, std::span<const std:
       r.data = d.subspan(16);
       return r;
     }
-    default:
-      return std::nullopt;
+    default: return std::nullopt;
   }
 }
 
@@ -370,8 +373,11 @@ const char* error_name(std::uint32_t code) {
 }
 
 std::string error_text(std::uint32_t code) {
-  return fmt::format("{} error 0x{:X} ({})", code < 0x500 ? "AMS" : code < 0x700 ? "router" : "ADS", code,
-                     error_name(code));
+  return fmt::format("{} error 0x{:X} ({})",
+                     code < 0x500   ? "AMS"
+                     : code < 0x700 ? "router"
+                                    : "ADS",
+                     code, error_name(code));
 }
 
 }  // namespace kscfg::ams

@@ -1,8 +1,8 @@
 #include "kscfg/link/coupler_key.hpp"
 
 #include <arpa/inet.h>
-#include <ifaddrs.h>
 #include <fmt/format.h>
+#include <ifaddrs.h>
 #include <net/if.h>
 #include <netdb.h>
 #include <netinet/in.h>
@@ -13,8 +13,8 @@
 
 #include <algorithm>
 #include <array>
-#include <cerrno>
 #include <cctype>
+#include <cerrno>
 #include <climits>
 #include <cstdint>
 #include <cstdlib>
@@ -80,7 +80,7 @@ std::string resolve(const std::string& host) {
   if (int rc = getaddrinfo(host.c_str(), nullptr, &hints, &res); rc != 0)
     throw Error(Exit::link, fmt::format("cannot resolve host '{}': {}", host, gai_strerror(rc)),
                 "check the host name or give an IP address");
-  std::optional<std::uint32_t> v4;  // host order, the lowest
+  std::optional<std::uint32_t> v4;                                            // host order, the lowest
   std::optional<std::pair<std::array<unsigned char, 16>, std::uint32_t>> v6;  // bytes and scope, the lowest
   for (addrinfo* ai = res; ai; ai = ai->ai_next) {
     if (ai->ai_family == AF_INET) {
@@ -128,7 +128,9 @@ std::string resolve(const std::string& host) {
               "check the host name or give an IP address");
 }
 
-std::string alias_path(const std::string& key) { return (std::filesystem::path(lock_dir()) / ("alias-" + key)).string(); }
+std::string alias_path(const std::string& key) {
+  return (std::filesystem::path(lock_dir()) / ("alias-" + key)).string();
+}
 
 // The key `key` stands for while a listener's CouplerAlias records it; `key` when none does (no
 // record, a process that is gone or is not a kscfg of the record's owner, a record that is not one).
@@ -220,7 +222,8 @@ CouplerAlias::CouplerAlias(const std::string& also, const std::string& key) {
   // stays as it is: replaced, or a record made to point at a key that stands for another, clients
   // of one coupler would take two locks.
   auto taken = [&](const std::string& what) {
-    return Error(Exit::file, fmt::format("{} is recorded by another kscfg serve (lock directory {})", what, lock_dir()));
+    return Error(Exit::file,
+                 fmt::format("{} is recorded by another kscfg serve (lock directory {})", what, lock_dir()));
   };
   if (aliased(also) != also) throw taken("coupler key " + also);
   if (aliased(key) != key) throw taken("coupler key " + key);

@@ -20,7 +20,8 @@ void Link::transfer(std::span<const ImageTransfer> t) {
   std::vector<std::uint8_t> in(hi - lo);
   read_inputs(lo, in);
   for (const auto& x : t)
-    if (!x.peek && !x.in.empty()) std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - lo), x.in.size(), x.in.begin());
+    if (!x.peek && !x.in.empty())
+      std::copy_n(in.begin() + static_cast<std::ptrdiff_t>(x.in_offset - lo), x.in.size(), x.in.begin());
 }
 
 }  // namespace kscfg

@@ -1,6 +1,8 @@
 // The Modbus client (link/modbus_client.hpp): one libmodbus connection with bounded retries, replies
 // waited for in slices so that an interrupt ends a wait. The register map, Modbus endpoints and
 // serial lines are in modbus_target.cpp.
+#include "kscfg/link/modbus_client.hpp"
+
 #include <errno.h>
 #include <fmt/format.h>
 #include <modbus/modbus.h>
@@ -13,9 +15,8 @@
 #include <cstring>
 #include <thread>
 
-#include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 
 namespace kscfg {
 
@@ -25,7 +26,9 @@ namespace kscfg {
 namespace {
 
 bool is_exception(int e) { return e > MODBUS_ENOBASE && e < MODBUS_ENOBASE + MODBUS_EXCEPTION_MAX; }
-bool is_garbled(int e) { return e == EMBBADCRC || e == EMBBADDATA || e == EMBBADEXC || e == EMBUNKEXC || e == EMBMDATA || e == EMBBADSLAVE; }
+bool is_garbled(int e) {
+  return e == EMBBADCRC || e == EMBBADDATA || e == EMBBADEXC || e == EMBUNKEXC || e == EMBMDATA || e == EMBBADSLAVE;
+}
 bool is_broken(int e) { return e == ECONNRESET || e == EPIPE || e == EBADF || e == ENOTCONN || e == ECONNABORTED; }
 
 // Exception 2 (illegal data address): what the addresses were, so the hint names the real cause.
@@ -34,12 +37,14 @@ std::string illegal_address_hint(std::uint16_t addr, unsigned count) {
   auto in = [&](unsigned lo, unsigned hi) { return addr >= lo && last <= hi; };
   if (in(mbmap::kInputImage, mbmap::kInputImage + mbmap::kImageRegisters - 1) ||
       in(mbmap::kOutputImage, mbmap::kOutputImage + mbmap::kImageRegisters - 1))
-    return fmt::format("the coupler's process image does not reach register 0x{:04X}: the station description does "
-                       "not match the coupler ('kscfg scan' shows what the coupler reports)",
-                       last);
-  return fmt::format("the coupler does not serve 0x{:04X}..0x{:04X}; a BK9000/BK7300 serves 0x1000..0x1006, "
-                     "0x1010..0x1013, 0x1020 and 0x1120..0x1122 (check the address and the unit id)",
-                     addr, last);
+    return fmt::format(
+        "the coupler's process image does not reach register 0x{:04X}: the station description does "
+        "not match the coupler ('kscfg scan' shows what the coupler reports)",
+        last);
+  return fmt::format(
+      "the coupler does not serve 0x{:04X}..0x{:04X}; a BK9000/BK7300 serves 0x1000..0x1006, "
+      "0x1010..0x1013, 0x1020 and 0x1120..0x1122 (check the address and the unit id)",
+      addr, last);
 }
 
 std::string errtext(int e) {
@@ -107,14 +112,15 @@ void ModbusClient::connect() {
         throw Error(Exit::link, fmt::format("connection refused by {}:{}", target_.host, target_.port),
                     "is the coupler (or 'kscfg serve') listening on that port?");
       if (e == ETIMEDOUT || e == EINPROGRESS)
-        throw Error(Exit::link,
-                    fmt::format("no connection to {}:{} within {} ms", target_.host, target_.port,
-                                opt_.connect_timeout_ms),
-                    "check the address, the cable and that the coupler is powered");
+        throw Error(
+            Exit::link,
+            fmt::format("no connection to {}:{} within {} ms", target_.host, target_.port, opt_.connect_timeout_ms),
+            "check the address, the cable and that the coupler is powered");
       if (e == EHOSTUNREACH || e == ENETUNREACH)
         throw Error(Exit::link, fmt::format("host {} is unreachable: {}", target_.host, std::strerror(e)),
                     "check the address and the network");
-      throw Error(Exit::link, fmt::format("cannot connect to {}:{}: {}", target_.host, target_.port, modbus_strerror(e)));
+      throw Error(Exit::link,
+                  fmt::format("cannot connect to {}:{}: {}", target_.host, target_.port, modbus_strerror(e)));
     }
   } else {
     serial_fd_ = open_serial(target_.device, target_.baud, target_.parity, target_.data_bits, target_.stop_bits);
@@ -175,7 +181,8 @@ int parse_registers(const std::uint8_t* rsp, int n, int hl, int fc, unsigned cou
 int parse_written(const std::uint8_t* rsp, int n, int hl, std::uint16_t addr, unsigned count) {
   int p = reply_pdu(rsp, n, hl, 0x10);
   if (p < 0) return -1;
-  if (n < p + 5 || (rsp[p + 1] << 8 | rsp[p + 2]) != addr || (rsp[p + 3] << 8 | rsp[p + 4]) != static_cast<int>(count)) {
+  if (n < p + 5 || (rsp[p + 1] << 8 | rsp[p + 2]) != addr ||
+      (rsp[p + 3] << 8 | rsp[p + 4]) != static_cast<int>(count)) {
     errno = EMBBADDATA;
     return -1;
   }
@@ -228,7 +235,8 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     ++exchanges_;
     errno = 0;
     auto sent = Clock::now();
-    set_response_timeout(std::min<std::chrono::microseconds>(std::chrono::milliseconds(opt_.response_timeout_ms), kSlice));
+    set_response_timeout(
+        std::min<std::chrono::microseconds>(std::chrono::milliseconds(opt_.response_timeout_ms), kSlice));
     int rc = f(ctx_);
     if (rc < 0 && errno == ETIMEDOUT) rc = wait_reply(sent, parse);
     if (rc >= 0) {
@@ -283,10 +291,9 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
         // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
         // and closes the connection, so the attempts after it end in a reset.
         throw Error(Exit::link,
-                    e == EMBXSBUSY
-                        ? fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts)
-                        : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {})", target_.where(),
-                                      errtext(e), what, attempts),
+                    e == EMBXSBUSY ? fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts)
+                                   : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {})",
+                                                 target_.where(), errtext(e), what, attempts),
                     "another master holds the coupler, or a server's connection limit is reached "
                     "(kscfg serve --max-connections); try again later");
       throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
@@ -346,7 +353,8 @@ std::vector<std::uint16_t> ModbusClient::read(std::uint16_t addr, unsigned count
   for (unsigned done = 0; done < count;) {
     unsigned n = std::min(count - done, mbmap::kMaxRead);
     auto a = static_cast<std::uint16_t>(addr + done);
-    run(fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, n,
+    run(
+        fmt::format("reading {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, n,
         [&](modbus_t* c) { return modbus_read_registers(c, a, static_cast<int>(n), v.data() + done); },
         [&](const std::uint8_t* r, int len, int hl) { return parse_registers(r, len, hl, 0x03, n, v.data() + done); });
     done += n;
@@ -357,7 +365,8 @@ std::vector<std::uint16_t> ModbusClient::read(std::uint16_t addr, unsigned count
 std::optional<std::vector<std::uint16_t>> ModbusClient::read_optional(std::uint16_t addr, unsigned count) {
   std::vector<std::uint16_t> v(count);
   bool refused = false;
-  run(fmt::format("reading {} register{} at 0x{:04X}", count, count == 1 ? "" : "s", addr), addr, count,
+  run(
+      fmt::format("reading {} register{} at 0x{:04X}", count, count == 1 ? "" : "s", addr), addr, count,
       [&](modbus_t* c) { return modbus_read_registers(c, addr, static_cast<int>(count), v.data()); },
       [&](const std::uint8_t* r, int len, int hl) { return parse_registers(r, len, hl, 0x03, count, v.data()); },
       &refused);
@@ -369,7 +378,8 @@ void ModbusClient::write(std::uint16_t addr, std::span<const std::uint16_t> valu
   for (std::size_t done = 0; done < values.size();) {
     std::size_t n = std::min<std::size_t>(values.size() - done, mbmap::kMaxWrite);
     auto a = static_cast<std::uint16_t>(addr + done);
-    run(fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, static_cast<unsigned>(n),
+    run(
+        fmt::format("writing {} register{} at 0x{:04X}", n, n == 1 ? "" : "s", a), a, static_cast<unsigned>(n),
         [&](modbus_t* c) { return modbus_write_registers(c, a, static_cast<int>(n), values.data() + done); },
         [&](const std::uint8_t* r, int len, int hl) { return parse_written(r, len, hl, a, static_cast<unsigned>(n)); });
     done += n;

@@ -22,8 +22,8 @@ std::string ModbusLink::describe() const { return client_.target().uri; }
 
 static void check_image(std::size_t offset, std::size_t n, const char* what) {
   if (n == 0 || offset + n > 2 * mbmap::kImageRegisters)
-    throw Error(Exit::link, fmt::format("{} image access {}..{} outside the coupler's 512 bytes", what, offset,
-                                        offset + n));
+    throw Error(Exit::link,
+                fmt::format("{} image access {}..{} outside the coupler's 512 bytes", what, offset, offset + n));
 }
 
 void ModbusLink::read_inputs(std::size_t offset, std::span<std::uint8_t> dst) {
@@ -174,8 +174,8 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
         if (!ours[b - w.lo] && out_cache_[b] < 0) need.push_back(b);
       if (!need.empty()) {
         std::size_t a = need.front() / 2, z = need.back() / 2;
-        remember_outputs(a, client_.read(static_cast<std::uint16_t>(mbmap::kOutputImage + a),
-                                         static_cast<unsigned>(z - a + 1)));
+        remember_outputs(
+            a, client_.read(static_cast<std::uint16_t>(mbmap::kOutputImage + a), static_cast<unsigned>(z - a + 1)));
       }
       for (std::size_t b = w.lo; b < w.hi; ++b) out[b - w.lo] = static_cast<std::uint8_t>(std::max(0, out_cache_[b]));
       for (std::size_t k = g; k < end; ++k) {
@@ -224,8 +224,7 @@ std::optional<Error> ModbusLink::explain_no_ack() {
     std::string wd;
     try {
       if (auto p = client_.read_optional(mbmap::kWatchdogPreset, 1)) wd = fmt::format(" (0x1120: {} ms)", (*p)[0]);
-    } catch (const Error&) {
-    }
+    } catch (const Error&) {}
     why = Error(Exit::link,
                 fmt::format("the coupler does not keep what kscfg writes to its outputs (output byte {} reads "
                             "0x{:02X} after writing 0x{:02X}): its watchdog{} has probably expired and switched the "

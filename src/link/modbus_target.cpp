@@ -11,8 +11,8 @@
 #include <cstring>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg {

@@ -49,7 +49,9 @@ PortUri parse_port_uri(const std::string& uri) {
     p.scheme = "rtu";
     rest = uri.substr(4);
   } else {
-    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT] or rtu:DEVICE", uri));
+    throw Error(
+        Exit::usage,
+        fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT] or rtu:DEVICE", uri));
   }
   auto qm = rest.find('?');
   if (qm != std::string::npos) {

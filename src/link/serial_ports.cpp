@@ -1,9 +1,9 @@
 // The serial ports of this machine with their USB descriptions (libserialport).
+#include "kscfg/link/serial_ports.hpp"
+
 #include <libserialport.h>
 
 #include <algorithm>
-
-#include "kscfg/link/serial_ports.hpp"
 
 namespace kscfg {
 

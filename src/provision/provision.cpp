@@ -9,16 +9,16 @@
 #include <ctime>
 #include <filesystem>
 #include <map>
-#include <string_view>
 #include <set>
+#include <string_view>
 
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
+#include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/params.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "kscfg/session/verdict.hpp"
-#include "kscfg/catalog/params.hpp"
-#include "kscfg/base/parse.hpp"
 
 namespace kscfg {
 
@@ -73,8 +73,8 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
           std::uint16_t r8 = j.values[0], r9 = j.values[1];
           k = 2;
           if (r8 != t.type->r8)
-            throw Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station says {}",
-                                                   t.position, r8, t.type->type));
+            throw Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station says {}", t.position,
+                                                   r8, t.type->type));
           comment = fmt::format("position {}: R8 {}, version {}", t.position, r8, proto::version_text(r9));
         }
         std::map<unsigned, std::uint16_t> regs;
@@ -138,8 +138,8 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
                                                r == proto::kCodeWordRegister ? "the code word is not a setting"
                                                : d.command ? "a command register runs a command, it holds no setting; "
                                                              "use kscfg reset or kscfg write"
-                                               : !d.implemented             ? "not implemented"
-                                                                            : "read-only"));
+                                               : !d.implemented ? "not implemented"
+                                                                : "read-only"));
       }
   }
   // 3. Read what the file configures, every channel at once, and compare.
@@ -229,7 +229,7 @@ std::string port_folder(const std::string& port) {
   while (!out.empty() && (out.back() == '_' || out.back() == '.')) out.pop_back();
   while (!out.empty() && out.front() == '.') out.erase(out.begin());
   if (out.empty()) out = "port";
-  if (out.size() > 80) out = fmt::format("{}-{:08x}", out.substr(0, 70), std::hash<std::string>{}(port) & 0xFFFFFFFFu);
+  if (out.size() > 80) out = fmt::format("{}-{:08x}", out.substr(0, 70), std::hash<std::string>{}(port)&0xFFFFFFFFu);
   return out;
 }
 
@@ -258,7 +258,8 @@ std::string comment_text(std::string s) {
 
 std::string shell_word(const std::string& s) {
   bool plain = !s.empty() && std::all_of(s.begin(), s.end(), [](char c) {
-    return std::isalnum(static_cast<unsigned char>(c)) || std::string_view("@%+=:,./-_").find(c) != std::string_view::npos;
+    return std::isalnum(static_cast<unsigned char>(c)) ||
+           std::string_view("@%+=:,./-_").find(c) != std::string_view::npos;
   });
   if (plain) return s;
   std::string out = "'";
@@ -339,11 +340,13 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", &tm);
   std::string head = "# kscfg apply: the registers it touched, before the change.\n";
   if (!info.port.empty())
-    head += comment_text(fmt::format("# port: {}{}", info.port, info.unit ? fmt::format(" (unit {})", *info.unit) : "")) +
-            "\n";
-  head += comment_text(fmt::format("# coupler: {}{}", coupler,
-                                   info.identification.empty() ? "" : ", identification '" + info.identification + "'")) +
-          "\n";
+    head +=
+        comment_text(fmt::format("# port: {}{}", info.port, info.unit ? fmt::format(" (unit {})", *info.unit) : "")) +
+        "\n";
+  head +=
+      comment_text(fmt::format("# coupler: {}{}", coupler,
+                               info.identification.empty() ? "" : ", identification '" + info.identification + "'")) +
+      "\n";
   if (!info.applied.empty()) head += comment_text("# applied: " + info.applied) + "\n";
   if (!info.station.empty()) head += comment_text("# station: " + info.station) + "\n";
   head += fmt::format("# time: {}\n", when);
@@ -489,6 +492,5 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
               fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", verified,
                           verified == 1 ? "" : "s", backup_path));
 }
-
 
 }  // namespace kscfg

@@ -113,8 +113,8 @@ AckPoll ack_next_poll(const AckPlan& p, unsigned polls, microseconds last, micro
 
 microseconds ack_late_slack(const AckPlan& p) { return std::max(microseconds(1000), p.wait / 4); }
 
-void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took,
-              std::chrono::milliseconds timeout, bool late) {
+void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took, std::chrono::milliseconds timeout,
+              bool late) {
   ++t.acks;
   if (late) ++t.late;
   const microseconds cap = cap_of(timeout);

@@ -37,8 +37,7 @@ void AdsAccess::leave(ChannelKey key, Chan& c) noexcept {
   c.journaled = false;
   try {
     journal_->leave(key.position, key.channel);
-  } catch (...) {
-  }
+  } catch (...) {}
 }
 
 void AdsAccess::open(const TerminalImage& t, unsigned channel) {
@@ -96,8 +95,7 @@ std::vector<Program*> AdsAccess::advance() {
       adsreg::RegisterAccess::Address a = c.addr;
       a.reg = op.reg;
       // Noted before the code word goes out: a kill -9 from here on leaves the entry.
-      if (op.write && op.reg == proto::kCodeWordRegister && op.value == proto::kCodeWord && !c.journaled &&
-          journal_) {
+      if (op.write && op.reg == proto::kCodeWordRegister && op.value == proto::kCodeWord && !c.journaled && journal_) {
         journal_->enter_direct(key.position, key.channel);
         c.journaled = journal_->enabled();
       }
@@ -184,8 +182,7 @@ void AdsAccess::lock_unverified(ChannelKey key) noexcept {
   if (it == chans_.end() || !it->second.journaled || !journal_) return;
   try {
     journal_->lock_unverified(key.position, key.channel);
-  } catch (...) {
-  }
+  } catch (...) {}
 }
 
 void AdsAccess::close_all() noexcept {

@@ -12,8 +12,8 @@ namespace kscfg {
 const TerminalImage& register_terminal(const StationLayout& layout, unsigned position, unsigned channel) {
   const TerminalImage& t = layout.terminal(position);
   if (!t.type->has_registers)
-    throw Error(Exit::usage, fmt::format("terminal {} ({}, {}) has no registers", position, t.type->type,
-                                         t.type->title),
+    throw Error(Exit::usage,
+                fmt::format("terminal {} ({}, {}) has no registers", position, t.type->type, t.type->title),
                 "choose an intelligent terminal with -t; 'kscfg info' lists the station");
   if (channel >= t.type->channels)
     throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
@@ -36,7 +36,8 @@ const TerminalImage& register_terminal(const StationLayout& layout, unsigned pos
 }
 
 TypeChanged::TypeChanged(unsigned position, std::uint16_t r8, const std::string& was)
-    : Error(Exit::refused, fmt::format("terminal {} reports type {} in R8, the station's layout says {}", position, r8, was),
+    : Error(Exit::refused,
+            fmt::format("terminal {} reports type {} in R8, the station's layout says {}", position, r8, was),
             "the station changed: scan it again (kscfg --rescan ...)"),
       position_(position),
       r8_(r8) {}
@@ -107,17 +108,18 @@ Task<void> Channel::finish_dead_unlock() {
   if (v != proto::kCodeWord) {
     if (opt_.trace)
       opt_.trace(fmt::format("{}: R31 reads 0x{:04X}; kscfg process {} had unlocked it, it is locked again", who(), v,
-                      dead_pid_));
+                             dead_pid_));
     co_return;
   }
   maybe_unlocked_ = true;  // relock at the end whatever happens
   co_await write_checked(proto::kCodeWordRegister, 0);
   std::uint16_t after = co_await read(proto::kCodeWordRegister);
   if (after == 0) maybe_unlocked_ = false;
-  note(fmt::format("note: {} was left unlocked (R31 = 0x1235) by kscfg process {}, which ended without relocking it; "
-                   "{}",
-                   who(), dead_pid_,
-                   after == 0 ? "locked again, R31 reads 0x0000" : fmt::format("R31 still reads 0x{:04X}", after)));
+  note(
+      fmt::format("note: {} was left unlocked (R31 = 0x1235) by kscfg process {}, which ended without relocking it; "
+                  "{}",
+                  who(), dead_pid_,
+                  after == 0 ? "locked again, R31 reads 0x0000" : fmt::format("R31 still reads 0x{:04X}", after)));
 }
 
 Task<void> Channel::finish_leftover() {
@@ -141,13 +143,15 @@ Task<void> Channel::finish_leftover() {
   }
   if (failed) r31 = fmt::format("R31 could not be checked ({}); relocking at the end", failed->what());
   if (dead_pid_)
-    note(fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
-                     "without finishing its session; {}; its process-data bytes go back to what that session found",
-                     who(), *leftover_, dead_pid_, r31));
+    note(
+        fmt::format("note: {} was left in register mode (control byte 0x{:02X}) by kscfg process {}, which ended "
+                    "without finishing its session; {}; its process-data bytes go back to what that session found",
+                    who(), *leftover_, dead_pid_, r31));
   else
-    note(fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
-                     "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
-                     who(), *leftover_, r31, *leftover_));
+    note(
+        fmt::format("note: {} was in register mode (control byte 0x{:02X}), left by a session that did not finish; "
+                    "{}; its control byte goes back to process-data mode (0x00), not to 0x{:02X}",
+                    who(), *leftover_, r31, *leftover_));
 }
 
 Task<bool> Channel::finish_dead() {
@@ -157,9 +161,7 @@ Task<bool> Channel::finish_dead() {
   co_return was;
 }
 
-bool Channel::closable_with_read() const {
-  return !unlocked_ && !maybe_unlocked_ && (!leftover_ || leftover_done_);
-}
+bool Channel::closable_with_read() const { return !unlocked_ && !maybe_unlocked_ && (!leftover_ || leftover_done_); }
 
 Task<std::vector<std::uint16_t>> Channel::read_many(std::vector<unsigned> regs, bool then_close,
                                                     std::function<void(std::size_t)> progress) {
@@ -251,8 +253,7 @@ Task<void> Channel::write_checked(unsigned reg, std::uint16_t value) {
     std::optional<std::uint16_t> now;
     try {
       now = co_await read(reg);
-    } catch (const Error&) {
-    }
+    } catch (const Error&) {}
     if (!now) throw *lost;
     if (opt_.trace)
       opt_.trace(fmt::format("{}: answer to writing R{} lost ({}); it reads 0x{:04X}: {}", who(), reg, lost->what(),
@@ -268,9 +269,8 @@ void Channel::check_writable(unsigned reg) const {
                                            term_.type->type));
   const RegisterDef& d = term_.type->regs[reg];
   if (!d.writable)
-    throw Error(Exit::refused, fmt::format("R{} ({}) of {} is read-only ({})", reg,
-                                           d.desc.empty() ? d.name : d.desc, term_.type->type,
-                                           proto::storage_name(d.storage)));
+    throw Error(Exit::refused, fmt::format("R{} ({}) of {} is read-only ({})", reg, d.desc.empty() ? d.name : d.desc,
+                                           term_.type->type, proto::storage_name(d.storage)));
 }
 
 Task<void> Channel::unlock() {
@@ -282,9 +282,10 @@ Task<void> Channel::unlock() {
     std::uint16_t r31 = 0;
     if (!leftover_) r31 = co_await read(proto::kCodeWordRegister);
     if (r31 == proto::kCodeWord)
-      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
-                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
-                       who()));
+      note(
+          fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
+                      "that did not finish or by 'kscfg unlock'; it is locked again at the end",
+                      who()));
   }
   maybe_unlocked_ = true;
   co_await write_checked(proto::kCodeWordRegister, proto::kCodeWord);
@@ -309,8 +310,8 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
     check_writable(c.reg);
     if (term_.type->regs[c.reg].command)
       throw Error(Exit::usage,
-                  fmt::format("R{} of {} is a command register: writing it runs a command, it holds no setting",
-                              c.reg, term_.type->type),
+                  fmt::format("R{} of {} is a command register: writing it runs a command, it holds no setting", c.reg,
+                              term_.type->type),
                   fmt::format("run the command with 'kscfg write R{} VALUE'", c.reg));
     protected_candidate = protected_candidate || proto::is_protected(c.reg) || term_.type->regs[c.reg].code_word;
   }
@@ -326,9 +327,10 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
   if (check_r31) {
     unlock_checked_ = true;
     if (now[0] == proto::kCodeWord)
-      note(fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
-                       "that did not finish or by 'kscfg unlock'; it is locked again at the end",
-                       who()));
+      note(
+          fmt::format("note: {} was already unlocked (R31 = 0x1235) when this session began, left by a session "
+                      "that did not finish or by 'kscfg unlock'; it is locked again at the end",
+                      who()));
   }
   std::vector<WriteResult> results;
   for (std::size_t i = 0; i < changes.size(); ++i) {
@@ -379,7 +381,7 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
 }
 
 Task<std::vector<std::uint16_t>> Channel::write_change(const std::vector<WriteResult>& change, bool lock,
-                                                        bool then_close) {
+                                                       bool then_close) {
   // One program: code word, writes, relock, read-back of every register and R31. Relocked before
   // reading back, so that no read-back waits on a stale ack of the same register. On a link that
   // pipelines, each request goes out with the poll that sees the one before answered (RegisterOp::
@@ -405,7 +407,8 @@ Task<std::vector<std::uint16_t>> Channel::write_change(const std::vector<WriteRe
   }
   std::size_t done = p.values.size();
   if (lock && done > 0) unlocked_ = done < writes;
-  if (!lost) co_return std::vector<std::uint16_t>(p.values.begin() + static_cast<std::ptrdiff_t>(writes), p.values.end());
+  if (!lost)
+    co_return std::vector<std::uint16_t>(p.values.begin() + static_cast<std::ptrdiff_t>(writes), p.values.end());
   // An answer was lost (docs/design.md 6.3): from that request on, one at a time; a write whose
   // answer was lost is read before it is written again.
   for (std::size_t k = done; k < writes; ++k) {
@@ -526,8 +529,9 @@ ChangeFailed::ChangeFailed(Exit cause_code, std::string cause, RollbackResult rb
     : Error(rb.ok() ? cause_code : Exit::unverified,
             rb.ok() ? fmt::format("{}; rolled back: {}", cause, rb.text(who))
                     : fmt::format("{}; rollback failed: {}", cause, rb.text(who)),
-            rb.ok() ? std::string() : "these registers may hold the new values: read them with 'kscfg dump' when the "
-                                      "terminal answers again"),
+            rb.ok() ? std::string()
+                    : "these registers may hold the new values: read them with 'kscfg dump' when the "
+                      "terminal answers again"),
       cause_code_(cause_code),
       cause_(std::move(cause)),
       rb_(std::move(rb)) {}
@@ -554,8 +558,7 @@ Task<void> Channel::close() {
   if (leftover_ && !leftover_done_) {
     try {
       co_await finish_leftover();
-    } catch (...) {
-    }
+    } catch (...) {}
   }
   // Never leave a terminal unlocked: relock if this work may have unlocked it. A link failure (a
   // lossy line) is tried again; a terminal that does not answer is not.

@@ -40,8 +40,8 @@ namespace {
 std::string forced_text(const SessionJournal::Forced& f) {
   std::string s = fmt::format("terminal {} ({})", f.position, f.type);
   if (f.channel) s += fmt::format(" channel {}", f.channel + 1);
-  return s + fmt::format(" output byte {} bits 0x{:02X} = 0x{:02X} (were 0x{:02X})", f.offset, f.mask, f.after,
-                         f.before);
+  return s +
+         fmt::format(" output byte {} bits 0x{:02X} = 0x{:02X} (were 0x{:02X})", f.offset, f.mask, f.after, f.before);
 }
 
 }  // namespace
@@ -105,9 +105,10 @@ bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOption
       SessionJournal::unforce_dead(d, f);
       r.state = DeadForce::State::restored;
       if (so.notice)
-        so.notice(fmt::format("note: {} was left forced by kscfg process {}, which ended without putting it back; "
-                              "put back, reads 0x{:02X}",
-                              forced_text(f), d.pid, back));
+        so.notice(
+            fmt::format("note: {} was left forced by kscfg process {}, which ended without putting it back; "
+                        "put back, reads 0x{:02X}",
+                        forced_text(f), d.pid, back));
       told(r);
     } catch (const Error& e) {
       if (e.code() == Exit::interrupted) throw;
@@ -115,19 +116,21 @@ bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOption
       r.state = DeadForce::State::failed;
       r.error = e;
       if (so.notice)
-        so.notice(fmt::format("warning: putting back {}, left forced by kscfg process {}, failed: {}; the next kscfg "
-                              "on this port tries again (session journal)",
-                              forced_text(f), d.pid, e.what()));
+        so.notice(
+            fmt::format("warning: putting back {}, left forced by kscfg process {}, failed: {}; the next kscfg "
+                        "on this port tries again (session journal)",
+                        forced_text(f), d.pid, e.what()));
       told(r);
     }
   }
   if (!still.empty() && so.notice) {
     std::string list;
     for (const auto& s : still) list += (list.empty() ? "" : ", ") + s;
-    so.notice(fmt::format("warning: kscfg process {} ended without putting back the outputs it forced ({}): they are "
-                          "still forced; put them back with: {}{}",
-                          d.pid, list, so.release_hint.empty() ? "kscfg data release --yes" : so.release_hint,
-                          unplaced ? " (with --station FILE: a scan does not place digital terminals)" : ""));
+    so.notice(
+        fmt::format("warning: kscfg process {} ended without putting back the outputs it forced ({}): they are "
+                    "still forced; put them back with: {}{}",
+                    d.pid, list, so.release_hint.empty() ? "kscfg data release --yes" : so.release_hint,
+                    unplaced ? " (with --station FILE: a scan does not place digital terminals)" : ""));
   }
   return all;
 }

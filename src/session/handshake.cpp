@@ -94,9 +94,10 @@ void HandshakeAccess::journal_enter(Chan& c) {
   bool was = opt_.journal->enabled();
   opt_.journal->enter(e);
   if (was && !opt_.journal->enabled())
-    note_trace(fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
-                           "finds what it left",
-                           opt_.journal->why(), who(c)));
+    note_trace(
+        fmt::format("no session journal for this run ({}): if kscfg dies now, only the next session on {} "
+                    "finds what it left",
+                    opt_.journal->why(), who(c)));
 }
 
 void HandshakeAccess::journal_ctrl(Chan& c) {
@@ -155,8 +156,7 @@ void HandshakeAccess::closed_now(Chan& c) {
   if (c.journaled && opt_.journal) {
     try {
       opt_.journal->leave(c.key.position, c.key.channel);
-    } catch (...) {
-    }
+    } catch (...) {}
   }
   c.journaled = false;
 }
@@ -186,17 +186,17 @@ bool HandshakeAccess::watch_found(Chan& c) {
       std::uint8_t ctrl = c.saved[c.w.ctrl - c.saved_at];
       if (!e.direct && e.window.ctrl == c.w.ctrl && e.window.status == c.w.status &&
           std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) != e.ctrl.end()) {
-        note_trace(fmt::format("{}: control byte 0x{:02X} found in register mode, as the journal of kscfg process {} "
-                               "left it; not watched",
-                               who(c), ctrl, d->first));
+        note_trace(
+            fmt::format("{}: control byte 0x{:02X} found in register mode, as the journal of kscfg process {} "
+                        "left it; not watched",
+                        who(c), ctrl, d->first));
         c.dead_entry = e;
         c.found.dead_pid = d->first;
         return true;
       }
     }
   auto quiet = std::clamp(opt_.timeout, std::chrono::milliseconds(100), std::chrono::milliseconds(5000));
-  LeftoverWatch v = watch_leftover(link_, c.w, quiet, 4 * quiet, std::chrono::milliseconds(10),
-                                   opt_.cancel);
+  LeftoverWatch v = watch_leftover(link_, c.w, quiet, 4 * quiet, std::chrono::milliseconds(10), opt_.cancel);
   note_trace(fmt::format("{}: control byte 0x{:02X} found in register mode; watched {} ms: {}", who(c), v.ctrl_first,
                          v.watched.count(),
                          v.verdict == LeftoverWatch::Verdict::leftover       ? "unchanged, a dead session's"
@@ -289,7 +289,8 @@ std::vector<Program*> HandshakeAccess::advance() {
   // under a shield, the save of a channel opened again for a rollback too: the first signal does
   // not cut the link's waits short, a second one does (base/cancel.hpp).
   std::optional<ShieldScope> cleanup;
-  if (std::all_of(chans_.begin(), chans_.end(), [](const auto& kv) { return !kv.second.prog || kv.second.prog->shielded; }))
+  if (std::all_of(chans_.begin(), chans_.end(),
+                  [](const auto& kv) { return !kv.second.prog || kv.second.prog->shielded; }))
     cleanup.emplace(opt_.cancel);
   // Channels whose work begins: their process-data bytes saved, in one request where they fit.
   std::vector<Chan*> fresh;
@@ -401,7 +402,6 @@ std::vector<Program*> HandshakeAccess::advance() {
   return done;
 }
 
-
 void HandshakeAccess::close_now(ChannelKey key, bool quiet) noexcept {
   auto it = chans_.find(key);
   if (it == chans_.end()) return;
@@ -440,8 +440,7 @@ void HandshakeAccess::close_now(ChannelKey key, bool quiet) noexcept {
                                 c.journaled && opt_.journal && opt_.journal->enabled()
                                     ? "; the next kscfg on this port finishes it (session journal)"
                                     : ""));
-      } catch (...) {
-      }
+      } catch (...) {}
     }
     c.closed = true;
     c.journaled = false;
@@ -453,8 +452,7 @@ void HandshakeAccess::lock_unverified(ChannelKey key) noexcept {
   if (it == chans_.end() || !it->second.journaled || !opt_.journal) return;
   try {
     opt_.journal->lock_unverified(key.position, key.channel);
-  } catch (...) {
-  }
+  } catch (...) {}
 }
 
 void HandshakeAccess::close_all() noexcept {

@@ -100,8 +100,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   bool replaceable = !r.write || op.repeatable;
   if (replaceable && !r.probe && speculate && !c.ahead) {
     const RegisterOp* next = k + 1 < p.ops.size() ? &p.ops[k + 1] : nullptr;
-    if (next && next->reg != r.reg &&
-        (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
+    if (next && next->reg != r.reg && (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
       put_request(c, next->write, next->reg, next->value);  // read-ahead (or write-ahead)
       c.with_ahead = true;
     } else if (!next && !r.write && p.close_after && !c.found.leftover && c.users == 1) {
@@ -173,16 +172,11 @@ void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Prog
 
 void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
   auto status = [&] { return c.in[c.w.status - c.in_lo]; };
-  auto value = [&] {
-    return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8));
-  };
+  auto value = [&] { return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8)); };
   Program& p = *c.prog;
   switch (c.act) {
-    case Act::none:
-      return;
-    case Act::look:
-      c.last_status = status();
-      return;
+    case Act::none: return;
+    case Act::look: c.last_status = status(); return;
     case Act::close:
       closed_now(c);
       p.closed = true;
@@ -206,8 +200,7 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
       c.last_status.reset();
       return;
     }
-    case Act::poll:
-      break;
+    case Act::poll: break;
   }
   c.last_poll = t;
   Request& r = *c.req;
@@ -222,17 +215,16 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
       const bool late = timed && t - planned > ack_late_slack(r.ack);
       if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout, late);
       if (opt_.trace)
-        opt_.trace(fmt::format("{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
-                               r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
-                               r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls,
-                               r.polls == 1 ? "" : "s",
-                               c.timing ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
-                                                      late ? fmt::format(" (the poll {} us late: not learned)",
-                                                                         us(t - planned).count())
-                                                           : "")
-                                        : "",
-                               c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
-                               c.with_restore ? ", control byte restored with the poll" : ""));
+        opt_.trace(fmt::format(
+            "{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
+            r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
+            r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls, r.polls == 1 ? "" : "s",
+            c.timing
+                ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
+                              late ? fmt::format(" (the poll {} us late: not learned)", us(t - planned).count()) : "")
+                : "",
+            c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
+            c.with_restore ? ", control byte restored with the poll" : ""));
       p.values.push_back(value());
 #ifdef KSCFG_TEST_HOOKS
       if (r.write && opt_.after_write) opt_.after_write(r.reg);
@@ -290,8 +282,8 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     }
     fail(c,
          Error(Exit::timeout,
-               fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})", who(c),
-                           r.write ? "writing" : "reading", r.reg, opt_.timeout.count(), ctrl, st),
+               fmt::format("{} did not acknowledge {} R{} within {} ms (control 0x{:02X}, last status 0x{:02X})",
+                           who(c), r.write ? "writing" : "reading", r.reg, opt_.timeout.count(), ctrl, st),
                "check the terminal and the link, or raise --timeout"),
          done);
   }

@@ -6,12 +6,12 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <charconv>
 #include <chrono>
 #include <cstring>
 #include <filesystem>
-#include <algorithm>
 #include <map>
 
 namespace kscfg {
@@ -20,8 +20,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr std::size_t kMaxSaved = 512;        // an image is at most 512 bytes
-constexpr std::size_t kMaxOffset = 511;       // nor is any offset beyond it
+constexpr std::size_t kMaxSaved = 512;   // an image is at most 512 bytes
+constexpr std::size_t kMaxOffset = 511;  // nor is any offset beyond it
 
 bool number(std::string_view s, std::size_t& v) {
   auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
@@ -337,11 +337,12 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
     // refused as not a regular file).
     int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
     if (fd < 0) continue;
-    struct stat a{}, b{};
+    struct stat a {
+    }, b{};
     // Locked: its process lives. Unlinked or replaced since we opened it: someone else finished it.
     if (::flock(fd, LOCK_EX | LOCK_NB) != 0 || ::fstat(fd, &a) != 0 || a.st_nlink == 0 ||
-        ::stat(path.c_str(), &b) != 0 || a.st_ino != b.st_ino || a.st_dev != b.st_dev ||
-        !S_ISREG(a.st_mode) || static_cast<std::size_t>(a.st_size) > kMaxJournalBytes) {
+        ::stat(path.c_str(), &b) != 0 || a.st_ino != b.st_ino || a.st_dev != b.st_dev || !S_ISREG(a.st_mode) ||
+        static_cast<std::size_t>(a.st_size) > kMaxJournalBytes) {
       ::close(fd);
       continue;
     }

@@ -36,12 +36,11 @@ Regs registers_for(const TerminalType& type, const TerminalImage& t, unsigned ch
   for (const auto& f : type.images) {
     if (&f == want) break;
     if (f.when && (regs[f.when->reg] & f.when->mask) == f.when->value)
-      regs[f.when->reg] = static_cast<std::uint16_t>((regs[f.when->reg] & ~f.when->mask) |
-                                                     (~f.when->value & f.when->mask));
+      regs[f.when->reg] =
+          static_cast<std::uint16_t>((regs[f.when->reg] & ~f.when->mask) | (~f.when->value & f.when->mask));
   }
   if (want->when)
-    regs[want->when->reg] =
-        static_cast<std::uint16_t>((regs[want->when->reg] & ~want->when->mask) | want->when->value);
+    regs[want->when->reg] = static_cast<std::uint16_t>((regs[want->when->reg] & ~want->when->mask) | want->when->value);
   if (ch < t.channels.size())
     for (const auto* list : {&want->out, &want->in})
       for (const auto& e : *list) {
@@ -230,9 +229,10 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
       if (ch >= a.channels.size() || !a.channels[ch].window)
         reason = ch < a.channels.size() ? a.channels[ch].no_window : "its image is not mapped";
       else if (fit_before && beyond(a.channels[ch]))
-        reason = fmt::format("the image would need {} input and {} output bytes, more than the {} maps ({} and {}); "
-                             "its bytes would lie beyond the end, and the coupler may not start at all",
-                             after.in_bytes, after.out_bytes, profile.name, lim_in, lim_out);
+        reason = fmt::format(
+            "the image would need {} input and {} output bytes, more than the {} maps ({} and {}); "
+            "its bytes would lie beyond the end, and the coupler may not start at all",
+            after.in_bytes, after.out_bytes, profile.name, lim_in, lim_out);
       if (!reason.empty()) rep.lost.push_back({t.position, ch, who_of(t, ch), reason});
     }
   }
@@ -244,9 +244,10 @@ std::string next_start_note(const LockoutReport& rep) {
   std::copy_if(rep.causes.begin(), rep.causes.end(), std::back_inserter(relaid),
                [](const ChangedMapping& c) { return c.changes_image; });
   if (relaid.empty()) return {};
-  return fmt::format("takes effect at the coupler's next start (power off and on): {}; until then the coupler keeps "
-                     "the process image it has ('kscfg map' shows both)",
-                     by_terminal(relaid, [](const ChangedMapping& c) { return c.setting; }));
+  return fmt::format(
+      "takes effect at the coupler's next start (power off and on): {}; until then the coupler keeps "
+      "the process image it has ('kscfg map' shows both)",
+      by_terminal(relaid, [](const ChangedMapping& c) { return c.setting; }));
 }
 
 std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned position, unsigned channel,

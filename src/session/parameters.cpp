@@ -8,8 +8,8 @@
 
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/params.hpp"
 
 namespace kscfg {
 
@@ -26,15 +26,17 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
   if (!others.empty()) {
     std::string list;
     for (std::size_t i = 0; i < others.size() && i < 4; ++i) list += (i ? ", " : "") + others[i];
-    throw Error(Exit::usage, fmt::format("'{}' is not a parameter of {} (it is one of {}){}", name, type.type, list,
-                                         type.params.empty() ? "" : "; " + type.type + " has: " + [&] {
-                                           std::string s;
-                                           for (const auto& p : type.params) s += (s.empty() ? "" : ", ") + p.name;
-                                           return s;
-                                         }()));
+    throw Error(Exit::usage, fmt::format(
+                                 "'{}' is not a parameter of {} (it is one of {}){}", name, type.type, list,
+                                 type.params.empty() ? "" : "; " + type.type + " has: " + [&] {
+                                   std::string s;
+                                   for (const auto& p : type.params) s += (s.empty() ? "" : ", ") + p.name;
+                                   return s;
+                                 }()));
   }
   auto hint = did_you_mean(name, type.param_names());
-  throw Error(Exit::usage, fmt::format("{} has no parameter {}{}", type.type, quote_input(name), hint.empty() ? "" : "; " + hint),
+  throw Error(Exit::usage,
+              fmt::format("{} has no parameter {}{}", type.type, quote_input(name), hint.empty() ? "" : "; " + hint),
               "kscfg show lists the parameters");
 }
 

@@ -7,8 +7,8 @@
 #include <map>
 #include <thread>
 
-#include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/parameters.hpp"
@@ -249,7 +249,8 @@ std::string who(const TerminalImage& t, unsigned ch) {
   return s;
 }
 
-void add(ForcePlan& p, std::size_t offset, std::uint8_t mask, std::uint8_t value, const std::vector<std::uint8_t>& out) {
+void add(ForcePlan& p, std::size_t offset, std::uint8_t mask, std::uint8_t value,
+         const std::vector<std::uint8_t>& out) {
   for (auto& b : p.bytes)
     if (b.offset == offset) {
       b.mask = static_cast<std::uint8_t>(b.mask | mask);
@@ -360,16 +361,18 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
       std::vector<std::string> names;
       for (const auto& [n, off] : o.at) names.push_back(n);
       auto hint = did_you_mean(name, names);
-      throw Error(Exit::usage, fmt::format("{} has no output byte '{}'{}", who(t, ch), name, hint.empty() ? "" : "; " + hint),
-                  names.empty() ? "it maps no output bytes" : "its output bytes: " + [&] {
-                    std::string s;
-                    for (const auto& n : names) s += (s.empty() ? "" : " ") + n;
-                    return s;
-                  }());
+      throw Error(
+          Exit::usage, fmt::format("{} has no output byte '{}'{}", who(t, ch), name, hint.empty() ? "" : "; " + hint),
+          names.empty() ? "it maps no output bytes" : "its output bytes: " + [&] {
+            std::string s;
+            for (const auto& n : names) s += (s.empty() ? "" : " ") + n;
+            return s;
+          }());
     }
     auto v = static_cast<std::uint8_t>(parse_uint(value, 0xFF, "byte value"));
     if (name == "CT/ST" && t.type->has_registers && (v & proto::kReg))
-      throw Error(Exit::refused, fmt::format("CT/ST=0x{:02X} has REG set: that starts register mode, not process data", v),
+      throw Error(Exit::refused,
+                  fmt::format("CT/ST=0x{:02X} has REG set: that starts register mode, not process data", v),
                   "force process-data bits only (bit 7 clear)");
     add(p, it->second, 0xFF, v, out);
     p.changes.push_back({{"name", name}, {"before", out.at(it->second)}, {"after", v}});
@@ -388,7 +391,8 @@ void put_bits(Link& link, std::size_t offset, std::uint8_t mask, std::uint8_t ta
   std::uint8_t back = 0;
   link.read_outputs(offset, std::span<std::uint8_t>(&back, 1));
   if ((back & mask) != (target & mask))
-    throw Error(Exit::verify, fmt::format("{} output byte {}: wrote 0x{:02X}, reads back 0x{:02X}", what, offset, v, back));
+    throw Error(Exit::verify,
+                fmt::format("{} output byte {}: wrote 0x{:02X}, reads back 0x{:02X}", what, offset, v, back));
 }
 
 }  // namespace

@@ -5,8 +5,8 @@
 
 #include <algorithm>
 
-#include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -36,10 +36,11 @@ void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
         if (e.direct != direct) {
           done = false;
           if (so.trace)
-            so.trace(fmt::format("journal of kscfg process {}: terminal {} channel {} {} over {}; kept for a kscfg "
-                                 "over {}",
-                                 d.pid, e.position, e.channel + 1, e.direct ? "left unlocked" : "left in register mode",
-                                 e.direct ? "ADS" : "Modbus", e.direct ? "ads://" : "tcp:// or rtu:"));
+            so.trace(
+                fmt::format("journal of kscfg process {}: terminal {} channel {} {} over {}; kept for a kscfg "
+                            "over {}",
+                            d.pid, e.position, e.channel + 1, e.direct ? "left unlocked" : "left in register mode",
+                            e.direct ? "ADS" : "Modbus", e.direct ? "ads://" : "tcp:// or rtu:"));
           continue;
         }
         try {
@@ -52,7 +53,8 @@ void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
           if (err.code() == Exit::link || err.code() == Exit::timeout) {
             // Not finished, and this run goes on: said on stderr, not only with -v.
             done = false;
-            if (so.notice) so.notice("warning: " + what + "; the next kscfg on this port tries again (session journal)");
+            if (so.notice)
+              so.notice("warning: " + what + "; the next kscfg on this port tries again (session journal)");
             else if (so.trace) so.trace(what);
           } else if (so.trace) {
             so.trace(what);
@@ -77,8 +79,7 @@ void wait_for_register_mode(Link& link, const RegisterWindow& w, std::uint8_t ct
     link.read_inputs(w.status, std::span<std::uint8_t>(&status, 1));
     if (status & proto::kReg) return;
     if (std::chrono::steady_clock::now() - start > so.timeout) break;
-    if (!sleep_for_or_cancelled(std::chrono::milliseconds(1), so.cancel))
-      throw Error(Exit::interrupted, "interrupted");
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(1), so.cancel)) throw Error(Exit::interrupted, "interrupted");
   }
   throw Error(Exit::timeout, fmt::format("{} does not take control byte 0x{:02X}: its status byte reads 0x{:02X}, "
                                          "not register mode, after {} ms",
@@ -92,74 +93,83 @@ void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, co
   auto trace = [&](const std::string& s) {
     if (so.trace) so.trace(s);
   };
-  each_dead_entry(so, "left", false, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
-    // A session of a scan that had not identified the terminal yet (a type no catalog has) is
-    // finished as one of an unknown type: only R31 and the control byte are touched.
-    const TerminalType* type = catalog.find(e.type);
-    TerminalType unknown;
-    if (!type || !type->has_registers || e.channel >= type->channels) {
-      unknown.type = "type unknown";
-      unknown.has_registers = true;
-      unknown.channels = e.channel + 1;
-      type = &unknown;
-    }
-    const RegisterWindow& w = e.window;
-    // A journal is input like any other (issue 21 item 3): its entry must describe the terminal
-    // at that position of this station (its type and register window), or nothing is touched.
-    if (fits && !fits(e)) {
-      trace(fmt::format("journal of kscfg process {}: terminal {} ({}) with control byte at output byte {} "
-                        "is not this station's; not touched",
-                        d.pid, e.position, e.type, w.ctrl));
-      return;
-    }
-    // Only a terminal that shows register mode now, in its control byte and in the status byte
-    // that answers it, with a control byte the dead session wrote: otherwise it was finished
-    // already, or it is not that session's (another master's), and nothing is touched.
-    // A terminal whose relock failed ("!") may be unlocked in process-data mode too: its R31 is
-    // read (and relocked) by a session of its own.
-    std::uint8_t ctrl = 0;
-    link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
-    if (!(ctrl & proto::kReg) && !e.unlocked) return;
-    if ((ctrl & proto::kReg) && std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
-      trace(fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
-                        "process did not write last; not touched",
-                        d.pid, e.position, ctrl));
-      return;
-    }
-    // A process killed right after its first request leaves a control byte the terminal has not
-    // taken yet: the status byte shows REG a K-bus cycle or two later (more on a loaded coupler).
-    // Waited for as any acknowledge, up to the timeout; taken for finished, it would stay in
-    // register mode with its journal gone.
-    if (ctrl & proto::kReg)
-      wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
-    TerminalImage t;
-    t.position = e.position;
-    t.type = type;
-    t.complex = true;
-    t.channels.resize(e.channel + 1);
-    t.channels[e.channel].window = w;
-    Channel ch(engine, t, e.channel, so);
-    engine.access().adopt_dead(ch.key(), e, d.pid);
-    engine.wait(ch.finish_dead());
-  }, &link, force_fits);
+  each_dead_entry(
+      so, "left", false,
+      [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
+        // A session of a scan that had not identified the terminal yet (a type no catalog has) is
+        // finished as one of an unknown type: only R31 and the control byte are touched.
+        const TerminalType* type = catalog.find(e.type);
+        TerminalType unknown;
+        if (!type || !type->has_registers || e.channel >= type->channels) {
+          unknown.type = "type unknown";
+          unknown.has_registers = true;
+          unknown.channels = e.channel + 1;
+          type = &unknown;
+        }
+        const RegisterWindow& w = e.window;
+        // A journal is input like any other (issue 21 item 3): its entry must describe the terminal
+        // at that position of this station (its type and register window), or nothing is touched.
+        if (fits && !fits(e)) {
+          trace(
+              fmt::format("journal of kscfg process {}: terminal {} ({}) with control byte at output byte {} "
+                          "is not this station's; not touched",
+                          d.pid, e.position, e.type, w.ctrl));
+          return;
+        }
+        // Only a terminal that shows register mode now, in its control byte and in the status byte
+        // that answers it, with a control byte the dead session wrote: otherwise it was finished
+        // already, or it is not that session's (another master's), and nothing is touched.
+        // A terminal whose relock failed ("!") may be unlocked in process-data mode too: its R31 is
+        // read (and relocked) by a session of its own.
+        std::uint8_t ctrl = 0;
+        link.read_outputs(w.ctrl, std::span<std::uint8_t>(&ctrl, 1));
+        if (!(ctrl & proto::kReg) && !e.unlocked) return;
+        if ((ctrl & proto::kReg) && std::find(e.ctrl.begin(), e.ctrl.end(), ctrl) == e.ctrl.end()) {
+          trace(
+              fmt::format("journal of kscfg process {}: terminal {} holds control byte 0x{:02X}, which that "
+                          "process did not write last; not touched",
+                          d.pid, e.position, ctrl));
+          return;
+        }
+        // A process killed right after its first request leaves a control byte the terminal has not
+        // taken yet: the status byte shows REG a K-bus cycle or two later (more on a loaded coupler).
+        // Waited for as any acknowledge, up to the timeout; taken for finished, it would stay in
+        // register mode with its journal gone.
+        if (ctrl & proto::kReg)
+          wait_for_register_mode(link, w, ctrl, so, fmt::format("terminal {} ({})", e.position, e.type));
+        TerminalImage t;
+        t.position = e.position;
+        t.type = type;
+        t.complex = true;
+        t.channels.resize(e.channel + 1);
+        t.channels[e.channel].window = w;
+        Channel ch(engine, t, e.channel, so);
+        engine.access().adopt_dead(ch.key(), e, d.pid);
+        engine.wait(ch.finish_dead());
+      },
+      &link, force_fits);
 }
 
 void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal, Link* image,
                                  const ForceFits& force_fits) {
-  each_dead_entry(so, "left unlocked", true, [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
-    const TerminalImage* t = terminal(e.position);
-    if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
-      if (so.trace)
-        so.trace(fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
-                             "of this station; not touched",
-                             d.pid, e.position, e.channel + 1));
-      return;
-    }
-    Channel ch(engine, *t, e.channel, so);
-    engine.access().adopt_dead(ch.key(), e, d.pid);
-    engine.wait(ch.finish_dead());
-  }, image, force_fits);
+  each_dead_entry(
+      so, "left unlocked", true,
+      [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
+        const TerminalImage* t = terminal(e.position);
+        if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
+          if (so.trace)
+            so.trace(
+                fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "
+                            "of this station; not touched",
+                            d.pid, e.position, e.channel + 1));
+          return;
+        }
+        Channel ch(engine, *t, e.channel, so);
+        engine.access().adopt_dead(ch.key(), e, d.pid);
+        engine.wait(ch.finish_dead());
+      },
+      image, force_fits);
 }
 
 }  // namespace kscfg

@@ -5,8 +5,8 @@
 #include <algorithm>
 #include <thread>
 
-#include "kscfg/base/error.hpp"
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/error.hpp"
 #include "kscfg/session/session.hpp"
 
 namespace kscfg {
@@ -53,8 +53,10 @@ std::vector<std::uint8_t> parse_serial_data(std::string_view text, bool hex) {
       case '0': v.push_back(0); break;
       case '\\': v.push_back('\\'); break;
       case 'x': {
-        int a = i + 1 < text.size() ? hex_digit(text[i + 1]) : -1, b = i + 2 < text.size() ? hex_digit(text[i + 2]) : -1;
-        if (a < 0 || b < 0) throw Error(Exit::usage, fmt::format("invalid escape in '{}': \\x needs two hex digits", text));
+        int a = i + 1 < text.size() ? hex_digit(text[i + 1]) : -1,
+            b = i + 2 < text.size() ? hex_digit(text[i + 2]) : -1;
+        if (a < 0 || b < 0)
+          throw Error(Exit::usage, fmt::format("invalid escape in '{}': \\x needs two hex digits", text));
         v.push_back(static_cast<std::uint8_t>(a * 16 + b));
         i += 2;
         break;
@@ -78,7 +80,8 @@ const TerminalImage& serial_terminal(const StationLayout& layout, unsigned posit
   if (!t.type->is_serial()) {
     std::string serials;
     for (const auto& x : layout.terminals)
-      if (x.type->is_serial()) serials += fmt::format("{}{} ({})", serials.empty() ? "" : ", ", x.position, x.type->type);
+      if (x.type->is_serial())
+        serials += fmt::format("{}{} ({})", serials.empty() ? "" : ", ", x.position, x.type->type);
     throw Error(Exit::usage,
                 fmt::format("terminal {} ({}, {}) is not a serial terminal", position, t.type->type, t.type->title),
                 serials.empty() ? "the station has no serial terminal" : "serial terminals here: " + serials);
@@ -87,13 +90,12 @@ const TerminalImage& serial_terminal(const StationLayout& layout, unsigned posit
     throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
                                          t.type->type, t.type->channels, channel + 1));
   if (!find_serial_image(t.channels[channel], t.format))
-    throw Error(Exit::refused, fmt::format("terminal {} ({}) in format '{}' maps no handshake and data bytes",
-                                           position, t.type->type, t.format));
+    throw Error(Exit::refused, fmt::format("terminal {} ({}) in format '{}' maps no handshake and data bytes", position,
+                                           t.type->type, t.format));
   return t;
 }
 
-SerialPort::SerialPort(Link& link, const StationLayout& layout, unsigned position, unsigned channel,
-                       SerialOptions opt)
+SerialPort::SerialPort(Link& link, const StationLayout& layout, unsigned position, unsigned channel, SerialOptions opt)
     : link_(link), term_(&serial_terminal(layout, position, channel)), channel_(channel), opt_(std::move(opt)) {
   img_ = *find_serial_image(term_->channels[channel], term_->format);
   std::vector<std::size_t> outs{img_.ctrl.offset}, ins{img_.status.offset};
@@ -157,8 +159,7 @@ void SerialPort::read_in() {
   link_.read_inputs(in_lo_, in_);
   ++polls_;
   std::uint8_t s = in_[img_.status.offset - in_lo_];
-  if (s != status_ && opt_.trace)
-    trace(fmt::format("{}: status 0x{:02X} -> 0x{:02X}", who(), status_, s));
+  if (s != status_ && opt_.trace) trace(fmt::format("{}: status 0x{:02X} -> 0x{:02X}", who(), status_, s));
   status_ = s;
 }
 
@@ -246,8 +247,7 @@ void SerialPort::send(std::span<const std::uint8_t> bytes, bool receive) {
   }
 }
 
-std::size_t SerialPort::send_stream(const std::function<long(std::uint8_t*, std::size_t, int)>& source,
-                                    bool receive) {
+std::size_t SerialPort::send_stream(const std::function<long(std::uint8_t*, std::size_t, int)>& source, bool receive) {
   std::vector<std::uint8_t> buf(kStreamLow);
   std::size_t taken = 0;  // bytes the source handed over
   bool end = false;

@@ -33,9 +33,9 @@ std::uint16_t changed_bits(const TerminalType& type, const PlannedWrite& w) {
 
 Error Verdict::refusal() const {
   if (!undocumented.empty())
-    return Error(Exit::refused, fmt::format("refused: {}; nothing was written", joined(undocumented)),
-                 fmt::format("'kscfg catalog {}' lists the documented values; --force writes them anyway",
-                             undocumented_type));
+    return Error(
+        Exit::refused, fmt::format("refused: {}; nothing was written", joined(undocumented)),
+        fmt::format("'kscfg catalog {}' lists the documented values; --force writes them anyway", undocumented_type));
   if (!lockout.conflicts.empty())
     return Error(Exit::refused,
                  fmt::format("refused: {}: the coupler lays the image out from one and the terminal reports the "
@@ -53,8 +53,7 @@ std::vector<std::string> Verdict::warnings() const {
     out.push_back("warning: --force: writing values the catalog does not document: " + joined(undocumented));
   if (!lockout.conflicts.empty()) out.push_back("warning: --force: writing although " + joined(lockout.conflicts));
   if (lockout.locks_out())
-    out.push_back(
-        fmt::format("warning: --force: writing although {}. {}", lockout.consequence(), lockout.recovery()));
+    out.push_back(fmt::format("warning: --force: writing although {}. {}", lockout.consequence(), lockout.recovery()));
   return out;
 }
 
@@ -72,16 +71,16 @@ Verdict judge_change(Engine* engine, const StationLayout& current, const Catalog
     std::string value = w.mask == 0xFFFF
                             ? fmt::format("R{} = 0x{:04X}", w.reg, w.value)
                             : fmt::format("R{} = 0x{:04X} (mask 0x{:04X})", w.reg, w.value & w.mask, w.mask);
-    v.undocumented.push_back(fmt::format("{}: {}: {}{}", who, value, why,
-                                         w.origin.empty() ? "" : fmt::format(" ({})", w.origin)));
+    v.undocumented.push_back(
+        fmt::format("{}: {}: {}{}", who, value, why, w.origin.empty() ? "" : fmt::format(" ({})", w.origin)));
     if (v.undocumented_type.empty()) v.undocumented_type = type.type;
   }
   v.lockout = check_lockout(engine, current, catalog, so, writes);
   return v;
 }
 
-Verdict enforce_verdict(Engine* engine, const StationLayout& current, const Catalog& catalog,
-                        const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force) {
+Verdict enforce_verdict(Engine* engine, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+                        const std::vector<PlannedWrite>& writes, bool force) {
   Verdict v = judge_change(engine, current, catalog, so, writes);
   if (!v.refused()) return v;
   if (!force) throw v.refusal();

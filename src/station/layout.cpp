@@ -53,10 +53,12 @@ std::string StationLayout::unidentified_digital() const {
   std::size_t in = 0, out = 0;
   for (const auto& t : terminals)
     if (!t.complex) in += t.bits_in, out += t.bits_out;
-  std::size_t ui = digital_in_bits > in ? digital_in_bits - in : 0, uo = digital_out_bits > out ? digital_out_bits - out : 0;
+  std::size_t ui = digital_in_bits > in ? digital_in_bits - in : 0,
+              uo = digital_out_bits > out ? digital_out_bits - out : 0;
   if (!ui && !uo) return {};
   if (ui && uo) return fmt::format("{} input and {} output bits", ui, uo);
-  return ui ? fmt::format("{} input bit{}", ui, ui == 1 ? "" : "s") : fmt::format("{} output bit{}", uo, uo == 1 ? "" : "s");
+  return ui ? fmt::format("{} input bit{}", ui, ui == 1 ? "" : "s")
+            : fmt::format("{} output bit{}", uo, uo == 1 ? "" : "s");
 }
 
 namespace {
@@ -112,9 +114,7 @@ std::vector<ImageByte> lay_out(const std::vector<Element>& elements, bool ct, co
         }
         idx += 4;
         break;
-      case Element::Kind::byte:
-        push(e.lo, idx++);
-        break;
+      case Element::Kind::byte: push(e.lo, idx++); break;
       case Element::Kind::pad:
         if (ct) push(e.lo, idx);
         ++idx;
@@ -179,9 +179,10 @@ ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, cons
   if (f.ctst == CtStMode::none || !first_is_ct) {
     ch.no_window = fmt::format("its {} image has no control/status byte", f.name);
   } else if (!ct) {
-    ch.no_window = fmt::format("its {} image maps the control/status byte only with complete evaluation, which "
-                               "the coupler has off",
-                               f.name);
+    ch.no_window = fmt::format(
+        "its {} image maps the control/status byte only with complete evaluation, which "
+        "the coupler has off",
+        f.name);
   } else {
     // The control/status byte is there, the two bytes for the value are not.
     auto after = [&](const std::vector<ImageByte>& v, int from) {
@@ -193,9 +194,10 @@ ChannelImage layout_channel(const ImageFormat& f, const TerminalType& type, cons
       for (const auto& e : *list)
         if (e.count_register && count.empty())
           count = fmt::format(" (R{} = {})", *e.count_register, regs[*e.count_register] & 0xFFu);
-    ch.no_window = fmt::format("its {} image maps {} data byte{} after the control/status byte{}; a register "
-                               "value needs 2",
-                               f.name, n, n == 1 ? "" : "s", count);
+    ch.no_window = fmt::format(
+        "its {} image maps {} data byte{} after the control/status byte{}; a register "
+        "value needs 2",
+        f.name, n, n == 1 ? "" : "s", count);
   }
   return ch;
 }
@@ -293,8 +295,8 @@ StationSpec expand_partial(const StationSpec& file, const StationLayout& station
     const TerminalImage& have = station.terminal(pos);  // Error(usage): no such position
     if (have.type->type != t->type)
       throw Error(Exit::refused,
-                  fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line, pos,
-                              t->type, have.type->type),
+                  fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line,
+                              pos, t->type, have.type->type),
                   "nothing was written; 'kscfg info' lists the station's terminals by position");
   }
   for (const auto& have : station.terminals) {

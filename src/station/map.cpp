@@ -76,9 +76,8 @@ std::vector<MapEntry> map_entries(const StationLayout& L, bool input) {
       v.push_back(std::move(e));
     }
   }
-  std::stable_sort(v.begin(), v.end(), [](const MapEntry& a, const MapEntry& b) {
-    return a.offset * 8 + a.bit < b.offset * 8 + b.bit;
-  });
+  std::stable_sort(v.begin(), v.end(),
+                   [](const MapEntry& a, const MapEntry& b) { return a.offset * 8 + a.bit < b.offset * 8 + b.bit; });
   return v;
 }
 
@@ -89,7 +88,9 @@ std::string bit_range(const MapEntry& e) {
 }
 
 std::string image_ranges(const TerminalImage& t) {
-  auto range = [](std::size_t a, std::size_t n) { return n == 1 ? fmt::format("{}", a) : fmt::format("{}-{}", a, a + n - 1); };
+  auto range = [](std::size_t a, std::size_t n) {
+    return n == 1 ? fmt::format("{}", a) : fmt::format("{}-{}", a, a + n - 1);
+  };
   auto bits = [](std::size_t first, unsigned n) {
     std::size_t last = first + n - 1;
     return n == 1 ? fmt::format("{}.{}", first / 8, first % 8)
@@ -126,7 +127,9 @@ std::string register_range(bool input, std::size_t first_byte, std::size_t last_
   return a == b ? reg_text(a) : reg_text(a) + "-" + reg_text(b);
 }
 
-std::string byte_range(std::size_t a, std::size_t b) { return a == b ? fmt::format("{}", a) : fmt::format("{}-{}", a, b); }
+std::string byte_range(std::size_t a, std::size_t b) {
+  return a == b ? fmt::format("{}", a) : fmt::format("{}-{}", a, b);
+}
 
 std::string bit_numbers(const MapEntry& e) {
   std::size_t a = e.bit_offset, b = e.bit_offset + e.size - 1;

@@ -1,16 +1,16 @@
 // The map as a byte grid: one cell per image byte, labelled (and coloured) by terminal.
-#include "kscfg/station/map.hpp"
-
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <iterator>
 
+#include "kscfg/station/map.hpp"
+
 namespace kscfg {
 
 std::string render_grid(const StationLayout& L, bool color) {
-  static const char* palette[] = {"30;46", "30;43", "30;42", "30;45", "37;44", "37;41", "30;47", "30;106",
-                                  "30;103", "30;102", "30;105", "30;104"};
+  static const char* palette[] = {"30;46", "30;43",  "30;42",  "30;45",  "37;44",  "37;41",
+                                  "30;47", "30;106", "30;103", "30;102", "30;105", "30;104"};
   auto paint = [&](unsigned pos, const std::string& text, bool dim) {
     if (!color || pos == 0) return text;
     return fmt::format("\x1b[{}{}m{}\x1b[0m", palette[(pos - 1) % std::size(palette)], dim ? ";2" : "", text);

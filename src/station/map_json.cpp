@@ -1,8 +1,7 @@
 // The map as JSON (kscfg --json map).
-#include "kscfg/station/map.hpp"
-
 #include <fmt/format.h>
 
+#include "kscfg/station/map.hpp"
 #include "map_detail.hpp"
 
 namespace kscfg {
@@ -28,7 +27,8 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
     j[input ? "inputs" : "outputs"] = img;
   }
   auto ads_json = [](bool input, std::size_t offset) {
-    return json{{"ads_port", kAdsImagePort}, {"index_group", input ? kAdsInputGroup : kAdsOutputGroup},
+    return json{{"ads_port", kAdsImagePort},
+                {"index_group", input ? kAdsInputGroup : kAdsOutputGroup},
                 {"index_offset", offset}};
   };
   auto byte_json = [&](const ImageByte& b, bool input) {
@@ -42,8 +42,11 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
   };
   json terms = json::array();
   for (const auto& t : L.terminals) {
-    json x = {{"position", t.position}, {"type", t.inferred ? json(nullptr) : json(t.type->type)},
-              {"family", t.type->family}, {"format", t.format}, {"complex", t.complex}};
+    json x = {{"position", t.position},
+              {"type", t.inferred ? json(nullptr) : json(t.type->type)},
+              {"family", t.type->family},
+              {"format", t.format},
+              {"complex", t.complex}};
     if (t.inferred) {
       x["digital"] = digital_label(t);
       x["fits"] = t.fits;
@@ -62,11 +65,10 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
         for (const auto& b : ch.in) cj["inputs"].push_back(byte_json(b, true));
         for (const auto& b : ch.out) cj["outputs"].push_back(byte_json(b, false));
         if (ch.window)
-          cj["register_window"] = {{"control", ch.window->ctrl}, {"status", ch.window->status},
+          cj["register_window"] = {{"control", ch.window->ctrl},  {"status", ch.window->status},
                                    {"out_lo", ch.window->out_lo}, {"out_hi", ch.window->out_hi},
                                    {"in_lo", ch.window->in_lo},   {"in_hi", ch.window->in_hi}};
-        else
-          cj["register_window"] = nullptr;
+        else cj["register_window"] = nullptr;
         chans.push_back(std::move(cj));
       }
       x["channels"] = std::move(chans);
@@ -76,7 +78,10 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
         if (!bits) continue;
         for (const auto& e : map_entries(L, input)) {
           if (e.position != t.position) continue;
-          json d = {{"byte", e.offset}, {"bit", e.bit}, {"bits", bits}, {"range", bit_range(e)},
+          json d = {{"byte", e.offset},
+                    {"bit", e.bit},
+                    {"bits", bits},
+                    {"range", bit_range(e)},
                     {"digital_bit", e.bit_offset}};
           if (p.modbus) {
             d["modbus_register"] = base_register(input) + e.offset / 2;
@@ -92,6 +97,5 @@ nlohmann::json map_json(const StationLayout& L, const CouplerProfile& p) {
   j["terminals"] = std::move(terms);
   return j;
 }
-
 
 }  // namespace kscfg

@@ -1,10 +1,9 @@
 // The map as text: the station table and the per-terminal annex view (kscfg map, map -t POS).
-#include "kscfg/station/map.hpp"
-
 #include <fmt/format.h>
 
 #include <algorithm>
 
+#include "kscfg/station/map.hpp"
 #include "map_detail.hpp"
 
 namespace kscfg {
@@ -38,7 +37,10 @@ void table_section(std::string& out, const StationLayout& L, const CouplerProfil
     std::string offset, size, pos, type, ch, reg, content;
   };
   std::vector<Row> rows;
-  rows.push_back({"offset", "size", "pos", "type", "ch", p.modbus ? "register" : p.ads ? "ADS group:offset" : "",
+  rows.push_back({"offset", "size", "pos", "type", "ch",
+                  p.modbus ? "register"
+                  : p.ads  ? "ADS group:offset"
+                           : "",
                   "content"});
   auto ads = [&](std::size_t offset) {
     return fmt::format("0x{:04X}:{}", input ? kAdsInputGroup : kAdsOutputGroup, offset);
@@ -107,13 +109,15 @@ std::string render_table(const StationLayout& L, const CouplerProfile& p) {
     out += '\n';
   }
   if (p.modbus)
-    out += fmt::format("\nModbus: input register n = input bytes 2n (low) and 2n+1 (high) at 0x{:04X}+n; outputs at "
-                       "0x{:04X}+n; discrete inputs and coils count from the first digital bit.\n",
-                       kModbusInputBase, kModbusOutputBase);
+    out += fmt::format(
+        "\nModbus: input register n = input bytes 2n (low) and 2n+1 (high) at 0x{:04X}+n; outputs at "
+        "0x{:04X}+n; discrete inputs and coils count from the first digital bit.\n",
+        kModbusInputBase, kModbusOutputBase);
   if (p.ads)
-    out += fmt::format("\nADS: port {}, index group 0x{:04X} (inputs) or 0x{:04X} (outputs), index offset = the byte "
-                       "offset (0..511), length in bytes; a digital terminal's bits are read with their bytes.\n",
-                       kAdsImagePort, kAdsInputGroup, kAdsOutputGroup);
+    out += fmt::format(
+        "\nADS: port {}, index group 0x{:04X} (inputs) or 0x{:04X} (outputs), index offset = the byte "
+        "offset (0..511), length in bytes; a digital terminal's bits are read with their bytes.\n",
+        kAdsImagePort, kAdsInputGroup, kAdsOutputGroup);
   return out;
 }
 
@@ -145,14 +149,14 @@ void annex_table(std::string& out, const std::vector<ImageByte>& bytes, std::siz
     wh = std::max(wh, r.high.size());
     wl = std::max(wl, r.low.size());
   }
-  std::string head = fmt::format("    {:<10}  {:<{}}  {:<{}}  {}", "I/O offset", "high byte", wh, "low byte", wl,
-                                 "image bytes");
+  std::string head =
+      fmt::format("    {:<10}  {:<{}}  {:<{}}  {}", "I/O offset", "high byte", wh, "low byte", wl, "image bytes");
   if (p.modbus) head += both ? "   registers (in / out)" : "   register";
   out += head + '\n';
   for (const auto& r : rows) {
     std::size_t b0 = base + 2 * r.offset;
-    std::string line = fmt::format("    {:<10}  {:<{}}  {:<{}}  {:<11}", r.offset, r.high, wh, r.low, wl,
-                                   byte_range(b0, b0 + 1));
+    std::string line =
+        fmt::format("    {:<10}  {:<{}}  {:<{}}  {:<11}", r.offset, r.high, wh, r.low, wl, byte_range(b0, b0 + 1));
     if (p.modbus) {
       line += "   ";
       if (both) line += register_range(true, b0, b0 + 1) + " / " + register_range(false, b0, b0 + 1);
@@ -188,8 +192,8 @@ std::string render_terminal(const StationLayout& L, const CouplerProfile& p, uns
         out += fmt::format("  {}: {} bit{} at {}", input ? "inputs" : "outputs", e.size, e.size == 1 ? "" : "s",
                            bit_range(e));
         if (p.modbus)
-          out += fmt::format(" (register {}, {})", register_range(input, e.offset, (e.offset * 8 + e.bit + e.size - 1) / 8),
-                             bit_numbers(e));
+          out += fmt::format(" (register {}, {})",
+                             register_range(input, e.offset, (e.offset * 8 + e.bit + e.size - 1) / 8), bit_numbers(e));
         if (p.ads)
           out += fmt::format(" (ADS port {}, index group 0x{:04X}, offset {})", kAdsImagePort,
                              input ? kAdsInputGroup : kAdsOutputGroup, e.offset);
@@ -201,9 +205,9 @@ std::string render_terminal(const StationLayout& L, const CouplerProfile& p, uns
   out += fmt::format("  format {}; inputs {} bytes at {}, outputs {} bytes at {}\n", t.format, t.in_size, t.in_offset,
                      t.out_size, t.out_offset);
   if (p.ads)
-    out += fmt::format("  ADS port {}: index group 0x{:04X} offset {} ({} bytes), 0x{:04X} offset {} ({} bytes)\n",
-                       kAdsImagePort, kAdsInputGroup, t.in_offset, t.in_size, kAdsOutputGroup, t.out_offset,
-                       t.out_size);
+    out +=
+        fmt::format("  ADS port {}: index group 0x{:04X} offset {} ({} bytes), 0x{:04X} offset {} ({} bytes)\n",
+                    kAdsImagePort, kAdsInputGroup, t.in_offset, t.in_size, kAdsOutputGroup, t.out_offset, t.out_size);
   out += "  (I/O offset in words from the terminal's first byte, as in the manuals' annex tables)\n";
   for (std::size_t c = 0; c < t.channels.size(); ++c) {
     const auto& ch = t.channels[c];
@@ -220,10 +224,11 @@ std::string render_terminal(const StationLayout& L, const CouplerProfile& p, uns
       }
     }
     if (ch.window)
-      out += fmt::format("  {}register communication: control byte {} / status byte {}, value low byte {} / {}, high "
-                         "byte {} / {} (output / input image)\n",
-                         chn, ch.window->ctrl, ch.window->status, ch.window->out_lo, ch.window->in_lo,
-                         ch.window->out_hi, ch.window->in_hi);
+      out += fmt::format(
+          "  {}register communication: control byte {} / status byte {}, value low byte {} / {}, high "
+          "byte {} / {} (output / input image)\n",
+          chn, ch.window->ctrl, ch.window->status, ch.window->out_lo, ch.window->in_lo, ch.window->out_hi,
+          ch.window->in_hi);
     else if (t.type->has_registers)
       out += fmt::format("  {}no register communication: the control/status byte is not mapped\n", chn);
   }

@@ -19,7 +19,8 @@ unsigned position_of(const std::string& text, const std::string& whole) {
   if (text.empty() || !std::all_of(text.begin(), text.end(), [](char c) { return std::isdigit((unsigned char)c); }))
     throw Error(Exit::usage, fmt::format("invalid terminal selection '{}'", whole), kAccepted);
   unsigned v = static_cast<unsigned>(parse_uint(text, 255, "terminal position"));
-  if (v == 0) throw Error(Exit::usage, fmt::format("invalid terminal position '0' in '{}': positions start at 1", whole));
+  if (v == 0)
+    throw Error(Exit::usage, fmt::format("invalid terminal position '0' in '{}': positions start at 1", whole));
   return v;
 }
 
@@ -47,7 +48,8 @@ TerminalSelection parse_terminal_selection(const std::string& text) {
   while (start <= text.size()) {
     auto comma = text.find(',', start);
     std::string item = text.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (item.empty()) throw Error(Exit::usage, fmt::format("invalid terminal selection '{}': an empty item", text), kAccepted);
+    if (item.empty())
+      throw Error(Exit::usage, fmt::format("invalid terminal selection '{}': an empty item", text), kAccepted);
     if (item == "all") {
       s.all = true;
     } else if (std::isdigit(static_cast<unsigned char>(item[0]))) {
@@ -58,7 +60,8 @@ TerminalSelection parse_terminal_selection(const std::string& text) {
       } else {
         unsigned a = position_of(item.substr(0, dash), text), b = position_of(item.substr(dash + 1), text);
         if (b < a)
-          throw Error(Exit::usage, fmt::format("invalid terminal range '{}': {} comes after {}", item, a, b), kAccepted);
+          throw Error(Exit::usage, fmt::format("invalid terminal range '{}': {} comes after {}", item, a, b),
+                      kAccepted);
         s.ranges.emplace_back(a, b);
       }
     } else if (std::all_of(item.begin(), item.end(),

@@ -23,8 +23,8 @@ unsigned SerialImage::max_in() const {
 }
 
 std::string SerialImage::describe() const {
-  return fmt::format("{} format, {} data bytes, control/status {} {}", format, out_data.size(),
-                     word ? "word" : "byte", word ? "CT/ST + OL/IL" : ctrl.name);
+  return fmt::format("{} format, {} data bytes, control/status {} {}", format, out_data.size(), word ? "word" : "byte",
+                     word ? "CT/ST + OL/IL" : ctrl.name);
 }
 
 namespace {
@@ -87,9 +87,7 @@ std::optional<SerialImage> find_serial_image(const ChannelImage& ci, const std::
 // ---------------------------------------------------------------------------------------------
 // Line settings
 
-std::string LineSettings::describe() const {
-  return fmt::format("{} {}{}{}", baud, data_bits, parity, stop_bits);
-}
+std::string LineSettings::describe() const { return fmt::format("{} {}{}{}", baud, data_bits, parity, stop_bits); }
 
 LineSettings line_settings(const TerminalType& type, const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
   LineSettings ls;

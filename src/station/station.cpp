@@ -1,16 +1,16 @@
 #include "kscfg/station/station.hpp"
 
 #include <fmt/format.h>
+#include <toml++/toml.h>
 
 #include <algorithm>
 #include <fstream>
 #include <sstream>
-#include <toml++/toml.h>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "kscfg/catalog/params.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/params.hpp"
 
 namespace kscfg {
 
@@ -28,9 +28,8 @@ MappingSettings resolve_settings(const CouplerProfile& p, std::optional<bool> co
   auto apply = [&](bool& field, std::optional<bool> v, const char* key, const char* label) {
     if (!v) return;
     if (p.is_fixed(key) && *v != field)
-      throw Error(Exit::usage,
-                  fmt::format("the {} always has {} {}; it cannot be switched {}", p.name, label,
-                              field ? "on" : "off", *v ? "on" : "off"));
+      throw Error(Exit::usage, fmt::format("the {} always has {} {}; it cannot be switched {}", p.name, label,
+                                           field ? "on" : "off", *v ? "on" : "off"));
     field = *v;
   };
   apply(s.complete_evaluation, complete_evaluation, "complete_evaluation", "complete evaluation");
@@ -143,7 +142,8 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
     ch.params.push_back(std::move(s));
   }
   // In the order of the file (the TOML table is sorted by key): that is the order they apply in.
-  std::stable_sort(ch.params.begin(), ch.params.end(), [](const Setting& a, const Setting& b) { return a.line < b.line; });
+  std::stable_sort(ch.params.begin(), ch.params.end(),
+                   [](const Setting& a, const Setting& b) { return a.line < b.line; });
 }
 
 // Channel identity (man 5 kscfg-station): the keys under [[terminal]] configure channel 1; each
@@ -186,8 +186,9 @@ void parse_channels(std::string_view origin, const toml::table& t, const Termina
       if (!v) fail_at(origin, n, Exit::file, "'channel' must be an integer, the channel number (1 is the first)");
       if (*v < 1 || *v > static_cast<std::int64_t>(type.channels))
         fail_at(origin, n, Exit::usage,
-                fmt::format("channel {} does not exist: {} has {}", *v, type.type,
-                            type.channels == 1 ? std::string("1 channel") : fmt::format("channels 1 to {}", type.channels)));
+                fmt::format(
+                    "channel {} does not exist: {} has {}", *v, type.type,
+                    type.channels == 1 ? std::string("1 channel") : fmt::format("channels 1 to {}", type.channels)));
       ch = static_cast<unsigned>(*v - 1);
     } else {
       ch = next++;
@@ -241,7 +242,8 @@ StationSpec parse_station(std::string_view text, std::string_view origin, const 
       else if (k.str() == "word-alignment") spec.word_alignment = *b;
       else
         fail_at(origin, &v, Exit::file,
-                fmt::format("unknown mapping setting {} (complete-evaluation, motorola, word-alignment)", quote_input(k.str())));
+                fmt::format("unknown mapping setting {} (complete-evaluation, motorola, word-alignment)",
+                            quote_input(k.str())));
       try {
         (void)spec.settings();  // a setting the coupler fixes (BK2000) is an error here, with its line
       } catch (const Error& e) {
@@ -435,8 +437,8 @@ StationSpec default_station() {
   return s;
 }
 
-std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type,
-                                                                   const TerminalSpec* spec, unsigned channel) {
+std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type, const TerminalSpec* spec,
+                                                                   unsigned channel) {
   auto regs = type.defaults();
   if (!spec || channel >= spec->channels.size()) return regs;
   const ChannelSpec& ch = spec->channels[channel];

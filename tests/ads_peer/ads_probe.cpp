@@ -32,7 +32,9 @@ int main(int argc, char** argv) {
   std::erase_if(a, [&](const std::string& s) { return s == "--sequential" ? (sequential = true) : false; });
   try {
     if (a.size() < 2) throw Error(Exit::usage, "usage: ads_probe URI read|write|table|info|exchange ...");
-    auto num = [&](std::size_t i, unsigned long long max) { return static_cast<unsigned>(parse_uint(a.at(i), max, "number")); };
+    auto num = [&](std::size_t i, unsigned long long max) {
+      return static_cast<unsigned>(parse_uint(a.at(i), max, "number"));
+    };
     AdsOptions o;
     o.response_timeout_ms = 3000;
     AdsClient client(ads_target(parse_port_uri(a[0]), a[0]), o);
@@ -47,11 +49,11 @@ int main(int argc, char** argv) {
       std::vector<std::uint16_t> v;
       if (sequential)
         for (const auto& x : addrs) v.push_back(access.read(x));
-      else
-        v = access.read_many(addrs);
+      else v = access.read_many(addrs);
       for (unsigned i = 0; i < count; ++i) std::cout << fmt::format("R{} 0x{:04X}\n", first + i, v[i]);
     } else if (cmd == "write") {
-      access.write({num(2, 255), num(3, 3), num(4, 63)}, static_cast<std::uint16_t>(parse_uint(a.at(5), 0xFFFF, "value")));
+      access.write({num(2, 255), num(3, 3), num(4, 63)},
+                   static_cast<std::uint16_t>(parse_uint(a.at(5), 0xFFFF, "value")));
     } else if (cmd == "table") {
       unsigned table = num(2, 127), first = num(3, 255), count = num(4, 256);
       auto v = access.read_table(table, first, count);

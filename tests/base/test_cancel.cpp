@@ -1,8 +1,8 @@
 // The cancellation token and its shield (base/cancel.hpp).
-#include <catch2/catch.hpp>
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <csignal>
 #include <string>
@@ -19,9 +19,7 @@ namespace {
 // A pipe the token's notes go to, read without blocking.
 struct NotePipe {
   int fd[2] = {-1, -1};
-  NotePipe() {
-    REQUIRE(::pipe2(fd, O_NONBLOCK | O_CLOEXEC) == 0);
-  }
+  NotePipe() { REQUIRE(::pipe2(fd, O_NONBLOCK | O_CLOEXEC) == 0); }
   ~NotePipe() {
     ::close(fd[0]);
     ::close(fd[1]);
@@ -129,9 +127,7 @@ TEST_CASE("a note says the first signal at once, from the handler", "[cancel]") 
   t.set_note_fd(p.fd[1]);
   {
     CancelNote n(&t, "rolling back the change of terminal 1");
-    {
-      CancelNote inner(&t, "rolling back terminals 1-12");
-    }
+    { CancelNote inner(&t, "rolling back terminals 1-12"); }
     // The note before came back.
     g_raised = &t;
     auto old = std::signal(SIGUSR1, raise_handler);

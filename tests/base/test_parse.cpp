@@ -37,7 +37,8 @@ TEST_CASE("register values", "[parse]") {
   CHECK(parse_value("0b111") == 7);
   CHECK(parse_value("0xFFFF") == 0xFFFF);
   CHECK(parse_value("65535") == 0xFFFF);
-  for (const char* bad : {"0x10000", "65536", "12abc", "-1", "", "0b102", "0xG", "1.5", "7 ", "99999999999999999999999"})
+  for (const char* bad :
+       {"0x10000", "65536", "12abc", "-1", "", "0b102", "0xG", "1.5", "7 ", "99999999999999999999999"})
     CHECK(code_of([&] { parse_value(bad); }) == Exit::usage);
 }
 

@@ -2,7 +2,6 @@
 // and the message of the kscfg::Error a call throws.
 #pragma once
 #include <catch2/catch.hpp>
-
 #include <exception>
 #include <string>
 

@@ -4,20 +4,19 @@
 // encode/decode round trips, and the catalog description parser's error messages. The catalog as
 // a whole and its format extensions are in test_catalog_format.cpp.
 #include <catch2/catch.hpp>
-
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "catalog_support.hpp"
-#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/catalog/params.hpp"
 
 using namespace kscfg;
-using proto::Storage;
 using kscfg::test::cat;
 using kscfg::test::error_of;
+using proto::Storage;
 
 namespace {
 
@@ -46,13 +45,25 @@ TEST_CASE("KL6001 register defaults match the seed's register table", "[catalog]
   // Rows with a numeric default. Not listed: R0, R1, R6, R15, R31 ("variable"), R9 ("0x????"),
   // R16 ("specific").
   std::vector<RegRow> rows = {
-      {2, 0x0000},  {3, 0x0000},  {4, 0x0000},  {5, 0x0000},  {7, 0x0000},  {8, 6001},
-      {10, 0x0218}, {11, 0x0130}, {12, 0x3030}, {13, 0x0000}, {14, 0x0000}, {18, 0x0080},
-      {32, 0x0006}, {33, 0x0003},
+      {2, 0x0000},
+      {3, 0x0000},
+      {4, 0x0000},
+      {5, 0x0000},
+      {7, 0x0000},
+      {8, 6001},
+      {10, 0x0218},
+      {11, 0x0130},
+      {12, 0x3030},
+      {13, 0x0000},
+      {14, 0x0000},
+      {18, 0x0080},
+      {32, 0x0006},
+      {33, 0x0003},
       // R34: the seed's table says 0x0002, the register description says [0x0003]. docs/design.md
       // decision 8: RTS/CTS (bit 0) and the alternative format (bit 1) are active at delivery,
       // so the project uses 0x0003.
-      {34, 0x0003}, {35, 0x0003},
+      {34, 0x0003},
+      {35, 0x0003},
   };
   for (unsigned r = 17; r <= 30; ++r)
     if (r != 18) rows.push_back({r, 0x0000});
@@ -71,8 +82,8 @@ TEST_CASE("KL6001 register defaults match the seed's register table", "[catalog]
 TEST_CASE("KL6001 storage classes and access match the seed's register table", "[catalog]") {
   const TerminalType& t = cat().get("KL6001");
   // Storage medium column. R2-R5, R7, R14 have an empty cell in the table: not checked.
-  std::vector<std::pair<unsigned, Storage>> st = {{0, Storage::ram},  {1, Storage::ram},  {6, Storage::ram},
-                                                  {15, Storage::ram}, {31, Storage::ram}};
+  std::vector<std::pair<unsigned, Storage>> st = {
+      {0, Storage::ram}, {1, Storage::ram}, {6, Storage::ram}, {15, Storage::ram}, {31, Storage::ram}};
   for (unsigned r = 8; r <= 13; ++r) st.push_back({r, Storage::rom});
   for (unsigned r = 16; r <= 30; ++r) st.push_back({r, Storage::seerom});
   for (unsigned r = 32; r <= 47; ++r) st.push_back({r, Storage::seerom});
@@ -225,9 +236,9 @@ TEST_CASE("KL6001 baud: a rate outside the list needs the opt-in, stays within t
 TEST_CASE("KL6001 R33 frame codes (bits 2..0, bit 3 = 2 stop bits)", "[catalog]") {
   const ParamDef& p = param("KL6001", "frame");
   CHECK(p.reg == 33);
-  std::vector<std::pair<std::string, std::uint16_t>> codes = {
-      {"7E1", 0x1}, {"7O1", 0x2}, {"8N1", 0x3}, {"8E1", 0x4}, {"8O1", 0x5},
-      {"7E2", 0x9}, {"7O2", 0xA}, {"8N2", 0xB}, {"8E2", 0xC}, {"8O2", 0xD}};
+  std::vector<std::pair<std::string, std::uint16_t>> codes = {{"7E1", 0x1}, {"7O1", 0x2}, {"8N1", 0x3}, {"8E1", 0x4},
+                                                              {"8O1", 0x5}, {"7E2", 0x9}, {"7O2", 0xA}, {"8N2", 0xB},
+                                                              {"8E2", 0xC}, {"8O2", 0xD}};
   for (const auto& [name, code] : codes) {
     INFO(name);
     CHECK(encode_param(p, name, 0x0000) == code);
@@ -242,8 +253,8 @@ TEST_CASE("KL6001 R33 frame codes (bits 2..0, bit 3 = 2 stop bits)", "[catalog]"
 }
 
 TEST_CASE("KL6001 R34 feature bits by name", "[catalog]") {
-  std::vector<std::pair<const char*, unsigned>> bits = {{"rts-cts", 0},       {"alternative-format", 1},
-                                                        {"delayed-status", 2}, {"xon-xoff-send", 3},
+  std::vector<std::pair<const char*, unsigned>> bits = {{"rts-cts", 0},          {"alternative-format", 1},
+                                                        {"delayed-status", 2},   {"xon-xoff-send", 3},
                                                         {"xon-xoff-receive", 4}, {"point-to-point", 5}};
   for (auto [name, bit] : bits) {
     INFO(name);
@@ -367,23 +378,23 @@ namespace {
 
 // A valid user description; lines are numbered in the comments.
 const char* kGood =
-    "type = \"KL9999\"\n"                       // 1
-    "title = \"Test terminal\"\n"               // 2
-    "family = \"serial\"\n"                     // 3
-    "r8 = 9999\n"                               // 4
-    "version = \"1A\"\n"                        // 5
-    "[registers]\n"                             // 6
+    "type = \"KL9999\"\n"                                                                   // 1
+    "title = \"Test terminal\"\n"                                                           // 2
+    "family = \"serial\"\n"                                                                 // 3
+    "r8 = 9999\n"                                                                           // 4
+    "version = \"1A\"\n"                                                                    // 5
+    "[registers]\n"                                                                         // 6
     "R32 = { name = \"mode\", default = 0x0005, storage = \"seerom\", access = \"rw\" }\n"  // 7
-    "[[param]]\n"                               // 8
-    "name = \"mode\"\n"                         // 9
-    "register = 32\n"                           // 10
-    "mask = 0x0007\n"                           // 11
-    "kind = \"enum\"\n"                         // 12
-    "value = [ { name = \"a\", code = 5 }, { name = \"b\", code = 6 } ]\n"  // 13
-    "[[image]]\n"                               // 14
-    "name = \"standard\"\n"                     // 15
-    "ctst = \"always\"\n"                       // 16
-    "elements = [\"ctst\", \"word D0 D1\"]\n";  // 17
+    "[[param]]\n"                                                                           // 8
+    "name = \"mode\"\n"                                                                     // 9
+    "register = 32\n"                                                                       // 10
+    "mask = 0x0007\n"                                                                       // 11
+    "kind = \"enum\"\n"                                                                     // 12
+    "value = [ { name = \"a\", code = 5 }, { name = \"b\", code = 6 } ]\n"                  // 13
+    "[[image]]\n"                                                                           // 14
+    "name = \"standard\"\n"                                                                 // 15
+    "ctst = \"always\"\n"                                                                   // 16
+    "elements = [\"ctst\", \"word D0 D1\"]\n";                                              // 17
 
 std::string add_error(const std::string& text) {
   Catalog c;

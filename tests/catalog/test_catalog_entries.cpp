@@ -5,13 +5,11 @@
 // Each example is described, with its source, in docs/research/mapping-examples.md (examples 1, 3b,
 // 5, 6, 7). The earlier examples (2a-2d, 3a) are in tests/station/test_map.cpp. Where a manual's table
 // disagrees with the rules of docs/design.md section 3, the comment says so and the test follows the rules.
-#include <catch2/catch.hpp>
-
-#include <nlohmann/json.hpp>
-
 #include <algorithm>
+#include <catch2/catch.hpp>
 #include <cctype>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <string>
 #include <vector>
@@ -171,21 +169,20 @@ TEST_CASE("catalog entries: every file is consistent", "[catalog][entries]") {
 
     // The family agrees with the order number's range.
     const std::string head = type.substr(0, 3);
-    static const std::map<std::string, std::set<std::string>> families = {
-        {"KL1", {"digital-in", "counter"}},
-        {"KL2", {"digital-out", "other"}},
-        {"KL3", {"analog-in"}},
-        {"KL4", {"analog-out"}},
-        {"KL5", {"encoder", "counter", "other"}},
-        {"KL6", {"serial", "other"}},
-        {"KL8", {"other"}},
-        {"KL9", {"power", "end", "other"}},
-        {"KM1", {"digital-in"}},
-        {"KM2", {"digital-out", "other"}},
-        {"KM3", {"analog-in"}},
-        {"KM4", {"analog-out"}},
-        {"KM6", {"other"}},
-        {"CX-", {"serial"}}};
+    static const std::map<std::string, std::set<std::string>> families = {{"KL1", {"digital-in", "counter"}},
+                                                                          {"KL2", {"digital-out", "other"}},
+                                                                          {"KL3", {"analog-in"}},
+                                                                          {"KL4", {"analog-out"}},
+                                                                          {"KL5", {"encoder", "counter", "other"}},
+                                                                          {"KL6", {"serial", "other"}},
+                                                                          {"KL8", {"other"}},
+                                                                          {"KL9", {"power", "end", "other"}},
+                                                                          {"KM1", {"digital-in"}},
+                                                                          {"KM2", {"digital-out", "other"}},
+                                                                          {"KM3", {"analog-in"}},
+                                                                          {"KM4", {"analog-out"}},
+                                                                          {"KM6", {"other"}},
+                                                                          {"CX-", {"serial"}}};
     auto fam = families.find(head);
     REQUIRE(fam != families.end());
     CHECK(fam->second.count(t->family) == 1);
@@ -264,8 +261,8 @@ TEST_CASE("mapping example 1: BK8000 13-position station with the manual's types
 // KL1501, KL3xx2, KL4xx2, KL9010, with the BK9000 defaults (complete evaluation, word alignment).
 // KL1xx4/KL2xx2/KL3xx2/KL4xx2 are modelled by KL1104, KL2012, KL3002 and KL4002.
 TEST_CASE("mapping example 3b: BK9000 sample 2 with the KL1501 counter", "[entries][map]") {
-  StationSpec s = station("BK9000", {"KL1104", "KL1104", "KL1104", "KL1104", "KL2012", "KL2012", "KL1501",
-                                     "KL3002", "KL4002", "KL9010"});
+  StationSpec s = station(
+      "BK9000", {"KL1104", "KL1104", "KL1104", "KL1104", "KL2012", "KL2012", "KL1501", "KL3002", "KL4002", "KL9010"});
   StationLayout L = compute_layout(s, cat());
   // KL1501: registers 0x0000-0x0002 and 0x0800-0x0802 = bytes 0-5: CB/SB, reserved, 4 data bytes.
   const auto& counter = L.terminal(7);
@@ -309,7 +306,8 @@ TEST_CASE("mapping example 3b: BK9000 sample 2 with the KL1501 counter", "[entri
 // terminals' part follows the BK9000 rules (complete evaluation, word alignment, Intel) exactly.
 // kscfg has no BK1120 profile; the BK9000 profile has the same settings.
 TEST_CASE("mapping example 5: BK1120 KL2012, KL1408, KL3062, KL1104, KL1408", "[entries][map]") {
-  StationLayout L = compute_layout(station("BK9000", {"KL2012", "KL1408", "KL3062", "KL1104", "KL1408", "KL9010"}), cat());
+  StationLayout L =
+      compute_layout(station("BK9000", {"KL2012", "KL1408", "KL3062", "KL1104", "KL1408", "KL9010"}), cat());
   const auto& ai = L.terminal(3);
   // Manual words 1-4: status byte ch1 + dummy, process data ch1, status byte ch2 + dummy, data ch2.
   CHECK(bytes_of(ai.channels[0].in) == "0:CT/ST 1:reserved 2:D0 3:D1");

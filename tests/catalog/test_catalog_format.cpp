@@ -3,7 +3,6 @@
 // values, and the format extensions of catalog/FORMAT.md (dword, direction, channels without
 // registers, scale).
 #include <catch2/catch.hpp>
-
 #include <string>
 #include <vector>
 
@@ -147,8 +146,9 @@ const char* kHead = "type = \"KL9998\"\ntitle = \"t\"\nfamily = \"counter\"\nr8 
 
 TEST_CASE("catalog: a dword is swapped as a whole by the Motorola format", "[catalog][format]") {
   Catalog c;
-  c.add_text("t.toml", std::string(kHead) + "[[image]]\nname = \"s\"\nctst = \"always\"\n"
-                                            "elements = [\"ctst\", \"dword A B C D\", \"byte E\"]\n");
+  c.add_text("t.toml", std::string(kHead) +
+                           "[[image]]\nname = \"s\"\nctst = \"always\"\n"
+                           "elements = [\"ctst\", \"dword A B C D\", \"byte E\"]\n");
   const TerminalType& t = c.get("KL9998");
   const ImageFormat& f = t.images.at(0);
   REQUIRE(f.in.at(1).kind == Element::Kind::dword);
@@ -162,17 +162,21 @@ TEST_CASE("catalog: a dword is swapped as a whole by the Motorola format", "[cat
   CHECK(m.in.at(1).index == 4);
   CHECK(m.in.at(4).index == 1);
   CHECK(m.in_struct == 6);
-  std::string err = error_of([] {
-    Catalog b;
-    b.add_text("bad.toml", std::string(kHead) + "[[image]]\nctst = \"always\"\nelements = [\"ctst\", \"dword A B C\"]\n");
-  }, Exit::file);
+  std::string err = error_of(
+      [] {
+        Catalog b;
+        b.add_text("bad.toml",
+                   std::string(kHead) + "[[image]]\nctst = \"always\"\nelements = [\"ctst\", \"dword A B C\"]\n");
+      },
+      Exit::file);
   CHECK(err.find("dword B0 B1 B2 B3") != std::string::npos);
 }
 
 TEST_CASE("catalog: direction drops one side without the control/status byte", "[catalog][format]") {
   Catalog c;
-  c.add_text("t.toml", std::string(kHead) + "direction = \"in\"\n[[image]]\nctst = \"optional\"\n"
-                                            "elements = [\"ctst\", \"word D0 D1\"]\n");
+  c.add_text("t.toml", std::string(kHead) +
+                           "direction = \"in\"\n[[image]]\nctst = \"optional\"\n"
+                           "elements = [\"ctst\", \"word D0 D1\"]\n");
   const TerminalType& t = c.get("KL9998");
   CHECK(t.direction == Direction::in);
   auto regs = t.defaults();
@@ -187,29 +191,37 @@ TEST_CASE("catalog: direction drops one side without the control/status byte", "
   CHECK(cat().get("KL6001").direction == Direction::both);
   CHECK(cat().get("KL5001").direction == Direction::in);
   CHECK(cat().get("KL5001").family == "encoder");
-  std::string err = error_of([] {
-    Catalog b;
-    b.add_text("bad.toml", std::string(kHead) + "direction = \"sideways\"\n");
-  }, Exit::file);
+  std::string err = error_of(
+      [] {
+        Catalog b;
+        b.add_text("bad.toml", std::string(kHead) + "direction = \"sideways\"\n");
+      },
+      Exit::file);
   CHECK(err.find("direction") != std::string::npos);
 }
 
 TEST_CASE("catalog: channels up to 16 with registers, up to 256 without", "[catalog][format]") {
   Catalog c;
-  c.add_text("km.toml", "type = \"KM9999\"\ntitle = \"t\"\nfamily = \"digital-in\"\nregisters = false\n"
-                        "channels = 64\n[[image]]\nbits_in = 64\n");
+  c.add_text("km.toml",
+             "type = \"KM9999\"\ntitle = \"t\"\nfamily = \"digital-in\"\nregisters = false\n"
+             "channels = 64\n[[image]]\nbits_in = 64\n");
   CHECK(c.get("KM9999").channels == 64);
   CHECK(cat().get("KM1008").channels == 64);
   CHECK(cat().get("KM2004").channels == 32);
-  std::string err = error_of([] {
-    Catalog b;
-    b.add_text("bad.toml", std::string(kHead) + "channels = 17\n");
-  }, Exit::file);
+  std::string err = error_of(
+      [] {
+        Catalog b;
+        b.add_text("bad.toml", std::string(kHead) + "channels = 17\n");
+      },
+      Exit::file);
   CHECK(err.find("1..16") != std::string::npos);
-  err = error_of([] {
-    Catalog b;
-    b.add_text("bad.toml", "type = \"KM9999\"\ntitle = \"t\"\nfamily = \"digital-in\"\nregisters = false\nchannels = 257\n");
-  }, Exit::file);
+  err = error_of(
+      [] {
+        Catalog b;
+        b.add_text("bad.toml",
+                   "type = \"KM9999\"\ntitle = \"t\"\nfamily = \"digital-in\"\nregisters = false\nchannels = 257\n");
+      },
+      Exit::file);
   CHECK(err.find("1..256") != std::string::npos);
 }
 
@@ -229,7 +241,7 @@ TEST_CASE("catalog: scale turns an analog data word into a value with a unit", "
   const Scale& bip = *cat().get("KL3002").scale;  // -10..+10 V
   CHECK(bip.value(0x8001) == Approx(-10.0));
   CHECK(bip.word(-10.0) == 0x8001);
-  CHECK(bip.word(-99.0) == 0x8000);  // clamped to the word
+  CHECK(bip.word(-99.0) == 0x8000);              // clamped to the word
   const Scale& pt = *cat().get("KL3202").scale;  // 1/10 degree a digit
   CHECK(pt.unit == "°C");
   CHECK(pt.value(0xFC18) == Approx(-100.0));  // KL3224 table: -100.0 degrees = 0xFC18
@@ -248,13 +260,14 @@ TEST_CASE("catalog: scale turns an analog data word into a value with a unit", "
                           "scale = { raw = [0, 100], value = [1.0, 1.0], unit = \"V\" }",
                           "scale = { raw = [0, 100], value = [0.0, 1.0] }",
                           "scale = { raw = [0.5, 100], value = [0.0, 1.0], unit = \"V\" }",
-                          "scale = { raw = [0, 100], value = [0.0, 1.0], unit = \"V\", offset = 3 }",
-                          "scale = 3"}) {
+                          "scale = { raw = [0, 100], value = [0.0, 1.0], unit = \"V\", offset = 3 }", "scale = 3"}) {
     INFO(bad);
-    std::string err = error_of([&] {
-      Catalog b;
-      b.add_text("bad.toml", std::string(kHead) + bad + "\n");
-    }, Exit::file);
+    std::string err = error_of(
+        [&] {
+          Catalog b;
+          b.add_text("bad.toml", std::string(kHead) + bad + "\n");
+        },
+        Exit::file);
     CHECK(err.find("bad.toml:") != std::string::npos);
   }
 }

@@ -1,12 +1,12 @@
 // kscfg over ads:// end to end against `kscfg serve --ads` (a child process): the station from
 // table 9, the image over port 300, kscfg coupler, errors with their exit codes, two clients at
 // once, SIGINT while the coupler waits for a mute terminal, a server killed under a client.
-#include <catch2/catch.hpp>
 #include <poll.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -44,7 +44,9 @@ TEST_CASE("kscfg over ads://: the station from table 9, data over port 300, coup
   CHECK(j.at("settings").at(0).at("value") == "type number 9000 (BK9000)");
   bool watchdog = false;
   for (const auto& x : j.at("settings"))
-    if (x.at("name") == "ads-watchdog") watchdog = x.at("value") == "1000 ms" && x.at("address").get<std::string>().find("table 100") != std::string::npos;
+    if (x.at("name") == "ads-watchdog")
+      watchdog =
+          x.at("value") == "1000 ms" && x.at("address").get<std::string>().find("table 100") != std::string::npos;
   CHECK(watchdog);
   // A register through the image handshake on port 300, written and read back.
   r = run_kscfg({"--port", s.uri, "-t", "1", "write", "R32", "0x0007"}, env);
@@ -107,7 +109,8 @@ TEST_CASE("kscfg over ads://: the routing table names the NetId to add, and data
   CHECK(r.err.find("1000 ms") != std::string::npos);
 }
 
-TEST_CASE("kscfg over ads://: SIGINT ends a wait on the coupler at once, and a server killed under a client is an error") {
+TEST_CASE(
+    "kscfg over ads://: SIGINT ends a wait on the coupler at once, and a server killed under a client is an error") {
   TempDir d;
   std::string state = d.file("emu.json");
   // Every terminal register access on port 100 takes 60 s (the delay of the emulated K-bus applies

@@ -2,7 +2,6 @@
 // cause ("Broken pipe", "Connection reset by peer", exit 3 at once); now it says the ADS server is
 // full and tries again within the busy wait a busy Modbus server gets, as over Modbus.
 #include <catch2/catch.hpp>
-
 #include <regex>
 
 #include "kscfg/link/ads_client.hpp"

@@ -3,7 +3,6 @@
 // coupler relocks the channel (if R31 still holds the code word), whatever terminal it works on;
 // a deliberate 'kscfg unlock' that finished stays unlocked. Against `kscfg serve --ads`.
 #include <catch2/catch.hpp>
-
 #include <filesystem>
 
 #include "support.hpp"

@@ -3,7 +3,6 @@
 // image placement and --json shape; a station file written by it drives later commands.
 #include <algorithm>
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 
 #include "support.hpp"
@@ -30,7 +29,8 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     CHECK(r.out.find("watchdog  1000 ms (ADS watchdog, table 100 register 14)") != std::string::npos);
     CHECK(r.out.find("4    KL3022  3022") != std::string::npos);
     // The map's notation; a digital terminal as table 9 gives it, with the catalog types that fit.
-    CHECK(r.out.find("5    digital -      standard     in 48.0-48.3  digital, 4 inputs: KL1104, ") != std::string::npos);
+    CHECK(r.out.find("5    digital -      standard     in 48.0-48.3  digital, 4 inputs: KL1104, ") !=
+          std::string::npos);
     // The station file found drives commands: the KL3022's second channel at plug position 4.
     r = run_kscfg({"--port", s.uri, "--station", d.file("st.toml"), "-t", "4", "-c", "2", "read", "--raw", "R8"}, env);
     CHECK(r.out == "0x0BCE\n");

@@ -2,14 +2,13 @@
 // accesses) rolls back and relocks as over Modbus; the first Ctrl-C says at once what it undoes and
 // that a second one abandons it; a second Ctrl-C abandons the rollback and the error names the undo
 // file. End to end against `kscfg serve --ads` and `kscfg serve --tcp`.
-#include <catch2/catch.hpp>
-#include <regex>
-
 #include <signal.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <memory>
+#include <regex>
 #include <string>
 #include <vector>
 
@@ -57,8 +56,8 @@ struct Setup {
   }
   // R31 of every channel with registers reads 0x0000 (locked).
   void all_locked(const std::string& uri) const {
-    for (const auto& [pos, ch] : std::vector<std::pair<std::string, std::string>>{
-             {"1", "1"}, {"2", "1"}, {"3", "1"}, {"4", "1"}, {"4", "2"}}) {
+    for (const auto& [pos, ch] :
+         std::vector<std::pair<std::string, std::string>>{{"1", "1"}, {"2", "1"}, {"3", "1"}, {"4", "1"}, {"4", "2"}}) {
       Run r = at(uri, {"-t", pos, "-c", ch, "read", "--raw", "R31"});
       INFO("terminal " << pos << " channel " << ch << ": " << r.err);
       CHECK(r.out == "0x0000\n");

@@ -1,6 +1,5 @@
 // End-to-end: the kscfg binary against the emulator, as a user runs it.
 #include <catch2/catch.hpp>
-
 #include <filesystem>
 #include <future>
 #include <nlohmann/json.hpp>
@@ -8,17 +7,13 @@
 
 #include "support.hpp"
 
-using kscfg::test::run_kscfg;
-using kscfg::test::one_line_error;
 using kscfg::test::Emu;
+using kscfg::test::one_line_error;
 using kscfg::test::Run;
+using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
 
-namespace {
-
-
-
-}  // namespace
+namespace {}  // namespace
 
 TEST_CASE("info lists the default station", "[cli]") {
   Emu emu;

@@ -1,15 +1,15 @@
 // Completion in real shells: bash with Debian's bash-completion, zsh (compinit on a pty) and fish
 // (complete -C) run kscfg's generated scripts, which ask `kscfg __complete`; the candidates each
 // shell would offer are compared with what the command line means.
-#include <catch2/catch.hpp>
+#include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <set>
 #include <sstream>
 #include <thread>
-#include <unistd.h>
 
 #include "support.hpp"
 
@@ -31,8 +31,8 @@ struct Shells {
   std::string src = KSCFG_SOURCE_DIR;
   std::string env() const {
     std::string bin = std::filesystem::path(KSCFG_BIN).parent_path().string();
-    return "env HOME=" + home.path + " XDG_CONFIG_HOME=" + home.path + " XDG_DATA_HOME=" + home.path +
-           " PATH=" + bin + ":/usr/bin:/bin KSCFG_PORT=emu:" + emu.state + " ";
+    return "env HOME=" + home.path + " XDG_CONFIG_HOME=" + home.path + " XDG_DATA_HOME=" + home.path + " PATH=" + bin +
+           ":/usr/bin:/bin KSCFG_PORT=emu:" + emu.state + " ";
   }
   // Candidates of `shell` for `line`; fish and zsh give "VALUE\tDESC" / "VALUE -- DESC": the value
   // is the key, the whole line the value.
@@ -205,7 +205,8 @@ TEST_CASE("bash lists candidates in kscfg's order, not sorted as text (tmux)", "
   } kill{tmux + "kill-server 2>/dev/null"};
   write_text(sh.home.file("rc"), "source /usr/share/bash-completion/bash_completion\nsource " + sh.src +
                                      "/completions/kscfg.bash\nPS1='$ '\n");
-  run(tmux + "new-session -d -s c -x 120 -y 20 " + quote(sh.env() + "bash --noprofile --rcfile " + sh.home.file("rc") + " -i"));
+  run(tmux + "new-session -d -s c -x 120 -y 20 " +
+      quote(sh.env() + "bash --noprofile --rcfile " + sh.home.file("rc") + " -i"));
   auto pane = [&] { return run(tmux + "capture-pane -p -t c 2>/dev/null"); };
   auto wait_for = [&](const std::string& text) {
     for (int i = 0; i < 400; ++i) {  // bounded: 20 s

@@ -3,6 +3,7 @@
 // and a lock directory every user may write in that no user can use to block or fool kscfg (a
 // planted link, FIFO or directory is refused naming its owner; lock files 0644; another user's
 // lock file locked without trusting or rewriting its record).
+#include <fmt/format.h>
 #include <pwd.h>
 #include <signal.h>
 #include <sys/stat.h>
@@ -11,7 +12,6 @@
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <filesystem>
-#include <fmt/format.h>
 #include <functional>
 #include <memory>
 
@@ -62,9 +62,10 @@ std::string user_of(uid_t uid) {
 
 }  // namespace
 
-TEST_CASE("two names of one Modbus TCP coupler take one lock: a kscfg through localhost waits for one through "
-          "127.0.0.1 and names it",
-          "[sessions][lock][serve]") {
+TEST_CASE(
+    "two names of one Modbus TCP coupler take one lock: a kscfg through localhost waits for one through "
+    "127.0.0.1 and names it",
+    "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
   const std::string by_address = "tcp://127.0.0.1:" + s.port(), by_name = "tcp://localhost:" + s.port();
   auto first = holder({"--port", by_address}, lock_file("ip-127.0.0.1-" + s.port()));
@@ -91,8 +92,8 @@ TEST_CASE("two names of one ADS coupler take one lock: ads://localhost waits for
   auto first = holder({"--port", by_address}, lock_file("ip-127.0.0.1-" + s.port()));
   Run r = run_kscfg({"--port", by_name, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
   CHECK(r.rc == 11);
-  CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
-                                                by_address)));
+  CHECK_THAT(r.err, Catch::Contains(
+                        fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid, by_address)));
   first->signal(SIGINT);
   CHECK(first->wait() == 0);
   r = run_kscfg({"--port", by_name, "-t", "1", "read", "--raw", "R8"});
@@ -109,8 +110,8 @@ TEST_CASE("a serve on :: is one coupler through 127.0.0.1, ::1 and its wildcard 
     INFO(uri);
     Run r = run_kscfg({"--port", uri, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
     CHECK(r.rc == 11);  // waited for the holder through the other address (two locks before: read at once)
-    CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
-                                                  by_v4)));
+    CHECK_THAT(r.err, Catch::Contains(
+                          fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid, by_v4)));
   }
   first->signal(SIGINT);
   CHECK(first->wait() == 0);
@@ -137,9 +138,10 @@ TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][se
   CHECK(first->wait() == 0);
 }
 
-TEST_CASE("a lock name planted as a link, FIFO or directory is refused at once naming its owner, lock files are "
-          "0644 whatever the umask",
-          "[sessions][lock][serve]") {
+TEST_CASE(
+    "a lock name planted as a link, FIFO or directory is refused at once naming its owner, lock files are "
+    "0644 whatever the umask",
+    "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
   const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
   fs::create_directories(kscfg_lock_dir());
@@ -165,8 +167,8 @@ TEST_CASE("a lock name planted as a link, FIFO or directory is refused at once n
     CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(3));  // no wait, no hang
     CHECK(r.rc == 7);
     CHECK(one_line_error(r));
-    CHECK(r.err == "kscfg: error: the lock file " + lock + " of the coupler at " + s.srv->host_port() +
-                       " unit 1 is " + p.kind + " owned by " + user_of(other) +
+    CHECK(r.err == "kscfg: error: the lock file " + lock + " of the coupler at " + s.srv->host_port() + " unit 1 is " +
+                       p.kind + " owned by " + user_of(other) +
                        ", not a kscfg lock (remove it, or ask its owner to)\n");
     fs::remove(lock);
   }
@@ -214,9 +216,10 @@ TEST_CASE("another user's lock file is locked as it is: its record neither trust
   CHECK(first.wait() == 0);
 }
 
-TEST_CASE("serve --tcp --ads is one coupler by both ports: kscfg over ads:// waits for kscfg over tcp:// and the "
-          "other way round",
-          "[sessions][lock][serve][ads]") {
+TEST_CASE(
+    "serve --tcp --ads is one coupler by both ports: kscfg over ads:// waits for kscfg over tcp:// and the "
+    "other way round",
+    "[sessions][lock][serve][ads]") {
   Served s({"--tcp", "127.0.0.1:0", "--ads", "127.0.0.1:0"});
   const std::string tcp = s.srv->uri, ads = s.srv->next_line();
   REQUIRE(ads.rfind("ads://127.0.0.1:", 0) == 0);
@@ -229,8 +232,8 @@ TEST_CASE("serve --tcp --ads is one coupler by both ports: kscfg over ads:// wai
     auto first = holder({"--port", first_uri}, lock_file("ip-127.0.0.1-" + s.port()));
     Run r = run_kscfg({"--port", then_uri, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
     CHECK(r.rc == 11);  // two locks before: read at once, beside the other's session
-    CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
-                                                  first_uri)));
+    CHECK_THAT(r.err, Catch::Contains(
+                          fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid, first_uri)));
     first->signal(SIGINT);
     CHECK(first->wait() == 0);
   }
@@ -239,9 +242,10 @@ TEST_CASE("serve --tcp --ads is one coupler by both ports: kscfg over ads:// wai
   CHECK_FALSE(fs::exists(alias));
 }
 
-TEST_CASE("serve --tcp --ads: a second serve whose ADS port has the first's key (another loopback address) neither "
-          "takes the first's record over nor removes it",
-          "[sessions][lock][serve][ads]") {
+TEST_CASE(
+    "serve --tcp --ads: a second serve whose ADS port has the first's key (another loopback address) neither "
+    "takes the first's record over nor removes it",
+    "[sessions][lock][serve][ads]") {
   // 127.0.0.2:P and 127.0.0.1:P are two listeners of one key (every address of this computer is one
   // host). The second serve followed the first's record for its own key and wrote a record for the
   // first's Modbus port: kscfg over the first's tcp:// then took the second's lock, its ads:// the

@@ -2,14 +2,13 @@
 // emulator, over Modbus TCP to `kscfg serve`, and over the independent pymodbus peer (tests/peer);
 // data force with --yes only, never in register mode, the previous values restored at the end,
 // also on Ctrl-C; the live view refreshing in place on a terminal (tmux).
-#include <catch2/catch.hpp>
-
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -320,9 +319,8 @@ TEST_CASE("data --once --json over Modbus RTU to kscfg serve --pty: the same as 
 }
 
 TEST_CASE("data --once --json over the independent pymodbus peer", "[data][cli][peer]") {
-  Child peer({"/usr/bin/python3", std::string(KSCFG_SOURCE_DIR) + "/tests/peer/bk_coupler.py", "--tcp",
-              "127.0.0.1:0", "--station", "KL6001,KL5101,KL6031,KL3022,KL1104,KL2134,KL9010", "--digital-in",
-              "5=0b0101"});
+  Child peer({"/usr/bin/python3", std::string(KSCFG_SOURCE_DIR) + "/tests/peer/bk_coupler.py", "--tcp", "127.0.0.1:0",
+              "--station", "KL6001,KL5101,KL6031,KL3022,KL1104,KL2134,KL9010", "--digital-in", "5=0b0101"});
   std::string uri = peer.line(20);
   REQUIRE(uri.rfind("tcp://", 0) == 0);
   kscfg::test::TempDir d;
@@ -364,14 +362,14 @@ TEST_CASE("data force: --yes, never in register mode, previous values restored",
     std::vector<std::string> args;
     int rc;
   };
-  for (const Bad& b : std::vector<Bad>{{{"data", "force", "1=on", "--yes"}, 2},                  // no -t
-                                       {{"-t", "6", "data", "force", "5=on", "--yes"}, 2},       // 4 outputs
+  for (const Bad& b : std::vector<Bad>{{{"data", "force", "1=on", "--yes"}, 2},             // no -t
+                                       {{"-t", "6", "data", "force", "5=on", "--yes"}, 2},  // 4 outputs
                                        {{"-t", "6", "data", "force", "1=maybe", "--yes"}, 2},
                                        {{"-t", "6", "data", "force", "1", "--yes"}, 2},
-                                       {{"-t", "5", "data", "force", "1=on", "--yes"}, 5},       // inputs only
-                                       {{"-t", "2", "data", "force", "D9=1", "--yes"}, 2},       // no such byte
-                                       {{"-t", "2", "data", "force", "CT/ST=0x84", "--yes"}, 5}, // REG
-                                       {{"-t", "4", "data", "force", "value=5", "--yes"}, 2},    // an input
+                                       {{"-t", "5", "data", "force", "1=on", "--yes"}, 5},        // inputs only
+                                       {{"-t", "2", "data", "force", "D9=1", "--yes"}, 2},        // no such byte
+                                       {{"-t", "2", "data", "force", "CT/ST=0x84", "--yes"}, 5},  // REG
+                                       {{"-t", "4", "data", "force", "value=5", "--yes"}, 2},     // an input
                                        {{"data", "--yes"}, 2},
                                        {{"data", "forse"}, 2}}) {
     Run r = emu(b.args);
@@ -398,9 +396,9 @@ TEST_CASE("data force on the KL5101: CNT_SET through the control byte, an analog
   CHECK(fl.at(0)["counter"] == 10000);  // the rising edge of CNT_SET took D0/D1
   CHECK(fl.at(0)["status"]["bits"]["CNTSET_ACC"] == 1);
   auto after = lines_of(emu({"-t", "2", "--json", "data", "--once"}).out).at(0);
-  CHECK(after["counter"] == 10000);                       // the counter keeps the set value
-  CHECK(after["status"]["bits"]["CNTSET_ACC"] == 0);      // CNT_SET is back to 0
-  CHECK(after["bytes"]["out"]["D0"] == 0);                // and the output bytes as they were
+  CHECK(after["counter"] == 10000);                   // the counter keeps the set value
+  CHECK(after["status"]["bits"]["CNTSET_ACC"] == 0);  // CNT_SET is back to 0
+  CHECK(after["bytes"]["out"]["D0"] == 0);            // and the output bytes as they were
 
   Emu ao;
   write_text(ao.dir.file("ao.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL4002\"\n");
@@ -433,8 +431,8 @@ TEST_CASE("data force over kscfg serve: held while running, restored on Ctrl-C",
     return lines_of(r.out).at(0)["outputs"];
   };
   REQUIRE(outputs() == json({0, 0, 0, 0}));
-  Child force({KSCFG_BIN, "--port", srv.uri, "--station", station, "-t", "6", "--json", "data", "force", "2=on", "4=on", "--yes",
-               "--interval", "50"});
+  Child force({KSCFG_BIN, "--port", srv.uri, "--station", station, "-t", "6", "--json", "data", "force", "2=on", "4=on",
+               "--yes", "--interval", "50"});
   std::string first = force.line(20);
   REQUIRE_FALSE(first.empty());
   CHECK(json::parse(first)["outputs"] == json({0, 1, 0, 1}));
@@ -489,7 +487,7 @@ TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[
   CHECK_THAT(screen, Catch::Contains("Ctrl-C quits"));
   CHECK_THAT(screen, Catch::Contains("POS CH TYPE      PROCESS DATA"));
   CHECK_THAT(screen, Catch::Contains("TA=0 RR=0 IA=0 BUF_F=0 IL=0"));  // whole words on one line
-  CHECK(kscfg::test::widest_line(screen) < 80);                          // never the last column
+  CHECK(kscfg::test::widest_line(screen) < 80);                        // never the last column
   // In place: one sample on the screen, not a scroll of them.
   CHECK(screen.find("sample 1") == std::string::npos);
   CHECK(screen.find("sample 2") == std::string::npos);
@@ -528,8 +526,8 @@ TEST_CASE("data, emu encoder and serial line: completion of commands, options an
   for (const char* o : {"--baud\t", "--frame\t", "--match\t", "--send\t"})
     CHECK_THAT(complete({"serial", "line", "-"}), Catch::Contains(std::string("\n") + o));
   // Help and the man page name them.
-  for (const std::vector<std::string>& h : {std::vector<std::string>{"help", "data"}, {"help", "emu", "encoder"},
-                                            {"help", "serial", "line"}}) {
+  for (const std::vector<std::string>& h :
+       {std::vector<std::string>{"help", "data"}, {"help", "emu", "encoder"}, {"help", "serial", "line"}}) {
     Run r = run_kscfg(h);
     CHECK(r.rc == 0);
     CHECK_THAT(r.out, Catch::StartsWith("Usage: kscfg [GLOBAL OPTIONS] " + h[1]));

@@ -1,7 +1,6 @@
 // kscfg data with -t naming a type or several terminals: the live view shows what -t selects, and
 // data force takes a type that selects one terminal and refuses one that selects several.
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>

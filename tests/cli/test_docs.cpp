@@ -1,7 +1,6 @@
 // Man page and completion cannot drift from the CLI: every command and option appears in each,
 // and the committed copies equal what the current CLI generates.
 #include <catch2/catch.hpp>
-
 #include <functional>
 #include <set>
 #include <sstream>
@@ -15,8 +14,8 @@ using namespace kscfg::cli;
 namespace {
 
 struct Item {
-  std::string path;                 // "emu reset"
-  std::vector<std::string> options; // long and short names
+  std::string path;                  // "emu reset"
+  std::vector<std::string> options;  // long and short names
   Command* cmd;
 };
 

@@ -2,17 +2,16 @@
 // or terminal window), SIGTERM, SIGINT, a reader of stdout that went away (SIGPIPE/EPIPE), a link
 // that failed (the error names the command that puts them back), and says at the start how to put
 // them back after a kill -9. Checked end to end against kscfg serve, read by a second kscfg.
-#include <catch2/catch.hpp>
-
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
-#include <nlohmann/json.hpp>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <regex>
 #include <sstream>
 #include <string>
@@ -71,8 +70,7 @@ struct Child {
   std::string err() const { return read_text(err_path); }
   void drain() {
     char buf[4096];
-    while (out >= 0 && read(out, buf, sizeof buf) > 0) {
-    }
+    while (out >= 0 && read(out, buf, sizeof buf) > 0) {}
   }
   // Waits (bounded) for the exit; the status as waitpid gives it, or -1.
   int wait(double seconds = 60) {
@@ -97,8 +95,8 @@ struct Rig {
   std::map<std::string, std::string> env{{"XDG_CACHE_HOME", dir.file("cache")}};
   Rig() { write_text(station, kStation); }
   std::vector<std::string> force_args(bool hold = true) const {
-    std::vector<std::string> a = {"--port", srv.uri, "--station", station, "-t", "6", "data", "force", "1=on", "3=on",
-                                  "--yes", "--interval", "50"};
+    std::vector<std::string> a = {"--port", srv.uri, "--station", station, "-t",         "6", "data",
+                                  "force",  "1=on",  "3=on",      "--yes", "--interval", "50"};
     if (!hold) a.push_back("--no-restore");
     return a;
   }
@@ -154,7 +152,8 @@ TEST_CASE("data force restores the outputs when the reader of stdout goes away",
   CHECK_THAT(c.err(), Catch::Contains("outputs restored"));
 }
 
-TEST_CASE("data force after kill -9 or a dead link: the printed command puts the outputs back", "[data][force][serve][signals]") {
+TEST_CASE("data force after kill -9 or a dead link: the printed command puts the outputs back",
+          "[data][force][serve][signals]") {
   Rig rig;
   {
     Child c(rig.force_args(), rig.dir.file("force.err"));

@@ -80,13 +80,15 @@ TEST_CASE("a FIFO, a device or a socket as a station file: refused at once, exit
   std::string fifo = d.file("station.fifo");
   REQUIRE(::mkfifo(fifo.c_str(), 0644) == 0);
   UnixSocket sock(d.file("station.sock"));
-  for (const auto& [path, what] : std::vector<std::pair<std::string, std::string>>{
-           {fifo, "it is a FIFO, not a regular file"},
-           {"/dev/zero", "it is a character device"},
-           {sock.path, "it is a socket"}}) {
-    for (const std::vector<std::string>& a :
-         {std::vector<std::string>{"--station", path, "map"}, {"apply", path}, {"diff", path},
-          {"station", "check", path}, {"emu", "reset", "--station", path}}) {
+  for (const auto& [path, what] :
+       std::vector<std::pair<std::string, std::string>>{{fifo, "it is a FIFO, not a regular file"},
+                                                        {"/dev/zero", "it is a character device"},
+                                                        {sock.path, "it is a socket"}}) {
+    for (const std::vector<std::string>& a : {std::vector<std::string>{"--station", path, "map"},
+                                              {"apply", path},
+                                              {"diff", path},
+                                              {"station", "check", path},
+                                              {"emu", "reset", "--station", path}}) {
       std::vector<std::string> v = {"--port", "emu:" + state};
       v.insert(v.end(), a.begin(), a.end());
       INFO(a.front() << " " << path);

@@ -1,13 +1,12 @@
 // Issue 23 ("what new users tripped over"): raw values checked against the catalog, KL6031 image
 // settings written together, strict --keep-backups, messages that name the real cause, a set
 // that changes nothing keeping the process-data bytes, partial station files by position.
-#include <catch2/catch.hpp>
-
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <filesystem>
 #include <map>
@@ -46,8 +45,9 @@ TEST_CASE("raw writes and station files hold values the catalog documents, unles
   CHECK_THAT(forced.err, Catch::Contains("warning: --force"));
   CHECK(emu({"-t", "1", "write", "R35", "3"}).rc == 0);
   // A station file's raw register: apply refuses before anything is written.
-  write_text(emu.dir.file("bad.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\n"
-                                       "R32 = 0x00FF\n");
+  write_text(emu.dir.file("bad.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\n"
+             "R32 = 0x00FF\n");
   Run a = emu({"apply", emu.dir.file("bad.toml")});
   CHECK(a.rc == 5);
   CHECK_THAT(a.err, Catch::Contains("bad.toml:5") && Catch::Contains("R32 = 0x00FF"));
@@ -76,11 +76,13 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
   CHECK(emu({"-t", "3", "read", "--raw", "R35"}).out == "0x0006\n");
   CHECK_THAT(five.err, Catch::Contains("next start"));
   CHECK(emu({"-t", "3", "write", "R35", "0x0017"}).rc == 5);  // 22 bytes with the small/medium image
-  write_text(emu.dir.file("s.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\nposition = 3\n"
-                                     "image-size = 22\n");
+  write_text(emu.dir.file("s.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\nposition = 3\n"
+             "image-size = 22\n");
   CHECK(emu({"apply", emu.dir.file("s.toml")}).rc == 5);
-  write_text(emu.dir.file("s.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\nposition = 3\n"
-                                     "image-size = 22\nextended-image = true\n");
+  write_text(emu.dir.file("s.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\nposition = 3\n"
+             "image-size = 22\nextended-image = true\n");
   CHECK(emu({"apply", emu.dir.file("s.toml")}).rc == 10);
   CHECK(emu({"-t", "3", "get", "image-size", "extended-image"}).out == "22\non\n");
 }
@@ -88,8 +90,9 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
 TEST_CASE("a partial station file names terminals by position, the others are left alone", "[issue23][provision]") {
   Emu emu;
   REQUIRE(emu({"-t", "4", "-c", "2", "write", "R35", "5"}).rc == 0);
-  write_text(emu.dir.file("p.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\n"
-                                     "baud = 19200\n");
+  write_text(emu.dir.file("p.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\n"
+             "baud = 19200\n");
   Run c = emu({"station", "check", emu.dir.file("p.toml")});
   CHECK(c.rc == 0);
   CHECK_THAT(c.out, Catch::Contains("partial"));
@@ -101,16 +104,19 @@ TEST_CASE("a partial station file names terminals by position, the others are le
   CHECK(emu({"-t", "4", "-c", "2", "read", "--raw", "R35"}).out == "0x0005\n");  // left alone
   CHECK(emu({"apply", emu.dir.file("p.toml")}).rc == 0);
   // The wrong type at a named position: refused before anything is written.
-  write_text(emu.dir.file("w.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 2\n"
-                                     "baud = 9600\n");
+  write_text(emu.dir.file("w.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 2\n"
+             "baud = 9600\n");
   Run w = emu({"apply", emu.dir.file("w.toml")});
   CHECK(w.rc == 5);
   CHECK_THAT(w.err, Catch::Contains("position 2") && Catch::Contains("KL5101"));
   // Positions for some terminals only, or twice: an error in the file.
-  write_text(emu.dir.file("m.toml"), "[[terminal]]\ntype = \"KL6001\"\nposition = 1\n[[terminal]]\ntype = \"KL5101\"\n");
+  write_text(emu.dir.file("m.toml"),
+             "[[terminal]]\ntype = \"KL6001\"\nposition = 1\n[[terminal]]\ntype = \"KL5101\"\n");
   CHECK(emu({"station", "check", emu.dir.file("m.toml")}).rc == 2);
-  write_text(emu.dir.file("t.toml"), "[[terminal]]\ntype = \"KL6001\"\nposition = 1\n[[terminal]]\ntype = \"KL5101\"\n"
-                                     "position = 1\n");
+  write_text(emu.dir.file("t.toml"),
+             "[[terminal]]\ntype = \"KL6001\"\nposition = 1\n[[terminal]]\ntype = \"KL5101\"\n"
+             "position = 1\n");
   CHECK(emu({"station", "check", emu.dir.file("t.toml")}).rc == 2);
   // It is no layout.
   CHECK(emu({"--station", emu.dir.file("p.toml"), "info"}).rc == 2);
@@ -120,7 +126,8 @@ TEST_CASE("apply parses --keep-backups strictly, only backup files count toward 
   Emu emu;
   auto env = emu.env;
   env["XDG_STATE_HOME"] = emu.dir.file("state");
-  write_text(emu.dir.file("b.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\nbaud = 19200\n");
+  write_text(emu.dir.file("b.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nposition = 1\nbaud = 19200\n");
   for (const char* bad : {" 3", "3 ", "3x", "", "-1"}) {
     Run r = run_kscfg({"apply", "--keep-backups", bad, emu.dir.file("b.toml")}, env);
     INFO("'" << bad << "': " << r.err);
@@ -135,7 +142,8 @@ TEST_CASE("apply parses --keep-backups strictly, only backup files count toward 
   std::filesystem::create_directory(dir / "apply-00000000-000000.000000Z-2.toml");
   for (const char* baud : {"9600", "19200", "9600"}) {
     write_text(emu.dir.file("b.toml"), std::string("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n"
-                                                   "position = 1\nbaud = ") + baud + "\n");
+                                                   "position = 1\nbaud = ") +
+                                           baud + "\n");
     REQUIRE(run_kscfg({"apply", "--keep-backups", "2", emu.dir.file("b.toml")}, env).rc == 10);
   }
   std::size_t files = 0, dirs = 0;
@@ -153,7 +161,8 @@ TEST_CASE("messages name the real cause over Modbus: digital terminals, the show
   CHECK_THAT(t.err, Catch::Contains("cannot be identified over Modbus"));
   Run p = run_kscfg({"--port", srv.uri, "-t", "6", "info"}, env);
   CHECK(p.rc == 2);
-  CHECK_THAT(p.err, Catch::Contains("cannot be identified over Modbus") && Catch::Contains("4 input and 4 output bits"));
+  CHECK_THAT(p.err,
+             Catch::Contains("cannot be identified over Modbus") && Catch::Contains("4 input and 4 output bits"));
   Run s = run_kscfg({"--port", srv.uri, "-t", "2", "show"}, env);
   REQUIRE(s.rc == 0);
   // Columns as wide as their values: each line's REGISTER column starts where the header's does.
@@ -222,9 +231,9 @@ TEST_CASE("a set that changes nothing leaves the process-data bytes as they were
     return std::pair{b["Ser-CT/ST"].get<int>(), b["D0"].get<int>()};
   };
   auto before = out_bytes();
-  for (std::vector<std::string> words : {std::vector<std::string>{"set", "xon-xoff-send", "off"},
-                                         std::vector<std::string>{"set", "rts-cts", "on"},
-                                         std::vector<std::string>{"-t", "1", "write", "R34", "3"}}) {
+  for (std::vector<std::string> words :
+       {std::vector<std::string>{"set", "xon-xoff-send", "off"}, std::vector<std::string>{"set", "rts-cts", "on"},
+        std::vector<std::string>{"-t", "1", "write", "R34", "3"}}) {
     Run s = k(words);
     INFO(words[0] << " " << words[1] << ": " << s.err);
     CHECK(s.rc == 0);

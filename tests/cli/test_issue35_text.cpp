@@ -23,7 +23,8 @@ TEST_CASE("issue 35 small ones: --help, the man page and the Ansible modules nam
   std::string data_man = man.substr(man.find(".SS \"kscfg data"));
   data_man = data_man.substr(0, data_man.find(".SS \"kscfg", 5));
   CHECK_THAT(data_man, Catch::Contains("Modbus TCP, Modbus RTU and ADS"));
-  const std::string modules = std::string(KSCFG_SOURCE_DIR) + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/";
+  const std::string modules =
+      std::string(KSCFG_SOURCE_DIR) + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/";
   CHECK_THAT(read_text(modules + "kscfg_station.py"), Catch::Contains("(" + links + ")"));
   CHECK_THAT(read_text(modules + "kscfg_facts.py"), Catch::Contains("emulator, " + links));
 }

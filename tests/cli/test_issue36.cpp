@@ -50,21 +50,23 @@ std::vector<std::uint8_t> outputs(const std::string& uri) {
 
 }  // namespace
 
-TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then one line per terminal with the "
-          "registers, the shared cause once",
-          "[issue36][rollback][serve]") {
+TEST_CASE(
+    "issue 36 item 3: a failed rollback says the undo command first, then one line per terminal with the "
+    "registers, the shared cause once",
+    "[issue36][rollback][serve]") {
   TempDir d;
   std::string state = d.file("emulator.json");
   REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
   // A slow K-bus (20 ms a cycle) keeps the apply in register mode long enough to be caught there.
-  auto srv = std::make_unique<Server>(state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0",
-                                                                      "--cycle-us", "20000"},
-                                      d.file("serve.err"));
+  auto srv = std::make_unique<Server>(
+      state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0", "--cycle-us", "20000"},
+      d.file("serve.err"));
   std::string uri = srv->uri;
   REQUIRE(run_kscfg({"--port", uri, "info"}).rc == 0);  // the scan is kept: the apply starts writing at once
-  write_text(d.file("apply.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
-                                   "[[terminal]]\ntype = \"KL5101\"\nR32 = 0x0001\n[[terminal]]\ntype = \"KL6031\"\n"
-                                   "baud = 4800\n[[terminal]]\ntype = \"KL3022\"\nR36 = 0x0042\n");
+  write_text(d.file("apply.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+             "[[terminal]]\ntype = \"KL5101\"\nR32 = 0x0001\n[[terminal]]\ntype = \"KL6031\"\n"
+             "baud = 4800\n[[terminal]]\ntype = \"KL3022\"\nR36 = 0x0042\n");
   Child apply({"--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
   // The coupler goes away while a register write is under way (control byte: REG and W set).
   const std::vector<std::size_t> ctrl{0, 8, 16, 40, 44};
@@ -93,9 +95,9 @@ TEST_CASE("issue 36 item 3: a failed rollback says the undo command first, then 
   }
   // With --json the same as one object: the terminals' lines in "details".
   REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
-  srv = std::make_unique<Server>(state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0",
-                                                                 "--cycle-us", "20000"},
-                                 d.file("serve2.err"));
+  srv = std::make_unique<Server>(
+      state, std::vector<std::string>{"--tcp", "127.0.0.1:0", "--watchdog-ms", "0", "--cycle-us", "20000"},
+      d.file("serve2.err"));
   uri = srv->uri;
   Child json({"--json", "--port", uri, "--timeout", "300", "apply", d.file("apply.toml")});
   REQUIRE(wait_for(writing, 30));
@@ -201,10 +203,11 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
           "[issue36][docs][ansible]") {
   Emu emu;
   TempDir d;
-  write_text(d.file("want.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
-                                  "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n"
-                                  "[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n"
-                                  "[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
+  write_text(d.file("want.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+             "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n"
+             "[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n"
+             "[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
   Run a = emu({"--json", "apply", d.file("want.toml")});
   REQUIRE(a.rc == 10);
   std::string path = nlohmann::json::parse(a.out)["backup"].get<std::string>();

@@ -3,12 +3,12 @@
 // channel it could not close, and the next command on one terminal finishes all of them; a
 // `data force` killed with kill -9 is named by the next command, and one with --yes puts the
 // outputs back.
+#include <fmt/format.h>
 #include <signal.h>
 #include <unistd.h>
 
-#include <catch2/catch.hpp>
-#include <fmt/format.h>
 #include <algorithm>
+#include <catch2/catch.hpp>
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -106,21 +106,21 @@ bool stopped(int pid) {
 
 }  // namespace
 
-TEST_CASE("a link that dies during a 12-terminal apply keeps the journal, and one read of terminal 1 finishes "
-          "every terminal it names",
-          "[journal][recovery][serve]") {
+TEST_CASE(
+    "a link that dies during a 12-terminal apply keeps the journal, and one read of terminal 1 finishes "
+    "every terminal it names",
+    "[journal][recovery][serve]") {
   KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_STOP_AFTER
   Coupler c(kl6001s(12));
   write_text(c.dir.file("want.toml"), kl6001s(12, "baud = 19200\nframe = \"8E1\"\n"));
   REQUIRE(c({"scan"}).rc == 0);
   // The apply stops itself right after its first acknowledged write of R32 (every terminal is
   // unlocked and in register mode then); the coupler is stopped, and the apply goes on against it.
-  Child apply(c.args({"apply", "--backup", c.dir.file("undo.toml"), c.dir.file("want.toml")}),
-              [&] {
-                auto e = c.env;
-                e["KSCFG_TEST_STOP_AFTER"] = "R32";
-                return e;
-              }());
+  Child apply(c.args({"apply", "--backup", c.dir.file("undo.toml"), c.dir.file("want.toml")}), [&] {
+    auto e = c.env;
+    e["KSCFG_TEST_STOP_AFTER"] = "R32";
+    return e;
+  }());
   const int pid = apply.pid;
   REQUIRE(wait_for([&] { return stopped(pid); }, 60));
   REQUIRE(::kill(c.srv->pid, SIGSTOP) == 0);
@@ -237,9 +237,10 @@ void killed_force_then_release(const Coupler& c, const std::vector<std::string>&
 
 }  // namespace
 
-TEST_CASE("kill -9 of data force over Modbus TCP: the next command names the forced outputs, data release --yes "
-          "puts them back",
-          "[journal][data][force][serve]") {
+TEST_CASE(
+    "kill -9 of data force over Modbus TCP: the next command names the forced outputs, data release --yes "
+    "puts them back",
+    "[journal][data][force][serve]") {
   Coupler c(kDefaultStation);
   killed_force_then_release(c, {"--station", c.dir.file("station.toml")});
   // The next `data force --yes` puts back what a killed one left before it reads its own previous
@@ -257,9 +258,10 @@ TEST_CASE("kill -9 of data force over Modbus TCP: the next command names the for
   CHECK(c.journals().empty());
 }
 
-TEST_CASE("kill -9 of data force over ADS: the next command names the forced outputs, data release --yes puts "
-          "them back",
-          "[journal][data][force][ads]") {
+TEST_CASE(
+    "kill -9 of data force over ADS: the next command names the forced outputs, data release --yes puts "
+    "them back",
+    "[journal][data][force][ads]") {
   Coupler c(kDefaultStation, {"--ads", "127.0.0.1:0"});
   killed_force_then_release(c, {});
 }

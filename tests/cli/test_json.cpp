@@ -1,9 +1,8 @@
 // One JSON vocabulary (docs/json.md): every command's --json output parses, and the shared names
 // mean the same everywhere. Every command of the tree is run here or listed as printing no JSON.
-#include <catch2/catch.hpp>
-
 #include <fmt/format.h>
 
+#include <catch2/catch.hpp>
 #include <functional>
 #include <nlohmann/json.hpp>
 #include <regex>
@@ -22,13 +21,14 @@ namespace {
 
 // Names docs/json.md forbids, each with what to say instead.
 const std::map<std::string, std::string> kForbidden = {
-    {"terminal", "position"}, {"from", "before"}, {"to", "after"},   {"differs", "at_default"},
+    {"terminal", "position"}, {"from", "before"},     {"to", "after"},     {"differs", "at_default"},
     {"desc", "description"},  {"updated", "changed"}, {"written", "file"}, {"raw", "register_value"},
 };
 
 // Free text where a string of digits is legitimate (a version "10", a title, a USB serial).
-const std::set<std::string> kText = {"version", "title", "description", "meaning", "identification", "serial",
-                                     "product", "manufacturer", "name", "origin", "source", "r6_text", "far_end"};
+const std::set<std::string> kText = {"version", "title",   "description",  "meaning", "identification",
+                                     "serial",  "product", "manufacturer", "name",    "origin",
+                                     "source",  "r6_text", "far_end"};
 
 void check_names(const json& j, const std::string& where, std::vector<std::string>& bad) {
   auto fail = [&](const std::string& key, const std::string& why) { bad.push_back(where + "." + key + ": " + why); };
@@ -46,7 +46,8 @@ void check_names(const json& j, const std::string& where, std::vector<std::strin
     if (k == "position" && !(v.is_number_unsigned() && v.get<unsigned>() >= 1)) fail(k, "not a position: " + v.dump());
     if (k == "channel" && !(v.is_number_unsigned() && v.get<unsigned>() >= 1)) fail(k, "not a channel: " + v.dump());
     if (k == "register" && !(v.is_number_unsigned() && v.get<unsigned>() <= 63)) fail(k, "not a register: " + v.dump());
-    if (k == "type" && !(v.is_string() && std::regex_match(v.get<std::string>(), std::regex("[A-Z]{2}[0-9]{3,4}[A-Z0-9-]*|CX-[A-Za-z0-9]+"))))
+    if (k == "type" && !(v.is_string() && std::regex_match(v.get<std::string>(),
+                                                           std::regex("[A-Z]{2}[0-9]{3,4}[A-Z0-9-]*|CX-[A-Za-z0-9]+"))))
       fail(k, "not a terminal type: " + v.dump());
     if ((k == "changed" || k == "dry_run" || k == "verified" || k == "complex") && !v.is_boolean())
       fail(k, "not a bool: " + v.dump());
@@ -253,9 +254,11 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
 
 TEST_CASE("with --json an error is one JSON object on stderr and nothing on stdout", "[json][cli]") {
   Emu emu;
-  for (const std::vector<std::string>& args :
-       {std::vector<std::string>{"--json", "read", "R99"}, {"read", "R8", "--json", "--jsn"}, {"--json", "frobnicate"},
-        {"--json", "-t", "99", "info"}, {"--json", "diff", "/nonexistent.toml"}}) {
+  for (const std::vector<std::string>& args : {std::vector<std::string>{"--json", "read", "R99"},
+                                               {"read", "R8", "--json", "--jsn"},
+                                               {"--json", "frobnicate"},
+                                               {"--json", "-t", "99", "info"},
+                                               {"--json", "diff", "/nonexistent.toml"}}) {
     Run r = emu(args);
     INFO(r.err);
     CHECK(r.rc != 0);

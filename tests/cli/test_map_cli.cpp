@@ -1,22 +1,19 @@
 // End-to-end: `kscfg map` and `kscfg station` as a user runs them.
 #include <catch2/catch.hpp>
-
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
 #include "support.hpp"
 
-using kscfg::test::read_text;
-using kscfg::test::run_kscfg;
-using kscfg::test::one_line_error;
 using kscfg::test::Emu;
+using kscfg::test::one_line_error;
+using kscfg::test::read_text;
 using kscfg::test::Run;
+using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
 using kscfg::test::write_text;
 
 namespace {
-
-
 
 nlohmann::json terminal(const nlohmann::json& doc, unsigned pos) { return doc["terminals"].at(pos - 1); }
 
@@ -111,8 +108,9 @@ TEST_CASE("map online follows KL6001 R34/R35 written through the emulator", "[cl
 
   // Offline from a station file with the same settings gives the same layout.
   std::string f = emu.dir.file("s.toml");
-  write_text(f, "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nalternative-format = false\ndata-bytes = 5\n"
-                "[[terminal]]\ntype = \"KL5101\"\n");
+  write_text(f,
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nalternative-format = false\ndata-bytes = 5\n"
+             "[[terminal]]\ntype = \"KL5101\"\n");
   auto off = nlohmann::json::parse(emu({"--json", "map", "--station", f}).out);
   CHECK(off["online"] == false);
   CHECK(terminal(off, 2)["inputs"]["offset"] == 6);
@@ -172,8 +170,8 @@ TEST_CASE("map: bad input gives one clear line and a distinct code", "[cli][map]
 TEST_CASE("map --list-couplers", "[cli][map]") {
   Run r = run_kscfg({"--port", "emu:mem", "map", "--list-couplers"});
   REQUIRE(r.rc == 0);
-  for (const char* c : {"BK2000", "BK3120", "BK4000", "BK5120", "BK5200", "BK7300", "BK8000", "BK9000", "BK9050",
-                        "BK9100"})
+  for (const char* c :
+       {"BK2000", "BK3120", "BK4000", "BK5120", "BK5200", "BK7300", "BK8000", "BK9000", "BK9050", "BK9100"})
     CHECK_THAT(r.out, Catch::Contains(c));
   auto doc = nlohmann::json::parse(run_kscfg({"--port", "emu:mem", "--json", "map", "--list-couplers"}).out);
   REQUIRE(doc["couplers"].is_array());

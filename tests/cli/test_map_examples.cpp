@@ -16,10 +16,9 @@
 //  4  (BK5120 CANopen PDOs): PDO contents are the CANopen master's view, re-sorted by data type;
 //     `kscfg map` shows the coupler's process image, and the manual's RxPDO1 (48 bits in 5 bytes)
 //     is inconsistent in itself.
-#include <catch2/catch.hpp>
-
 #include <fmt/format.h>
 
+#include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -36,7 +35,7 @@ namespace {
 
 struct Row {
   const char* type;
-  const char* in;   // manual notation, see above
+  const char* in;  // manual notation, see above
   const char* out;
 };
 
@@ -99,19 +98,19 @@ void check_table(const json& map, const std::vector<Row>& rows, int first, bool 
 // https://manualshive.com/en/manual/beckhoff/bk8000/2719487?page=20
 TEST_CASE("mapping example 1 from a station file: BK8000, 13 positions", "[map][examples][cli]") {
   const std::vector<Row> table = {
-      {"KL1002", "4.0-4.1", "-"},       // 01
-      {"KL1002", "4.2-4.3", "-"},       // 02
-      {"KL1002", "4.4-4.5", "-"},       // 03
-      {"KL1114", "4.6-5.1", "-"},       // 04
-      {"KL1114", "5.2-5.5", "-"},       // 05
-      {"KL3002", "0-1,2-3", "-"},       // 06: "none" outputs
-      {"KL9200", "-", "-"},             // 07 power feed
-      {"KL2012", "-", "4.0-4.1"},       // 08
-      {"KL2012", "-", "4.2-4.3"},       // 09
-      {"KL2012", "-", "4.4-4.5"},       // 10
-      {"KL2012", "-", "4.6-4.7"},       // 11
-      {"KL4002", "-", "0-1,2-3"},       // 12: "none" inputs
-      {"KL9010", "-", "-"},             // 13
+      {"KL1002", "4.0-4.1", "-"},  // 01
+      {"KL1002", "4.2-4.3", "-"},  // 02
+      {"KL1002", "4.4-4.5", "-"},  // 03
+      {"KL1114", "4.6-5.1", "-"},  // 04
+      {"KL1114", "5.2-5.5", "-"},  // 05
+      {"KL3002", "0-1,2-3", "-"},  // 06: "none" outputs
+      {"KL9200", "-", "-"},        // 07 power feed
+      {"KL2012", "-", "4.0-4.1"},  // 08
+      {"KL2012", "-", "4.2-4.3"},  // 09
+      {"KL2012", "-", "4.4-4.5"},  // 10
+      {"KL2012", "-", "4.6-4.7"},  // 11
+      {"KL4002", "-", "0-1,2-3"},  // 12: "none" inputs
+      {"KL9010", "-", "-"},        // 13
   };
   json m = map_of(station_file("BK8000", table));
   check_table(m, table, 1);
@@ -124,27 +123,27 @@ TEST_CASE("mapping example 1 from a station file: BK8000, 13 positions", "[map][
 // types are the manual's kinds: 2-channel DI/DO/AI/AO, power feed, end terminal.
 namespace {
 const std::vector<Row> kExample2Bk4000 = {
-    {"KL1002", "8.0-8.1", "-"},   // 01
-    {"KL1002", "8.2-8.3", "-"},   // 02
-    {"KL1002", "8.4-8.5", "-"},   // 03
-    {"KL1002", "8.6-8.7", "-"},   // 04
-    {"KL1002", "9.0-9.1", "-"},   // 05
-    {"KL1002", "9.2-9.3", "-"},   // 06
-    {"KL2012", "-", "12.0-12.1"}, // 07
-    {"KL2012", "-", "12.2-12.3"}, // 08
-    {"KL2012", "-", "12.4-12.5"}, // 09
-    {"KL3002", "0-1,2-3", "-"},   // 10
-    {"KL4002", "-", "0-1,2-3"},   // 11
-    {"KL4002", "-", "4-5,6-7"},   // 12
-    {"KL3002", "4-5,6-7", "-"},   // 13
-    {"KL9100", "-", "-"},         // 14 power feed
-    {"KL1002", "9.4-9.5", "-"},   // 15
-    {"KL1002", "9.6-9.7", "-"},   // 16
-    {"KL1002", "10.0-10.1", "-"}, // 17
-    {"KL2012", "-", "12.6-12.7"}, // 18
-    {"KL2012", "-", "13.0-13.1"}, // 19
-    {"KL4002", "-", "8-9,10-11"}, // 20
-    {"KL9010", "-", "-"},         // 21
+    {"KL1002", "8.0-8.1", "-"},    // 01
+    {"KL1002", "8.2-8.3", "-"},    // 02
+    {"KL1002", "8.4-8.5", "-"},    // 03
+    {"KL1002", "8.6-8.7", "-"},    // 04
+    {"KL1002", "9.0-9.1", "-"},    // 05
+    {"KL1002", "9.2-9.3", "-"},    // 06
+    {"KL2012", "-", "12.0-12.1"},  // 07
+    {"KL2012", "-", "12.2-12.3"},  // 08
+    {"KL2012", "-", "12.4-12.5"},  // 09
+    {"KL3002", "0-1,2-3", "-"},    // 10
+    {"KL4002", "-", "0-1,2-3"},    // 11
+    {"KL4002", "-", "4-5,6-7"},    // 12
+    {"KL3002", "4-5,6-7", "-"},    // 13
+    {"KL9100", "-", "-"},          // 14 power feed
+    {"KL1002", "9.4-9.5", "-"},    // 15
+    {"KL1002", "9.6-9.7", "-"},    // 16
+    {"KL1002", "10.0-10.1", "-"},  // 17
+    {"KL2012", "-", "12.6-12.7"},  // 18
+    {"KL2012", "-", "13.0-13.1"},  // 19
+    {"KL4002", "-", "8-9,10-11"},  // 20
+    {"KL9010", "-", "-"},          // 21
 };
 }  // namespace
 
@@ -178,9 +177,8 @@ TEST_CASE("mapping example 2a/2c from a station file: the outputs in four couple
 // output register 0x0800 bits 0-3, coils 0-3.
 TEST_CASE("mapping example 3a from a station file: BK9000 sample 1, registers and coils", "[map][examples][cli]") {
   const std::vector<Row> table = {
-      {"KL1104", "0.0-0.3", "-"}, {"KL1104", "0.4-0.7", "-"}, {"KL1104", "1.0-1.3", "-"},
-      {"KL1104", "1.4-1.7", "-"}, {"KL2012", "-", "0.0-0.1"}, {"KL2012", "-", "0.2-0.3"},
-      {"KL9010", "-", "-"},
+      {"KL1104", "0.0-0.3", "-"}, {"KL1104", "0.4-0.7", "-"}, {"KL1104", "1.0-1.3", "-"}, {"KL1104", "1.4-1.7", "-"},
+      {"KL2012", "-", "0.0-0.1"}, {"KL2012", "-", "0.2-0.3"}, {"KL9010", "-", "-"},
   };
   json m = map_of(station_file("BK9000", table));
   check_table(m, table, 1);
@@ -196,11 +194,16 @@ TEST_CASE("mapping example 3a from a station file: BK9000 sample 1, registers an
 
 // Example 3b: BK9000 process-image sample 2 (complete evaluation, word alignment): the complex
 // terminals first, registers 0x0000-0x000A / 0x0800-0x080A, digital bits in 0x000B / 0x080B.
-TEST_CASE("mapping example 3b from a station file: BK9000 sample 2 with KL1501, KL3xx2, KL4xx2", "[map][examples][cli]") {
+TEST_CASE("mapping example 3b from a station file: BK9000 sample 2 with KL1501, KL3xx2, KL4xx2",
+          "[map][examples][cli]") {
   const std::vector<Row> table = {
-      {"KL1104", "22.0-22.3", "-"}, {"KL1104", "22.4-22.7", "-"}, {"KL1104", "23.0-23.3", "-"},
-      {"KL1104", "23.4-23.7", "-"}, {"KL2012", "-", "22.0-22.1"}, {"KL2012", "-", "22.2-22.3"},
-      {"KL1501", "0-5", "0-5"},     // 0x0000-0x0002 / 0x0800-0x0802
+      {"KL1104", "22.0-22.3", "-"},
+      {"KL1104", "22.4-22.7", "-"},
+      {"KL1104", "23.0-23.3", "-"},
+      {"KL1104", "23.4-23.7", "-"},
+      {"KL2012", "-", "22.0-22.1"},
+      {"KL2012", "-", "22.2-22.3"},
+      {"KL1501", "0-5", "0-5"},                  // 0x0000-0x0002 / 0x0800-0x0802
       {"KL3002", "6-9,10-13", "6-9,10-13"},      // 0x0003-0x0006 / 0x0803-0x0806
       {"KL4002", "14-17,18-21", "14-17,18-21"},  // 0x0007-0x000A / 0x0807-0x080A
       {"KL9010", "-", "-"},
@@ -231,11 +234,11 @@ TEST_CASE("mapping example 3b from a station file: BK9000 sample 2 with KL1501, 
 TEST_CASE("mapping example 5 from a station file: BK1120 with KL2012, KL1408, KL3062, KL1104, KL1408",
           "[map][examples][cli]") {
   const std::vector<Row> table = {
-      {"KL2012", "-", "8.0-8.1"},      // word 5 bits 0-1 (outputs)
-      {"KL1408", "8.0-8.7", "-"},      // word 5 bits 0-7
+      {"KL2012", "-", "8.0-8.1"},        // word 5 bits 0-1 (outputs)
+      {"KL1408", "8.0-8.7", "-"},        // word 5 bits 0-7
       {"KL3062", "0-3,4-7", "0-3,4-7"},  // words 1-4: status/control byte + dummy, data, per channel
-      {"KL1104", "9.0-9.3", "-"},      // word 5 bits 8-11
-      {"KL1408", "9.4-10.3", "-"},     // word 5 bits 12-15, word 6 bits 0-3
+      {"KL1104", "9.0-9.3", "-"},        // word 5 bits 8-11
+      {"KL1408", "9.4-10.3", "-"},       // word 5 bits 12-15, word 6 bits 0-3
       {"KL9010", "-", "-"},
   };
   json m = map_of(station_file("BK9000", table));

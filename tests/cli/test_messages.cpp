@@ -1,6 +1,5 @@
 // Command-line mistakes are said in kscfg's voice, and help fits 80 columns when piped.
 #include <catch2/catch.hpp>
-
 #include <functional>
 
 #include "app.hpp"
@@ -22,7 +21,7 @@ std::vector<std::vector<std::string>> command_paths() {
   auto app = kscfg::cli::build_app();
   std::vector<std::vector<std::string>> out;
   std::function<void(const CLI::App*, std::vector<std::string>)> walk = [&](const CLI::App* a,
-                                                                           std::vector<std::string> path) {
+                                                                            std::vector<std::string> path) {
     for (const CLI::App* s : a->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); })) {
       auto p = path;
       p.push_back(s->get_name());

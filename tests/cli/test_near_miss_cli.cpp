@@ -1,7 +1,6 @@
 // Issue 10 item 6, session side: baud rates a user meant, parameter names a user meant (set and
 // station files). Against the emulator through the CLI.
 #include <catch2/catch.hpp>
-
 #include <string>
 #include <vector>
 
@@ -13,9 +12,10 @@ using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::write_text;
 
-TEST_CASE("set baud: a near miss is refused with what it probably meant, a rate off the list needs --divisor, "
-          "the manual's maximum holds",
-          "[safety][baud]") {
+TEST_CASE(
+    "set baud: a near miss is refused with what it probably meant, a rate off the list needs --divisor, "
+    "the manual's maximum holds",
+    "[safety][baud]") {
   Emu emu;
   REQUIRE(emu({"emu", "reset"}).rc == 0);
   std::string before = read_text(emu.state);
@@ -24,9 +24,10 @@ TEST_CASE("set baud: a near miss is refused with what it probably meant, a rate 
     const char* says;
   };
   std::vector<Case> cases = {
-      {{"set", "baud", "1920"}, "baud 1920 is not one of the terminal's rates (1200, 2400, 4800, 9600, 19200); did "
-                                "you mean 19200? (another rate up to 19200 needs the divisor form, asked for "
-                                "explicitly: 'kscfg set baud RATE --divisor'"},
+      {{"set", "baud", "1920"},
+       "baud 1920 is not one of the terminal's rates (1200, 2400, 4800, 9600, 19200); did "
+       "you mean 19200? (another rate up to 19200 needs the divisor form, asked for "
+       "explicitly: 'kscfg set baud RATE --divisor'"},
       {{"set", "baud", "14400"}, "needs the divisor form"},
       {{"set", "baud", "250000"}, "baud 250000 is above the terminal's documented maximum of 19200 baud"},
       {{"set", "baud", "250000", "--divisor"}, "documented maximum of 19200 baud"},

@@ -1,21 +1,16 @@
 // Issue: named parameters end to end — show, get, set (rollback), reset, decode, catalog.
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 
 #include "support.hpp"
 
-using kscfg::test::run_kscfg;
-using kscfg::test::one_line_error;
 using kscfg::test::Emu;
+using kscfg::test::one_line_error;
 using kscfg::test::Run;
+using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
 
-namespace {
-
-
-
-}  // namespace
+namespace {}  // namespace
 
 TEST_CASE("set baud 19200 then get baud prints 19200 and R32 reads 0x0007", "[params][cli]") {
   Emu emu;
@@ -191,7 +186,8 @@ name = "standard"
 ctst = "always"
 elements = ["ctst", "bytes D 3"]
 )");
-  kscfg::test::write_text(dir.file("station.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL9999\"\n[[terminal]]\ntype = \"KL1104\"\n");
+  kscfg::test::write_text(dir.file("station.toml"),
+                          "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL9999\"\n[[terminal]]\ntype = \"KL1104\"\n");
   std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + dir.file("emu.json")}, {"KSCFG_CATALOG", cat}};
   REQUIRE(run_kscfg({"emu", "reset", "--station", dir.file("station.toml")}, env).rc == 0);
   Run info = run_kscfg({"info"}, env);

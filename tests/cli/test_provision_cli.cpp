@@ -1,14 +1,12 @@
 // Issue: scripted provisioning — backup, diff, apply, restore — on the emulator and over Modbus TCP.
 #include <catch2/catch.hpp>
-
 #include <filesystem>
-
 #include <nlohmann/json.hpp>
 
 #include "support.hpp"
 
-using kscfg::test::read_text;
 using kscfg::test::one_line_error;
+using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
@@ -26,7 +24,6 @@ struct Station {
   }
   std::string file(const std::string& n) const { return dir.file(n); }
 };
-
 
 std::size_t count(const std::string& s, const std::string& what) {
   std::size_t n = 0;
@@ -105,7 +102,7 @@ type = "KL9010"
   auto j = nlohmann::json::parse(dry.out);
   CHECK(j["changed"] == true);
   CHECK(j["terminals"][0]["changed"] == true);
-  CHECK(j["terminals"][0]["params"].size() == 1);  // data-bytes is already 3
+  CHECK(j["terminals"][0]["params"].size() == 1);         // data-bytes is already 3
   CHECK(st({"read", "--raw", "R32"}).out == "0x0006\n");  // dry run wrote nothing
   Run a = st({"--json", "apply", "--backup", st.file("undo.toml"), st.file("want.toml")});
   CHECK(a.rc == 10);
@@ -156,8 +153,9 @@ type = "KL9010"
 TEST_CASE("a type or position mismatch is refused before any write", "[provision]") {
   Station st;
   std::string before = st({"backup"}).out;
-  write_text(st.file("wrong.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
-                                    "[[terminal]]\ntype = \"KL6031\"\n");
+  write_text(st.file("wrong.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+             "[[terminal]]\ntype = \"KL6031\"\n");
   Run a = st({"-v", "apply", st.file("wrong.toml")});
   CHECK(a.rc == 5);
   CHECK_THAT(a.err, Catch::Contains("2 terminals"));
@@ -176,19 +174,20 @@ TEST_CASE("bad provisioning files: line numbers, nothing written", "[provision]"
   Station st;
   std::string before = st({"backup"}).out;
   std::string head = "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n";
-  std::string tail = "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
-                     "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+  std::string tail =
+      "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
+      "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
   struct Case {
     std::string body;
     int rc;
     std::string says;
   };
   std::vector<Case> cases = {
-      {"bauds = 9600\n", 2, ":4:"},       // unknown parameter, with its line
-      {"data-bytes = 9\n", 2, ":4:"},     // out of range
-      {"frame = \"9Z9\"\n", 2, "9Z9"},    // outside the enum
-      {"R8 = 1\n", 2, "read-only"},       // ROM register
-      {"R31 = 0x1235\n", 2, "code word"}, // not a setting
+      {"bauds = 9600\n", 2, ":4:"},        // unknown parameter, with its line
+      {"data-bytes = 9\n", 2, ":4:"},      // out of range
+      {"frame = \"9Z9\"\n", 2, "9Z9"},     // outside the enum
+      {"R8 = 1\n", 2, "read-only"},        // ROM register
+      {"R31 = 0x1235\n", 2, "code word"},  // not a setting
   };
   for (const auto& c : cases) {
     write_text(st.file("bad.toml"), head + c.body + tail);
@@ -205,7 +204,8 @@ TEST_CASE("bad provisioning files: line numbers, nothing written", "[provision]"
   CHECK(st({"backup"}).out == before);
 }
 
-TEST_CASE("a 2-channel terminal keeps each channel's settings through backup, diff and restore", "[provision][channels]") {
+TEST_CASE("a 2-channel terminal keeps each channel's settings through backup, diff and restore",
+          "[provision][channels]") {
   // Issue 10: channel 2's R32 used to come back as channel 1's.
   Station st;
   REQUIRE(st({"-t", "4", "-c", "2", "write", "R32", "0x0005"}).rc == 0);

@@ -1,13 +1,11 @@
 // Issues 10 and 11, session side: command registers, lock-out refusal, crash recovery, rollback
 // that reads, usable backups. Against the emulator through the CLI. Baud rates and parameter
 // names a user meant are in test_near_miss_cli.cpp.
-#include <catch2/catch.hpp>
-
-#include <nlohmann/json.hpp>
-
 #include <algorithm>
+#include <catch2/catch.hpp>
 #include <filesystem>
 #include <map>
+#include <nlohmann/json.hpp>
 
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/modbus_client.hpp"
@@ -38,7 +36,8 @@ TEST_CASE("write R7 0x7000 on a KL6031 runs the command after the code word and 
   REQUIRE(emu({"-t", "3", "set", "baud", "57600", "buffer-full", "512"}).rc == 0);
   Run w = emu({"-v", "-t", "3", "write", "R7", "0x7000"});
   REQUIRE(w.rc == 0);
-  CHECK_THAT(w.out, Catch::Contains("R7 0x7000 command executed (restore factory settings); verified: R18 R32 R33 R34 R35"));
+  CHECK_THAT(w.out,
+             Catch::Contains("R7 0x7000 command executed (restore factory settings); verified: R18 R32 R33 R34 R35"));
   CHECK_THAT(w.out, Catch::Contains("R32 0x0009 -> 0x0006"));
   // The code word goes first (KL6031 manual), the relock after.
   auto unlock = w.err.find("write R31 ctrl 0xDF value 0x1235");
@@ -85,9 +84,10 @@ TEST_CASE("a command without effect is not reported as verified", "[safety][comm
   CHECK(emu({"-t", "3", "write", "R7", "0x7000", "--mask", "0xFF00"}).rc == 2);
   CHECK(emu({"-t", "1", "write", "R7", "0x7000"}).rc == 5);
   TempDir d;
-  write_text(d.file("s.toml"), "[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
-                               "type = \"KL6031\"\nR7 = 0x7000\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\n"
-                               "type = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
+  write_text(d.file("s.toml"),
+             "[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
+             "type = \"KL6031\"\nR7 = 0x7000\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\n"
+             "type = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
   Run a = emu({"apply", d.file("s.toml")});
   CHECK(a.rc == 2);
   CHECK_THAT(a.err, Catch::Contains("command register"));
@@ -146,28 +146,59 @@ std::string bk4000() {
 TEST_CASE("writes that would lock kscfg out are refused with exit 5 and leave the station as it was",
           "[safety][lockout]") {
   std::vector<LockoutCase> cases = {
-      {"R35 = 1 in the standard format", "", {"set", "alternative-format", "off"}, {"-t", "1", "write", "R35", "1"},
+      {"R35 = 1 in the standard format",
+       "",
+       {"set", "alternative-format", "off"},
+       {"-t", "1", "write", "R35", "1"},
        {"terminal 1 (KL6001) would have no register window: its standard image maps 1 data byte after the "
         "control/status byte (R35 = 1)",
         "caused by terminal 1 (KL6001): data-bytes = 1 (R35 0x0003 -> 0x0001)", "R35 = 0x0003", "KS2000", "--force"},
-       {"-t", "1", "read", "R8"}, 5, "has no register window"},
-      {"set data-bytes 1 in the standard format", "", {"set", "alternative-format", "off"},
-       {"-t", "1", "set", "data-bytes", "1"}, {"data-bytes = 1"}, {"-t", "1", "read", "R8"}, 5, "1 data byte"},
-      {"standard format with one byte in one change", "", {}, {"set", "alternative-format", "off", "data-bytes", "1"},
+       {"-t", "1", "read", "R8"},
+       5,
+       "has no register window"},
+      {"set data-bytes 1 in the standard format",
+       "",
+       {"set", "alternative-format", "off"},
+       {"-t", "1", "set", "data-bytes", "1"},
+       {"data-bytes = 1"},
+       {"-t", "1", "read", "R8"},
+       5,
+       "1 data byte"},
+      {"standard format with one byte in one change",
+       "",
+       {},
+       {"set", "alternative-format", "off", "data-bytes", "1"},
        {"terminal 1 (KL6001): alternative-format = off (R34 0x0003 -> 0x0001), data-bytes = 1 (R35 0x0003 -> 0x0001)",
         "R34 = 0x0003, R35 = 0x0003"},
-       {"-t", "1", "read", "R8"}, 5, "1 data byte"},
-      {"alternative format without complete evaluation", kBK7300, {}, {"-t", "1", "set", "alternative-format", "on"},
+       {"-t", "1", "read", "R8"},
+       5,
+       "1 data byte"},
+      {"alternative format without complete evaluation",
+       kBK7300,
+       {},
+       {"-t", "1", "set", "alternative-format", "on"},
        {"maps the control/status byte only with complete evaluation", "alternative-format = on",
         "complete evaluation on in the fieldbus master"},
-       {"-t", "1", "read", "R8"}, 5, "only with complete evaluation"},
-      {"factory reset to the alternative format without complete evaluation", kBK7300, {},
-       {"-t", "1", "reset", "-y"}, {"alternative-format = on"}, {"-t", "1", "read", "R8"}, 5, "complete evaluation"},
-      {"a change of another terminal that shifts offsets past the coupler's image", bk4000(), {},
+       {"-t", "1", "read", "R8"},
+       5,
+       "only with complete evaluation"},
+      {"factory reset to the alternative format without complete evaluation",
+       kBK7300,
+       {},
+       {"-t", "1", "reset", "-y"},
+       {"alternative-format = on"},
+       {"-t", "1", "read", "R8"},
+       5,
+       "complete evaluation"},
+      {"a change of another terminal that shifts offsets past the coupler's image",
+       bk4000(),
+       {},
        {"-t", "1", "set", "extended-image", "on", "image-size", "22"},
        {"3 terminals would have no register window: terminal 8 (KL5101)", "terminal 10 (KL5101)",
         "more than the BK4000 maps (64 and 64)", "caused by terminal 1 (KL6031): extended-image = on"},
-       {"-t", "1", "read", "--raw", "R35"}, 0, "0x0017\n"},
+       {"-t", "1", "read", "--raw", "R35"},
+       0,
+       "0x0017\n"},
   };
   for (const auto& c : cases) {
     SECTION(c.name) {
@@ -229,9 +260,10 @@ TEST_CASE("a terminal without a register window names the real cause", "[safety]
 TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "[safety][lockout]") {
   Station st;
   std::string before = st.snapshot();
-  std::string file = "[[terminal]]\ntype = \"KL6001\"\nalternative-format = false\ndata-bytes = 1\n"
-                     "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
-                     "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+  std::string file =
+      "[[terminal]]\ntype = \"KL6001\"\nalternative-format = false\ndata-bytes = 1\n"
+      "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
+      "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
   write_text(st.dir.file("lock.toml"), file);
   for (const char* cmd : {"apply", "restore"}) {
     Run r = st({cmd, st.dir.file("lock.toml")});
@@ -340,9 +372,10 @@ TEST_CASE("kscfg serve: a client killed right after write R31 0x1235 leaves noth
   CHECK(on({"read", "--raw", "R31"}).out == "0x0000\n");
 }
 
-TEST_CASE("kscfg serve: a terminal that a killed kscfg left in register mode is finished by the next command on "
-          "any terminal",
-          "[safety][recovery][serve][journal]") {
+TEST_CASE(
+    "kscfg serve: a terminal that a killed kscfg left in register mode is finished by the next command on "
+    "any terminal",
+    "[safety][recovery][serve][journal]") {
   KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_KILL_AFTER
   Station st;
   REQUIRE(st({"emu", "reset"}).rc == 0);
@@ -386,7 +419,8 @@ TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it ver
   write_text(st.dir.file("a.toml"), file("19200", "8E1", "57600"));
   write_text(st.dir.file("b.toml"), file("9600", "8N1", "9600"));
   write_text(st.dir.file("station.toml"), file("9600", "8N1", "9600"));
-  kscfg::test::Server srv(st.state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0", "--fault", "drop=0.3", "--seed", "5"},
+  kscfg::test::Server srv(st.state,
+                          {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0", "--fault", "drop=0.3", "--seed", "5"},
                           st.dir.file("serve.err"));
   auto on = [&](std::vector<std::string> args) {
     args.insert(args.begin(), {"--port", srv.uri, "--station", st.dir.file("station.toml"), "--timeout", "300"});
@@ -402,7 +436,8 @@ TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it ver
     FAIL("no fault-free read in 40 tries");
     return std::string();
   };
-  const std::string as_a = "0x0000\n0x0007\n0x0004\n0x0000\n0x0009\n", as_b = "0x0000\n0x0006\n0x0003\n0x0000\n0x0006\n";
+  const std::string as_a = "0x0000\n0x0007\n0x0004\n0x0000\n0x0009\n",
+                    as_b = "0x0000\n0x0006\n0x0003\n0x0000\n0x0006\n";
   int ok = 0, as_it_was = 0, unverified = 0;
   std::string before = as_b;
   for (int i = 0; i < 8; ++i) {
@@ -518,8 +553,9 @@ TEST_CASE("apply's backup records the run, its undo line works as printed, backu
   REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("want.toml")}, env).rc == 10);
   REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("back.toml")}, env).rc == 10);
   CHECK(files_in(folder).size() == 4);
-  REQUIRE(run_kscfg({"apply", "--keep-backups", "1", "--backup", st.dir.file("mine.toml"), st.dir.file("want.toml")},
-                    env).rc == 10);
+  REQUIRE(
+      run_kscfg({"apply", "--keep-backups", "1", "--backup", st.dir.file("mine.toml"), st.dir.file("want.toml")}, env)
+          .rc == 10);
   CHECK(files_in(folder).size() == 4);
 }
 

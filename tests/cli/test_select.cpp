@@ -1,7 +1,6 @@
 // Terminal selection like ethercat(8)/i2c-tools (-t KL6031, 1,3, 2-4, all), info in 80 columns,
 // the map grid's header and colour rules.
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 
 #include "kscfg/base/error.hpp"
@@ -12,13 +11,10 @@
 using kscfg::test::Emu;
 using kscfg::test::one_line_error;
 using kscfg::test::Run;
-using nlohmann::json;
 using kscfg::test::widest_line;
+using nlohmann::json;
 
-namespace {
-
-
-}  // namespace
+namespace {}  // namespace
 
 TEST_CASE("terminal selections parse strictly", "[select]") {
   using kscfg::parse_terminal_selection;
@@ -161,7 +157,8 @@ TEST_CASE("map grid: a column header, --color always implies the grid, TERM=dumb
   CHECK_THAT(plain.out, !Catch::Contains("Inputs (49 bytes)"));  // piped: the table only
 }
 
-TEST_CASE("dump shows progress on stderr only when asked for a terminal, never with --json", "[select][cli][progress]") {
+TEST_CASE("dump shows progress on stderr only when asked for a terminal, never with --json",
+          "[select][cli][progress]") {
   Emu emu;
   Run quiet = emu({"dump"});
   CHECK(quiet.err.empty());  // stderr is a pipe here
@@ -171,7 +168,7 @@ TEST_CASE("dump shows progress on stderr only when asked for a terminal, never w
   CHECK(shown.rc == 0);
   CHECK_THAT(shown.err, Catch::Contains("dump ["));
   CHECK_THAT(shown.err, Catch::Contains("/96 terminals 1,3"));  // both at once (the station engine)
-  CHECK(shown.err.find('\n') == std::string::npos);  // one line, redrawn with \r, then cleared
+  CHECK(shown.err.find('\n') == std::string::npos);             // one line, redrawn with \r, then cleared
   CHECK(shown.err.back() == '\r');
   CHECK(shown.err.find('\x1b') == std::string::npos);
   Run json = kscfg::test::run_kscfg({"--json", "dump"}, env);

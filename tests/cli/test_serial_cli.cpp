@@ -7,8 +7,8 @@
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <cstdio>
-#include <nlohmann/json.hpp>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <regex>
 #include <thread>
@@ -37,7 +37,6 @@ struct Emu {
   }
 };
 
-
 std::string random_text(std::size_t n, unsigned seed) {
   std::mt19937 g(seed);
   std::string s(n, '\0');
@@ -58,8 +57,7 @@ std::string sh(const std::string& cmd) {
 
 }  // namespace
 
-TEST_CASE("serial send --recv: 4 KiB of random bytes come back through the loopback in every format",
-          "[serial][cli]") {
+TEST_CASE("serial send --recv: 4 KiB of random bytes come back through the loopback in every format", "[serial][cli]") {
   Emu emu;
   const std::vector<std::pair<std::string, std::string>> formats = {
       {"KL6001", "alternative-format = false\ndata-bytes = 1"},
@@ -286,8 +284,8 @@ TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchang
   std::string data = random_text(4096, 7);
   // This checks the data, not the speed: a generous bound per acknowledge (the default 1 s was
   // exceeded on a loaded machine: exit 4 in 1 of 5 runs).
-  Run r = run_kscfg({"--port", uri, "--timeout", "10000", "serial", "send", "--recv", "--count", "4096", "-"}, {},
-                    120, data);
+  Run r = run_kscfg({"--port", uri, "--timeout", "10000", "serial", "send", "--recv", "--count", "4096", "-"}, {}, 120,
+                    data);
   REQUIRE(r.rc == 0);
   CHECK(r.out == data);
   Run k = run_kscfg({"--port", uri, "-t", "2", "serial", "send", "x"}, {}, 30);
@@ -344,10 +342,10 @@ TEST_CASE("serial send - streams stdin in bounded memory (/dev/zero)", "[serial]
   }
   std::string text = kscfg::test::read_text(err);
   INFO("rchar " << rchar << ", VmRSS " << rss_kb << " kB; stderr: " << text);
-  CHECK(!exited);                 // /dev/zero has no end
+  CHECK(!exited);  // /dev/zero has no end
   // Bounded (under ASan its shadow memory and quarantine count too: 139 MB seen on CI's steps).
   CHECK(rss_kb < (KSCFG_TEST_SANITIZED ? 200 : 128) * 1024);
-  CHECK(rchar >= 192 * 1024);     // it read (and sent) on
+  CHECK(rchar >= 192 * 1024);  // it read (and sent) on
   REQUIRE(WIFEXITED(status));
   CHECK(WEXITSTATUS(status) == 8);  // interrupted
   std::smatch m;

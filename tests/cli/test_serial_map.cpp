@@ -23,7 +23,9 @@ TEST_CASE("serial maps: CR, LF, BS and DEL as picocom maps them", "[serial][term
   CHECK(map("lfcr", "a\nb\r") == "a\rb\r");
   CHECK(map("lfcrlf", "a\nb") == "a\r\nb");
   CHECK(map("ignlf", "a\r\nb") == "a\rb");
-  CHECK(map("bsdel", "a\bb\x7f") == "a\x7f" "b\x7f");
+  CHECK(map("bsdel", "a\bb\x7f") ==
+        "a\x7f"
+        "b\x7f");
   CHECK(map("delbs", "a\x7f") == "a\b");
   // combined, each byte mapped once: a CR turned into LF is not then turned into CR LF
   CHECK(map("crlf,lfcrlf", "\r\n") == "\n\r\n");

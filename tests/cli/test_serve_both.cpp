@@ -1,7 +1,6 @@
 // `kscfg serve --tcp ADDR --ads ADDR`: one station over Modbus TCP and ADS at once (issue 35), as a
 // BK9000 answers both: one emulator, one state-file lock, one K-bus, one loop for both protocols.
 #include <catch2/catch.hpp>
-
 #include <thread>
 
 #include "support.hpp"
@@ -71,11 +70,10 @@ TEST_CASE("serve --tcp --ads: one station over Modbus TCP and ADS at once, what 
   CHECK(r.out == "0x0456\n");
 
   // ADS goes with Modbus TCP only, as on a BK9000; the Modbus-only options need a Modbus server.
-  for (const std::vector<std::string>& args :
-       {std::vector<std::string>{"serve", "--pty", "--ads", "127.0.0.1:0"},
-        {"serve", "--rtu", "/dev/null", "--ads", "127.0.0.1:0"},
-        {"serve", "--tcp", "127.0.0.1:0", "--pty", "--ads", "127.0.0.1:0"},
-        {"serve", "--ads", "127.0.0.1:0", "--fault", "drop=0.1"}}) {
+  for (const std::vector<std::string>& args : {std::vector<std::string>{"serve", "--pty", "--ads", "127.0.0.1:0"},
+                                               {"serve", "--rtu", "/dev/null", "--ads", "127.0.0.1:0"},
+                                               {"serve", "--tcp", "127.0.0.1:0", "--pty", "--ads", "127.0.0.1:0"},
+                                               {"serve", "--ads", "127.0.0.1:0", "--fault", "drop=0.1"}}) {
     std::vector<std::string> a2 = {"--port", "emu:" + d.file("other.json")};
     a2.insert(a2.end(), args.begin(), args.end());
     Run u = run_kscfg(a2, env, 10);

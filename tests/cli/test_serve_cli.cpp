@@ -1,9 +1,7 @@
 // End to end: `kscfg serve` in a child process, the kscfg CLI (and mbpoll) as its clients, over
 // loopback TCP and over a pseudo-terminal pair. Every server is killed when its test ends.
-#include <catch2/catch.hpp>
-#include <fmt/format.h>
-
 #include <fcntl.h>
+#include <fmt/format.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
@@ -11,10 +9,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <filesystem>
-#include <nlohmann/json.hpp>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <regex>
 
 #include "kscfg/catalog/catalog.hpp"
@@ -22,15 +21,14 @@
 #include "kscfg/station/station.hpp"
 #include "support.hpp"
 
-using kscfg::test::read_text;
 using kscfg::test::one_line_error;
+using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::Server;
 using kscfg::test::TempDir;
 
 namespace {
-
 
 // A station whose state we can look at after the server saved it.
 struct Station {
@@ -137,9 +135,9 @@ TEST_CASE("serve says which signal stopped it and which process sent it", "[serv
     CHECK(srv.stop(sig) == 0);
     const char* name = sig == SIGTERM ? "SIGTERM" : sig == SIGHUP ? "SIGHUP" : "SIGINT";
     // This test process sent it: its PID and command line (kscfg_tests and its arguments).
-    CHECK_THAT(srv.errors(), Catch::Contains(fmt::format("kscfg: serve: stopped by {} from process {} (", name,
-                                                         ::getpid())) &&
-                                 Catch::Contains("kscfg_tests"));
+    CHECK_THAT(srv.errors(),
+               Catch::Contains(fmt::format("kscfg: serve: stopped by {} from process {} (", name, ::getpid())) &&
+                   Catch::Contains("kscfg_tests"));
   }
 }
 
@@ -161,8 +159,8 @@ TEST_CASE("mbpoll reads the identification and the image lengths from serve", "[
   std::string port = srv.uri.substr(srv.uri.rfind(':') + 1);
   auto mbpoll = [&](const std::string& ref, const std::string& count) {
     // Runs mbpoll through a shell, bounded by timeout(1); returns the "[ref]: value" pairs.
-    std::string cmd = "timeout 10 mbpoll -m tcp -p " + port + " -a 1 -0 -1 -r " + ref + " -c " + count +
-                      " -t 4 127.0.0.1 2>&1";
+    std::string cmd =
+        "timeout 10 mbpoll -m tcp -p " + port + " -a 1 -0 -1 -r " + ref + " -c " + count + " -t 4 127.0.0.1 2>&1";
     std::string out;
     FILE* f = popen(cmd.c_str(), "r");
     REQUIRE(f);
@@ -186,16 +184,15 @@ TEST_CASE("mbpoll reads the identification and the image lengths from serve", "[
   kscfg::EmulatedStation ref(kscfg::default_station(), kscfg::Catalog::standard());
   CHECK(len[4112] == ref.layout().complex_out * 8);
   CHECK(len[4113] == ref.layout().complex_in * 8);
-  CHECK(len[4114] == 4);  // KL2134
-  CHECK(len[4115] == 4);  // KL1104
+  CHECK(len[4114] == 4);          // KL2134
+  CHECK(len[4115] == 4);          // KL1104
   auto wd = mbpoll("4384", "3");  // 0x1120..0x1122
   CHECK(wd[4384] == 1000);
   CHECK(wd[4386] == 1);
   CHECK(srv.stop() == 0);
 }
 
-TEST_CASE("with faults injected, commands succeed or fail clearly and leave no terminal in register mode",
-          "[serve]") {
+TEST_CASE("with faults injected, commands succeed or fail clearly and leave no terminal in register mode", "[serve]") {
   // Mild faults over TCP and the pty; harsh ones (bad CRCs, busy) make commands fail mid-session.
   struct Variant {
     bool pty;
@@ -207,18 +204,15 @@ TEST_CASE("with faults injected, commands succeed or fail clearly and leave no t
     bool pty = v.pty;
     DYNAMIC_SECTION((pty ? "pty " : "tcp ") << v.faults) {
       Station st;
-      std::vector<std::string> args = pty ? std::vector<std::string>{"--pty"}
-                                          : std::vector<std::string>{"--tcp", "127.0.0.1:0"};
+      std::vector<std::string> args =
+          pty ? std::vector<std::string>{"--pty"} : std::vector<std::string>{"--tcp", "127.0.0.1:0"};
       // Watchdog off: it would clear the outputs and hide a terminal left in register mode.
       args.insert(args.end(), {"--watchdog-ms", "0", "--fault", v.faults, "--seed", "11"});
       Server srv(st.state, args, st.dir.file("serve.err"));
       int ok = 0, failed = 0;
-      std::vector<std::vector<std::string>> cmds = {{"write", "R32", "0x0007"},
-                                                    {"-t", "3", "write", "R33", "0x0004"},
-                                                    {"-t", "3", "dump"},
-                                                    {"-t", "2", "write", "R32", "0x0010"},
-                                                    {"read", "R31", "R32-R35"},
-                                                    {"write", "R32", "0x0006"}};
+      std::vector<std::vector<std::string>> cmds = {{"write", "R32", "0x0007"}, {"-t", "3", "write", "R33", "0x0004"},
+                                                    {"-t", "3", "dump"},        {"-t", "2", "write", "R32", "0x0010"},
+                                                    {"read", "R31", "R32-R35"}, {"write", "R32", "0x0006"}};
       // The harsh variant names the station, so that failures happen inside register sessions.
       std::string station_file = st.dir.file("station.toml");
       kscfg::test::write_text(station_file, kscfg::station_to_toml(kscfg::default_station()));
@@ -243,7 +237,8 @@ TEST_CASE("with faults injected, commands succeed or fail clearly and leave no t
       std::string summary = srv.errors();
       INFO(summary);
       std::smatch m;
-      REQUIRE(std::regex_search(summary, m, std::regex(R"((\d+) dropped, (\d+) delayed, (\d+) corrupted, (\d+) busy)")));
+      REQUIRE(
+          std::regex_search(summary, m, std::regex(R"((\d+) dropped, (\d+) delayed, (\d+) corrupted, (\d+) busy)")));
       CHECK(std::stoi(m[1]) + std::stoi(m[2]) + std::stoi(m[3]) + std::stoi(m[4]) > 0);  // faults happened
       // The saved station: every control byte in process-data mode, every channel locked.
       kscfg::EmulatorStore store(st.state, kscfg::Catalog::standard());
@@ -263,8 +258,7 @@ TEST_CASE("with faults injected, commands succeed or fail clearly and leave no t
   }
 }
 
-TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for the next answer",
-          "[serve]") {
+TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for the next answer", "[serve]") {
   // Modbus RTU has no transaction id. Every third reply here comes 150 ms after a 100 ms timeout;
   // read as the answer to the next request of the same shape, an input read's bytes became the
   // "saved" output image and were written back at the end: terminals left in register mode.
@@ -275,8 +269,8 @@ TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for
   // terminal -> a value it may hold instead: a write whose rollback could not verify (exit 9, the
   // link lost after the write) says the register may hold the new value.
   std::map<unsigned, std::string> maybe;
-  const std::vector<std::pair<unsigned, std::string>> writes = {
-      {1, "0x0005"}, {2, "0x0010"}, {1, "0x0006"}, {2, "0x0011"}, {1, "0x0007"}, {2, "0x0012"}};
+  const std::vector<std::pair<unsigned, std::string>> writes = {{1, "0x0005"}, {2, "0x0010"}, {1, "0x0006"},
+                                                                {2, "0x0011"}, {1, "0x0007"}, {2, "0x0012"}};
   for (const auto& [pos, value] : writes) {
     Run r = on(srv.uri, {"--timeout", "300", "-t", std::to_string(pos), "write", "R32", value}, 60);
     INFO("write R32 " << value << " on terminal " << pos << ": " << r.err);
@@ -301,7 +295,8 @@ TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for
   // the next kscfg on the port finishes it (from the dead run's journal, or as the leftover it
   // finds). One that gets through and touches every terminal leaves the station clean.
   bool clean = false;
-  for (int i = 0; i < 8 && !clean; ++i) clean = on(srv.uri, {"--timeout", "300", "-t", "all", "read", "R8"}, 60).rc == 0;
+  for (int i = 0; i < 8 && !clean; ++i)
+    clean = on(srv.uri, {"--timeout", "300", "-t", "all", "read", "R8"}, 60).rc == 0;
   CHECK(clean);
   CHECK(srv.stop() == 0);
   kscfg::EmulatorStore store(st.state, kscfg::Catalog::standard());
@@ -317,8 +312,8 @@ TEST_CASE("RTU: a reply that comes after the timeout is dropped, never taken for
     auto held = station.channel(pos, 0).read_register(32);
     INFO("terminal " << pos << " holds R32 " << held << "; last verified " << value << ", maybe "
                      << (maybe.count(pos) ? maybe[pos] : "-"));
-    CHECK((held == std::stoul(value, nullptr, 16) ||
-           (maybe.count(pos) && held == std::stoul(maybe[pos], nullptr, 16))));
+    CHECK(
+        (held == std::stoul(value, nullptr, 16) || (maybe.count(pos) && held == std::stoul(maybe[pos], nullptr, 16))));
   }
   CHECK(last.size() == 2);
 }
@@ -412,10 +407,9 @@ TEST_CASE("bad links: refused, silent, wrong unit, not a tty, malformed URI", "[
     CHECK_THAT(n.err, Catch::Contains("kscfg ports"));
   }
   SECTION("malformed URIs and serve options") {
-    for (std::string uri :
-         {"tcp://", "tcp://127.0.0.1:99999", "tcp://127.0.0.1:12ab", "tcp://127.0.0.1?unit=300",
-          "tcp://127.0.0.1?speed=1", "rtu:", "rtu:/dev/ttyS0?baud=fast", "rtu:/dev/ttyS0?parity=X",
-          "rtu:/dev/ttyS0?bogus=1", "udp://127.0.0.1"}) {
+    for (std::string uri : {"tcp://", "tcp://127.0.0.1:99999", "tcp://127.0.0.1:12ab", "tcp://127.0.0.1?unit=300",
+                            "tcp://127.0.0.1?speed=1", "rtu:", "rtu:/dev/ttyS0?baud=fast", "rtu:/dev/ttyS0?parity=X",
+                            "rtu:/dev/ttyS0?bogus=1", "udp://127.0.0.1"}) {
       Run r = run_kscfg({"--port", uri, "info"});
       INFO(uri << " -> " << r.err);
       CHECK(r.rc == 2);
@@ -423,10 +417,12 @@ TEST_CASE("bad links: refused, silent, wrong unit, not a tty, malformed URI", "[
     }
     TempDir d;
     std::string state = "emu:" + d.file("s.json");
-    for (const std::vector<std::string>& a :
-         {std::vector<std::string>{"serve"}, {"serve", "--tcp", "127.0.0.1"}, {"serve", "--pty", "--tcp", "127.0.0.1:0"},
-          {"serve", "--pty", "--fault", "drop=2"}, {"serve", "--pty", "--unit", "0"},
-          {"serve", "--pty", "--cycle-us", "10"}}) {
+    for (const std::vector<std::string>& a : {std::vector<std::string>{"serve"},
+                                              {"serve", "--tcp", "127.0.0.1"},
+                                              {"serve", "--pty", "--tcp", "127.0.0.1:0"},
+                                              {"serve", "--pty", "--fault", "drop=2"},
+                                              {"serve", "--pty", "--unit", "0"},
+                                              {"serve", "--pty", "--cycle-us", "10"}}) {
       std::vector<std::string> args = {"--port", state};
       args.insert(args.end(), a.begin(), a.end());
       Run r = run_kscfg(args, {}, 10);

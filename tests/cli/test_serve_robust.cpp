@@ -2,8 +2,6 @@
 // found by the reliability campaign. Raw sockets stand in for the bad clients; the kscfg CLI is
 // the well-behaved one that must keep being served meanwhile. Every wait is on a condition with a
 // generous bound.
-#include <catch2/catch.hpp>
-
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -12,6 +10,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -56,7 +55,9 @@ struct Raw {
   }
   Raw(const Raw&) = delete;
   Raw(Raw&& o) noexcept : fd(o.fd) { o.fd = -1; }
-  bool send(const Bytes& b) const { return fd >= 0 && ::send(fd, b.data(), b.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(b.size()); }
+  bool send(const Bytes& b) const {
+    return fd >= 0 && ::send(fd, b.data(), b.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(b.size());
+  }
   // What arrives within `wait`; `eof` tells whether the server closed the connection.
   Bytes recv(std::chrono::milliseconds wait, bool* eof = nullptr, std::size_t want = 0) const {
     Bytes got;
@@ -82,9 +83,13 @@ struct Raw {
 
 Bytes mbap(const Bytes& pdu, std::uint16_t tid = 1, std::uint16_t protocol = 0, int length = -1) {
   unsigned len = length >= 0 ? static_cast<unsigned>(length) : static_cast<unsigned>(pdu.size() + 1);
-  Bytes f = {static_cast<std::uint8_t>(tid >> 8), static_cast<std::uint8_t>(tid & 0xFF),
-             static_cast<std::uint8_t>(protocol >> 8), static_cast<std::uint8_t>(protocol & 0xFF),
-             static_cast<std::uint8_t>(len >> 8), static_cast<std::uint8_t>(len & 0xFF), 1};
+  Bytes f = {static_cast<std::uint8_t>(tid >> 8),
+             static_cast<std::uint8_t>(tid & 0xFF),
+             static_cast<std::uint8_t>(protocol >> 8),
+             static_cast<std::uint8_t>(protocol & 0xFF),
+             static_cast<std::uint8_t>(len >> 8),
+             static_cast<std::uint8_t>(len & 0xFF),
+             1};
   for (auto b : pdu) f.push_back(b);
   return f;
 }
@@ -262,7 +267,7 @@ TEST_CASE("a slow client loses its own connection and never blocks the others", 
   slow.recv(std::chrono::milliseconds(15000), &eof);
   done = true;
   dribble.join();
-  CHECK(eof);                                  // disconnected ...
+  CHECK(eof);                                    // disconnected ...
   CHECK(sent < static_cast<int>(frame.size()));  // ... before its frame was whole
   CHECK(srv.stop() == 0);
   CHECK_THAT(srv.errors(), Catch::Contains("slow client"));

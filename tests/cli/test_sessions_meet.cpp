@@ -146,9 +146,10 @@ TEST_CASE("two kscfg on one coupler: the second waits for the first and names it
   CHECK(c({"--lock-wait", "x", "info"}).rc == 2);
 }
 
-TEST_CASE("the emulator state file that kscfg serve holds: refused at once with status 11, the serve's PID and "
-          "the -p URI to reach it, serve --help says how to pick the file",
-          "[sessions][lock][serve]") {
+TEST_CASE(
+    "the emulator state file that kscfg serve holds: refused at once with status 11, the serve's PID and "
+    "the -p URI to reach it, serve --help says how to pick the file",
+    "[sessions][lock][serve]") {
   TempDir d;
   std::string state = d.file("station.json");
   Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
@@ -195,22 +196,29 @@ TEST_CASE("the emulator state file that kscfg serve holds: refused at once with 
   CHECK_THAT(run_kscfg({"manpage"}).out, Catch::Contains("serves \\fIPATH\\fR"));
 }
 
-TEST_CASE("kill -9 of every command kind in register mode: the next command on another terminal finishes it from "
-          "the dead process's journal",
-          "[sessions][journal][kill9][serve]") {
+TEST_CASE(
+    "kill -9 of every command kind in register mode: the next command on another terminal finishes it from "
+    "the dead process's journal",
+    "[sessions][journal][kill9][serve]") {
   // A K-bus cycle of 3 ms keeps each session in register mode long enough to be caught there.
   Coupler c({"--cycle-us", "3000"});
   REQUIRE(c({"info"}).rc == 0);  // the scan is kept: every command below starts from it
   std::string dir = c.dir.path;
-  write_text(dir + "/apply.toml", "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
-                                  "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\nbaud = 4800\n"
-                                  "[[terminal]]\ntype = \"KL3022\"\nR36 = 0x0042\n");
+  write_text(dir + "/apply.toml",
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n"
+             "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\nbaud = 4800\n"
+             "[[terminal]]\ntype = \"KL3022\"\nR36 = 0x0042\n");
   REQUIRE(c({"backup", dir + "/restore.toml"}).rc == 0);
-  const std::vector<std::vector<std::string>> kinds{
-      {"backup", dir + "/b.toml"},   {"--rescan", "scan"},       {"info"},
-      {"-t", "3", "dump"},          {"-t", "1", "show"},        {"apply", dir + "/apply.toml"},
-      {"restore", dir + "/restore.toml"}, {"-t", "3", "set", "baud", "2400"}, {"data", "--once"},
-      {"-t", "1", "serial", "send", "hello"}};
+  const std::vector<std::vector<std::string>> kinds{{"backup", dir + "/b.toml"},
+                                                    {"--rescan", "scan"},
+                                                    {"info"},
+                                                    {"-t", "3", "dump"},
+                                                    {"-t", "1", "show"},
+                                                    {"apply", dir + "/apply.toml"},
+                                                    {"restore", dir + "/restore.toml"},
+                                                    {"-t", "3", "set", "baud", "2400"},
+                                                    {"data", "--once"},
+                                                    {"-t", "1", "serial", "send", "hello"}};
   using Clock = std::chrono::steady_clock;
   auto ms = [](Clock::duration d) { return std::chrono::duration_cast<std::chrono::milliseconds>(d).count(); };
   for (const auto& kind : kinds) {
@@ -248,9 +256,11 @@ TEST_CASE("kill -9 of every command kind in register mode: the next command on a
       for (auto b : left) at += std::to_string(b) + " ";
       // What a failure needs to be told apart (CI keeps only this): which attempt, when, what the
       // killed process and the next command said.
-      INFO("attempt " << attempt + 1 << ": killed " << ms(t_kill - t0) << " ms after its start, with the control "
-                      "bytes at output bytes " << at << "in register mode; -t " << other << " read started "
-                      << ms(t_read - t_kill) << " ms after the kill and took " << ms(Clock::now() - t_read) << " ms");
+      INFO("attempt " << attempt + 1 << ": killed " << ms(t_kill - t0)
+                      << " ms after its start, with the control "
+                         "bytes at output bytes "
+                      << at << "in register mode; -t " << other << " read started " << ms(t_read - t_kill)
+                      << " ms after the kill and took " << ms(Clock::now() - t_read) << " ms");
       INFO("killed kscfg process " << pid << " said: " << k.err());
       INFO("the read said (status " << r.rc << "): " << r.err);
       CHECK(r.rc == 0);
@@ -270,9 +280,10 @@ TEST_CASE("kill -9 of every command kind in register mode: the next command on a
   CHECK(fs::is_empty(sessions, ec));
 }
 
-TEST_CASE("kill -9 right after a request the terminal has not taken yet: the next command waits for the status "
-          "byte to follow, then finishes it from the journal",
-          "[sessions][journal][kill9][serve]") {
+TEST_CASE(
+    "kill -9 right after a request the terminal has not taken yet: the next command waits for the status "
+    "byte to follow, then finishes it from the journal",
+    "[sessions][journal][kill9][serve]") {
   // Terminals that answer 100 K-bus cycles of 3 ms after they see a request: a kscfg killed right
   // after its first control byte leaves a request the terminal has not taken yet, and the next
   // command finds that control byte in register mode while the status byte is not, yet. Recovery
@@ -312,8 +323,9 @@ TEST_CASE("kill -9 right after a request the terminal has not taken yet: the nex
     CHECK(r.rc == 0);
     CHECK(r.out == "0x0BCE\n");
     if (caught)
-      CHECK_THAT(r.err, Catch::Contains("kscfg: note: terminal 1 (KL6001) was left in register mode (control byte 0x") &&
-                            Catch::Contains("by kscfg process " + std::to_string(pid) + ", which ended without "));
+      CHECK_THAT(r.err,
+                 Catch::Contains("kscfg: note: terminal 1 (KL6001) was left in register mode (control byte 0x") &&
+                     Catch::Contains("by kscfg process " + std::to_string(pid) + ", which ended without "));
     CHECK(c.in_register_mode().empty());
     std::error_code ec;
     CHECK(fs::is_empty(sessions, ec));
@@ -321,16 +333,17 @@ TEST_CASE("kill -9 right after a request the terminal has not taken yet: the nex
   CHECK(caught);
 }
 
-TEST_CASE("forged or stale journals: acted on only where an entry describes the station (its terminal's type, "
-          "register window and control byte)",
-          "[sessions][journal][serve]") {
+TEST_CASE(
+    "forged or stale journals: acted on only where an entry describes the station (its terminal's type, "
+    "register window and control byte)",
+    "[sessions][journal][serve]") {
   KSCFG_NEEDS_TEST_HOOKS();  // KSCFG_TEST_KILL_AFTER
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
   // Terminal 3 (KL6031) left unlocked in register mode by a kscfg on another computer (its journal
   // is not in this one's state directory).
-  Run killed = c({"-t", "3", "write", "R31", "0x1235"}, {{"KSCFG_TEST_KILL_AFTER", "R31"},
-                                                          {"XDG_STATE_HOME", c.dir.file("another-computer")}});
+  Run killed = c({"-t", "3", "write", "R31", "0x1235"},
+                 {{"KSCFG_TEST_KILL_AFTER", "R31"}, {"XDG_STATE_HOME", c.dir.file("another-computer")}});
   REQUIRE(killed.rc == -9);
   auto before = c.outputs();
   REQUIRE(before[16] == 0xDF);
@@ -403,9 +416,10 @@ struct OtherMaster {
 
 }  // namespace
 
-TEST_CASE("register mode found at the start: another master's while it changes (status 12, nothing written), a "
-          "dead session's once it stays, never on first sight",
-          "[sessions][watch][serve]") {
+TEST_CASE(
+    "register mode found at the start: another master's while it changes (status 12, nothing written), a "
+    "dead session's once it stays, never on first sight",
+    "[sessions][watch][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
   {
@@ -440,9 +454,10 @@ TEST_CASE("register mode found at the start: another master's while it changes (
   CHECK(c.in_register_mode().empty());
 }
 
-TEST_CASE("SIGINT while kscfg waits for a slow coupler's reply: the wait ends at once, the terminal is restored, "
-          "exit 8",
-          "[sessions][interrupt][serve]") {
+TEST_CASE(
+    "SIGINT while kscfg waits for a slow coupler's reply: the wait ends at once, the terminal is restored, "
+    "exit 8",
+    "[sessions][interrupt][serve]") {
   // Every reply half a second late; a reply may take a second (--timeout 3000).
   Coupler c({"--fault", "delay=1,delay_ms=500"});
   write_text(c.dir.file("station.toml"), kDefaultStation);
@@ -458,16 +473,19 @@ TEST_CASE("SIGINT while kscfg waits for a slow coupler's reply: the wait ends at
   CHECK(k.wait() == 8);
   CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(10));
   CHECK_THAT(k.err(), Catch::EndsWith("kscfg: error: interrupted\n"));
-  CHECK(wait_for([&] {
-    auto j = nlohmann::json::parse(read_text(c.state));
-    return (std::stoul(j["outputs"].get<std::string>().substr(0, 2), nullptr, 16) & 0x80) == 0;
-  }, 10));
+  CHECK(wait_for(
+      [&] {
+        auto j = nlohmann::json::parse(read_text(c.state));
+        return (std::stoul(j["outputs"].get<std::string>().substr(0, 2), nullptr, 16) & 0x80) == 0;
+      },
+      10));
   CHECK(c.all_locked());
 }
 
-TEST_CASE("poisoned scan caches (a latency beyond the timeout, a FIFO, a link to /dev/zero, 300 MB) are ignored "
-          "with a -v note, and the station is scanned again",
-          "[sessions][cache][serve]") {
+TEST_CASE(
+    "poisoned scan caches (a latency beyond the timeout, a FIFO, a link to /dev/zero, 300 MB) are ignored "
+    "with a -v note, and the station is scanned again",
+    "[sessions][cache][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
   std::string cache = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/" + c.station() + ".json";
@@ -485,13 +503,12 @@ TEST_CASE("poisoned scan caches (a latency beyond the timeout, a FIFO, a link to
     const char* what;
     std::function<void()> make;
   };
-  std::vector<Poison> poisons{
-      {"is a FIFO", [&] { REQUIRE(::mkfifo(cache.c_str(), 0644) == 0); }},
-      {"is a symbolic link", [&] { fs::create_symlink("/dev/zero", cache); }},
-      {"has 314572800 bytes, more than a scan cache has (1024 KiB at most)", [&] {
-         std::ofstream(cache).close();
-         fs::resize_file(cache, 300u << 20);
-       }}};
+  std::vector<Poison> poisons{{"is a FIFO", [&] { REQUIRE(::mkfifo(cache.c_str(), 0644) == 0); }},
+                              {"is a symbolic link", [&] { fs::create_symlink("/dev/zero", cache); }},
+                              {"has 314572800 bytes, more than a scan cache has (1024 KiB at most)", [&] {
+                                 std::ofstream(cache).close();
+                                 fs::resize_file(cache, 300u << 20);
+                               }}};
   for (auto& p : poisons) {
     INFO(p.what);
     fs::remove(cache);
@@ -499,7 +516,8 @@ TEST_CASE("poisoned scan caches (a latency beyond the timeout, a FIFO, a link to
     Run q = run_kscfg(c.args({"-v", "-t", "1", "read", "--raw", "R32"}), {}, 10);
     CHECK(q.rc == 0);
     CHECK(q.out == "0x0006\n");
-    CHECK_THAT(q.err, Catch::Contains("the scan cache " + cache + " " + p.what + ": ignored, the station is scanned "
+    CHECK_THAT(q.err, Catch::Contains("the scan cache " + cache + " " + p.what +
+                                      ": ignored, the station is scanned "
                                       "again"));
     struct stat st {};
     CHECK((::lstat(cache.c_str(), &st) == 0 && S_ISREG(st.st_mode) && st.st_size < 100000));  // replaced
@@ -526,19 +544,21 @@ TEST_CASE("kept acknowledge latencies: --rescan forgets them, a suspect one come
   CHECK(wait_of() < 100000);
 }
 
-TEST_CASE("terminals swapped for others that keep the image lengths: the kept scan is dropped and the station "
-          "scanned again",
-          "[sessions][cache][serve]") {
+TEST_CASE(
+    "terminals swapped for others that keep the image lengths: the kept scan is dropped and the station "
+    "scanned again",
+    "[sessions][cache][serve]") {
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
   std::string old_key = c.station();
   std::string scans = kscfg::test::kscfg_cache_dir() + "/kscfg/scans/";
   c.srv.reset();
   // KL6031, KL6001, KL5101, KL3022 in place of KL6001, KL5101, KL6031, KL3022: the same lengths.
-  write_text(c.dir.file("swapped.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\n"
-                                         "type = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
-                                         "type = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\n"
-                                         "type = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
+  write_text(c.dir.file("swapped.toml"),
+             "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\n"
+             "type = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\n"
+             "type = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\n"
+             "type = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n");
   REQUIRE(run_kscfg({"--port", "emu:" + c.state, "emu", "reset", "--station", c.dir.file("swapped.toml")}).rc == 0);
   c.start();
   fs::copy_file(scans + old_key + ".json", scans + c.station() + ".json");  // the same coupler, as kept
@@ -556,9 +576,10 @@ TEST_CASE("no note about this run's own register mode: write R35, set and reset 
   Coupler c;
   REQUIRE(c({"info"}).rc == 0);
   for (int i = 0; i < 3; ++i) {
-    for (const std::vector<std::string>& cmd :
-         {std::vector<std::string>{"-t", "1", "write", "R35", "3"}, {"-t", "1", "write", "R34", "0"},
-          {"-t", "1", "set", "rts-cts", "on"}, {"-t", "1", "reset", "--yes"}}) {
+    for (const std::vector<std::string>& cmd : {std::vector<std::string>{"-t", "1", "write", "R35", "3"},
+                                                {"-t", "1", "write", "R34", "0"},
+                                                {"-t", "1", "set", "rts-cts", "on"},
+                                                {"-t", "1", "reset", "--yes"}}) {
       Run r = c(cmd);
       INFO(cmd[2] << " " << r.err);
       CHECK(r.rc == 0);

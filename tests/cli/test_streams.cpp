@@ -1,13 +1,12 @@
 // Files and streams (issue 10 item 7): every write to stdout or a file is checked; a failure is
 // exit 7 with the OS reason and leaves no truncated file in place of a good one; a reader that
 // quits ends kscfg quietly; '-' is stdin/stdout for FILE arguments; a directory is "is a directory".
-#include <catch2/catch.hpp>
-
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <filesystem>
 
 #include "support.hpp"
@@ -135,7 +134,8 @@ TEST_CASE("a failed file write keeps the good file and leaves no temporary file"
   std::string before = read_text(good);
   REQUIRE(before.size() > 1024);
   // A file size limit of 1 KiB: the write fails with EFBIG ("File too large").
-  Run r = bash(emu, "cd " + d.path + " && ulimit -f 1 && trap '' XFSZ && \"$KSCFG\" backup --force good.toml; echo \"rc=$?\"");
+  Run r = bash(
+      emu, "cd " + d.path + " && ulimit -f 1 && trap '' XFSZ && \"$KSCFG\" backup --force good.toml; echo \"rc=$?\"");
   INFO(r.err);
   CHECK(r.out == "rc=7\n");
   CHECK(one_line_error(r));
@@ -177,9 +177,10 @@ TEST_CASE("'-' is stdin or stdout for FILE arguments", "[streams][cli]") {
 TEST_CASE("file errors carry the OS reason, a directory is 'is a directory'", "[streams][cli]") {
   Emu emu;
   TempDir d;
-  for (const std::vector<std::string>& args :
-       {std::vector<std::string>{"diff", d.path}, {"apply", d.path}, {"station", "check", d.path},
-        {"--station", d.path, "map"}}) {
+  for (const std::vector<std::string>& args : {std::vector<std::string>{"diff", d.path},
+                                               {"apply", d.path},
+                                               {"station", "check", d.path},
+                                               {"--station", d.path, "map"}}) {
     Run r = emu(args);
     INFO(args[0] << " " << r.err);
     CHECK(r.rc == 7);

@@ -2,7 +2,6 @@
 // (set, write, apply, apply --dry-run, restore, restore --dry-run, diff, station check) refuses
 // the same change with status 5 and the same reason, and writes nothing.
 #include <catch2/catch.hpp>
-
 #include <string>
 #include <vector>
 
@@ -25,8 +24,8 @@ struct RefusedChange {
 };
 
 std::string partial(unsigned position, const std::string& type, const std::string& settings) {
-  return "coupler = \"BK9000\"\n[[terminal]]\nposition = " + std::to_string(position) + "\ntype = \"" + type +
-         "\"\n" + settings;
+  return "coupler = \"BK9000\"\n[[terminal]]\nposition = " + std::to_string(position) + "\ntype = \"" + type + "\"\n" +
+         settings;
 }
 
 }  // namespace

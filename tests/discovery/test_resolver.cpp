@@ -1,9 +1,8 @@
 // The station resolver (discovery/resolver.hpp): the emulator's station from its discovery, a
 // station file checked against it, the state saved by the port that owns it at the end; the
 // session kept from checking a kept scan's terminal closed where a library call opens sessions.
-#include <catch2/catch.hpp>
-
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <thread>
 
 #include "kscfg/base/error.hpp"
@@ -54,8 +53,7 @@ std::uint8_t control_byte(StationResolver& r, const TerminalImage& t) {
 
 }  // namespace
 
-TEST_CASE("resolver: the emulator's station comes from its discovery, a station file must describe it",
-          "[resolver]") {
+TEST_CASE("resolver: the emulator's station comes from its discovery, a station file must describe it", "[resolver]") {
   test::TempDir dir;
   std::string path = dir.file("emu.json");
   reset_emulator_state(path, default_station(), cat());

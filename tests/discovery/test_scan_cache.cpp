@@ -1,7 +1,7 @@
 // The scan cache: what a scan learned, kept between runs; a broken or foreign entry is no entry.
-#include <catch2/catch.hpp>
 #include <sys/stat.h>
 
+#include <catch2/catch.hpp>
 #include <filesystem>
 #include <fstream>
 
@@ -74,8 +74,11 @@ TEST_CASE("scan cache: a broken, foreign or unknown entry is no entry", "[scan]"
   c.scan = sample(cat);
   REQUIRE(a.store(c));
   std::string good = test::read_text(a.path());
-  for (std::string bad : {std::string("{"), std::string("[]"), std::string(""),
-                          [&] { auto s = good; s.replace(s.find("\"format\": 1"), 11, "\"format\": 9"); return s; }()}) {
+  for (std::string bad : {std::string("{"), std::string("[]"), std::string(""), [&] {
+                            auto s = good;
+                            s.replace(s.find("\"format\": 1"), 11, "\"format\": 9");
+                            return s;
+                          }()}) {
     test::write_text(a.path(), bad);
     INFO(bad.substr(0, 40));
     CHECK_FALSE(a.load(cat));
@@ -102,8 +105,10 @@ TEST_CASE("scan cache: the lock is bounded", "[scan]") {
   CHECK(b.lock(1, nullptr));
 }
 
-TEST_CASE("scan cache: a link where the entry goes is replaced, never written through, a lock path that is no file "
-          "is refused", "[scan]") {
+TEST_CASE(
+    "scan cache: a link where the entry goes is replaced, never written through, a lock path that is no file "
+    "is refused",
+    "[scan]") {
   namespace fs = std::filesystem;
   const Catalog& cat = Catalog::standard();
   test::TempDir dir;

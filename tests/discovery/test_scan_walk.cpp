@@ -1,10 +1,10 @@
 // The scan's walk over a pipelining coupler (docs/design.md 4.5): each terminal's R8 and the
 // registers that decide its image in one session; the registers that decided the terminal before
 // it read with R8, each request sent with the poll for the one before.
-#include <catch2/catch.hpp>
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <string>
 #include <vector>
@@ -119,8 +119,7 @@ TEST_CASE("the scan's walk: a guess of the registers that decide an image that d
   CHECK(r8_reads(5) == 2);
 }
 
-TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, not again as before",
-          "[scan][walk]") {
+TEST_CASE("the scan's walk: a terminal that does not answer R8 is asked once, not again as before", "[scan][walk]") {
   // Terminal 3 is mute. It is read as one more KL6001 after terminal 2; its status byte is where the
   // walk as before would look too, so a timeout there ends the walk with its error at once (before,
   // the walk as before sent R8 again and waited out the timeout a second time).

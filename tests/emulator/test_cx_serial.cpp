@@ -4,7 +4,6 @@
 // the manual's example: data sent through the RS232 interface comes back through a bridge from
 // pin 2 (RxD) to pin 3 (TxD) -- the emulator's "loopback" far end.
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -113,7 +112,7 @@ TEST_CASE("CX KL6xx1 mode: the manual's example through the word, step by step",
   // bits to be written)": 64 bytes, the whole array, in one handshake.
   auto block = random_bytes(64, 7);
   cx.data_out(block);
-  cx.control(0x4001);  // OL = 64, TR = 1
+  cx.control(0x4001);                                                          // OL = 64, TR = 1
   REQUIRE(cx.cycle_until([](std::uint16_t s) { return (s & 0x0001) != 0; }));  // TA follows TR
 
   // The bridge from pin 2 to pin 3 brings them back: RR toggles, IL says how many are valid, and the
@@ -125,7 +124,7 @@ TEST_CASE("CX KL6xx1 mode: the manual's example through the word, step by step",
   std::vector<std::uint8_t> got = cx.data_in(il);
   std::uint16_t held = cx.status();
   for (int i = 0; i < 200; ++i) cx.st.cycle();  // 64 bytes at 9600 8N1 take ~67 ms: all arrived by now
-  CHECK(cx.status() == held);                    // RR stays until RA
+  CHECK(cx.status() == held);                   // RR stays until RA
   CHECK(cx.data_in(il) == got);
   bool ra = false;
   while (got.size() < block.size()) {
@@ -140,7 +139,7 @@ TEST_CASE("CX KL6xx1 mode: the manual's example through the word, step by step",
   }
   CHECK(got == block);
   CHECK((cx.status() & 0x0008) == 0);  // BUF_F off
-  ra = !ra;  // acknowledge the last block: RA = RR
+  ra = !ra;                            // acknowledge the last block: RA = RR
   cx.control(static_cast<std::uint16_t>(0x4001 | (ra ? 0x0002 : 0)));
   cx.st.cycle();
   CHECK(((cx.status() & 0x0002) != 0) == ra);  // nothing more waiting
@@ -153,8 +152,7 @@ TEST_CASE("CX KL6xx1 mode: the manual's example through the word, step by step",
   std::vector<std::uint8_t> ok;
   while (ok.size() < 2) {
     bool rr_before = (cx.status() & 0x0002) != 0;
-    if (rr_before == ra)
-      REQUIRE(cx.cycle_until([&](std::uint16_t s) { return ((s & 0x0002) != 0) != ra; }, 2000));
+    if (rr_before == ra) REQUIRE(cx.cycle_until([&](std::uint16_t s) { return ((s & 0x0002) != 0) != ra; }, 2000));
     unsigned n = cx.status() >> 8;
     REQUIRE(n >= 1);
     auto more = cx.data_in(n);
@@ -233,9 +231,9 @@ TEST_CASE("CX KL6xx1 mode on the command line: map, decode, serial, no registers
   CHECK(d.out.find("no register set") != std::string::npos);
 
   // Register commands say clearly that there are none.
-  for (std::vector<std::string> args : {std::vector<std::string>{"-t", "1", "read", "R8"},
-                                        std::vector<std::string>{"-t", "1", "dump"},
-                                        std::vector<std::string>{"-t", "1", "set", "baud", "9600"}}) {
+  for (std::vector<std::string> args :
+       {std::vector<std::string>{"-t", "1", "read", "R8"}, std::vector<std::string>{"-t", "1", "dump"},
+        std::vector<std::string>{"-t", "1", "set", "baud", "9600"}}) {
     Run r = emu(args);
     INFO(args[2]);
     CHECK(r.rc == 2);

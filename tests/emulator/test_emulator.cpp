@@ -1,12 +1,11 @@
 // The emulator as a fake of the hardware: register rules of the manuals, delays, state file.
 #include <catch2/catch.hpp>
-
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
 #include "../session/own_access.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/session.hpp"
 #include "support.hpp"
 
@@ -168,8 +167,7 @@ TEST_CASE("a changed R35 changes the layout at the next power-on", "[emulator]")
   CHECK(L.terminal(2).in_offset != kl5101_at);
 }
 
-TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and keeps the registers",
-          "[emulator]") {
+TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and keeps the registers", "[emulator]") {
   test::TempDir dir;
   std::string path = dir.file("emu.json");
   {
@@ -190,8 +188,8 @@ TEST_CASE("a restart loses what the coupler and its terminals hold in RAM, and k
   EmulatorLink link(store);
   EmulatedStation& st = link.emulated();
   CHECK(st.outputs()[40] == 0);
-  CHECK_FALSE(st.channel(1, 0).unlocked());                 // R31 is RAM
-  CHECK(st.channel(1, 0).read_register(32) == 0x0007);      // EEPROM
-  CHECK(st.channel(1, 0).faults.mute);                      // kept until emu fault --clear
+  CHECK_FALSE(st.channel(1, 0).unlocked());             // R31 is RAM
+  CHECK(st.channel(1, 0).read_register(32) == 0x0007);  // EEPROM
+  CHECK(st.channel(1, 0).faults.mute);                  // kept until emu fault --clear
   CHECK(st.channel(1, 0).serial()->rx_fifo().empty());
 }

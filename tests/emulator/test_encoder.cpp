@@ -2,7 +2,6 @@
 // ("Description of functions", R32 feature register, CONTROL and STATUS byte in process data
 // transfer, the annex's mapping tables), driven through the process image as a controller does.
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 
 #include "../session/own_access.hpp"
@@ -30,8 +29,8 @@ std::size_t offset_of(const std::vector<ImageByte>& v, const std::string& name) 
 // A KL5101 at position 1 of a station; the controller's side of its image.
 struct Enc {
   explicit Enc(const std::string& settings = "", const std::string& coupler = "BK9000")
-      : spec(parse_station("coupler = \"" + coupler + "\"\n[[terminal]]\ntype = \"KL5101\"\n" + settings + "\n",
-                           "test", cat())),
+      : spec(parse_station("coupler = \"" + coupler + "\"\n[[terminal]]\ntype = \"KL5101\"\n" + settings + "\n", "test",
+                           cat())),
         st(spec, cat()),
         link(st) {
     const ChannelImage& ch = st.layout().terminal(1).channels.at(0);

@@ -2,7 +2,6 @@
 // the Modbus specification names for malformed requests, the register map, and the image-size
 // check (the heap overflow with a station of more than 512 bytes).
 #include <catch2/catch.hpp>
-
 #include <vector>
 
 #include "kscfg/base/error.hpp"
@@ -20,8 +19,13 @@ namespace {
 auto now() { return std::chrono::steady_clock::now(); }
 
 Bytes tcp(Bytes pdu, std::uint8_t unit = 1, std::uint16_t tid = 0x1234) {
-  Bytes f = {static_cast<std::uint8_t>(tid >> 8), static_cast<std::uint8_t>(tid & 0xFF), 0, 0,
-             static_cast<std::uint8_t>((pdu.size() + 1) >> 8), static_cast<std::uint8_t>((pdu.size() + 1) & 0xFF), unit};
+  Bytes f = {static_cast<std::uint8_t>(tid >> 8),
+             static_cast<std::uint8_t>(tid & 0xFF),
+             0,
+             0,
+             static_cast<std::uint8_t>((pdu.size() + 1) >> 8),
+             static_cast<std::uint8_t>((pdu.size() + 1) & 0xFF),
+             unit};
   for (auto b : pdu) f.push_back(b);  // (insert trips GCC 12's -Warray-bounds here)
   return f;
 }
@@ -64,7 +68,8 @@ TEST_CASE("MBAP framing: protocol id and length are checked", "[serve][requests]
   CHECK(tcp_frame(ok).status == FrameCheck::complete);
   CHECK(tcp_frame(ok).length == ok.size());
   // A frame arriving in pieces needs more; two frames in one buffer: the first.
-  for (std::size_t n = 0; n < ok.size(); ++n) CHECK(tcp_frame(Bytes(ok.begin(), ok.begin() + n)).status == FrameCheck::need_more);
+  for (std::size_t n = 0; n < ok.size(); ++n)
+    CHECK(tcp_frame(Bytes(ok.begin(), ok.begin() + n)).status == FrameCheck::need_more);
   Bytes two = ok;
   for (auto b : ok) two.push_back(b);
   CHECK(tcp_frame(two).length == ok.size());
@@ -108,17 +113,17 @@ TEST_CASE("malformed requests get the exception the specification names", "[serv
     CHECK_FALSE(r.executed);
     return static_cast<int>(p[1]);
   };
-  CHECK(exc({99}) == 1);                              // unknown function
-  CHECK(exc({3, 0x10, 0x10, 0, 0}) == 3);             // quantity 0
-  CHECK(exc({3, 0x00, 0x00, 0, 126}) == 3);           // quantity over 125
-  CHECK(exc({3, 0x10, 0x10, 0}) == 3);                // PDU too short
-  CHECK(exc({3, 0x05, 0x00, 0, 1}) == 2);             // beyond the input image
-  CHECK(exc({16, 0x08, 0x00, 0, 2, 3, 0, 0, 0}) == 3);           // byte count 3 for 2 registers
-  CHECK(exc({16, 0x08, 0x00, 0, 2, 4, 0, 0, 0}) == 3);           // byte count 4, 3 bytes follow
-  CHECK(exc({16, 0x08, 0x00, 0, 0, 0}) == 3);                    // no registers
-  CHECK(exc({23, 0, 0, 0, 1, 0x08, 0, 0, 1, 4, 0, 0}) == 3);     // FC23 byte count mismatch
-  CHECK(exc({6, 0x00, 0x00, 0, 1}) == 2);             // the input image is not writable
-  CHECK(exc({6, 0x11, 0x22, 0, 7}) == 3);             // watchdog type 7
+  CHECK(exc({99}) == 1);                                      // unknown function
+  CHECK(exc({3, 0x10, 0x10, 0, 0}) == 3);                     // quantity 0
+  CHECK(exc({3, 0x00, 0x00, 0, 126}) == 3);                   // quantity over 125
+  CHECK(exc({3, 0x10, 0x10, 0}) == 3);                        // PDU too short
+  CHECK(exc({3, 0x05, 0x00, 0, 1}) == 2);                     // beyond the input image
+  CHECK(exc({16, 0x08, 0x00, 0, 2, 3, 0, 0, 0}) == 3);        // byte count 3 for 2 registers
+  CHECK(exc({16, 0x08, 0x00, 0, 2, 4, 0, 0, 0}) == 3);        // byte count 4, 3 bytes follow
+  CHECK(exc({16, 0x08, 0x00, 0, 0, 0}) == 3);                 // no registers
+  CHECK(exc({23, 0, 0, 0, 1, 0x08, 0, 0, 1, 4, 0, 0}) == 3);  // FC23 byte count mismatch
+  CHECK(exc({6, 0x00, 0x00, 0, 1}) == 2);                     // the input image is not writable
+  CHECK(exc({6, 0x11, 0x22, 0, 7}) == 3);                     // watchdog type 7
   // A unit that is not ours: exception 11 on TCP; 0 and 255 are accepted.
   ModbusReply other = f.tcp_h.handle(tcp({3, 0x10, 0x10, 0, 4}, 9), now());
   CHECK(pdu_of(other) == Bytes{0x83, 11});
@@ -160,16 +165,15 @@ TEST_CASE("RTU: CRC, unit, broadcast", "[serve][requests]") {
   CHECK(modbus_crc16(Bytes(ok.frame.begin(), ok.frame.end() - 2)) == (ok.frame[5] | (ok.frame[6] << 8)));
   Bytes bad = rtu({3, 0x10, 0x10, 0, 1}, 4);
   bad.back() ^= 0x55;
-  CHECK(f.rtu_h.handle(bad, now()).frame.empty());  // bad CRC: silence
-  CHECK(f.rtu_h.handle(rtu({3, 0x10, 0x10, 0, 1}, 5), now()).frame.empty());  // another unit
+  CHECK(f.rtu_h.handle(bad, now()).frame.empty());                             // bad CRC: silence
+  CHECK(f.rtu_h.handle(rtu({3, 0x10, 0x10, 0, 1}, 5), now()).frame.empty());   // another unit
   ModbusReply b = f.rtu_h.handle(rtu({6, 0x08, 0x00, 0x00, 0x42}, 0), now());  // broadcast
   CHECK(b.executed);
   CHECK(b.frame.empty());
   CHECK(f.station.outputs()[0] == 0x42);
 }
 
-TEST_CASE("a station whose image exceeds the 512-byte register map is refused, not overflowed",
-          "[serve][requests]") {
+TEST_CASE("a station whose image exceeds the 512-byte register map is refused, not overflowed", "[serve][requests]") {
   // 70 KL6031 (24 bytes each way with the BK9000's word alignment): far more than 512 bytes.
   StationSpec spec;
   spec.coupler = "BK9000";

@@ -2,17 +2,16 @@
 // data-transfer tables: the KL6001 manual (seed KL6001, docs/design.md Sources) ("Data transfer") and
 // KL6031-KL6041-control-and-status-word.txt ("Data transfer examples", "Initialization").
 #include <fcntl.h>
+#include <poll.h>
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
-
-#include <poll.h>
 #include <nlohmann/json.hpp>
 #include <random>
 
 #include "../session/own_access.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/serial_port.hpp"
 #include "kscfg/session/session.hpp"
 
@@ -23,8 +22,7 @@ namespace {
 const Catalog& cat() { return Catalog::standard(); }
 
 struct Bench {
-  explicit Bench(const std::string& toml)
-      : spec(parse_station(toml, "test", cat())), st(spec, cat()), link(st) {}
+  explicit Bench(const std::string& toml) : spec(parse_station(toml, "test", cat())), st(spec, cat()), link(st) {}
   StationSpec spec;
   EmulatedStation st;
   EmulatorLink link;
@@ -284,15 +282,15 @@ TEST_CASE("the line moves bytes at the configured baud rate and frame", "[serial
   CHECK(line_settings(cat().get("KL6001"), fast.regs()).describe() == "9600 8N1");
 
   auto regs = cat().get("KL6001").defaults();
-  regs[32] = 3;       // 1200 baud
-  regs[33] = 0x0C;    // 8E2
+  regs[32] = 3;     // 1200 baud
+  regs[33] = 0x0C;  // 8E2
   auto ls = line_settings(cat().get("KL6001"), regs);
   CHECK(ls.baud == 1200);
   CHECK(ls.char_bits() == 12);
   CHECK(ls.bytes_per_second() == Approx(100.0));
   regs[32] = 0x19FF;  // divisor: 4 MHz / (16 * 26) = 9615
   CHECK(line_settings(cat().get("KL6001"), regs).baud == 9615);
-  regs[32] = 10;      // KL6031 115200
+  regs[32] = 10;  // KL6031 115200
   CHECK(line_settings(cat().get("KL6031"), regs).baud == 115200);
 }
 

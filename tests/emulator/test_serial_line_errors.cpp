@@ -6,7 +6,6 @@
 // is ignored if the buffer is full; the diagnostic bits are set in R6); KL6031/KL6041 R6 (the same
 // bits, infosys.beckhoff.com/content/1033/kl6031_kl6041/4176662027.html).
 #include <catch2/catch.hpp>
-
 #include <nlohmann/json.hpp>
 
 #include "kscfg/base/error.hpp"
@@ -40,8 +39,8 @@ struct Line {
   const std::vector<std::uint8_t>& got() { return port.received(); }
   // The far end's device (its own UART in `frame`) sends `bytes`; the K-bus runs `cycles` cycles
   // (emulated time, no waiting on the clock), the controller taking the bytes unless `take` is off.
-  void far(const std::string& baud, const std::string& frame, const std::vector<std::uint8_t>& bytes,
-           int cycles = 100, bool take = true) {
+  void far(const std::string& baud, const std::string& frame, const std::vector<std::uint8_t>& bytes, int cycles = 100,
+           bool take = true) {
     model().set_far_end("none");
     model().set_far_frame(parse_line_settings(baud, frame));
     model().far_send(bytes);
@@ -74,8 +73,7 @@ TEST_CASE("line: a far end with the terminal's own frame delivers every byte, R6
   CHECK(two.r6() == 0);
 }
 
-TEST_CASE("line: parity at the far end only -> framing errors for characters whose parity bit is 0",
-          "[serial][line]") {
+TEST_CASE("line: parity at the far end only -> framing errors for characters whose parity bit is 0", "[serial][line]") {
   // Far end 8E1, terminal 8N1: the terminal samples its stop bit where the far end puts the parity
   // bit. 'A' (0x41, two ones: even parity bit 0) is a framing error and lost; 'C' (0x43, three
   // ones: parity bit 1) arrives intact.

@@ -3,12 +3,11 @@
 // silent truncation; a symbolic link stays one; a killed writer's temporary file is cleaned up;
 // input files are bounded before they are read; TOML is bounded before it reaches the parser.
 // And issue 12: a run that only reads does not write the state file.
-#include <catch2/catch.hpp>
-
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -127,8 +126,12 @@ TEST_CASE("a run that only reads does not write the state file, a change writes 
   Emu emu;
   REQUIRE(emu({"read", "R8"}).rc == 0);
   FileId before = id_of(emu.state);
-  for (const std::vector<std::string>& a : {std::vector<std::string>{"read", "R8", "R32-R35"}, {"info"},
-                                            {"-t", "3", "dump"}, {"show"}, {"get", "baud"}, {"serial", "status"}}) {
+  for (const std::vector<std::string>& a : {std::vector<std::string>{"read", "R8", "R32-R35"},
+                                            {"info"},
+                                            {"-t", "3", "dump"},
+                                            {"show"},
+                                            {"get", "baud"},
+                                            {"serial", "status"}}) {
     Run r = emu(a);
     INFO(a.front() << ": " << r.err);
     CHECK(r.rc == 0);
@@ -190,14 +193,17 @@ TEST_CASE("input files are bounded before they are read: apply /dev/zero", "[fil
   std::filesystem::resize_file(huge, kscfg::kMaxInputFileBytes + 1);
   for (const auto& [file, why] : std::vector<std::pair<std::string, std::string>>{
            {"/dev/zero", "it is a character device, not a regular file"}, {huge, "KiB"}})
-    for (const std::vector<std::string>& a :
-         {std::vector<std::string>{"apply", file}, {"diff", file}, {"map", "--station", file},
-          {"emu", "reset", "--station", file}}) {
-      Run r = run_kscfg([&] {
-        std::vector<std::string> v = {"--port", "emu:" + emu.state};
-        v.insert(v.end(), a.begin(), a.end());
-        return v;
-      }(), {}, 60);
+    for (const std::vector<std::string>& a : {std::vector<std::string>{"apply", file},
+                                              {"diff", file},
+                                              {"map", "--station", file},
+                                              {"emu", "reset", "--station", file}}) {
+      Run r = run_kscfg(
+          [&] {
+            std::vector<std::string> v = {"--port", "emu:" + emu.state};
+            v.insert(v.end(), a.begin(), a.end());
+            return v;
+          }(),
+          {}, 60);
       INFO(a.front() << ": " << r.err);
       CHECK(r.rc == 7);
       CHECK(one_line_error(r));
@@ -241,9 +247,10 @@ TEST_CASE("a key of 40 000 dotted parts is refused before the TOML parser sees i
     CHECK(one_line_error(r));
     CHECK_THAT(r.err, Catch::Contains("dotted parts"));
   };
-  for (const std::vector<std::string>& a :
-       {std::vector<std::string>{"map", "--station", file}, {"apply", file}, {"diff", file},
-        {"emu", "reset", "--station", file}}) {
+  for (const std::vector<std::string>& a : {std::vector<std::string>{"map", "--station", file},
+                                            {"apply", file},
+                                            {"diff", file},
+                                            {"emu", "reset", "--station", file}}) {
     std::vector<std::string> v = {"--port", "emu:" + emu.state};
     v.insert(v.end(), a.begin(), a.end());
     check(run_kscfg(v), a.front());

@@ -1,17 +1,16 @@
 // ADS: the AMS/TCP codec, the client against serve's ADS server in-process (port 100 registers,
 // port 300 image, errors by name, the idle cut, invoke ids), the settled open questions.
-#include <catch2/catch.hpp>
-
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
-#include <csignal>
 #include <array>
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <chrono>
+#include <csignal>
 #include <thread>
 
 #include "kscfg/base/cancel.hpp"
@@ -204,7 +203,9 @@ TEST_CASE("ADS errors come by name and code with a hint that names the cause") {
   CHECK(m.find("passive terminals") != std::string::npos);
   m = message([&] { regs.read({1, 3, 8}); });
   CHECK(m.find("0x703 (invalid index offset)") != std::string::npos);
-  m = message([&] { c.write(adsport::kRegisters, 0, adsreg::table_offset(9, 1), std::vector<std::uint8_t>{0, 0}, "x"); });
+  m = message([&] {
+    c.write(adsport::kRegisters, 0, adsreg::table_offset(9, 1), std::vector<std::uint8_t>{0, 0}, "x");
+  });
   CHECK(m.find("0x704") != std::string::npos);
   // A table register past 255 is no such register (0x703), not a wrong size (issue 35); a read
   // that runs past 255 from a register that exists is the wrong size.
@@ -252,7 +253,8 @@ TEST_CASE("ADS client: a connection the coupler cut idle is reopened transparent
   adsreg::RegisterAccess regs(c, 1000);
   CHECK(regs.read({1, 0, 8}) == 6001);
   // Wait until the server has cut the connection (a condition, not a fixed sleep).
-  for (int i = 0; i < 400 && s.server->stats().idle_cut == 0; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  for (int i = 0; i < 400 && s.server->stats().idle_cut == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
   REQUIRE(s.server->stats().idle_cut == 1);
   CHECK(regs.read({1, 0, 8}) == 6001);
   CHECK(c.connects() == 2);
@@ -380,7 +382,8 @@ TEST_CASE("ADS sum commands: a 0xF082 request and its answer round trip, and bad
   REQUIRE(back);
   REQUIRE(back->size() == 2);
   CHECK((*back)[0].group == 0xF030);
-  CHECK(std::vector<std::uint8_t>((*back)[0].data.begin(), (*back)[0].data.end()) == std::vector<std::uint8_t>{1, 2, 3});
+  CHECK(std::vector<std::uint8_t>((*back)[0].data.begin(), (*back)[0].data.end()) ==
+        std::vector<std::uint8_t>{1, 2, 3});
   CHECK((*back)[1].read_length == 6);
   CHECK_FALSE(ams::parse_sum_read_write(3, r->data));  // more sub-commands than the data holds
   std::vector<ams::Response> answers{{0, {}}, {0x703, {9, 8}}};
@@ -505,10 +508,10 @@ TEST_CASE("serve --ads refuses a sum command whose answers overflow the read len
     hd.command = ams::kReadWrite;
     hd.flags = ams::kFlagAdsCommand;
     hd.invoke = 9;
-    AdsReply r = h.handle(ams::encode(hd, ams::read_write_request(ams::kSumReadWrite,
-                                                                  static_cast<std::uint32_t>(subs.size()),
-                                                                  read_length, w)),
-                          std::chrono::steady_clock::now(), self);
+    AdsReply r = h.handle(
+        ams::encode(
+            hd, ams::read_write_request(ams::kSumReadWrite, static_cast<std::uint32_t>(subs.size()), read_length, w)),
+        std::chrono::steady_clock::now(), self);
     CHECK(ams::check_frame(r.frame).status == ams::FrameCheck::complete);
     auto rep = ams::decode(r.frame);
     REQUIRE(rep);

@@ -1,8 +1,6 @@
 // ADS client against a server whose connections are all in use (issue 36 item 11): it resets a new
 // connection as its first request comes, or refuses it. The client names the server full and tries
 // again within the busy wait a Modbus server that answers busy gets (link/busy.hpp).
-#include <catch2/catch.hpp>
-
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -10,6 +8,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <thread>
 

@@ -1,14 +1,13 @@
 // ADS client: several requests in flight on one connection (issue 24 item 2) against a coupler
 // scripted here byte by byte: replies out of order, replies for invoke ids nobody waits for
 // (dropped and counted, never fatal), a coupler that takes one request at a time.
-#include <catch2/catch.hpp>
-
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <catch2/catch.hpp>
 #include <chrono>
 #include <functional>
 #include <thread>

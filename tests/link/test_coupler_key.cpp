@@ -1,8 +1,6 @@
 // A coupler's identity whatever name reaches it (issue 32 item 1, link/coupler_key.hpp): every
 // spelling of one address is one key, Modbus TCP on 502 and ADS on 48898 of one address are one
 // coupler, other ports keep theirs, a serial device is its real path.
-#include "kscfg/link/coupler_key.hpp"
-
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
@@ -10,6 +8,7 @@
 #include <filesystem>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "support.hpp"
 
@@ -36,18 +35,18 @@ TEST_CASE("coupler keys: every spelling of one address is one key, standard Modb
   CHECK(host_key_address("localhost") == "127.0.0.1");  // its IPv4 address, though ::1 may come first
   CHECK(host_key_address("::ffff:127.0.0.1") == "127.0.0.1");
   CHECK(host_key_address("2001:db8::7") == "2001:db8::7");  // a remote IPv6 address is its own
-  CHECK(host_key_address("0x7f.1") == "127.0.0.1");  // inet_aton's spellings resolve as well
+  CHECK(host_key_address("0x7f.1") == "127.0.0.1");         // inet_aton's spellings resolve as well
 
   CHECK(coupler_key(mb("tcp://localhost")) == "ip-127.0.0.1");
   CHECK(coupler_key(mb("tcp://127.0.0.1:502?unit=7")) == "ip-127.0.0.1");  // a BK9000 is one whatever unit
-  CHECK(coupler_key(ads("ads://localhost")) == "ip-127.0.0.1");             // 48898: the same coupler
+  CHECK(coupler_key(ads("ads://localhost")) == "ip-127.0.0.1");            // 48898: the same coupler
   CHECK(coupler_key(ads("ads://127.0.0.1:48898?netid=127.0.0.1.1.1")) == "ip-127.0.0.1");
   // Off the standard ports: the port too (the suite's serves side by side on 127.0.0.1).
   CHECK(coupler_key(mb("tcp://localhost:5020")) == "ip-127.0.0.1-5020");
   CHECK(coupler_key(mb("tcp://127.0.0.1:5020")) == "ip-127.0.0.1-5020");
   CHECK(coupler_key(mb("tcp://127.0.0.1:5021")) == "ip-127.0.0.1-5021");
   CHECK(coupler_key(ads("ads://localhost:5020")) == "ip-127.0.0.1-5020");
-  CHECK(coupler_key(ads("ads://127.0.0.1:502")) == "ip-127.0.0.1-502");     // ADS on Modbus's port: not standard
+  CHECK(coupler_key(ads("ads://127.0.0.1:502")) == "ip-127.0.0.1-502");  // ADS on Modbus's port: not standard
   CHECK(coupler_key(mb("tcp://127.0.0.1:48898")) == "ip-127.0.0.1-48898");
   CHECK(coupler_key(mb("tcp://[2001:db8::7]:502")) == "ip-2001_db8__7");
   // The stations behind it: per unit over Modbus (decision 24), ADS's journals apart.
@@ -124,9 +123,10 @@ TEST_CASE("coupler keys: a serve's record makes its ADS port the coupler of its 
   CHECK(coupler_key(mb("tcp://127.0.0.1:40003")) == "ip-127.0.0.1-40003");
 }
 
-TEST_CASE("coupler keys: a serve's record is written in place of a link planted at its name or its temporary's, "
-          "never through it",
-          "[link][lock]") {
+TEST_CASE(
+    "coupler keys: a serve's record is written in place of a link planted at its name or its temporary's, "
+    "never through it",
+    "[link][lock]") {
   // The lock directory is shared by every user (/run/lock/kscfg, mode 1777): a link planted there as
   // alias-KEY (or as the record's temporary, NAME.tmp.PID) made a serve, root's too, write its record
   // into the file the link names, whatever file that was.

@@ -1,16 +1,16 @@
 // The Modbus link against an in-process `kscfg serve` server: register map, byte order, no
 // clobbered neighbour bytes, exchanges per register, exceptions by name, strict URIs.
-#include <catch2/catch.hpp>
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <atomic>
+#include <catch2/catch.hpp>
 #include <thread>
 
 #include "../session/own_access.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/open.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
@@ -88,9 +88,9 @@ TEST_CASE("Modbus port URIs are checked strictly", "[modbus]") {
   CHECK(t.tcp);
   CHECK(t.port == 502);
   CHECK(t.unit == 255);
-  for (const char* bad : {"rtu:/dev/x?baud=fast", "rtu:/dev/x?parity=X", "rtu:/dev/x?data=9", "rtu:/dev/x?stop=3",
-                          "rtu:/dev/x?unit=0", "rtu:/dev/x?unit=248", "tcp://h?unit=256", "tcp://h?unit=1x",
-                          "rtu:/dev/x?baud=0"}) {
+  for (const char* bad :
+       {"rtu:/dev/x?baud=fast", "rtu:/dev/x?parity=X", "rtu:/dev/x?data=9", "rtu:/dev/x?stop=3", "rtu:/dev/x?unit=0",
+        "rtu:/dev/x?unit=248", "tcp://h?unit=256", "tcp://h?unit=1x", "rtu:/dev/x?baud=0"}) {
     Exit code = Exit::ok;
     std::string e = error_of([&] { target(bad); }, &code);
     INFO(bad << ": " << e);
@@ -387,4 +387,3 @@ TEST_CASE("peeks ride with an exchange: over TCP anywhere, over RTU only inside 
     CHECK_FALSE(c_far);
   }
 }
-

@@ -2,7 +2,6 @@
 // random values in the writable registers survive backup -> station file -> diff (empty) ->
 // factory reset -> restore, register for register. In-process on an in-memory emulated station.
 #include <catch2/catch.hpp>
-
 #include <random>
 
 #include "kscfg/base/error.hpp"

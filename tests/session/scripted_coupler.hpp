@@ -39,7 +39,8 @@ class ScriptedCoupler : public Link {
   }
   void transfer(std::span<const ImageTransfer> t) override {
     for (const auto& x : t)
-      if (!x.out.empty()) std::copy(x.out.begin(), x.out.end(), master_.begin() + static_cast<std::ptrdiff_t>(x.out_offset));
+      if (!x.out.empty())
+        std::copy(x.out.begin(), x.out.end(), master_.begin() + static_cast<std::ptrdiff_t>(x.out_offset));
     for (const auto& x : t) {
       if (x.in.empty()) continue;
       std::copy_n(st_.inputs().begin() + static_cast<std::ptrdiff_t>(x.in_offset), x.in.size(), x.in.begin());

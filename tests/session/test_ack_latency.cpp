@@ -1,6 +1,5 @@
 // The acknowledge estimate (session/ack_latency.hpp): what one answer does to it.
 #include <catch2/catch.hpp>
-
 #include <chrono>
 #include <vector>
 
@@ -80,9 +79,10 @@ TEST_CASE("ack latency: a kept wait the terminal beats is forgotten within two r
   CHECK(ack_keep(third) * 10 <= slowest * 12);
 }
 
-TEST_CASE("ack latency: a probe that found nothing, then the answer at the poll at the wait: confirmed, kept, "
-          "trusted",
-          "[ack]") {
+TEST_CASE(
+    "ack latency: a probe that found nothing, then the answer at the poll at the wait: confirmed, kept, "
+    "trusted",
+    "[ack]") {
   AckTiming t = suspect_at(microseconds(1860));
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE(p.probe);
@@ -152,9 +152,10 @@ TEST_CASE("ack latency: a probe's sample at seven eighths of the wait confirms i
   CHECK_FALSE(ack_plan(t, milliseconds(1000)).probe);
 }
 
-TEST_CASE("ack latency: the poll plan: after a probe that found nothing, on TCP at the link's pace up to the wait, "
-          "elsewhere at the wait",
-          "[ack]") {
+TEST_CASE(
+    "ack latency: the poll plan: after a probe that found nothing, on TCP at the link's pace up to the wait, "
+    "elsewhere at the wait",
+    "[ack]") {
   AckTiming t = suspect_at(microseconds(4000));
   AckPlan p = ack_plan(t, milliseconds(1000));
   REQUIRE(p.probe);

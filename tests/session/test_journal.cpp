@@ -112,12 +112,13 @@ TEST_CASE("session journal: an entry is one line and reads back the same, broken
 
 TEST_CASE("session journal: the open entries of a journal's text, with their last control bytes, within limits",
           "[session][journal]") {
-  std::string text = "+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n"
-                     "+ 3 0 16 16 18 19 18 19 16 0041 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n"
-                     "+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n"
-                     "+ 2 0 600 8 10 11 10 11 8 00 KL5101\n"  // an offset beyond any image
-                     "> 3 0 zz\n- 9 9\n> 7 0 88\n"           // garbage, and lines for no entry
-                     "+ 5 0 8 8 10 11 10 11 8 00 KL5101";      // cut by a kill -9: no newline
+  std::string text =
+      "+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n"
+      "+ 3 0 16 16 18 19 18 19 16 0041 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n"
+      "+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n"
+      "+ 2 0 600 8 10 11 10 11 8 00 KL5101\n"  // an offset beyond any image
+      "> 3 0 zz\n- 9 9\n> 7 0 88\n"            // garbage, and lines for no entry
+      "+ 5 0 8 8 10 11 10 11 8 00 KL5101";     // cut by a kill -9: no newline
   auto open = SessionJournal::parse_open(text);
   REQUIRE(open.size() == 2);
   CHECK(open[0].position == 3);
@@ -140,12 +141,13 @@ TEST_CASE("session journal: a failed relock keeps an entry open, forced outputs 
           "[session][journal]") {
   // Control bytes each once, the latest last, at most four: the relock and restore attempts of a
   // link that died repeat the same few, and the one the coupler holds is among them.
-  auto open = SessionJournal::parse_open("+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 a0\n> 1 0 a1\n> 1 0 df\n> 1 0 00\n"
-                                         "> 1 0 df\n> 1 0 00\n! 1 0\n"
-                                         "+ 2 0 8 8 10 11 10 11 8 00 KL6001\n> 2 0 9f\n> 2 0 e0\n> 2 0 e1\n> 2 0 df\n"
-                                         "> 2 0 00\n! 2 0 x\n!  2 0\n"
-                                         "+ 3 0 16 16 18 19 18 19 16 00 KL6031\n! 3 0\n- 3 0\n"
-                                         "+ 4 0 24 24 26 27 26 27 24 00 KL6001\n! 4 0\n+ 4 0 24 24 26 27 26 27 24 00 KL6001\n");
+  auto open = SessionJournal::parse_open(
+      "+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 a0\n> 1 0 a1\n> 1 0 df\n> 1 0 00\n"
+      "> 1 0 df\n> 1 0 00\n! 1 0\n"
+      "+ 2 0 8 8 10 11 10 11 8 00 KL6001\n> 2 0 9f\n> 2 0 e0\n> 2 0 e1\n> 2 0 df\n"
+      "> 2 0 00\n! 2 0 x\n!  2 0\n"
+      "+ 3 0 16 16 18 19 18 19 16 00 KL6031\n! 3 0\n- 3 0\n"
+      "+ 4 0 24 24 26 27 26 27 24 00 KL6001\n! 4 0\n+ 4 0 24 24 26 27 26 27 24 00 KL6001\n");
   REQUIRE(open.size() == 3);
   CHECK(open[0].ctrl == std::vector<std::uint8_t>{0xA0, 0xA1, 0xDF, 0x00});
   CHECK(open[0].unlocked);
@@ -154,10 +156,11 @@ TEST_CASE("session journal: a failed relock keeps an entry open, forced outputs 
   CHECK(open[2].position == 4);
   CHECK(open[2].unlocked);  // entered again by the same process: the failed relock still counts
   // "f POS CH OFFSET MASK BEFORE AFTER TYPE" until "r POS CH OFFSET".
-  auto forced = SessionJournal::parse_forced("f 6 0 7 05 00 05 KL2134\nf 6 0 6 01 00 01 KL2134\nr 6 0 6\n"
-                                             "f 3 1 20 ff 10 27 KL4032\nr 3 0 20\n"  // another channel's "r"
-                                             "f 6 0 600 01 00 01 KL2134\nf 6 0 5 00 00 00 KL2134\nf 6 0 5 1 0 1 KL2134\n"
-                                             "f 0 0 5 01 00 01 KL2134\nf 6 0 5 01 00 01\nf 6 0 4 0f 03 0c KL2134");
+  auto forced = SessionJournal::parse_forced(
+      "f 6 0 7 05 00 05 KL2134\nf 6 0 6 01 00 01 KL2134\nr 6 0 6\n"
+      "f 3 1 20 ff 10 27 KL4032\nr 3 0 20\n"  // another channel's "r"
+      "f 6 0 600 01 00 01 KL2134\nf 6 0 5 00 00 00 KL2134\nf 6 0 5 1 0 1 KL2134\n"
+      "f 0 0 5 01 00 01 KL2134\nf 6 0 5 01 00 01\nf 6 0 4 0f 03 0c KL2134");
   REQUIRE(forced.size() == 2);
   CHECK((forced[0].position == 6 && forced[0].offset == 7 && forced[0].mask == 0x05 && forced[0].before == 0x00 &&
          forced[0].after == 0x05 && forced[0].type == "KL2134"));
@@ -216,8 +219,7 @@ TEST_CASE("session journal: a process whose relock failed or whose outputs stay 
   SessionJournal::release(dead[0], true);
 }
 
-TEST_CASE("session journal: a dead process's open entries are claimed, a live one's never",
-          "[session][journal]") {
+TEST_CASE("session journal: a dead process's open entries are claimed, a live one's never", "[session][journal]") {
   TempDir tmp;
   std::string dir = tmp.file("sessions");
   EmulatedStation st(default_station(), cat());
@@ -250,9 +252,10 @@ TEST_CASE("session journal: a dead process's open entries are claimed, a live on
   live.leave(1, 0);
 }
 
-TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the next kscfg on the port, "
-          "whichever terminal that one uses",
-          "[session][journal][recovery]") {
+TEST_CASE(
+    "a terminal that a dead kscfg left in register mode is finished by the next kscfg on the port, "
+    "whichever terminal that one uses",
+    "[session][journal][recovery]") {
   TempDir tmp;
   std::string dir = tmp.file("sessions");
   EmulatedStation st(default_station(), cat());
@@ -285,9 +288,10 @@ TEST_CASE("a terminal that a dead kscfg left in register mode is finished by the
   CHECK(files_in(dir) == 0);
 }
 
-TEST_CASE("a dead kscfg's journal entry whose terminal is not in register mode, or outside the image, is dropped "
-          "without touching the station",
-          "[session][journal][recovery]") {
+TEST_CASE(
+    "a dead kscfg's journal entry whose terminal is not in register mode, or outside the image, is dropped "
+    "without touching the station",
+    "[session][journal][recovery]") {
   TempDir tmp;
   std::string dir = tmp.file("sessions");
   EmulatedStation st(default_station(), cat());

@@ -3,9 +3,8 @@
 // each poll on their own. Against a scripted coupler whose K-bus runs one cycle per exchange and
 // carries terminal 2's control byte two exchanges late (a slower terminal), and against the Modbus
 // link's span rules (TCP carries a peek anywhere, RTU only inside the span it reads anyway).
-#include <catch2/catch.hpp>
-
 #include <algorithm>
+#include <catch2/catch.hpp>
 #include <chrono>
 
 #include "kscfg/emulator/emulator.hpp"
@@ -28,9 +27,10 @@ const Catalog& cat() { return Catalog::standard(); }
 
 TEST_CASE("a terminal that answers later is seen with the other terminal's exchanges, not polled on its own",
           "[session][engine][peek]") {
-  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
-                                   "type = \"KL6001\"\n[[terminal]]\ntype = \"KL9010\"\n",
-                                   "test", cat());
+  StationSpec spec = parse_station(
+      "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+      "type = \"KL6001\"\n[[terminal]]\ntype = \"KL9010\"\n",
+      "test", cat());
   EmulatedStation st(spec, cat());
   const TerminalImage& t2 = st.layout().terminal(2);
   ScriptedCoupler link(st, {t2.out_offset, t2.out_offset + t2.out_size}, 2);
@@ -51,7 +51,8 @@ TEST_CASE("a terminal that answers later is seen with the other terminal's excha
     INFO("terminal " << j.position);
     REQUIRE_FALSE(j.error);
     REQUIRE(j.values.size() == regs.size());
-    for (std::size_t k = 0; k < regs.size(); ++k) CHECK(j.values[k] == st.channel(j.position, 0).read_register(regs[k]));
+    for (std::size_t k = 0; k < regs.size(); ++k)
+      CHECK(j.values[k] == st.channel(j.position, 0).read_register(regs[k]));
   }
   auto seen = std::count_if(trace.begin(), trace.end(), [](const std::string& s) {
     return s.find("terminal 2 (KL6001): R") != std::string::npos &&
@@ -87,12 +88,15 @@ TEST_CASE("the default link never carries a peek, and never makes an exchange fo
   CHECK(link.exchanges() == before);
 }
 
-TEST_CASE("terminals whose requests went out together are first polled together, so each poll carries the next "
-          "request", "[session][engine][peek]") {
-  StationSpec spec = parse_station("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
-                                   "type = \"KL6001\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
-                                   "type = \"KL9010\"\n",
-                                   "test", cat());
+TEST_CASE(
+    "terminals whose requests went out together are first polled together, so each poll carries the next "
+    "request",
+    "[session][engine][peek]") {
+  StationSpec spec = parse_station(
+      "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+      "type = \"KL6001\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\n"
+      "type = \"KL9010\"\n",
+      "test", cat());
   EmulatedStation st(spec, cat());
   // Two K-bus cycles per exchange: an answer is there at the next exchange, however soon; terminal
   // 3 sees its control byte twelve exchanges late.
@@ -137,7 +141,8 @@ TEST_CASE("terminals whose requests went out together are first polled together,
   }
   // Terminal 3 (500 ms) does not hold them back: both are done before its answer.
   auto at = [&](const std::string& a) {
-    return std::find_if(trace.begin(), trace.end(), [&](const std::string& s) { return s.find(a) != std::string::npos; });
+    return std::find_if(trace.begin(), trace.end(),
+                        [&](const std::string& s) { return s.find(a) != std::string::npos; });
   };
   CHECK(at("terminal 1 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));
   CHECK(at("terminal 2 (KL6001): read  R37") < at("terminal 3 (KL6001): read  R8"));

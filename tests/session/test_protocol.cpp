@@ -1,16 +1,15 @@
 // Register protocol: control byte codec, the seeds' worked examples as golden vectors, and the
 // session's handshake rules (docs/design.md section 2) against scripted terminals.
 #include <catch2/catch.hpp>
-
-#include <csignal>
 #include <chrono>
+#include <csignal>
 
 #include "../session/own_access.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/station/layout.hpp"
+#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/session.hpp"
+#include "kscfg/station/layout.hpp"
 #include "support.hpp"
 
 using namespace kscfg;
@@ -126,7 +125,7 @@ struct ScriptedLink : Link {
   std::uint8_t seen_ctrl = 0;
   std::uint16_t seen_val = 0;
   unsigned since = 0;
-  bool answered = true;  // a terminal answers each new request once, like a latch
+  bool answered = true;                // a terminal answers each new request once, like a latch
   std::vector<std::uint8_t> requests;  // control bytes seen, in order
 
   std::string describe() const override { return "scripted"; }

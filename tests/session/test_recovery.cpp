@@ -3,7 +3,6 @@
 // what the terminal holds and claims "as it was" only after reading it. Deterministic fault
 // injection on an emulated station.
 #include <catch2/catch.hpp>
-
 #include <functional>
 
 #include "../session/own_access.hpp"
@@ -100,7 +99,7 @@ namespace {
 struct FaultLink : Link {
   enum class Act { pass, lose_reply, lose_request };
   struct Call {
-    bool write;             // the call changes outputs
+    bool write;  // the call changes outputs
     std::size_t offset;
     std::vector<std::uint8_t> bytes;  // written bytes
   };
@@ -159,8 +158,7 @@ TEST_CASE("a lost reply is read before deciding: the write landed, or it is writ
         return FaultLink::Act::pass;
       }
       // The emulated terminal answers on the second K-bus cycle: that reply is the ack.
-      if (where == Where::reply_to_ack && polls >= 0 && !c.write && ++polls == 2)
-        return FaultLink::Act::lose_reply;
+      if (where == Where::reply_to_ack && polls >= 0 && !c.write && ++polls == 2) return FaultLink::Act::lose_reply;
       return FaultLink::Act::pass;
     };
     std::vector<std::string> trace;
@@ -306,11 +304,12 @@ TEST_CASE("apply: a failed rollback is never reported as 'as it was'", "[provisi
     // command comes first, the one reason once; then a line per terminal (issue 36 item 3).
     CHECK_THAT(m, Catch::Contains("apply failed: request lost (test); rollback failed (nothing could be read back): "
                                   "undo with 'kscfg "
-                                  "restore " + dir.file("undo.toml") + "' when the terminals answer again; 4 "
+                                  "restore " +
+                                  dir.file("undo.toml") +
+                                  "' when the terminals answer again; 4 "
                                   "registers may hold the new values"));
-    CHECK(e.details() == std::vector<std::string>{
-                             "terminal 1 (KL6001): R32, R31 (the code word: it may be unlocked)",
-                             "terminal 3 (KL6031): R32, R31 (the code word: it may be unlocked)"});
+    CHECK(e.details() == std::vector<std::string>{"terminal 1 (KL6001): R32, R31 (the code word: it may be unlocked)",
+                                                  "terminal 3 (KL6031): R32, R31 (the code word: it may be unlocked)"});
   }
   // The link is back: the rollback of terminal 1 can be done and verified.
   down = false;
@@ -332,9 +331,10 @@ TEST_CASE("apply: a failed rollback is never reported as 'as it was'", "[provisi
   CHECK(st.channel(1, 0).registers()[32] == 6);
 }
 
-TEST_CASE("a channel left in register mode by a close that failed, opened again for a rollback, is not put back "
-          "into register mode",
-          "[session][rollback]") {
+TEST_CASE(
+    "a channel left in register mode by a close that failed, opened again for a rollback, is not put back "
+    "into register mode",
+    "[session][rollback]") {
   // The hypothesis of a Ctrl-C run of `apply` over serve that looked left unlocked (bench/interrupts.py
   // --ctrl-c): the channel's close failed with the code word's request still in its control byte;
   // the rollback opens it again. Its save must take that byte for a leftover (relocked, and the

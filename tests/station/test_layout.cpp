@@ -5,15 +5,15 @@
 // Reading the annex tables: "I/O Offset N" is a 16-bit word offset, so the "Low Byte" cell of row
 // N is image byte 2N and the "High Byte" cell is byte 2N+1. An empty cell inside the channel's range
 // (or "-" on a word-alignment gap) is a reserved byte.
-#include <catch2/catch.hpp>
 #include <fmt/format.h>
 
+#include <catch2/catch.hpp>
 #include <string>
 #include <utility>
 #include <vector>
 
-#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
 
@@ -48,8 +48,7 @@ std::string describe(const Bytes& b) {
   return s;
 }
 
-ChannelImage lay(const char* type, const Regs& regs, MappingSettings s, std::size_t out0 = 0,
-                 std::size_t in0 = 0) {
+ChannelImage lay(const char* type, const Regs& regs, MappingSettings s, std::size_t out0 = 0, std::size_t in0 = 0) {
   const TerminalType& t = cat().get(type);
   const ImageFormat* f = t.image_for(regs);
   REQUIRE(f != nullptr);
@@ -338,7 +337,8 @@ namespace {
 StationSpec station(const char* coupler) {
   StationSpec s;
   s.coupler = coupler;
-  for (const char* t : {"KL6001", "KL1104", "KL5101", "KL2134", "KL9010"}) s.terminals.push_back(TerminalSpec{t, 0, {}, 0});
+  for (const char* t : {"KL6001", "KL1104", "KL5101", "KL2134", "KL9010"})
+    s.terminals.push_back(TerminalSpec{t, 0, {}, 0});
   return s;
 }
 
@@ -369,8 +369,7 @@ TEST_CASE("station layout: BK9000 (complete evaluation, Intel, word alignment)",
   CHECK(kl5101.out_size == 8);
   CHECK(kl5101.in_size == 8);
   REQUIRE(kl5101.channels.size() == 1);
-  CHECK(names(kl5101.channels[0].in) ==
-        seq({"CT/ST", "reserved", "D0", "D1", "D2", "reserved", "D3", "D4"}, 8));
+  CHECK(names(kl5101.channels[0].in) == seq({"CT/ST", "reserved", "D0", "D1", "D2", "reserved", "D3", "D4"}, 8));
   REQUIRE(kl5101.channels[0].window.has_value());
   CHECK(kl5101.channels[0].window->ctrl == 8);
   CHECK(kl5101.channels[0].window->in_lo == 10);

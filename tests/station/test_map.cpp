@@ -5,12 +5,11 @@
 // docs/research/mapping-examples.md (each test cites its source). Where a manual's table disagrees
 // with the rules, the comment says so and the test follows the rules.
 #include <catch2/catch.hpp>
-
 #include <string>
 #include <vector>
 
-#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/base/error.hpp"
+#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/map.hpp"
 #include "kscfg/station/station.hpp"
@@ -56,12 +55,12 @@ std::string bits_at(const StationLayout& L, unsigned pos, bool input) {
 
 TEST_CASE("map: BK4000 Interbus 21-position example (manual p. 24/25)", "[map]") {
   StationSpec s = spec_of("BK4000", {"KL1002", "KL1002", "KL1002", "KL1002", "KL1002", "KL1002",  // POS01-06
-                                     "KL2012", "KL2012", "KL2012",                                  // POS07-09
-                                     "KL3002", "KL4002", "KL4002", "KL3002",                        // POS10-13
-                                     "KL9100",                                                      // POS14 feed
-                                     "KL1002", "KL1002", "KL1002",                                  // POS15-17
-                                     "KL2012", "KL2012",                                            // POS18-19
-                                     "KL4002", "KL9010"});                                          // POS20-21
+                                     "KL2012", "KL2012", "KL2012",                                // POS07-09
+                                     "KL3002", "KL4002", "KL4002", "KL3002",                      // POS10-13
+                                     "KL9100",                                                    // POS14 feed
+                                     "KL1002", "KL1002", "KL1002",                                // POS15-17
+                                     "KL2012", "KL2012",                                          // POS18-19
+                                     "KL4002", "KL9010"});                                        // POS20-21
   StationLayout L = compute_layout(s, cat());
   CHECK_FALSE(L.settings.complete_evaluation);
   CHECK(L.settings.motorola);
@@ -172,13 +171,13 @@ TEST_CASE("map: BK3000 Profibus mixed station (serial, encoder, analog, digital,
 TEST_CASE("map: BK3000 21-position example, outputs as in the manual", "[map]") {
   // Coupler = POS01 in this manual: POS02-06 five DI, POS07-09 DO, POS10 AI, POS11-12 AO, POS13 AI,
   // POS14 feed, POS15-17 DI, POS18-19 DO, POS20 AO, POS21 end -> terminal position = POS - 1.
-  StationSpec s = spec_of("BK3000", {"KL1002", "KL1002", "KL1002", "KL1002", "KL1002", "KL2012", "KL2012", "KL2012",
-                                     "KL3002", "KL4002", "KL4002", "KL3002", "KL9100", "KL1002", "KL1002", "KL1002",
-                                     "KL2012", "KL2012", "KL4002", "KL9010"});
+  StationSpec s = spec_of(
+      "BK3000", {"KL1002", "KL1002", "KL1002", "KL1002", "KL1002", "KL2012", "KL2012", "KL2012", "KL3002", "KL4002",
+                 "KL4002", "KL3002", "KL9100", "KL1002", "KL1002", "KL1002", "KL2012", "KL2012", "KL4002", "KL9010"});
   StationLayout L = compute_layout(s, cat());
-  CHECK(L.terminal(10).out_offset == 0);   // POS11 O 0-3
-  CHECK(L.terminal(11).out_offset == 4);   // POS12 O 4-7
-  CHECK(L.terminal(19).out_offset == 8);   // POS20 O 8-11
+  CHECK(L.terminal(10).out_offset == 0);        // POS11 O 0-3
+  CHECK(L.terminal(11).out_offset == 4);        // POS12 O 4-7
+  CHECK(L.terminal(19).out_offset == 8);        // POS20 O 8-11
   CHECK(bits_at(L, 6, false) == "12.0-12.1");   // POS07
   CHECK(bits_at(L, 17, false) == "12.6-12.7");  // POS18
   CHECK(bits_at(L, 18, false) == "13.0-13.1");  // POS19
@@ -199,7 +198,7 @@ TEST_CASE("map: BK3000 21-position example, outputs as in the manual", "[map]") 
 TEST_CASE("map: BK9000 sample 1 (4 x KL1xx4, 2 x KL2xx2): registers and coils", "[map]") {
   StationLayout L =
       compute_layout(spec_of("BK9000", {"KL1104", "KL1104", "KL1104", "KL1104", "KL2012", "KL2012", "KL9010"}), cat());
-  CHECK(L.in_bytes == 2);  // register 0x0000
+  CHECK(L.in_bytes == 2);   // register 0x0000
   CHECK(L.out_bytes == 1);  // register 0x0800, bits 0-3
   auto j = map_json(L, coupler_profile("BK9000"));
   CHECK(j["modbus"] == true);
@@ -218,15 +217,15 @@ TEST_CASE("map: BK9000 sample 2 with analog terminals and a mixed station", "[ma
   // Sample 2 has KL1501 (not in the catalog: 6 bytes = ST, reserved, 4 data) first; without it,
   // everything moves 3 registers down: KL3xx2 0x0000-0x0003 (I 0-7, O 0-7 with complete
   // evaluation), KL4xx2 0x0004-0x0007, 4 x KL1xx4 0x0008, 2 x KL2xx2 0x0808 bits 0-3.
-  StationSpec s = spec_of("BK9000", {"KL1104", "KL1104", "KL1104", "KL1104", "KL2012", "KL2012", "KL3002", "KL4002",
-                                     "KL9010"});
+  StationSpec s =
+      spec_of("BK9000", {"KL1104", "KL1104", "KL1104", "KL1104", "KL2012", "KL2012", "KL3002", "KL4002", "KL9010"});
   StationLayout L = compute_layout(s, cat());
   CHECK(bytes_of(L.terminal(7).channels[0].in) == "0:CT/ST 1:reserved 2:D0 3:D1");
   CHECK(bytes_of(L.terminal(7).channels[1].out) == "4:CT/ST 5:reserved 6:D0 7:D1");
   CHECK(L.terminal(8).in_offset == 8);
   CHECK(L.terminal(8).out_offset == 8);
   CHECK(L.complex_in == 16);
-  CHECK(bits_at(L, 1, true) == "16.0-16.3");  // register 0x0008
+  CHECK(bits_at(L, 1, true) == "16.0-16.3");   // register 0x0008
   CHECK(bits_at(L, 5, false) == "16.0-16.1");  // register 0x0808, coils 0-1
   auto j = map_json(L, coupler_profile("BK9000"));
   CHECK(j["terminals"][7]["channels"][1]["inputs"][0]["modbus_register"] == 0x0006);
@@ -292,11 +291,12 @@ TEST_CASE("map: coupler profiles of every family", "[map]") {
     bool ce, mo;
     bool modbus;
   };
-  for (const Want& w : {Want{"BK2000", "lightbus", true, false, false}, Want{"BK3120", "profibus", false, true, false},
-                        Want{"BK4000", "interbus", false, true, false}, Want{"BK5120", "canopen", false, false, false},
-                        Want{"BK5200", "devicenet", false, false, false},
-                        Want{"BK7300", "modbus-rtu", false, false, true}, Want{"BK8000", "rs485", false, false, false},
-                        Want{"BK9050", "modbus-tcp", true, false, true}, Want{"BK9100", "modbus-tcp", true, false, true}}) {
+  for (const Want& w :
+       {Want{"BK2000", "lightbus", true, false, false}, Want{"BK3120", "profibus", false, true, false},
+        Want{"BK4000", "interbus", false, true, false}, Want{"BK5120", "canopen", false, false, false},
+        Want{"BK5200", "devicenet", false, false, false}, Want{"BK7300", "modbus-rtu", false, false, true},
+        Want{"BK8000", "rs485", false, false, false}, Want{"BK9050", "modbus-tcp", true, false, true},
+        Want{"BK9100", "modbus-tcp", true, false, true}}) {
     INFO(w.name);
     const CouplerProfile& p = coupler_profile(w.name);
     CHECK(p.family == w.family);
@@ -331,8 +331,8 @@ TEST_CASE("map: per-terminal view reproduces the KL6001 and KL5101 annex tables"
   const auto& ch = L.terminal(2).channels.at(0);
   auto rows = annex_rows(ch.in, L.terminal(2).in_offset);
   REQUIRE(rows.size() == 4);
-  std::vector<std::vector<std::string>> want = {{"3", "D2", "D1"}, {"2", "", "--"}, {"1", "D0", "Ser-CT/ST"},
-                                                {"0", "", "CT/ST"}};
+  std::vector<std::vector<std::string>> want = {
+      {"3", "D2", "D1"}, {"2", "", "--"}, {"1", "D0", "Ser-CT/ST"}, {"0", "", "CT/ST"}};
   for (std::size_t i = 0; i < 4; ++i) {
     CHECK(std::to_string(rows[i].offset) == want[i][0]);
     CHECK(rows[i].high == want[i][1]);
@@ -341,7 +341,7 @@ TEST_CASE("map: per-terminal view reproduces the KL6001 and KL5101 annex tables"
   std::string view = render_terminal(L, coupler_profile("BK9000"), 2);
   CHECK(view.find("Terminal 2: KL6001") != std::string::npos);
   CHECK(view.find("inputs and outputs") != std::string::npos);
-  CHECK(view.find("8-9") != std::string::npos);             // absolute image bytes of word 0
+  CHECK(view.find("8-9") != std::string::npos);              // absolute image bytes of word 0
   CHECK(view.find("0x0004 / 0x0804") != std::string::npos);  // its Modbus registers
 
   // KL5101 annex, MOTOROLA=1 WA=0 on a BK3000 (offset: high | low):

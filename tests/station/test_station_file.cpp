@@ -36,8 +36,9 @@ const char* kHead = "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL3022\"\n";
 }  // namespace
 
 TEST_CASE("station file: channels are named by number, in any order", "[station][channels]") {
-  auto s = parse(std::string(kHead) + "[[terminal.channel]]\nchannel = 2\nR32 = 5\n"
-                                      "[[terminal.channel]]\nchannel = 1\nR32 = 7\n");
+  auto s = parse(std::string(kHead) +
+                 "[[terminal.channel]]\nchannel = 2\nR32 = 5\n"
+                 "[[terminal.channel]]\nchannel = 1\nR32 = 7\n");
   CHECK(reg(s, 0, 0, 32) == 7);
   CHECK(reg(s, 0, 1, 32) == 5);
   // Only channel 2: channel 1 stays unconfigured.
@@ -74,7 +75,8 @@ TEST_CASE("station file: duplicate, out-of-range and half-numbered channels are 
        "s.toml:8:11: channel 2 of KL3022 is configured twice: here and at line 4"},
       {"R32 = 1\n[[terminal.channel]]\nchannel = 1\nR32 = 2\n", 2,
        "channel 1 of KL3022 is configured twice: here and by the keys under [[terminal]] (line 2)"},
-      {"[[terminal.channel]]\nchannel = 3\nR32 = 1\n", 2, "s.toml:5:11: channel 3 does not exist: KL3022 has channels 1 to 2"},
+      {"[[terminal.channel]]\nchannel = 3\nR32 = 1\n", 2,
+       "s.toml:5:11: channel 3 does not exist: KL3022 has channels 1 to 2"},
       {"[[terminal.channel]]\nchannel = 0\n", 2, "channel 0 does not exist"},
       {"[[terminal.channel]]\nchannel = \"2\"\n", 7, "'channel' must be an integer"},
       {"[[terminal.channel]]\nchannel = 1.5\n", 7, "'channel' must be an integer"},
@@ -126,9 +128,10 @@ TEST_CASE("station file: what station_to_toml writes reads back as the same stat
   CHECK(station_to_toml(back) == text);
 }
 
-TEST_CASE("station file: channel 1 under [[terminal]] and an empty [[terminal.channel]] after it write as they read "
-          "back (found by fuzz_station)",
-          "[station][channels]") {
+TEST_CASE(
+    "station file: channel 1 under [[terminal]] and an empty [[terminal.channel]] after it write as they read "
+    "back (found by fuzz_station)",
+    "[station][channels]") {
   auto s = parse("coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL3022\"\nR37 = 0x0001\n[[terminal.channel]]\n");
   std::string text = station_to_toml(s);
   CHECK(text == "coupler = \"BK9000\"\n\n[[terminal]]\ntype = \"KL3022\"\nR37 = 0x0001\n");

@@ -9,19 +9,19 @@ namespace kscfg {
 // Exit codes of the kscfg command. Listed in the man page (EXIT STATUS); keep them stable.
 enum class Exit : int {
   ok = 0,
-  differences = 1,   // diff: the station differs from the file
-  usage = 2,         // bad arguments, unknown names, bad selection (-t 99)
-  link = 3,          // the port could not be opened or the link failed
-  timeout = 4,       // a terminal did not acknowledge within the timeout
-  refused = 5,       // the terminal refuses the operation (ROM, not implemented, no registers mapped)
-  verify = 6,        // a write read back a different value
-  file = 7,          // a file (state, station, catalog) is unreadable, corrupt or unwritable
-  interrupted = 8,   // SIGINT/SIGTERM; the terminal was restored
-  unverified = 9,    // a change failed and its rollback could not verify every register: state unknown
-  changed = 10,      // apply: the station was changed (success)
-  busy = 11,         // gave up waiting for the coupler (or emulator state file) that another kscfg holds
-  other_master = 12, // another master is using the terminal (its control byte changes in register mode)
-  internal = 70,     // a bug
+  differences = 1,    // diff: the station differs from the file
+  usage = 2,          // bad arguments, unknown names, bad selection (-t 99)
+  link = 3,           // the port could not be opened or the link failed
+  timeout = 4,        // a terminal did not acknowledge within the timeout
+  refused = 5,        // the terminal refuses the operation (ROM, not implemented, no registers mapped)
+  verify = 6,         // a write read back a different value
+  file = 7,           // a file (state, station, catalog) is unreadable, corrupt or unwritable
+  interrupted = 8,    // SIGINT/SIGTERM; the terminal was restored
+  unverified = 9,     // a change failed and its rollback could not verify every register: state unknown
+  changed = 10,       // apply: the station was changed (success)
+  busy = 11,          // gave up waiting for the coupler (or emulator state file) that another kscfg holds
+  other_master = 12,  // another master is using the terminal (its control byte changes in register mode)
+  internal = 70,      // a bug
 };
 
 const char* exit_name(Exit e);

@@ -1,8 +1,9 @@
 // Files the tool owns: atomic replacement and bounded locking.
 #pragma once
+#include <toml++/toml.h>
+
 #include <string>
 #include <string_view>
-#include <toml++/toml.h>
 
 #include "kscfg/base/cancel.hpp"
 
@@ -35,8 +36,7 @@ constexpr std::size_t kMaxInputFileBytes = 4u << 20;  // 4 MiB: a station file i
 // refused at once and never waited on. Error(Exit::file) when it cannot be read, is not a regular
 // file ("... 'PATH': it is a FIFO, not a regular file"; "Is a directory"), or holds more than
 // `max_bytes`.
-std::string read_input_file(const std::string& path, std::string_view what,
-                            std::size_t max_bytes = kMaxInputFileBytes);
+std::string read_input_file(const std::string& path, std::string_view what, std::size_t max_bytes = kMaxInputFileBytes);
 // The same from an open descriptor (stdin for '-'), left open; `name` is what errors call it.
 std::string read_input_fd(int fd, std::string_view what, std::string_view name,
                           std::size_t max_bytes = kMaxInputFileBytes);

@@ -40,8 +40,7 @@ std::string quote_input(std::string_view text, std::size_t max = kQuoteMax);
 std::size_t edit_distance(std::string_view a, std::string_view b);
 
 // Closest names for "did you mean" hints (Levenshtein distance, or one is a prefix of the other), at most `n`.
-std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates,
-                                 std::size_t n = 3);
+std::vector<std::string> closest(std::string_view name, const std::vector<std::string>& candidates, std::size_t n = 3);
 std::string did_you_mean(std::string_view name, const std::vector<std::string>& candidates);
 
 }  // namespace kscfg

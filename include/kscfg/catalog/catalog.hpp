@@ -43,9 +43,9 @@ struct BitField {
 };
 
 struct DecodeTable {
-  std::string kind;   // "control" or "status"
-  std::string image;  // image format it applies to ("" = every format)
-  unsigned width = 8; // 8 or 16 bits
+  std::string kind;    // "control" or "status"
+  std::string image;   // image format it applies to ("" = every format)
+  unsigned width = 8;  // 8 or 16 bits
   std::vector<BitField> fields;
 };
 
@@ -92,12 +92,12 @@ struct Element {
   enum class Kind { ctst, ctst_word, word, dword, byte, pad, bytes };
   bool is_ctst() const { return kind == Kind::ctst || kind == Kind::ctst_word; }
   Kind kind = Kind::byte;
-  std::string lo;  // name (word: low byte; bytes: prefix)
-  std::string hi;  // word: high byte; ctst_word: name of the length byte
-  std::array<std::string, 4> names;  // dword: its bytes, least significant first
-  unsigned count = 0;            // bytes: fixed count
+  std::string lo;                          // name (word: low byte; bytes: prefix)
+  std::string hi;                          // word: high byte; ctst_word: name of the length byte
+  std::array<std::string, 4> names;        // dword: its bytes, least significant first
+  unsigned count = 0;                      // bytes: fixed count
   std::optional<unsigned> count_register;  // bytes: count from this register's low byte
-  unsigned min = 0, max = 0;     // bytes with count_register: clamp
+  unsigned min = 0, max = 0;               // bytes with count_register: clamp
 };
 
 struct When {
@@ -112,8 +112,8 @@ struct ImageFormat {
   std::string name;
   std::optional<When> when;
   CtStMode ctst = CtStMode::none;
-  std::vector<Element> out;  // K-bus structure of one channel, outputs
-  std::vector<Element> in;   // inputs
+  std::vector<Element> out;            // K-bus structure of one channel, outputs
+  std::vector<Element> in;             // inputs
   unsigned bits_in = 0, bits_out = 0;  // digital terminals
   bool complex() const { return !out.empty() || !in.empty(); }
 };

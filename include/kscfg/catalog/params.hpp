@@ -12,8 +12,7 @@ namespace kscfg {
 // Throws Error(Exit::usage) with the allowed values / nearest rates and a "did you mean".
 // A rate outside an enumeration's presets is reached by the divisor form only when `divisor` is
 // set (the user asked for it: set --divisor) and only up to the divisor's documented maximum.
-std::uint16_t encode_param(const ParamDef& param, const std::string& text, std::uint16_t current,
-                           bool divisor = false);
+std::uint16_t encode_param(const ParamDef& param, const std::string& text, std::uint16_t current, bool divisor = false);
 
 // Human text of the parameter's value in register value `reg`, e.g. "19200", "8N1", "on", "3".
 std::string decode_param(const ParamDef& param, std::uint16_t reg);

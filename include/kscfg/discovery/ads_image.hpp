@@ -25,7 +25,7 @@ namespace kscfg {
 
 struct CouplerImage {
   std::optional<std::array<unsigned, 4>> bits;  // 0x1010..0x1013: complex out, complex in, digital out, digital in
-  std::string where;    // "Modbus TCP 0x1010..0x1013 at 10.0.3.11:502"
+  std::string where;                            // "Modbus TCP 0x1010..0x1013 at 10.0.3.11:502"
   std::string unknown;  // why there are none: "the coupler has Modbus TCP disabled (table 100 register 15)"
 };
 

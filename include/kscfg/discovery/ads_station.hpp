@@ -7,8 +7,8 @@
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/ads_image.hpp"
-#include "kscfg/link/ads_client.hpp"
 #include "kscfg/discovery/scan_result.hpp"
+#include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 
@@ -42,7 +42,7 @@ struct AdsScanOptions {
 };
 struct AdsScan {
   ScanResult result;
-  CouplerImage image;  // what the coupler reported of its image (check_image)
+  CouplerImage image;                            // what the coupler reported of its image (check_image)
   std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
 };
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt = {});

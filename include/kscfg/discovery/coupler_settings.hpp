@@ -11,11 +11,11 @@
 namespace kscfg {
 
 struct CouplerSetting {
-  std::string name;      // "watchdog"
-  std::string value;     // "1000 ms"; "not served" when the coupler refuses the register
+  std::string name;             // "watchdog"
+  std::string value;            // "1000 ms"; "not served" when the coupler refuses the register
   std::optional<unsigned> raw;  // the register value(s) as read (empty: not served)
-  std::string where;     // "Modbus 0x1120" / "ADS port 100, table 100 register 14"
-  std::string source;    // URL of the page that documents it
+  std::string where;            // "Modbus 0x1120" / "ADS port 100, table 100 register 14"
+  std::string source;           // URL of the page that documents it
 };
 
 struct CouplerSettings {

@@ -12,10 +12,10 @@
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
 #include "kscfg/session/engine.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/journal.hpp"
 #include "kscfg/session/session.hpp"
 

@@ -4,13 +4,13 @@
 #include <functional>
 #include <map>
 #include <memory>
-#include <vector>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/discovery/scan_result.hpp"
+#include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/station.hpp"

@@ -8,13 +8,13 @@
 #include <chrono>
 #include <functional>
 #include <map>
-#include <set>
 #include <optional>
+#include <set>
 #include <string>
 
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/discovery/scan_result.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/modbus_link.hpp"
 
 namespace kscfg {
@@ -25,7 +25,7 @@ std::string default_cache_dir();
 struct CachedScan {
   std::optional<ScanResult> scan;  // none when only latencies are known (commands with --station)
   std::map<unsigned, std::chrono::microseconds> ack_wait;  // by terminal position
-  std::set<unsigned> ack_suspect;  // positions whose latency may be too long (ack_latency.hpp)
+  std::set<unsigned> ack_suspect;                          // positions whose latency may be too long (ack_latency.hpp)
 };
 
 class ScanCache {

@@ -41,9 +41,9 @@ class AdsRequestHandler {
     // error 0x7 (BC9000 manual, "AMS routing table": "Only AMS Net IDs stored in the table can
     // access the BC9000 via ADS ... If the table is empty (default), all ADS devices can access").
     std::vector<ams::NetId> routes;
-    unsigned watchdog_ms = 1000;      // port 300; 0 = off
-    unsigned mute_delay_ms = 1000;    // how long the coupler waits for a terminal that never answers
-    unsigned register_ms = 0;         // port 100: each terminal register access takes this long, one at a time
+    unsigned watchdog_ms = 1000;          // port 300; 0 = off
+    unsigned mute_delay_ms = 1000;        // how long the coupler waits for a terminal that never answers
+    unsigned register_ms = 0;             // port 100: each terminal register access takes this long, one at a time
     std::optional<unsigned> modbus_port;  // AdsServeOptions::modbus_port
     std::function<void(const std::string&)> trace;
     // The station's lock when other servers share the station (ServedStation::lock()); null: the

@@ -19,7 +19,7 @@ namespace kscfg {
 
 struct AdsServeOptions {
   std::string host = "127.0.0.1";
-  unsigned port = 48898;  // 0: any free port
+  unsigned port = 48898;            // 0: any free port
   std::optional<ams::NetId> netid;  // empty: the address a client reached, plus .1.1
   std::vector<ams::NetId> routes;   // the AMS routing table; empty: every NetId is served
   unsigned cycle_us = 1000;         // K-bus cycle
@@ -32,8 +32,8 @@ struct AdsServeOptions {
   // 26, register 15 bit 0 clear); empty: Modbus TCP is not served (register 15 bit 0 set), so an
   // ADS client does not look for the image lengths there (discovery/ads_image.hpp).
   std::optional<unsigned> modbus_port;
-  unsigned max_connections = 64;    // one more is closed at once
-  unsigned frame_timeout_ms = 2000; // a frame must arrive whole within this time from its first byte
+  unsigned max_connections = 64;                       // one more is closed at once
+  unsigned frame_timeout_ms = 2000;                    // a frame must arrive whole within this time from its first byte
   std::function<void(const std::string&)> save_state;  // as ServeOptions::save_state
   unsigned save_delay_ms = 5;
   std::function<void(const std::string&)> trace;

@@ -10,12 +10,12 @@
 #include <string>
 #include <vector>
 
-#include "kscfg/catalog/catalog.hpp"
-#include "kscfg/station/layout.hpp"
 #include "kscfg/base/owner_lock.hpp"
-#include "kscfg/link/link.hpp"
+#include "kscfg/catalog/catalog.hpp"
 #include "kscfg/emulator/encoder_model.hpp"
 #include "kscfg/emulator/serial_model.hpp"
+#include "kscfg/link/link.hpp"
+#include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg {
@@ -89,7 +89,7 @@ class EmulatedStation {
   // Whether a terminal of this type is emulated by a ChannelModel (has_channel then holds).
   static bool has_model(const TerminalType& type);
   bool has_channel(unsigned position, unsigned ch) const;
-  unsigned response_delay = 1;  // cycles between seeing a request and answering it
+  unsigned response_delay = 1;    // cycles between seeing a request and answering it
   unsigned kbus_cycle_us = 1000;  // emulated time of one K-bus cycle (serial lines run in it)
 
   nlohmann::json to_json() const;
@@ -144,7 +144,7 @@ class EmulatorStore {
  private:
   std::string path_;
   std::string announced_;  // the serve record this store wrote (removed when it dies)
-  std::string saved_;  // the snapshot the file holds ("" when unknown or missing)
+  std::string saved_;      // the snapshot the file holds ("" when unknown or missing)
   OwnerLock lock_;
   std::unique_ptr<EmulatedStation> station_;
 };
@@ -183,7 +183,7 @@ struct EmulatorRestart {
   struct Changed {
     unsigned position;
     std::string type;
-    std::string format_before, format_after;  // the same when only its place moved
+    std::string format_before, format_after;                 // the same when only its place moved
     std::size_t in_before, out_before, in_after, out_after;  // its bytes (digital: bits)
     bool digital;
   };

@@ -48,14 +48,14 @@ constexpr std::int64_t kMaxStep = 1000000;
 
 // What is wired to the terminal: an incremental encoder (A, B, C) and the two 24 V inputs.
 struct EncoderFarEnd {
-  double speed_hz = 0;          // frequency of A (periods per second), 0..250000
-  bool up = true;               // direction: A leads B (encoder), B open (counter mode)
-  unsigned lines = 0;           // periods per revolution: one C pulse a revolution (0: no C pulses)
-  bool gate = false;            // gate input high: counting suppressed
-  bool latch_input = false;     // the external latch input's level
-  unsigned latch_pulses = 0;    // one-shot pulses on the latch input, at the next K-bus cycle
-  unsigned ref_pulses = 0;      // one-shot C pulses, at the next K-bus cycle
-  std::int64_t step = 0;        // periods to move at the next K-bus cycle (sign: direction)
+  double speed_hz = 0;        // frequency of A (periods per second), 0..250000
+  bool up = true;             // direction: A leads B (encoder), B open (counter mode)
+  unsigned lines = 0;         // periods per revolution: one C pulse a revolution (0: no C pulses)
+  bool gate = false;          // gate input high: counting suppressed
+  bool latch_input = false;   // the external latch input's level
+  unsigned latch_pulses = 0;  // one-shot pulses on the latch input, at the next K-bus cycle
+  unsigned ref_pulses = 0;    // one-shot C pulses, at the next K-bus cycle
+  std::int64_t step = 0;      // periods to move at the next K-bus cycle (sign: direction)
 };
 
 class EncoderModel {
@@ -74,7 +74,7 @@ class EncoderModel {
   std::uint16_t counter() const { return counter_; }
   std::uint16_t latch() const { return latch_; }
   std::uint8_t status() const;
-  bool c_level() const;         // the C input now
+  bool c_level() const;                           // the C input now
   std::int64_t position() const { return pos_; }  // encoder position in quarter periods (edges)
 
   // Switched off and on (kscfg emu restart): counter, latch, status and control as at power-on;
@@ -95,11 +95,11 @@ class EncoderModel {
   std::uint16_t counter_ = 0, latch_ = 0;
   bool overflow_ = false, underflow_ = false;
   bool latc_val_ = false, lat_ext_val_ = false, cntset_acc_ = false;
-  std::uint8_t ctrl_ = 0;       // the control byte as last seen (not updated in fast mode)
+  std::uint8_t ctrl_ = 0;                   // the control byte as last seen (not updated in fast mode)
   bool c_used_ = false, ext_used_ = false;  // the latch fired since its enable bit became valid
-  std::int64_t pos_ = 0;        // quarter periods
-  double credit_ = 0;           // edges not yet made
-  bool c_pulse_ = false;        // a one-shot C pulse is high during this cycle
+  std::int64_t pos_ = 0;                    // quarter periods
+  double credit_ = 0;                       // edges not yet made
+  bool c_pulse_ = false;                    // a one-shot C pulse is high during this cycle
 };
 
 }  // namespace kscfg

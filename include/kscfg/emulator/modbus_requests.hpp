@@ -42,10 +42,10 @@ std::uint16_t modbus_crc16(std::span<const std::uint8_t> bytes);
 struct ModbusReply {
   std::vector<std::uint8_t> frame;  // the whole ADU to send; empty: no reply
   std::uint8_t function = 0;
-  int exception = 0;        // the exception code of the reply (0: none)
-  bool executed = false;    // the request was carried out
-  bool changed = false;     // it wrote the output image or the watchdog registers
-  bool malformed = false;   // not a request: bad CRC, MBAP header that does not match the frame
+  int exception = 0;       // the exception code of the reply (0: none)
+  bool executed = false;   // the request was carried out
+  bool changed = false;    // it wrote the output image or the watchdog registers
+  bool malformed = false;  // not a request: bad CRC, MBAP header that does not match the frame
 };
 
 class ModbusRequestHandler {

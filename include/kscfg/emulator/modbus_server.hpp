@@ -25,8 +25,8 @@ ServeFaults parse_faults(const std::string& spec);
 struct ServeOptions {
   enum class Mode { tcp, rtu, pty } mode = Mode::tcp;
   std::string host = "127.0.0.1";
-  unsigned port = 502;          // 0: any free port
-  std::string device;           // rtu
+  unsigned port = 502;  // 0: any free port
+  std::string device;   // rtu
   unsigned baud = 19200;
   char parity = 'E';
   unsigned data_bits = 8, stop_bits = 1;

@@ -15,9 +15,9 @@
 #include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/emulator/uart.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/serial_image.hpp"
-#include "kscfg/emulator/uart.hpp"
 
 namespace kscfg {
 
@@ -71,7 +71,7 @@ class SerialModel {
   void set_far_frame(const std::optional<LineSettings>& f);
   // Bytes the far end sends towards RxD, before anything its own source (pty, echo) has (tests).
   void far_send(std::span<const std::uint8_t> bytes);
-  std::string far_end_description() const;    // e.g. the pty's slave path once it exists
+  std::string far_end_description() const;  // e.g. the pty's slave path once it exists
 
   // Switched off and on (kscfg emu restart): FIFOs, handshake and R6 as at power-on (IA clear);
   // the far end and its frame stay.
@@ -109,19 +109,19 @@ class SerialModel {
   std::deque<std::uint8_t> tx_, rx_;
   std::vector<std::uint8_t> shown_;  // bytes presented in D0.. with the last RR toggle
   bool ta_ = false, rr_ = false, ia_ = false;
-  bool sc_prev_ = false, release_ = false;       // KL6031 continuous send: FIFO held until SC rises
-  std::uint16_t diag_ = 0;                    // sticky bits (overflow, parity, framing, overrun)
-  double tx_credit_ = 0, rx_credit_ = 0;      // line time not yet used, in microseconds
-  bool tx_paused_ = false;                    // XOFF received (XON/XOFF when sending)
-  bool xoff_sent_ = false;                    // XOFF sent (XON/XOFF when receiving)
-  std::deque<std::uint8_t> ctl_out_;          // XON/XOFF waiting to go out before the FIFO
-  std::optional<std::uint8_t> prev_status_;   // R34 bit 2: status one cycle behind the data
+  bool sc_prev_ = false, release_ = false;   // KL6031 continuous send: FIFO held until SC rises
+  std::uint16_t diag_ = 0;                   // sticky bits (overflow, parity, framing, overrun)
+  double tx_credit_ = 0, rx_credit_ = 0;     // line time not yet used, in microseconds
+  bool tx_paused_ = false;                   // XOFF received (XON/XOFF when sending)
+  bool xoff_sent_ = false;                   // XOFF sent (XON/XOFF when receiving)
+  std::deque<std::uint8_t> ctl_out_;         // XON/XOFF waiting to go out before the FIFO
+  std::optional<std::uint8_t> prev_status_;  // R34 bit 2: status one cycle behind the data
   std::string far_spec_ = "loopback";
   std::unique_ptr<FarEnd> far_;
-  std::optional<LineSettings> far_frame_;     // the far end's UART; empty: the terminal's settings
-  std::deque<std::uint8_t> far_out_;          // bytes the far end is about to send (far_send)
-  double now_us_ = 0;                         // emulated time of the line (bit level)
-  Wire to_far_, from_far_;                    // TxD and RxD at the level of bits
+  std::optional<LineSettings> far_frame_;  // the far end's UART; empty: the terminal's settings
+  std::deque<std::uint8_t> far_out_;       // bytes the far end is about to send (far_send)
+  double now_us_ = 0;                      // emulated time of the line (bit level)
+  Wire to_far_, from_far_;                 // TxD and RxD at the level of bits
   UartReceiver far_rx_, term_rx_;
 };
 

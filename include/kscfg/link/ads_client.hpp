@@ -62,8 +62,8 @@ class AdsClient {
   static constexpr std::uint16_t kSourcePort = 32905;
 
   struct Call {
-    std::uint16_t port = 0;      // target AMS port
-    std::uint16_t command = 0;   // ams::kRead, kWrite, kReadWrite, kReadDeviceInfo
+    std::uint16_t port = 0;     // target AMS port
+    std::uint16_t command = 0;  // ams::kRead, kWrite, kReadWrite, kReadDeviceInfo
     std::vector<std::uint8_t> data;
     // Whether sending it again is harmless when its reply was lost with the connection (reads,
     // image writes). A lost reply to a call that is not repeatable is an error: its outcome is
@@ -76,9 +76,9 @@ class AdsClient {
     bool may_be_unserved = false;
   };
   struct Reply {
-    std::uint32_t result = 0;         // ADS return code (0: done)
-    std::vector<std::uint8_t> data;   // Read/ReadWrite: the data; ReadDeviceInfo: version and name
-    std::uint32_t ams_error = 0;      // Call::may_be_unserved: the AMS error of the reply's header
+    std::uint32_t result = 0;        // ADS return code (0: done)
+    std::vector<std::uint8_t> data;  // Read/ReadWrite: the data; ReadDeviceInfo: version and name
+    std::uint32_t ams_error = 0;     // Call::may_be_unserved: the AMS error of the reply's header
   };
 
   AdsClient(AdsTarget target, AdsOptions opt);

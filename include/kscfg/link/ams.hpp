@@ -12,6 +12,8 @@
 //                            invoke id (4)
 //   ADS data        n bytes
 #pragma once
+#include <sys/socket.h>
+
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -20,8 +22,6 @@
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <sys/socket.h>
 
 namespace kscfg::ams {
 
@@ -50,9 +50,9 @@ enum Command : std::uint16_t {
   kNotification = 8,
   kReadWrite = 9,
 };
-constexpr std::uint16_t kFlagResponse = 0x0001;  // 0: request, 1: response
+constexpr std::uint16_t kFlagResponse = 0x0001;    // 0: request, 1: response
 constexpr std::uint16_t kFlagAdsCommand = 0x0004;  // must be set to exchange ADS commands
-const char* command_name(std::uint16_t command);  // "Read", "ReadState", ...; "command N" is not given
+const char* command_name(std::uint16_t command);   // "Read", "ReadState", ...; "command N" is not given
 
 // An AMS NetId: six bytes, written a.b.c.d.e.f. A coupler's is its IP address plus ".1.1"
 // (BC9000 "ADS protocol", above).
@@ -107,8 +107,8 @@ std::vector<std::uint8_t> read_write_request(std::uint32_t group, std::uint32_t 
 
 struct Request {  // a Read, Write or ReadWrite request's fields, as a server sees them
   std::uint32_t group = 0, offset = 0;
-  std::uint32_t read_length = 0;          // Read, ReadWrite
-  std::span<const std::uint8_t> data;     // Write, ReadWrite (points into the frame's data)
+  std::uint32_t read_length = 0;       // Read, ReadWrite
+  std::span<const std::uint8_t> data;  // Write, ReadWrite (points into the frame's data)
 };
 // nullopt when the data does not hold the command's fields (or their lengths disagree).
 std::optional<Request> parse_request(std::uint16_t command, std::span<const std::uint8_t> data);
@@ -149,7 +149,8 @@ std::optional<Response> parse_response(std::uint16_t command, std::span<const st
 // The ReadWrite response data of a 0xF082 sum (the outer result first), and its parse: nullopt when
 // it does not hold `count` answers whose lengths add up.
 std::vector<std::uint8_t> sum_read_write_response(std::span<const Response> answers);
-std::optional<std::vector<Response>> parse_sum_read_write_response(std::size_t count, std::span<const std::uint8_t> data);
+std::optional<std::vector<Response>> parse_sum_read_write_response(std::size_t count,
+                                                                   std::span<const std::uint8_t> data);
 
 // ADS return codes, by name (Beckhoff "ADS Return Codes",
 // https://infosys.beckhoff.com/content/1033/tcdbserver/11407885707.html and

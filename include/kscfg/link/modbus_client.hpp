@@ -26,12 +26,13 @@ constexpr std::uint16_t kOutputImage = 0x0800;  // output image, 256 registers (
 constexpr unsigned kImageRegisters = 0x100;
 constexpr std::uint16_t kIdent = 0x1000;  // 7 registers, 14 ASCII characters
 constexpr unsigned kIdentRegisters = 7;
-constexpr std::uint16_t kCouplerStatus = 0x100A;  // 0x100A..0x100C: PLC interface, terminal diagnosis, coupler status
-constexpr std::uint16_t kImageLengths = 0x1010;   // bits: complex out, complex in, digital out, digital in
-constexpr std::uint16_t kWatchdogTime = 0x1020;   // ms since the watchdog was last retriggered
-constexpr std::uint16_t kWatchdogPreset = 0x1120; // ms, default 1000, 0 = off
-constexpr std::uint16_t kWatchdogReset = 0x1121;  // write 0xBECF then 0xAFFE
-constexpr std::uint16_t kWatchdogType = 0x1122;   // BK9000: 1 = telegram watchdog (default); BK7300: 0 = write telegram (default)
+constexpr std::uint16_t kCouplerStatus = 0x100A;   // 0x100A..0x100C: PLC interface, terminal diagnosis, coupler status
+constexpr std::uint16_t kImageLengths = 0x1010;    // bits: complex out, complex in, digital out, digital in
+constexpr std::uint16_t kWatchdogTime = 0x1020;    // ms since the watchdog was last retriggered
+constexpr std::uint16_t kWatchdogPreset = 0x1120;  // ms, default 1000, 0 = off
+constexpr std::uint16_t kWatchdogReset = 0x1121;   // write 0xBECF then 0xAFFE
+constexpr std::uint16_t kWatchdogType =
+    0x1122;  // BK9000: 1 = telegram watchdog (default); BK7300: 0 = write telegram (default)
 constexpr unsigned kMaxRead = 125, kMaxWrite = 123, kMaxWriteRead = 121;
 
 // Identification: 14 ASCII characters, the first character in the LOW byte of 0x1000 (as public
@@ -76,9 +77,9 @@ int open_serial(const std::string& device, unsigned baud, char parity, unsigned 
 struct ModbusOptions {
   unsigned response_timeout_ms = 500;  // one request/response
   unsigned connect_timeout_ms = 1000;
-  unsigned retries = busy::kRetries;   // extra attempts after busy, CRC or garbled replies
-  unsigned timeout_retries = 1;        // extra attempts after a timeout
-  unsigned poll_us = 500;  // between two polls of the input image (ModbusLink::poll_gap())
+  unsigned retries = busy::kRetries;  // extra attempts after busy, CRC or garbled replies
+  unsigned timeout_retries = 1;       // extra attempts after a timeout
+  unsigned poll_us = 500;             // between two polls of the input image (ModbusLink::poll_gap())
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): a request or the wait for its reply ends with
   // Error(Exit::interrupted) once it is cancelled. Null: never cancelled.
@@ -110,8 +111,8 @@ class ModbusClient : public ModbusRegisters {
   std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count) override;
   void write(std::uint16_t addr, std::span<const std::uint16_t> values);
   // FC23: writes first, then reads, in one exchange.
-  std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values,
-                                        std::uint16_t raddr, unsigned count);
+  std::vector<std::uint16_t> write_read(std::uint16_t waddr, std::span<const std::uint16_t> values, std::uint16_t raddr,
+                                        unsigned count);
 
   // A link proven dead: two requests in a row got no answer after all their attempts (each about
   // the ack timeout). From then on every request fails at once with that reason, so that a
@@ -147,9 +148,9 @@ class ModbusClient : public ModbusRegisters {
   modbus_t* ctx_ = nullptr;
   int serial_fd_ = -1;
   std::size_t exchanges_ = 0, retried_ = 0;
-  unsigned silent_ = 0;   // requests in a row that failed without any answer
-  std::string dead_;      // why the link is taken for dead ("" while it lives)
-  bool drain_ = false;    // RTU: a reply may still come for a request given up on (interrupted)
+  unsigned silent_ = 0;          // requests in a row that failed without any answer
+  std::string dead_;             // why the link is taken for dead ("" while it lives)
+  bool drain_ = false;           // RTU: a reply may still come for a request given up on (interrupted)
   bool connected_once_ = false;  // a connect() succeeded: a later refusal means the coupler went away
   std::string broke_;            // why the connection was dropped last (a reset, ...), for that message
 };

@@ -5,8 +5,8 @@
 
 namespace kscfg::proto {
 
-constexpr std::uint8_t kReg = 0x80;     // bit 7: register access
-constexpr std::uint8_t kWrite = 0x40;   // bit 6: W/NR
+constexpr std::uint8_t kReg = 0x80;    // bit 7: register access
+constexpr std::uint8_t kWrite = 0x40;  // bit 6: W/NR
 constexpr std::uint8_t kAddrMask = 0x3F;
 constexpr unsigned kRegisterCount = 64;
 constexpr std::uint16_t kCodeWord = 0x1235;
@@ -41,9 +41,7 @@ enum class Storage { ram, rom, seerom, none };
 const char* storage_name(Storage s);
 
 // Registers R16..R30 and R32..R47 need the code word in R31 before they accept writes.
-constexpr bool is_protected(unsigned reg) {
-  return (reg >= 16 && reg <= 30) || (reg >= 32 && reg <= 47);
-}
+constexpr bool is_protected(unsigned reg) { return (reg >= 16 && reg <= 30) || (reg >= 32 && reg <= 47); }
 constexpr bool is_implemented(unsigned reg) { return reg < 48; }
 
 // R9: the software version as two ASCII characters (high byte first), e.g. 0x3243 = "2C".

@@ -7,11 +7,11 @@
 #include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
-#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/engine.hpp"
+#include "kscfg/session/lockout.hpp"
 #include "kscfg/session/session.hpp"
+#include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
 
 namespace kscfg {
@@ -55,8 +55,8 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
 
 struct ApplyResult {
   Plan plan;
-  std::string backup_path;  // the touched registers before the change ("" when nothing changed)
-  std::string undo;         // the command that puts them back: kscfg --port PORT restore PATH
+  std::string backup_path;           // the touched registers before the change ("" when nothing changed)
+  std::string undo;                  // the command that puts them back: kscfg --port PORT restore PATH
   std::vector<std::string> rotated;  // older automatic backups removed (BackupInfo::keep)
   bool changed = false;
 };
@@ -64,13 +64,13 @@ struct ApplyResult {
 // What apply's backup records about the run that made it, so that it can be told apart from
 // others and used as printed (issue 10 item 9).
 struct BackupInfo {
-  std::string coupler;               // the coupler type (also the backup's `coupler` key)
-  std::string port;                  // the link as --port takes it (tcp://10.0.0.5:502, emu:/path)
-  std::optional<unsigned> unit;      // Modbus unit id
-  std::string identification;        // the coupler's identification registers, when read
-  std::string applied;               // the station file that was applied
-  std::string station;               // --station FILE of the run ("" when the coupler was scanned)
-  std::string version;               // kscfg's version
+  std::string coupler;           // the coupler type (also the backup's `coupler` key)
+  std::string port;              // the link as --port takes it (tcp://10.0.0.5:502, emu:/path)
+  std::optional<unsigned> unit;  // Modbus unit id
+  std::string identification;    // the coupler's identification registers, when read
+  std::string applied;           // the station file that was applied
+  std::string station;           // --station FILE of the run ("" when the coupler was scanned)
+  std::string version;           // kscfg's version
   // Automatic backups (default_apply_backup_path): how many of this port's to keep; older ones
   // are removed after a new one is written. 0: keep all; ignored for a path the user chose.
   unsigned keep = 0;

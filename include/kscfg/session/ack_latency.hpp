@@ -53,27 +53,27 @@ namespace kscfg {
 
 // How fast one terminal answers: what the fields mean and how they move is said above.
 struct AckTiming {
-  std::chrono::microseconds wait{0};  // the acknowledge is there this long after the request left; 0: unknown
-  bool suspect = false;               // `wait` may be too long (raised, or guessed): probe below it
-  bool guessed = false;               // `wait` was taken from another terminal of the coupler (this run):
-                                      // the first acknowledges go at it unprobed
-  unsigned samples = 0;               // acknowledges timed while learning (this run)
+  std::chrono::microseconds wait{0};     // the acknowledge is there this long after the request left; 0: unknown
+  bool suspect = false;                  // `wait` may be too long (raised, or guessed): probe below it
+  bool guessed = false;                  // `wait` was taken from another terminal of the coupler (this run):
+                                         // the first acknowledges go at it unprobed
+  unsigned samples = 0;                  // acknowledges timed while learning (this run)
   std::chrono::microseconds longest{0};  // longest latency timed while learning
-  bool missed = false;                // a poll at `wait` came too early (this run)
-  unsigned misses = 0;                // how often (this run); after three, no more read-ahead
-  unsigned acks = 0;                  // acknowledges seen this run
-  unsigned streak = 0;                // first polls at `wait` that found the answer since the last probe
-  unsigned probes = 0;                // polls below `wait` (this run), and how many found the answer
+  bool missed = false;                   // a poll at `wait` came too early (this run)
+  unsigned misses = 0;                   // how often (this run); after three, no more read-ahead
+  unsigned acks = 0;                     // acknowledges seen this run
+  unsigned streak = 0;                   // first polls at `wait` that found the answer since the last probe
+  unsigned probes = 0;                   // polls below `wait` (this run), and how many found the answer
   unsigned probe_hits = 0;
-  std::chrono::microseconds slow{0};  // the slowest recent answer that came after the wait (this run):
-                                      // a probe never lowers the wait below it
-  unsigned slow_age = 0;              // acknowledges since `slow` was last raised
-  unsigned late = 0;                  // acknowledges seen by a poll this process sent late (this run):
-                                      // not learned (ack_seen)
-  bool kept = false;                  // `wait` was kept from an earlier run and not yet checked in this one
-  bool measuring = false;             // probes are timing answers below `wait` (this run; not kept)
-  unsigned sampled = 0;               // answers timed below the wait by probes since the last change
-  unsigned sample_hits = 0;           // of them, answers already there at the probe (an upper bound only)
+  std::chrono::microseconds slow{0};        // the slowest recent answer that came after the wait (this run):
+                                            // a probe never lowers the wait below it
+  unsigned slow_age = 0;                    // acknowledges since `slow` was last raised
+  unsigned late = 0;                        // acknowledges seen by a poll this process sent late (this run):
+                                            // not learned (ack_seen)
+  bool kept = false;                        // `wait` was kept from an earlier run and not yet checked in this one
+  bool measuring = false;                   // probes are timing answers below `wait` (this run; not kept)
+  unsigned sampled = 0;                     // answers timed below the wait by probes since the last change
+  unsigned sample_hits = 0;                 // of them, answers already there at the probe (an upper bound only)
   std::chrono::microseconds sample_max{0};  // the slowest of them
   std::chrono::microseconds fastest{0};     // the earliest answer a probe timed from below (this run)
 };
@@ -120,8 +120,7 @@ struct AckPoll {
   std::chrono::microseconds at{0};
   bool at_wait = false;
 };
-AckPoll ack_next_poll(const AckPlan& p, unsigned polls, std::chrono::microseconds last,
-                      std::chrono::microseconds pace);
+AckPoll ack_next_poll(const AckPlan& p, unsigned polls, std::chrono::microseconds last, std::chrono::microseconds pace);
 // The acknowledge showed at poll `poll` (1: the first), `took` after the request. `late`: that poll
 // went out later than planned by more than ack_late_slack() (this process was not scheduled, or
 // slept past its time: issue 34): `took` then tells of the machine's load, not of the terminal, and

@@ -48,11 +48,11 @@ class AdsAccess final : public RegisterAccess {
   std::size_t exchanges() const override { return client_.exchanges(); }
 
  private:
-  struct Chan : OpenChannel {  // erased once its last user closed it
+  struct Chan : OpenChannel {              // erased once its last user closed it
     adsreg::RegisterAccess::Address addr;  // terminal number and channel; the register per request
-    bool journaled = false;  // the journal has its "u" entry open
-    bool unsure = false;     // a request of it went unanswered: the entry stays at the end
-    long dead_pid = 0;       // adopt_dead()
+    bool journaled = false;                // the journal has its "u" entry open
+    bool unsure = false;                   // a request of it went unanswered: the entry stays at the end
+    long dead_pid = 0;                     // adopt_dead()
   };
   void leave(ChannelKey key, Chan& c) noexcept;
   AdsClient& client_;

@@ -96,11 +96,11 @@ class HandshakeAccess final : public RegisterAccess {
     bool write = false;
     unsigned reg = 0;
     std::uint16_t value = 0;
-    bool probe = false;          // the other register of decision 2, not an op of the program
-    Clock::time_point sent{};    // the exchange that put it in the control byte
-    Clock::time_point since{};   // when the op was first asked for (its timeout runs from here)
+    bool probe = false;         // the other register of decision 2, not an op of the program
+    Clock::time_point sent{};   // the exchange that put it in the control byte
+    Clock::time_point since{};  // when the op was first asked for (its timeout runs from here)
     unsigned polls = 0;
-    AckPlan ack;                 // when its first poll goes out (ack_latency.hpp)
+    AckPlan ack;  // when its first poll goes out (ack_latency.hpp)
   };
   enum class Act { none, look, send, poll, close };
   struct Chan : OpenChannel {
@@ -118,10 +118,10 @@ class HandshakeAccess final : public RegisterAccess {
     unsigned close_fails = 0;  // exchanges of its close program that failed
     ChannelFound found;
     std::optional<SessionJournal::Entry> dead_entry;  // adopt_dead(): what that session found
-    std::optional<std::uint8_t> last_status;  // known status after our last acknowledged request
-    std::optional<Request> req;    // in the control byte, waiting for its acknowledge
-    std::optional<Request> ahead;  // the next read, written with a poll for `req` (read-ahead)
-    AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
+    std::optional<std::uint8_t> last_status;          // known status after our last acknowledged request
+    std::optional<Request> req;                       // in the control byte, waiting for its acknowledge
+    std::optional<Request> ahead;                     // the next read, written with a poll for `req` (read-ahead)
+    AckTiming* timing = nullptr;                      // timings_'s entry of its terminal (a link that pipelines)
     Clock::time_point last_poll{};
     Clock::time_point due{};  // when the poll of this exchange was planned to go out
     // This exchange.

@@ -49,12 +49,12 @@ class SessionJournal {
  public:
   // One terminal channel that a session put in register mode.
   struct Entry {
-    unsigned position = 0;  // 1-based plug position
-    unsigned channel = 0;   // 0-based
-    std::string type;       // catalog type name, e.g. "KL6001"
-    RegisterWindow window;  // where its control/status and value bytes are in the image
-    std::size_t saved_at = 0;            // output image offset of saved[0]
-    std::vector<std::uint8_t> saved;     // the process-data output bytes found when the session began
+    unsigned position = 0;            // 1-based plug position
+    unsigned channel = 0;             // 0-based
+    std::string type;                 // catalog type name, e.g. "KL6001"
+    RegisterWindow window;            // where its control/status and value bytes are in the image
+    std::size_t saved_at = 0;         // output image offset of saved[0]
+    std::vector<std::uint8_t> saved;  // the process-data output bytes found when the session began
     // The last control bytes it wrote, each once, the latest last (at most kMaxCtrl: a kill -9
     // between the line and the exchange leaves the one before on the coupler, and a link that died
     // leaves any of those it tried since its last answered exchange). Empty: it never wrote one.
@@ -67,8 +67,8 @@ class SessionJournal {
   };
   // Output bits a `kscfg data force` process forced ("f"), not yet put back ("r").
   struct Forced {
-    unsigned position = 0;  // 1-based plug position
-    unsigned channel = 0;   // 0-based (0 for digital terminals)
+    unsigned position = 0;   // 1-based plug position
+    unsigned channel = 0;    // 0-based (0 for digital terminals)
     std::size_t offset = 0;  // output image byte
     std::uint8_t mask = 0, before = 0, after = 0;
     std::string type;  // catalog type name
@@ -81,7 +81,7 @@ class SessionJournal {
   struct Dead {
     std::string path;
     long pid = 0;
-    std::vector<Entry> open;  // entries never closed: terminals it may have left in register mode
+    std::vector<Entry> open;     // entries never closed: terminals it may have left in register mode
     std::vector<Forced> forced;  // outputs it forced and did not put back
     int fd = -1;
   };
@@ -120,8 +120,9 @@ class SessionJournal {
   std::vector<Dead> claim_dead();
   // The open entry a dead process's journal has for a channel, and that process's pid: looked up
   // in the journals as they were at the first call (read, not claimed: claim_dead() acts on them
-  // later; forget_peeked() once the recovery dealt with an entry). For a session that finds the channel in register mode before the station's layout is
-  // known (a scan walking towards it): that process's leftover, no watch needed (handshake.hpp).
+  // later; forget_peeked() once the recovery dealt with an entry). For a session that finds the channel in register
+  // mode before the station's layout is known (a scan walking towards it): that process's leftover, no watch needed
+  // (handshake.hpp).
   const std::pair<long, Entry>* peek_dead(unsigned position, unsigned channel);
   void forget_peeked(unsigned position, unsigned channel);
   // Unlocks a claimed journal; `finished`: every open entry was dealt with, the file goes.
@@ -151,9 +152,9 @@ class SessionJournal {
   std::string prefix_;  // dir/KEY
   std::string path_;    // dir/KEY.PID-TIME.sessions once created
   int fd_ = -1;
-  std::set<std::pair<unsigned, unsigned>> open_;  // entries entered and not left
-  std::set<std::pair<unsigned, unsigned>> unverified_;  // lock_unverified(): never left
-  std::set<std::size_t> forced_;                  // forced bytes not put back
+  std::set<std::pair<unsigned, unsigned>> open_;            // entries entered and not left
+  std::set<std::pair<unsigned, unsigned>> unverified_;      // lock_unverified(): never left
+  std::set<std::size_t> forced_;                            // forced bytes not put back
   std::map<std::pair<unsigned, unsigned>, int> last_ctrl_;  // control byte last noted (-1: none)
   std::optional<std::map<std::pair<unsigned, unsigned>, std::pair<long, Entry>>> peeked_;  // peek_dead()
   std::string why_;

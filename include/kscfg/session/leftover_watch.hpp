@@ -43,7 +43,7 @@ struct LeftoverWatch {
 // passed (then: other_master). Samples every `every` (two reads). Throws Error(Exit::interrupted)
 // when `cancel` (null: never) is cancelled, link errors as they come.
 LeftoverWatch watch_leftover(Link& link, const RegisterWindow& w, std::chrono::milliseconds quiet,
-                             std::chrono::milliseconds give_up,
-                             std::chrono::milliseconds every, const CancelToken* cancel);
+                             std::chrono::milliseconds give_up, std::chrono::milliseconds every,
+                             const CancelToken* cancel);
 
 }  // namespace kscfg

@@ -76,7 +76,8 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
                             const SessionOptions& so, const std::vector<PlannedWrite>& writes);
 // "takes effect at the coupler's next start: terminal 1 (KL6001) alternative-format = off (R34
 // 0x0003 -> 0x0001); ..." for a report whose writes change a terminal's image at the next start
-// (the layouts before and after are compared per terminal); "" otherwise. The coupler lays its image out at its start: until then it keeps the one it has.
+// (the layouts before and after are compared per terminal); "" otherwise. The coupler lays its image out at its start:
+// until then it keeps the one it has.
 std::string next_start_note(const LockoutReport& rep);
 
 // Planned writes of NAME VALUE pairs on one channel (each parameter's field of its register).

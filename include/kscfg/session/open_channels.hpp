@@ -2,10 +2,10 @@
 // runs: the bookkeeping both accesses share (HandshakeAccess, handshake.hpp; AdsAccess,
 // ads_access.hpp), so that submit(), busy() and the counting of a channel's users are one code.
 #pragma once
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <map>
-
-#include <fmt/format.h>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/session/access.hpp"

@@ -28,8 +28,8 @@ ImageSnapshot read_image(Link& link, const StationLayout& layout);
 // terminals without bytes (end, power). Keys (docs/json.md): position, channel (complex only),
 // type, family, format, register_mode, status / control ({value, bits}), and by family:
 // serial in_length/out_length/in_data/out_data (the valid data bytes, numbers), encoder and counter
-// "counter"/"latch", analog "word" (the data word, signed unless the scale is unsigned)/"scaled"/"unit", digital "inputs"/"outputs" (arrays of 0/1); every complex channel
-// also "bytes": {"in": {NAME: value}, "out": {...}}.
+// "counter"/"latch", analog "word" (the data word, signed unless the scale is unsigned)/"scaled"/"unit", digital
+// "inputs"/"outputs" (arrays of 0/1); every complex channel also "bytes": {"in": {NAME: value}, "out": {...}}.
 std::vector<nlohmann::json> decode_station(const StationLayout& layout, const ImageSnapshot& image,
                                            unsigned only_position = 0);
 nlohmann::json decode_channel(const TerminalImage& t, unsigned channel, const ImageSnapshot& image);

@@ -14,8 +14,8 @@
 #include <vector>
 
 #include "kscfg/base/cancel.hpp"
-#include "kscfg/station/layout.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/station/layout.hpp"
 #include "kscfg/station/serial_image.hpp"
 
 namespace kscfg {
@@ -100,7 +100,7 @@ class SerialPort {
   std::vector<std::uint8_t> out_, in_;  // shadows of the channel's serial output / input ranges
   std::uint8_t ctrl_ = 0, status_ = 0;
   std::deque<std::uint8_t> txq_;
-  bool tx_busy_ = false;     // TR toggled, TA not yet following
+  bool tx_busy_ = false;  // TR toggled, TA not yet following
   std::size_t tx_len_ = 0;
   std::vector<std::uint8_t> rx_;
   std::size_t polls_ = 0;

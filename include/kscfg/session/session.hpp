@@ -78,17 +78,15 @@ class RegisterSession {
 
 // Finishes the sessions that kscfg processes on this link's port left open when they died
 // (journal.hpp), on the port's engine (its access the process-image handshake over `link`, whose
-// image bytes are read to tell whether a terminal is still in register mode): each terminal of a dead journal that is still in register mode (REG in its control
-// and its status byte) is relocked and put back to process data, with a note. A journal is dropped
-// once dealt with; one whose terminal did not answer stays for the next run. `fits` (when given)
-// says whether an entry's window lies inside the image the coupler has now; one that does not is
-// not this station's and is dropped untouched. Never throws but Error(interrupted).
-// The outputs a dead `kscfg data force` left forced (journal "f" lines, DeadForce) are dealt with
-// through `link` in the same pass: each checked with `force_fits` (the terminal at its position is
-// of its type and owns that output byte) and against the byte as the coupler holds it now (still as
-// forced), then put back (SessionOptions::release_forced) or named in a warning; a journal with
-// outputs still forced stays.
-// `unknown`: the layout cannot tell (a Modbus scan places no digital terminal): named in the
+// image bytes are read to tell whether a terminal is still in register mode): each terminal of a dead journal that is
+// still in register mode (REG in its control and its status byte) is relocked and put back to process data, with a
+// note. A journal is dropped once dealt with; one whose terminal did not answer stays for the next run. `fits` (when
+// given) says whether an entry's window lies inside the image the coupler has now; one that does not is not this
+// station's and is dropped untouched. Never throws but Error(interrupted). The outputs a dead `kscfg data force` left
+// forced (journal "f" lines, DeadForce) are dealt with through `link` in the same pass: each checked with `force_fits`
+// (the terminal at its position is of its type and owns that output byte) and against the byte as the coupler holds it
+// now (still as forced), then put back (SessionOptions::release_forced) or named in a warning; a journal with outputs
+// still forced stays. `unknown`: the layout cannot tell (a Modbus scan places no digital terminal): named in the
 // warning, never put back, kept.
 enum class ForceFit { fits, foreign, unknown };
 using ForceFits = std::function<ForceFit(const SessionJournal::Forced&)>;
@@ -105,8 +103,8 @@ ForceFit forced_fits(const StationLayout& layout, const SessionJournal::Forced& 
 
 // The same for direct register access (ADS port 100, AdsAccess): each channel a dead process's
 // journal says it unlocked ("u" entries) is relocked through the port's engine (its access
-// AdsAccess) when R31 still holds the code word, with a note. `terminal(position)`: the station's terminal there (nullptr: none; the entry
-// is then not this station's and dropped untouched). Never throws but Error(interrupted).
+// AdsAccess) when R31 still holds the code word, with a note. `terminal(position)`: the station's terminal there
+// (nullptr: none; the entry is then not this station's and dropped untouched). Never throws but Error(interrupted).
 void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal,
                                  Link* image = nullptr, const ForceFits& force_fits = {});

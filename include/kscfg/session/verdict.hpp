@@ -48,8 +48,8 @@ Verdict judge_change(Engine* engine, const StationLayout& current, const Catalog
 // judge_change(), then: a refused change is thrown (Error(Exit::refused)); with `force` it may go
 // ahead and so.notice is told each warning. Returns the verdict (its lockout report gives the
 // next-start note).
-Verdict enforce_verdict(Engine* engine, const StationLayout& current, const Catalog& catalog,
-                        const SessionOptions& so, const std::vector<PlannedWrite>& writes, bool force);
+Verdict enforce_verdict(Engine* engine, const StationLayout& current, const Catalog& catalog, const SessionOptions& so,
+                        const std::vector<PlannedWrite>& writes, bool force);
 
 // A station file judged offline (station check): the file as a change from the factory settings
 // of its terminals. A partial file's terminals are judged where they stand, the positions it does

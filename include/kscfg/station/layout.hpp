@@ -21,8 +21,8 @@ struct ImageByte {
 
 // Bytes that carry register communication for one channel.
 struct RegisterWindow {
-  std::size_t ctrl = 0;    // control byte in the output image
-  std::size_t status = 0;  // status byte in the input image
+  std::size_t ctrl = 0;                // control byte in the output image
+  std::size_t status = 0;              // status byte in the input image
   std::size_t out_lo = 0, out_hi = 0;  // register value bytes in the output image
   std::size_t in_lo = 0, in_hi = 0;    // register value bytes in the input image
 };
@@ -40,11 +40,11 @@ struct ChannelImage {
 struct TerminalImage {
   unsigned position = 0;  // 1-based plug position
   const TerminalType* type = nullptr;
-  std::string format;     // image format name
+  std::string format;  // image format name
   bool complex = false;
   std::vector<ChannelImage> channels;
   std::size_t in_offset = 0, in_size = 0, out_offset = 0, out_size = 0;  // complex: byte range
-  std::size_t in_bit = 0, out_bit = 0;  // digital: absolute bit offset in the image
+  std::size_t in_bit = 0, out_bit = 0;                                   // digital: absolute bit offset in the image
   unsigned bits_in = 0, bits_out = 0;
   // A digital terminal whose type is unknown (TerminalSpec::inferred): `type` stands for its bits
   // and direction; `fits` are the catalog types with that image (digital_label(), fits_type()).
@@ -83,8 +83,8 @@ struct StationLayout {
   std::string unidentified_digital() const;
 };
 
-using RegisterSource = std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position,
-                                                                                       unsigned channel)>;
+using RegisterSource =
+    std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position, unsigned channel)>;
 
 // Lays out one channel of a complex terminal at `start` (output and input images separately).
 ChannelImage layout_channel(const ImageFormat& fmt, const TerminalType& type, const MappingSettings& s,
@@ -104,6 +104,5 @@ StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog);
 // when a named position holds another type, Error(usage) when the station has no such position.
 // A full file is returned as it is.
 StationSpec expand_partial(const StationSpec& file, const StationLayout& station);
-
 
 }  // namespace kscfg

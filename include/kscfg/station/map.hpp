@@ -37,13 +37,13 @@ void check_image_limits(const StationLayout& layout, const CouplerProfile& p);
 struct MapEntry {
   bool input = true;
   bool digital = false;
-  std::size_t offset = 0;  // first byte
-  unsigned bit = 0;        // digital: first bit in that byte
-  std::size_t size = 0;    // complex: bytes; digital: bits
+  std::size_t offset = 0;      // first byte
+  unsigned bit = 0;            // digital: first bit in that byte
+  std::size_t size = 0;        // complex: bytes; digital: bits
   std::size_t bit_offset = 0;  // digital: first bit counted from the start of the digital area
   unsigned position = 0;
   std::string type;
-  unsigned channel = 0;    // 1-based; 0 for digital terminals
+  unsigned channel = 0;          // 1-based; 0 for digital terminals
   std::vector<ImageByte> bytes;  // complex: the channel's bytes in offset order
 };
 

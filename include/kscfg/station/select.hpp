@@ -29,7 +29,6 @@ TerminalSelection parse_terminal_selection(const std::string& text);
 // type the station does not have are Error(Exit::usage). `registers_only`: "all", ranges and
 // types keep only terminals that have registers (a position named on its own is kept, so the
 // command can say why it cannot use it).
-std::vector<unsigned> select_terminals(const TerminalSelection& sel, const StationLayout& layout,
-                                       bool registers_only);
+std::vector<unsigned> select_terminals(const TerminalSelection& sel, const StationLayout& layout, bool registers_only);
 
 }  // namespace kscfg

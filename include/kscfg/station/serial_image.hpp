@@ -49,12 +49,12 @@ constexpr std::uint16_t kFeatContinuousSend = 0x0040;
 //    and must stay REG = 0 for process data);
 //  * 16-bit control/status word: CT/ST low byte plus a length byte "OL/IL" (KL6031 large image).
 struct SerialImage {
-  std::string format;  // image format name ("standard", "alternative", "small", "medium", "large")
-  bool word = false;   // length in its own byte (OL/IL) instead of bits 6..4
-  ImageByte ctrl, status;                          // handshake control (outputs) / status (inputs)
-  std::optional<ImageByte> out_len, in_len;        // OL / IL (word form)
-  std::optional<ImageByte> reg_ctrl, reg_status;   // CT/ST when it is not the handshake byte
-  std::vector<ImageByte> out_data, in_data;        // D0, D1, ... in order
+  std::string format;      // image format name ("standard", "alternative", "small", "medium", "large")
+  bool word = false;       // length in its own byte (OL/IL) instead of bits 6..4
+  ImageByte ctrl, status;  // handshake control (outputs) / status (inputs)
+  std::optional<ImageByte> out_len, in_len;       // OL / IL (word form)
+  std::optional<ImageByte> reg_ctrl, reg_status;  // CT/ST when it is not the handshake byte
+  std::vector<ImageByte> out_data, in_data;       // D0, D1, ... in order
   // Most bytes one handshake can carry (the 3-bit length field caps the byte form at 7).
   unsigned max_out() const;
   unsigned max_in() const;

@@ -18,12 +18,12 @@ struct MappingSettings {
 
 struct CouplerProfile {
   std::string name;
-  std::string family;   // lightbus, profibus, interbus, canopen, devicenet, modbus-rtu, rs485, modbus-tcp
+  std::string family;  // lightbus, profibus, interbus, canopen, devicenet, modbus-rtu, rs485, modbus-tcp
   std::string title;
   MappingSettings defaults;
-  std::size_t max_in_bytes = 0;    // process-image limits (0 = no limit known)
+  std::size_t max_in_bytes = 0;  // process-image limits (0 = no limit known)
   std::size_t max_out_bytes = 0;
-  bool modbus = false;             // exposes the image as Modbus registers (BK7xx0, BK9xx0)
+  bool modbus = false;  // exposes the image as Modbus registers (BK7xx0, BK9xx0)
   // Shown as reached over ADS (the map of an ads:// port): the image by port-300 index group and
   // offset (0xF020 inputs, 0xF030 outputs), no Modbus register. Set by the caller, never by a profile.
   bool ads = false;
@@ -76,7 +76,7 @@ struct StationSpec {
   std::optional<bool> complete_evaluation, motorola, word_alignment;
   std::vector<TerminalSpec> terminals;
   std::vector<std::string> comments;  // optional, per terminal: a "# ..." line in station_to_toml
-  std::string origin;  // file name for messages
+  std::string origin;                 // file name for messages
 
   MappingSettings settings() const;
   // A partial file: its terminals name their plug positions (position = N), the others are left
@@ -107,7 +107,7 @@ std::string toml_comment(std::string_view text);
 StationSpec default_station();
 
 // Register values of one channel: the type's defaults, then the spec's params and registers.
-std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type,
-                                                                   const TerminalSpec* spec, unsigned channel);
+std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type, const TerminalSpec* spec,
+                                                                   unsigned channel);
 
 }  // namespace kscfg
