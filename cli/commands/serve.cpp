@@ -346,7 +346,7 @@ class Serve : public Command {
     Saver save;
     if (!store.path().empty()) save = [&store](const std::string& text) { store.save_text(text); };
     serve(store.station(), save, [&](const std::vector<std::string>& uris) {
-      store.announce(uris.front());  // another kscfg on the file is told where to go
+      store.announce(uris);  // another kscfg on the file is told where to go (every URI)
       if (ctx.json()) {
         nlohmann::json j{{"port", uris.front()}, {"state", path}};
         if (uris.size() > 1) j["ads"] = uris[1];

@@ -304,7 +304,8 @@ std::string EmulatorStore::default_path() { return (std::filesystem::path(state_
 
 namespace {
 
-// Where a `kscfg serve` of a state file says where it serves it: "PID\nURI\n", beside the file
+// Where a `kscfg serve` of a state file says where it serves it: "PID\nURI\n" (a line per URI:
+// serve --tcp --ads has two), beside the file
 // (the end of its links, as the lock), written after the lock is taken and removed before it goes.
 std::string serve_record_path(const std::string& state) { return resolve_link(state) + ".serve"; }
 
@@ -316,18 +317,28 @@ OwnerLock lock_state_file(const std::string& path, const LockWait& wait) {
   std::string record = serve_record_path(path);
   RegularFile r = read_regular_file(record, "serve record", 1024);
   if (r.exists && r.refused.empty()) {
-    auto nl = r.text.find('\n');
-    std::string pid = r.text.substr(0, nl);
-    std::string uri = nl == std::string::npos ? "" : r.text.substr(nl + 1, r.text.find('\n', nl + 1) - nl - 1);
-    bool sane = !pid.empty() && pid.size() < 12 && !uri.empty() && uri.size() < 300 &&
-                std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; }) &&
-                std::all_of(uri.begin(), uri.end(), [](char c) { return c > ' ' && c < 0x7F; });
+    std::vector<std::string> lines;
+    for (std::size_t at = 0; at < r.text.size() && lines.size() < 4;) {
+      auto nl = r.text.find('\n', at);
+      if (nl == std::string::npos) nl = r.text.size();
+      lines.push_back(r.text.substr(at, nl - at));
+      at = nl + 1;
+    }
+    std::string pid = lines.empty() ? "" : lines[0];
+    std::vector<std::string> uris(lines.begin() + (lines.empty() ? 0 : 1), lines.end());
+    bool sane = !pid.empty() && pid.size() < 12 && !uris.empty() &&
+                std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; });
+    for (const auto& u : uris)
+      sane = sane && !u.empty() && u.size() < 300 &&
+             std::all_of(u.begin(), u.end(), [](char c) { return c > ' ' && c < 0x7F; });
+    std::string uri = sane ? fmt::format("{}", fmt::join(uris, " and ")) : "";
+    std::string dash_p = sane ? fmt::format("-p {}", fmt::join(uris, " or -p ")) : "";
     auto holder = sane ? OwnerLock::holder(lock_path) : std::nullopt;
     if (holder && std::to_string(holder->pid) == pid)
       throw Error(Exit::busy,
                   fmt::format("the emulator state file {} is held by kscfg serve (process {}), which serves it at {}",
                               path, pid, uri),
-                  fmt::format("reach the same station through it with -p {}, or stop the serve", uri));
+                  fmt::format("reach the same station through it with {}, or stop the serve", dash_p));
   }
   OwnerLock lock = OwnerLock::acquire(lock_path, fmt::format("the emulator state file {}", path), wait);
   // A record left by a serve that was killed (-9): nobody serves the file now.
@@ -337,10 +348,10 @@ OwnerLock lock_state_file(const std::string& path, const LockWait& wait) {
 
 }  // namespace
 
-void EmulatorStore::announce(const std::string& uri) {
-  if (path_.empty() || !lock_.held()) return;
+void EmulatorStore::announce(const std::vector<std::string>& uris) {
+  if (path_.empty() || !lock_.held() || uris.empty()) return;
   std::string record = serve_record_path(path_);
-  write_file_atomic(record, fmt::format("{}\n{}\n", ::getpid(), uri), true);
+  write_file_atomic(record, fmt::format("{}\n{}\n", ::getpid(), fmt::join(uris, "\n")), true);
   announced_ = record;
 }
 

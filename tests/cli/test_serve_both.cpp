@@ -60,6 +60,7 @@ TEST_CASE("serve --tcp --ads: one station over Modbus TCP and ADS at once, what 
   r = run_kscfg({"--port", "emu:" + state, "info"}, env);
   CHECK(r.rc == 11);
   CHECK_THAT(r.err, Catch::Contains("-p " + tcp));
+  CHECK_THAT(r.err, Catch::Contains("-p " + ads));  // both URIs that reach it (issue 36 item 2)
 
   // Stopped, the state file holds what both wrote.
   CHECK(s.stop() == 0);

@@ -139,7 +139,7 @@ class EmulatorStore {
   // Records beside the state file that this process (a `kscfg serve`) serves it at `uri`, for as
   // long as the store lives: another kscfg on the file is then refused at once (Exit::busy) with the
   // serve's PID and `-p URI`, instead of waiting --lock-wait for a server that does not end.
-  void announce(const std::string& uri);
+  void announce(const std::vector<std::string>& uris);
 
  private:
   std::string path_;
