@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <poll.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -51,6 +52,13 @@ class FdBuf : public std::streambuf {
       ssize_t k = ::write(fd_, p, n);
       if (k < 0) {
         if (errno == EINTR) continue;
+        if (errno == EAGAIN || errno == EWOULDBLOCK) {
+          // A stdout shared in non-blocking mode (a pipe or terminal another process set so) with a
+          // reader that is behind: wait until it takes more, as a blocking write would.
+          pollfd pf{fd_, POLLOUT, 0};
+          ::poll(&pf, 1, 1000);
+          continue;
+        }
         if (errno == EPIPE) gone_ = true;
         else error_ = errno;
         return !error_;

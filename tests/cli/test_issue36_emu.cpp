@@ -1,7 +1,9 @@
 // Issue 36, the emulator and serial items: an emulated coupler that can be power-cycled (item 4),
-// `serial send -` that ends at the end of its input (item 7).
+// `serial send -` that ends at the end of its input (item 7), and a stdout shared in non-blocking mode.
 #include <fcntl.h>
+#include <spawn.h>
 #include <sys/ioctl.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <catch2/catch.hpp>
@@ -124,4 +126,47 @@ TEST_CASE("issue 36 item 4: emu restart on a state file a serve holds is refused
   CHECK(one_line_error(r));
   CHECK_THAT(r.err, Catch::Contains("held by kscfg serve"));
   CHECK_THAT(r.err, Catch::Contains("stop the serve, run 'kscfg emu restart', and serve again"));
+}
+
+TEST_CASE("a stdout shared in non-blocking mode whose reader is behind is waited for, not an error",
+          "[issue36][output]") {
+  // The write side of the pipe is O_NONBLOCK (set by whoever shares it). kscfg fills the pipe, then
+  // its write answers EAGAIN: it said "kscfg: error: cannot write to stdout: Resource temporarily
+  // unavailable" (exit 7) with 64 KiB of an 83 KB man page written.
+  Run whole = run_kscfg({"manpage"});
+  REQUIRE(whole.rc == 0);
+  REQUIRE(whole.out.size() > 70000);  // more than a pipe holds
+  int p[2];
+  REQUIRE(::pipe2(p, O_CLOEXEC) == 0);
+  REQUIRE(::fcntl(p[1], F_SETFL, ::fcntl(p[1], F_GETFL) | O_NONBLOCK) == 0);
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  posix_spawn_file_actions_adddup2(&fa, p[1], 1);
+  std::string bin = KSCFG_BIN, verb = "manpage";
+  char* argv[] = {bin.data(), verb.data(), nullptr};
+  pid_t pid = 0;
+  REQUIRE(posix_spawn(&pid, bin.c_str(), &fa, nullptr, argv, environ) == 0);
+  posix_spawn_file_actions_destroy(&fa);
+  ::close(p[1]);
+  // The reader is behind until the pipe is full (kscfg has met EAGAIN) or kscfg has ended.
+  REQUIRE(wait_for([&] {
+    int n = 0;
+    ::ioctl(p[0], FIONREAD, &n);
+    int st = 0;
+    return n >= 65536 || ::waitpid(pid, &st, WNOHANG) == pid ? (n >= 65536 || (pid = -1, true)) : false;
+  }));
+  std::string got;
+  char buf[65536];
+  for (ssize_t k; (k = ::read(p[0], buf, sizeof buf)) != 0;) {
+    if (k < 0 && errno == EINTR) continue;
+    REQUIRE(k > 0);
+    got.append(buf, static_cast<std::size_t>(k));
+  }
+  ::close(p[0]);
+  int st = 0;
+  if (pid > 0) REQUIRE(::waitpid(pid, &st, 0) == pid);
+  CHECK(pid > 0);  // it was still writing when the pipe was full
+  CHECK(WIFEXITED(st));
+  CHECK(WEXITSTATUS(st) == 0);
+  CHECK(got == whole.out);
 }
