@@ -25,6 +25,17 @@ const std::string& test_cache_dir() {
   static TempDir dir;
   return dir.path;
 }
+// In a forked child about to run kscfg: scans of Modbus couplers are kept per port in
+// $XDG_CACHE_HOME/kscfg, session journals in $XDG_STATE_HOME/kscfg/sessions, coupler locks (and a
+// serve's records beside them) in $KSCFG_LOCK_DIR: a test's go in a directory of this test process,
+// not in the user's. Then the test's own variables.
+void child_env(const std::string& cache, const std::map<std::string, std::string>& env) {
+  setenv("XDG_CACHE_HOME", cache.c_str(), 1);
+  setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
+  setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
+  for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
+}
+
 }  // namespace
 
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
@@ -40,13 +51,7 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
     close(out[0]);
     close(err[0]);
     close(in[1]);
-    // Scans of Modbus couplers are kept per port in $XDG_CACHE_HOME/kscfg, session journals in
-    // $XDG_STATE_HOME/kscfg/sessions, coupler locks in $KSCFG_LOCK_DIR: a test's go in a directory
-    // of this test process, not in the user's.
-    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
-    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
-    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
-    for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
+    child_env(cache, env);
     std::vector<char*> argv;
     std::string bin = KSCFG_BIN;
     argv.push_back(bin.data());
@@ -121,10 +126,7 @@ Child::Child(const std::vector<std::string>& args, const std::map<std::string, s
     dup2(o, 1);
     dup2(e, 2);
     dup2(n, 0);
-    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
-    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
-    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
-    for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
+    child_env(cache, env);
     std::vector<std::string> copy = args;
     std::string bin = KSCFG_BIN;
     std::vector<char*> argv{bin.data()};
@@ -203,11 +205,7 @@ Server::Server(const std::string& state, const std::vector<std::string>& args, c
     int e = open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     dup2(e, 2);
     close(out[0]);
-    // As run_kscfg's: what the serve records beside its coupler locks (serve --tcp --ads) goes in
-    // this test process's lock directory, where its clients look.
-    setenv("XDG_CACHE_HOME", cache.c_str(), 1);
-    setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
-    setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
+    child_env(cache, {});  // as run_kscfg's: its clients look in that lock directory
     std::vector<std::string> a = {KSCFG_BIN, "--port", "emu:" + state, "serve"};
     a.insert(a.end(), args.begin(), args.end());
     std::vector<char*> argv;

@@ -6,6 +6,8 @@
 #include <catch2/catch.hpp>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
+#include <string>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/link/coupler_key.hpp"
@@ -26,6 +28,18 @@ std::string spelled(std::string s) {
     if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.' && c != '-') c = '_';
   return s;
 }
+
+// KSCFG_LOCK_DIR of this process set to `dir` for a case, put back after it.
+struct LockDirFor {
+  explicit LockDirFor(const std::string& dir) {
+    if (const char* was = std::getenv("KSCFG_LOCK_DIR")) before = was;
+    setenv("KSCFG_LOCK_DIR", dir.c_str(), 1);
+  }
+  ~LockDirFor() { before ? setenv("KSCFG_LOCK_DIR", before->c_str(), 1) : unsetenv("KSCFG_LOCK_DIR"); }
+  LockDirFor(const LockDirFor&) = delete;
+  LockDirFor& operator=(const LockDirFor&) = delete;
+  std::optional<std::string> before;
+};
 
 }  // namespace
 
@@ -97,14 +111,7 @@ TEST_CASE("coupler keys: a serve's record makes its ADS port the coupler of its 
           "[link][lock]") {
   // The lock directory of this process for the case, put back after it.
   kscfg::test::TempDir d;
-  const char* was = std::getenv("KSCFG_LOCK_DIR");
-  std::string before = was ? was : "";
-  setenv("KSCFG_LOCK_DIR", d.path.c_str(), 1);
-  struct Restore {
-    std::string v;
-    bool had;
-    ~Restore() { had ? setenv("KSCFG_LOCK_DIR", v.c_str(), 1) : unsetenv("KSCFG_LOCK_DIR"); }
-  } restore{before, was != nullptr};
+  LockDirFor lock_dir(d.path);
 
   CHECK(coupler_key(ads("ads://127.0.0.1:40002")) == "ip-127.0.0.1-40002");
   {
@@ -131,14 +138,7 @@ TEST_CASE(
   // alias-KEY (or as the record's temporary, NAME.tmp.PID) made a serve, root's too, write its record
   // into the file the link names, whatever file that was.
   kscfg::test::TempDir d;
-  const char* was = std::getenv("KSCFG_LOCK_DIR");
-  std::string before = was ? was : "";
-  setenv("KSCFG_LOCK_DIR", d.path.c_str(), 1);
-  struct Restore {
-    std::string v;
-    bool had;
-    ~Restore() { had ? setenv("KSCFG_LOCK_DIR", v.c_str(), 1) : unsetenv("KSCFG_LOCK_DIR"); }
-  } restore{before, was != nullptr};
+  LockDirFor lock_dir(d.path);
   const std::string victim = d.path + "/victim", record = d.path + "/alias-ip-127.0.0.1-40002";
   kscfg::test::write_text(victim, "keep\n");
   fs::create_symlink(victim, record);
