@@ -13,6 +13,7 @@ namespace kscfg {
 
 class ModbusRegisters;  // link/modbus_client.hpp
 class AdsClient;        // link/ads_client.hpp
+class SdoClient;        // link/sdo.hpp
 class EmulatedStation;  // emulator/emulator.hpp (opaque here: the link layer never uses it)
 
 // One terminal channel's part of an image exchange (Link::transfer): output bytes to write and
@@ -83,6 +84,8 @@ class Link {
   virtual ModbusRegisters* modbus_registers() { return nullptr; }
   // An ADS coupler's AMS connection (port 100: its register tables and direct register access).
   virtual AdsClient* ads_connection() { return nullptr; }
+  // A CANopen coupler's SDO connection (its register communication through 0x4500/0x4501).
+  virtual SdoClient* sdo_connection() { return nullptr; }
   // The emulated station behind an emulator link (emu commands, the far end of a serial line,
   // the K-bus run between samples).
   virtual EmulatedStation* emulator() { return nullptr; }

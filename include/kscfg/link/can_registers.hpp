@@ -1,0 +1,58 @@
+// Bus Terminal register communication over CANopen SDO (issue 37; BK51x0, LC5100, BC5150, CX8050
+// "Bus Terminal register communication", sources and the open questions settled in docs/design.md
+// section 13): all registers that KS2000 configures are reached through two objects,
+//   0x4500           the coupler's own register tables
+//   0x4501 sub N     the registers of Bus Terminal N (sub-index 0: the number of terminals)
+// whose 32-bit value (little endian in the SDO data) is
+//   byte 3: bit 7 the access bit, bits 0..6 the channel (0x4501) or table (0x4500)
+//   byte 2: the register number
+//   byte 1: value high, byte 0: value low
+// "Id=0x603 DLC=8; Data=23 01 45 05 35 12 1F 80": node 3, download to 0x4501 sub 5 of
+// 0x801F1235: access bit, channel 0, R31 = 0x1235 (the code word to the terminal in slot 5).
+// A write downloads the word with the access bit set and uploads the entry until the access bit
+// reads 0 (the coupler has carried it out); a read downloads the address with the access bit
+// clear and uploads the entry until the access bit reads 0 and the register is the one asked for,
+// its value then in bytes 0..1. (PROVISIONAL until design 13 settles it from the manual.)
+#pragma once
+#include <cstdint>
+#include <string>
+
+#include "kscfg/link/sdo.hpp"
+
+namespace kscfg::canreg {
+
+constexpr std::uint16_t kCouplerObject = 0x4500;
+constexpr std::uint16_t kTerminalObject = 0x4501;
+constexpr std::uint32_t kAccessBit = 0x80000000u;
+constexpr unsigned kMaxTerminals = 255;  // sub-indices 1..255
+
+struct Word {
+  bool access = false;
+  unsigned group = 0;  // channel (0x4501, 0-based) or table (0x4500), 0..127
+  unsigned reg = 0;    // 0..255
+  std::uint16_t value = 0;
+  bool operator==(const Word&) const = default;
+};
+std::uint32_t encode(const Word& w);
+Word decode(std::uint32_t v);
+
+// The client calls for register communication over an SdoClient (the safety rules are above the
+// register-access seam, session/access.hpp). Every wait is bounded by `timeout_ms` overall.
+class Registers {
+ public:
+  Registers(SdoClient& sdo, unsigned timeout_ms);
+  // Register `reg` of channel `channel` (0-based) of the terminal with sub-index `terminal`.
+  std::uint16_t read(unsigned terminal, unsigned channel, unsigned reg);
+  void write(unsigned terminal, unsigned channel, unsigned reg, std::uint16_t value);
+  // A coupler register (0x4500): table 0..127, register 0..255.
+  std::uint16_t read_table(unsigned table, unsigned reg);
+  // 0x4501 sub-index 0.
+  unsigned terminal_count();
+  SdoClient& sdo() { return sdo_; }
+
+ private:
+  SdoClient& sdo_;
+  unsigned timeout_ms_;
+};
+
+}  // namespace kscfg::canreg
