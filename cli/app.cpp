@@ -42,7 +42,7 @@ std::unique_ptr<App> build_app() {
   a->opt.port = env_port && *env_port ? env_port : "emu";
   cli.add_option("-p,--port", a->opt.port,
                  "Link to the station: emu (default), emu:PATH, emu:mem, tcp://HOST[:PORT], rtu:DEVICE[?baud=..], "
-                 "ads://HOST[:PORT]")
+                 "ads://HOST[:PORT], slcan:DEVICE[?node=N&bitrate=..], socketcan://IFACE[?node=N]")
       ->option_text("URI");
   cli.add_option("-t,--terminal", a->terminal_text,
                  "Terminal(s): plug position (3), type (KL6031), list (1,3), range (2-4) or all; default: the first "

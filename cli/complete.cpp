@@ -185,6 +185,14 @@ void ports(Completions& c, const std::string& cur) {
     files_after(c, "emu:", cur.substr(4));
     return;
   }
+  if (cur.rfind("slcan:", 0) == 0) {
+    std::string pre = cur.rfind("slcan://", 0) == 0 ? "slcan://" : "slcan:";
+    std::string rest = cur.substr(pre.size());
+    for (const auto& p : list_serial_ports()) add(c, pre + p.name, p.description);
+    if (!rest.empty()) files_after(c, pre, rest);
+    else add(c, pre + "/dev/");
+    return;
+  }
   if (cur.rfind("rtu:", 0) == 0) {
     for (const auto& p : list_serial_ports()) add(c, "rtu:" + p.name, p.description);
     if (cur.size() > 4) files_after(c, "rtu:", cur.substr(4));
@@ -197,6 +205,8 @@ void ports(Completions& c, const std::string& cur) {
   add(c, "tcp://", "Modbus TCP coupler: tcp://HOST[:PORT][?unit=N]");
   add(c, "rtu:", "Modbus RTU coupler: rtu:DEVICE[?baud=..&parity=..]");
   add(c, "ads://", "ADS coupler (BK9000 over AMS/TCP): ads://HOST[:PORT][?netid=..&source=..]");
+  add(c, "slcan:", "CANopen coupler through an slcan USB adapter: slcan:DEVICE[?node=N&bitrate=..]");
+  add(c, "socketcan://", "CANopen coupler on a SocketCAN interface: socketcan://IFACE[?node=N]");
 }
 
 void terminals(Completions& c, const Scene& s, const Catalog& cat) {

@@ -224,7 +224,16 @@ std::string generate_manpage(const App& a) {
        "on port 100. \\fBnetid\\fR is the coupler's AMS NetId (default: its IP address plus .1.1), "
        "\\fBsource\\fR this computer's (default: the connection's local address plus .1.1); a coupler whose "
        "AMS routing table is not empty must list it. One connection per run, opened again when the coupler "
-       "has cut it after 10 s idle.\n";
+       "has cut it after 10 s idle.\n"
+       ".TP\n\\fBslcan:\\fR\\fIDEVICE\\fR[\\fB?node=\\fR\\fIN\\fR\\fB&bitrate=\\fR\\fIBPS\\fR]\n"
+       "A CANopen coupler (BK5120/BK515x, LC5100, BC5150, a CX8050's CAN interface) with node id \\fIN\\fR "
+       "(1..127, default 1), through a USB\\-CAN adapter that speaks the slcan (Lawicel) protocol on the serial "
+       "device \\fIDEVICE\\fR (also \\fBslcan://\\fR\\fIDEVICE\\fR), at \\fIBPS\\fR bit/s (10000 to 1000000, "
+       "default 500000). The terminals' registers are reached over SDO (objects 0x4500 and 0x4501), one "
+       "request at a time; the process image travels in PDOs, which the bus's master owns: kscfg does not "
+       "send them.\n"
+       ".TP\n\\fBsocketcan://\\fR\\fIIFACE\\fR[\\fB?node=\\fR\\fIN\\fR]\n"
+       "The same over a Linux SocketCAN interface (\\fBip link set can0 up type can bitrate 500000\\fR).\n";
   m << ".SH COMMANDS\n";
   std::vector<const Node*> all;
   collect(root, all);
