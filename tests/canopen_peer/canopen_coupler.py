@@ -56,7 +56,8 @@ class Coupler:
         self.sdo_answered = 0
         self.eeprom_writes = {}
         self.silent = False         # --stop-after reached (SIGUSR2 ends it)
-        self.log = []               # (index, sub, request hex, reply hex) of the last SDO exchanges
+        self.log = []               # (request hex, reply hex) of the last SDO exchanges
+        self.other_frames = {}      # CAN id -> count of frames that are not SDO, NMT or guarding
         self.announce = False
         opts = {"far_end": "none", "eeprom_log": self._eeprom_log}
         import random
@@ -165,6 +166,10 @@ class Coupler:
             self.guard_toggle ^= 0x80
         elif can_id == 0x600 + self.node and not rtr:
             self._sdo_request(bytes(data))
+        elif can_id != 0x000 and (can_id & 0x780) != 0x600 and (can_id & 0x780) != 0x700:
+            # a PDO, SYNC, EMCY, TIME...: counted for the tests (kscfg must send none)
+            k = "0x%03X" % can_id
+            self.other_frames[k] = self.other_frames.get(k, 0) + 1
 
     def _nmt(self, cs, node):
         if node not in (0, self.node):
@@ -422,7 +427,7 @@ class Coupler:
                "sdo_requests": self.sdo_requests, "sdo_answered": self.sdo_answered,
                "pending": ["0x%04X.%d" % k for k in self.ops],
                "eeprom_writes": dict(self.eeprom_writes), "table100": self.table100,
-               "sdo_log": self.log[-20:], "terminals": terms}
+               "sdo_log": self.log, "other_frames": dict(self.other_frames), "terminals": terms}
         tmp = self.args.dump_state + ".tmp"
         with open(tmp, "w") as f:
             json.dump(doc, f, indent=1)
