@@ -201,8 +201,8 @@ def main(argv=None):
     uri = "slcan:%s?node=%d" % (name, args.node)
     if args.bitrate != 500000:
         uri += "&bitrate=%d" % args.bitrate
+    coupler.announce = True         # before the endpoint line: a signal may come right after it
     print(uri, flush=True)
-    coupler.announce = True
     try:
         while True:
             r, _, _ = select.select([master], [], [])
