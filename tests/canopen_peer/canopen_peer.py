@@ -52,12 +52,15 @@ class Adapter:
         self.coupler = None
         self.frames_in = 0
         self.frames_out = 0
+        self.overflows = 0
 
     def write(self, data):
         try:
             os.write(self.fd, data)
         except OSError:
-            pass                    # nobody on the other end: the frame is lost, as on a bus
+            # nobody reads the other end and its queue is full (EAGAIN), or it is gone: the bytes
+            # are lost, as in an adapter whose buffer overflows (choice 1)
+            self.overflows += 1
 
     def bus_frame(self, can_id, data):
         """The coupler sent a frame: the adapter passes it up when its channel is open at the
@@ -174,6 +177,7 @@ def main(argv=None):
 
     master, slave = os.openpty()
     tty.setraw(slave)               # no echo, no line discipline before the client opens it
+    os.set_blocking(master, False)  # a client that stops reading never blocks the peer
     name = os.ttyname(slave)
     adapter = Adapter(args, master)
     coupler = Coupler(args, adapter.bus_frame)
