@@ -144,30 +144,6 @@ void own_server(const Options& o, const std::string& station, std::vector<Row>& 
   stop(*serve);
 }
 
-// Busy loops on every core, each ending by itself after `limit` at most; stopped by pid.
-struct Load {
-  std::vector<pid_t> pids;
-  explicit Load(std::chrono::seconds limit) {
-    unsigned n = std::max(1u, std::thread::hardware_concurrency());
-    for (unsigned i = 0; i < n; ++i) {
-      pid_t pid = fork();
-      if (pid < 0) die("fork");
-      if (pid == 0) {
-        auto end = std::chrono::steady_clock::now() + limit;
-        volatile unsigned long x = 0;
-        while (std::chrono::steady_clock::now() < end)
-          for (int k = 0; k < 100000; ++k) x = x + 1;
-        _exit(0);
-      }
-      pids.push_back(pid);
-    }
-  }
-  ~Load() {
-    for (pid_t p : pids) kill(p, SIGKILL);
-    for (pid_t p : pids) waitpid(p, nullptr, 0);
-  }
-};
-
 // The acknowledge waits the scan cache under `dir` keeps ("ack_wait_us" of its JSON), as text.
 std::string kept_waits(const fs::path& dir) {
   std::error_code ec;
