@@ -26,7 +26,7 @@
 //  * RTU: the wire floor of the frames exchanged (bytes x 10 bits / baud, plus 3.5 characters of
 //    silence per frame).
 //
-// Run:  ./build/bench/bench_modbus [--runs N] [--quick] [--only SUBSTRING|load] [--kscfg PATH]
+// Run:  ./build/bench/bench_modbus [--runs N] [--quick] [--only SUBSTRING|load|counts] [--kscfg PATH]
 //                                  [--lenient-gaps] [--baud N]
 // --lenient-gaps starts the peers with their diagnostic flag (a read spanning undocumented
 // addresses gives zeros instead of exception 2): older kscfg builds read 0x1000..0x1013 at once.
@@ -99,6 +99,24 @@ void reference(const Options& o, const std::string& station, std::vector<Row>& r
   }
 }
 
+// Issue 34: a peer whose terminals answer at the first K-bus cycle after a request, TCP only: an
+// ideal client's latency is one cycle, and a poll at the right moment finds every answer.
+void one_cycle(const Options& o, const std::string& station, std::vector<Row>& rows) {
+  auto peer = spawn(peer_argv(o, true, 2.0, 1, 1));
+  auto colon = peer->first_line.rfind(':');
+  TcpRelay relay(std::stoi(peer->first_line.substr(colon + 1)));
+  double lat = probe_latency_ms(relay.endpoint(), 40);
+  std::string link = "TCP peer 2 ms, ack 1 cycle";
+  rows.push_back({link, "probe: ack latency (ms per register, ideal client)", value_only(lat), 0, 0,
+                  fmt::format("{:.2f} ms", lat)});
+  Stats d = measure(o, relay, {"--station", station, "dump"}, Cache::warm, "one-dump", o.runs, "R47");
+  double again = asked_again_pct(o, relay, {"--station", station, "dump"}, "one-dump", o.runs, 48);
+  rows.push_back(
+      {link, "`dump` --station (48 registers)", d, 48, 48 * lat,
+       fmt::format("limit: 48 x ack latency (target <= 1.1, <= 1.12 exch/reg); asked again {:.1f} %", again)});
+  stop(*peer);
+}
+
 void sweep(const Options& o, const std::string& station, std::vector<Row>& rows) {
   struct C {
     double cycle;
@@ -143,30 +161,6 @@ void own_server(const Options& o, const std::string& station, std::vector<Row>& 
   rows.push_back({link, "`read R8` --station", r, 1, 0, ""});
   stop(*serve);
 }
-
-// Busy loops on every core, each ending by itself after `limit` at most; stopped by pid.
-struct Load {
-  std::vector<pid_t> pids;
-  explicit Load(std::chrono::seconds limit) {
-    unsigned n = std::max(1u, std::thread::hardware_concurrency());
-    for (unsigned i = 0; i < n; ++i) {
-      pid_t pid = fork();
-      if (pid < 0) die("fork");
-      if (pid == 0) {
-        auto end = std::chrono::steady_clock::now() + limit;
-        volatile unsigned long x = 0;
-        while (std::chrono::steady_clock::now() < end)
-          for (int k = 0; k < 100000; ++k) x = x + 1;
-        _exit(0);
-      }
-      pids.push_back(pid);
-    }
-  }
-  ~Load() {
-    for (pid_t p : pids) kill(p, SIGKILL);
-    for (pid_t p : pids) waitpid(p, nullptr, 0);
-  }
-};
 
 // The acknowledge waits the scan cache under `dir` keeps ("ack_wait_us" of its JSON), as text.
 std::string kept_waits(const fs::path& dir) {
@@ -265,7 +259,7 @@ int main(int argc, char** argv) {
     else if (a == "--baud") o.baud = static_cast<unsigned>(std::stoul(next()));
     else if (a == "-h" || a == "--help") {
       fmt::print(
-          "usage: bench_modbus [--runs N] [--quick] [--only SUBSTRING] [--kscfg PATH] [--lenient-gaps] "
+          "usage: bench_modbus [--runs N] [--quick] [--only SUBSTRING|load|counts] [--kscfg PATH] [--lenient-gaps] "
           "[--baud N]\n");
       return 0;
     } else if (std::all_of(a.begin(), a.end(), ::isdigit)) o.runs = static_cast<unsigned>(std::stoul(a));
@@ -293,6 +287,12 @@ int main(int argc, char** argv) {
     print_rows(rows);
     rows.clear();
   }
+  if (want("reference") || want("1 cycle")) {
+    fmt::print("\n## Reference: the pymodbus peer, 2 ms K-bus cycle, terminals answer at the first cycle\n\n");
+    one_cycle(o, station, rows);
+    print_rows(rows);
+    rows.clear();
+  }
   if (want("serve")) {
     fmt::print("\n## kscfg serve (the emulator behind Modbus TCP)\n\n");
     own_server(o, station, rows);
@@ -310,6 +310,12 @@ int main(int argc, char** argv) {
     loaded(o, station, rows);
     print_rows(rows);
     rows.clear();
+  }
+  if (o.only == "counts" || (o.only.empty() && !o.quick)) {
+    fmt::print("\n## Request counts (issue 34): cold info against the walk's floor; warm against --station\n\n");
+    print_rows({});
+    std::vector<Row> counts;
+    request_counts(o, counts);  // prints its rows as it goes
   }
   if (o.only == "station" || (o.only.empty() && !o.quick) || o.only.find(" RTU") != std::string::npos ||
       o.only.find(" TCP") != std::string::npos) {

@@ -77,6 +77,31 @@ struct RunResult {
 // One kscfg process; stdout and stderr captured; the wall time from fork to exit.
 RunResult run_kscfg(const Options& o, const std::vector<std::string>& args, const fs::path& cache);
 
+// Busy loops on every core, each ending by itself after `limit` at most; stopped by pid (the cases
+// on a loaded machine: bench_modbus.cpp's `load`, station_sweep.cpp's request counts).
+struct Load {
+  std::vector<pid_t> pids;
+  explicit Load(std::chrono::seconds limit) {
+    unsigned n = std::max(1u, std::thread::hardware_concurrency());
+    for (unsigned i = 0; i < n; ++i) {
+      pid_t pid = fork();
+      if (pid < 0) die("fork");
+      if (pid == 0) {
+        auto end = std::chrono::steady_clock::now() + limit;
+        volatile unsigned long x = 0;
+        while (std::chrono::steady_clock::now() < end)
+          for (int k = 0; k < 100000; ++k) x = x + 1;
+        _exit(0);
+      }
+      pids.push_back(pid);
+    }
+  }
+  ~Load() {
+    for (pid_t p : pids) kill(p, SIGKILL);
+    for (pid_t p : pids) waitpid(p, nullptr, 0);
+  }
+};
+
 // ---------------------------------------------------------------------------------------------
 // Relays: count requests and time the traffic
 

@@ -139,4 +139,73 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
   }
 }
 
+// Issue 34's request counts. A cold `info` of 8, 12 and 16 KL6001 through `kscfg serve` against the
+// walk's floor (design 7.4: 23 requests for the first terminal, then 4 per terminal); warm `info`
+// and warm `read R8` (scan cache kept, no --station) against the median of their --station runs,
+// 20 runs each on the pymodbus peer (2 ms, 1-2 cycles), on a quiet machine and with busy loops on
+// every core.
+void request_counts(const Options& o, std::vector<Row>& rows) {
+  const Server serve{"serve TCP", true, false};
+  for (unsigned n : {8u, 12u, 16u}) {
+    std::string tag = fmt::format("counts-{}", n);
+    std::string station = write_file(o, tag + ".toml", station_text(n, true));
+    auto server = start(o, serve, n, station);
+    auto relay = relay_for(o, serve, *server);
+    Stats s = measure(o, *relay, {"info"}, Cache::cold, tag + "-info", o.runs);
+    const unsigned floor = 23 + 4 * (n - 1);
+    rows.push_back(
+        {fmt::format("serve TCP, {} x KL6001", n), "info, cold scan cache", s, 0, 0,
+         fmt::format("{:.2f} x the walk's floor of {} requests (target <= 1.1)", s.exchanges / floor, floor)});
+    print_rows({rows.end() - 1, rows.end()}, false);
+    stop(*server);
+  }
+  auto peer = spawn(peer_argv(o, true, 2.0, 1, 2));
+  auto relay = relay_for(o, {"peer TCP", true, true}, *peer);
+  std::string station = write_file(o, "counts-reference.toml", kStation);
+  constexpr unsigned kRuns = 20;
+  for (bool loaded : {false, true}) {
+    std::optional<Load> load;
+    if (loaded) load.emplace(std::chrono::seconds(120));
+    const std::string link = fmt::format("TCP peer 2 ms, ack 1-2 cycles{}", loaded ? ", busy loops on every core" : "");
+    struct Case {
+      std::string what, expect;
+      std::vector<std::string> args;
+    };
+    for (const Case& c : {Case{"`info`", "", {"info"}}, Case{"`read R8`", "0x1771", {"read", "--raw", "R8"}}}) {
+      auto counts = [&](bool with_station) {
+        std::vector<std::string> a{"--port", relay->endpoint()};
+        if (with_station) a.insert(a.end(), {"--station", station});
+        a.insert(a.end(), c.args.begin(), c.args.end());
+        fs::path cache = o.tmp / fmt::format("cache-counts-{}-{}", loaded, c.what.size());
+        run_kscfg(o, a, cache);  // the scan cache made (and kept: a warm run), not counted
+        std::vector<double> v;
+        std::size_t failed = 0;
+        for (unsigned i = 0; i < kRuns; ++i) {
+          relay->reset();
+          RunResult r = run_kscfg(o, a, cache);
+          Traffic t = relay->take();
+          if (r.rc != 0 || r.out.find(c.expect) == std::string::npos) ++failed;
+          else v.push_back(static_cast<double>(t.requests));
+        }
+        return std::pair{v, failed};
+      };
+      auto [with, f1] = counts(true);
+      auto [warm, f2] = counts(false);
+      const double ref = median(with);
+      const auto within = std::count_if(warm.begin(), warm.end(), [&](double x) { return x <= ref + 1; });
+      Stats st;
+      st.exchanges = median(warm);
+      st.failed = static_cast<unsigned>(f1 + f2);
+      std::string seen;
+      for (double x : warm) seen += fmt::format("{}{}", seen.empty() ? "" : " ", x);
+      rows.push_back({link, c.what + " no --station, warm cache", st, 0, 0,
+                      fmt::format("{} of {} runs at most one above --station's median {} (target {} of {}); "
+                                  "the runs: {}",
+                                  within, kRuns, ref, kRuns, kRuns, seen)});
+      print_rows({rows.end() - 1, rows.end()}, false);
+    }
+  }
+  stop(*peer);
+}
+
 }  // namespace bench

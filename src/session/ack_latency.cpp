@@ -165,6 +165,8 @@ void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout) {
   slow_seen(t);
 }
 
+bool ack_speculate(const AckTiming& t) { return t.misses < kMaxMisses || kMissShare * t.misses <= t.acks; }
+
 bool ack_plausible(microseconds kept, std::chrono::milliseconds timeout) {
   return kept.count() > 0 && kept <= cap_of(timeout);
 }

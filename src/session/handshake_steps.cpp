@@ -16,9 +16,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using std::chrono::microseconds;
 
-// After this many read-aheads (or restores with the last poll) that came too early in a run, no
-// more speculation on that terminal.
-constexpr unsigned kMaxMisses = 3;
 // align_first_polls(): a terminal's first poll waits for the others' up to this many times its own
 // estimate.
 constexpr unsigned kAlignSpread = 4;
@@ -93,7 +90,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   c.due = when;
   // A probe (ack_latency.hpp) is a plain poll below the estimate: it never writes. The poll at the
   // estimate (the first, or the one after a probe that found nothing) may.
-  bool speculate = known && at_wait && c.timing->misses < kMaxMisses;
+  bool speculate = known && at_wait && ack_speculate(*c.timing);
   // What the poll may replace: a read, or a write that may be done twice (asked again if the poll
   // came too early). A write goes ahead only if the request it may replace can be done again after
   // it: never the code word (a relock ahead would make the write before it fail).

@@ -310,3 +310,47 @@ TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learni
   slow.wait = microseconds(20000);
   CHECK(ack_late_slack(slow) == microseconds(5000));
 }
+
+TEST_CASE("ack latency: three early polls among many acknowledges do not end read-ahead, a terminal often early does",
+          "[ack]") {
+  // A wait at 2 ms, answers at 1.9 ms: the first polls at the wait find them, except where this
+  // process or the coupler was slow (issue 34: three of those in a run ended read-ahead for good).
+  AckTiming t;
+  t.wait = microseconds(2000);
+  // A request the handshake read ahead of: a first poll at the wait that came too early replaced
+  // it (ack_replaced), and it was asked again and answered at its first poll.
+  auto request = [&](bool early) {
+    AckPlan p = ack_plan(t, milliseconds(1000));
+    if (p.probe) {  // every kProbeEvery-th: found nothing at the probe, there at the wait
+      ack_seen(t, p, 2, p.wait, milliseconds(1000));
+      return;
+    }
+    if (early) {
+      ack_early(t, p);
+      ack_replaced(t, milliseconds(1000));
+      p = ack_plan(t, milliseconds(1000));
+    }
+    ack_seen(t, p, 1, p.first, milliseconds(1000));
+  };
+  for (int i = 0; i < 3; ++i) request(true);
+  // Three misses in three requests: no read-ahead.
+  CHECK(t.misses == 3);
+  CHECK_FALSE(ack_speculate(t));
+  // Then a run of answers at the wait: read-ahead again once the misses are one in kMissShare.
+  unsigned hits = 0;
+  while (!ack_speculate(t)) {
+    request(false);
+    REQUIRE(++hits < 100);
+  }
+  CHECK(t.acks == kMissShare * t.misses);
+  // A terminal that misses at one in four of its first polls gets none.
+  AckTiming u;
+  u.wait = microseconds(2000);
+  std::swap(t, u);
+  for (int i = 0; i < 40; ++i) request(i % 4 == 0);
+  CHECK_FALSE(ack_speculate(t));
+  // Fewer than kMaxMisses misses: read-ahead whatever the share.
+  AckTiming v;
+  v.misses = kMaxMisses - 1;
+  CHECK(ack_speculate(v));
+}

@@ -60,7 +60,7 @@ struct AckTiming {
   unsigned samples = 0;                  // acknowledges timed while learning (this run)
   std::chrono::microseconds longest{0};  // longest latency timed while learning
   bool missed = false;                   // a poll at `wait` came too early (this run)
-  unsigned misses = 0;                   // how often (this run); after three, no more read-ahead
+  unsigned misses = 0;                   // how often (this run): read-ahead while ack_speculate() says so
   unsigned acks = 0;                     // acknowledges seen this run
   unsigned streak = 0;                   // first polls at `wait` that found the answer since the last probe
   unsigned probes = 0;                   // polls below `wait` (this run), and how many found the answer
@@ -134,6 +134,14 @@ std::chrono::microseconds ack_late_slack(const AckPlan& p);
 void ack_early(AckTiming& t, const AckPlan& p);
 // The request was replaced (read-ahead, restore) before the terminal answered it.
 void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout);
+// Whether the poll at the estimate may carry a read-ahead (or the restore): yes while fewer than
+// kMaxMisses first polls at it came too early in this run, or no more than one in kMissShare of the
+// terminal's acknowledges. A miss costs the request asked again (two exchanges and a wait); no
+// read-ahead costs an exchange on every register. Three misses used to end read-ahead for the rest
+// of the run: a `dump` through `kscfg serve` on a loaded machine missed three times in its first 23
+// registers (the server's K-bus thread late) and polled the other 25 without read-ahead, 2
+// exchanges each (issue 34).
+bool ack_speculate(const AckTiming& t);
 // A latency kept from an earlier run is used only when it is shorter than the timeout; one of a
 // quarter of the timeout or more is suspect.
 bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
@@ -143,6 +151,8 @@ constexpr unsigned kGuessTrusted = 3;
 constexpr unsigned kSlowFor = 2 * kProbeEvery;
 constexpr unsigned kSampleRun = 4;
 constexpr unsigned kKeptCheckAfter = 8;
+constexpr unsigned kMaxMisses = 3;
+constexpr unsigned kMissShare = 8;
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const AckTiming& t);
 
