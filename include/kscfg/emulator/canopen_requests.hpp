@@ -1,7 +1,7 @@
 // CANopen request handling of `kscfg serve --can`: the emulated station as a CANopen coupler
 // (BK5120) with one node id, an SDO server (CiA 301) over the EmulatedStation. Frames in, frames
-// out (no I/O, no threads), so that it can be tested and fuzzed; serve's CAN server puts it on a
-// bus.
+// out (no I/O, no threads), so that it can be tested and fuzzed; serve's CAN server (can_server.hpp)
+// puts it on a bus.
 //
 // What it serves (issue 37; the facts and their sources: docs/design.md section 13):
 //   SDO requests to COB-ID 0x600 + node with 8 data bytes, answered on 0x580 + node; NMT
