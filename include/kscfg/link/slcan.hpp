@@ -43,5 +43,8 @@ std::unique_ptr<CanBus> open_socketcan(const std::string& iface, const CancelTok
 // Whether this machine can make a virtual CAN interface (the vcan kernel module): the SocketCAN
 // tests run only where it can and report themselves skipped elsewhere.
 bool socketcan_available();
+// The name of a virtual CAN interface of this machine that is up ("vcan0"), nullopt when there is
+// none (the SocketCAN tests run on it, or make one when socketcan_available() says they can).
+std::optional<std::string> vcan_interface();
 
 }  // namespace kscfg
