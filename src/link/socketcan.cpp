@@ -70,6 +70,11 @@ class SocketCanBus final : public CanBus {
                     fmt::format("CAN interface {} took no frame for {} ms (frame {}; its transmit queue stays full)",
                                 iface_, kSendWait.count(), format_frame(f)),
                     "check that the bus is terminated and that another node acknowledges frames");
+      if (e == ENOBUFS) {
+        // The interface's queue is full while the socket's is not: poll() says writable at once.
+        sleep_for_or_cancelled(milliseconds(1), cancel_);
+        continue;
+      }
       pollfd p{fd_, POLLOUT, 0};
       ::poll(&p, 1, static_cast<int>(kCanPollSlice.count()));
     }
