@@ -107,6 +107,15 @@ TEST_CASE("CAN port URIs: a bad node, bit rate, option or name is a one-line usa
   } catch (const Error& e) {
     CHECK(std::string(e.what()) == "invalid port 'slcan:/dev/x?nodes=3': unknown option 'nodes' (bitrate, node)");
   }
+  // A CAN port is no Modbus line, whatever asks (a Modbus request on an slcan adapter's tty).
+  for (const char* uri : {"slcan:/dev/ttyACM0", "socketcan:can0"}) {
+    try {
+      modbus_target(parse_port_uri(uri), uri);
+      FAIL("taken for Modbus");
+    } catch (const Error& e) {
+      CHECK(e.code() == Exit::usage);
+    }
+  }
   try {
     can("socketcan://can0?bitrate=250000");
   } catch (const Error& e) {
