@@ -135,6 +135,10 @@ std::string coupler_lock_path(const AdsTarget& t) {
   return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
 }
 
+std::string coupler_lock_path(const CanTarget& t) {
+  return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
+}
+
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
