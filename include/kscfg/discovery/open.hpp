@@ -83,6 +83,8 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 // the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);
+struct CanTarget;  // link/can_link.hpp
+std::string coupler_lock_path(const CanTarget& target);
 
 // Finishes what kscfg processes that died on this port left in register mode (their journals,
 // finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position

@@ -34,6 +34,8 @@
 
 namespace kscfg {
 
+struct CanTarget;  // link/can_link.hpp
+
 // The numeric address that keys `host` (the rule above): "10.0.3.11", "fd00::7", "fe80::1%eth0", and
 // "127.0.0.1" for every address of this computer.
 // Resolved once per process and host. Error(Exit::link) when the name does not resolve.
@@ -43,6 +45,8 @@ std::string host_key_address(const std::string& host);
 // "rtu-DEVICE". Modbus TCP and ADS to one coupler give one key.
 std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
+// "can-_dev_ttyACM0-n3" (slcan), "can-can0-n3" (SocketCAN).
+std::string coupler_key(const CanTarget& target);
 
 // A listener's own key, records not followed: what a CouplerAlias is made of.
 std::string listener_key(const ModbusTarget& target);
@@ -69,5 +73,7 @@ std::string station_key(const ModbusTarget& target);
 // The session journals of direct register access over ADS (their entries are of another kind than
 // a Modbus session's, docs/design.md 6.2): "ip-10.0.3.11-ads".
 std::string station_key(const AdsTarget& target);
+// A CANopen node is one station and reached one way (SDO): its coupler key, "can-can0-n3".
+std::string station_key(const CanTarget& target);
 
 }  // namespace kscfg
