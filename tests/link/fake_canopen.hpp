@@ -88,11 +88,14 @@ class FakeCanopenCoupler {
   std::function<void(unsigned sub, const canreg::Word& w)> after_write;
   // Frames put on the bus before the next answer (EMCY, another node's traffic).
   std::vector<CanFrame> before_next;
+  // A coupler that does not serve table 9 through 0x4500.
+  bool no_table9 = false;
   // Segmented upload answers whose toggle bit is wrong (a broken server).
   bool bad_toggle = false;
   std::string name = "BK5120", hardware = "B1", software = "C4";
   std::uint32_t device_type = 0x00000191;
-  std::size_t requests = 0;  // SDO requests received (aborts not counted)
+  std::optional<std::uint32_t> product_code = 0x00011400;  // 0x10000 + 5120; nullopt: no 0x1018 sub 2
+  std::size_t requests = 0;                                // SDO requests received (aborts not counted)
   std::size_t aborts_received = 0;
   std::size_t downloads_4501 = 0;  // register words downloaded to the terminals
 
@@ -170,6 +173,11 @@ class FakeCanopenCoupler {
                          (static_cast<std::uint32_t>(req.data[7]) << 24);
     switch (index) {
       case 0x1000: return upload ? reply(0x43, index, sub, device_type) : abort(index, sub, 0x06010002);
+      case 0x1018:
+        if (!upload) return abort(index, sub, 0x06010002);
+        if (sub == 1) return reply(0x43, index, sub, 2);  // Beckhoff
+        if (sub == 2 && product_code) return reply(0x43, index, sub, *product_code);
+        return abort(index, sub, 0x06090011);
       case 0x1008: return upload ? upload_bytes(index, sub, text(name)) : abort(index, sub, 0x06010002);
       case 0x1009: return upload ? upload_bytes(index, sub, text(hardware)) : abort(index, sub, 0x06010002);
       case 0x100A: return upload ? upload_bytes(index, sub, text(software)) : abort(index, sub, 0x06010002);
@@ -198,7 +206,7 @@ class FakeCanopenCoupler {
     e.busy = 0;
     if (index == canreg::kCouplerObject) {
       if (w.access) return abort(index, sub, 0x06010022);  // the tables' write protection
-      if (w.group != 9) return abort(index, sub, 0x06020011);
+      if (w.group != 9 || no_table9) return abort(index, sub, 0x06020011);
       e.shown = canreg::Word{true, w.group, w.reg, 0};
       e.word = canreg::Word{false, w.group, w.reg, table(w.group, w.reg)};
       e.busy = busy_polls;
