@@ -181,7 +181,7 @@ TEST_CASE("SDO access: a node that stops answering mid-change is given up within
   CHECK(port.client.proven_dead());
 }
 
-TEST_CASE("SDO access: the journal notes an unlocked channel; a killed kscfg's entry is relocked by the next",
+TEST_CASE("SDO access: the journal notes an unlocked channel, a killed kscfg's entry is relocked by the next",
           "[session][sdo][journal]") {
   test::TempDir tmp;
   std::string dir = tmp.file("sessions");
