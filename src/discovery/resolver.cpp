@@ -24,6 +24,8 @@ StationResolver::~StationResolver() = default;
 void StationResolver::set_layout(StationLayout L, bool complete) {
   // Sessions may point into the layout they were opened with: an older one stays alive.
   if (layout_) retired_.push_back(std::move(layout_));
+  // Over CANopen the coupler reaches the registers itself (SDO): no channel needs a register window.
+  if (link().sdo_connection()) L.registers_direct = true;
   layout_ = std::make_unique<StationLayout>(std::move(L));
   layout_complete_ = complete;
 }

@@ -1,6 +1,8 @@
-// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:) or an
-// ADS coupler (ads://), with the port's one register access and engine, and the discovery that
-// finds the station behind a coupler (a Modbus scan, an ADS coupler's table 9).
+// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:), an
+// ADS coupler (ads://) or a CANopen coupler (slcan:, socketcan://; its registers over SDO: an SDO
+// link's register access is SdoAccess), with the port's one register access and engine, and the
+// discovery that finds the station behind a coupler (a Modbus scan, an ADS or CANopen coupler's
+// table 9).
 #pragma once
 #include <functional>
 #include <memory>
