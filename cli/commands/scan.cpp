@@ -167,10 +167,12 @@ class Scan : public Command {
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
         // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-        nlohmann::json term = {{"position", t.position},
-                               {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
-                               {"r8", i < r.r8.size() ? r.r8[i] : 0},
-                               {"image", image_json(t)}};
+        nlohmann::json term = {
+            {"position", t.position},
+            {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
+            // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
+            {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
+            {"image", image_json(t)}};
         if (t.inferred) {
           term["digital"] = digital_label(t);
           term["fits"] = t.fits;
