@@ -8,6 +8,7 @@
 #include <cctype>
 #include <set>
 
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/can_registers.hpp"
@@ -243,6 +244,12 @@ const StationLayout* CanDiscovery::layout_upto(unsigned) {
 
 const StationSpec* CanDiscovery::station() { return layout() ? &found_->spec : nullptr; }
 
+std::optional<StationLayout> CanDiscovery::match(const StationSpec& file) {
+  StationLayout L = compute_layout(file, catalog_);
+  check_described(L, file, file.origin);
+  return L;
+}
+
 void CanDiscovery::check_described(StationLayout& L, const StationSpec&, const std::string& origin) {
   L.registers_direct = true;
   const StationLayout* found = nullptr;
@@ -254,24 +261,7 @@ void CanDiscovery::check_described(StationLayout& L, const StationSpec&, const s
     return;
   }
   if (!found) return;
-  std::vector<const TerminalImage*> mine;
-  for (const auto& t : L.terminals)
-    if (adsreg::numbered(*t.type)) mine.push_back(&t);
-  for (std::size_t k = 0; k < std::max(mine.size(), found->terminals.size()); ++k) {
-    const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
-    const TerminalImage* have = k < found->terminals.size() ? &found->terminals[k] : nullptr;
-    auto what = [](const TerminalImage& t) { return t.inferred ? digital_label(t) : t.type->type; };
-    if (want && have && fits_type(*have, want->type->type)) continue;
-    throw Error(Exit::refused,
-                want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
-                                           origin, want->position, want->type->type, k + 1, what(*have))
-                : want ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) in its table 9", origin,
-                                     want->position, want->type->type, found->terminals.size())
-                       : fmt::format("{} describes {} terminal(s) with a 0x4501 sub-index, table 9 lists {}: "
-                                     "terminal number {} is {}",
-                                     origin, mine.size(), found->terminals.size(), k + 1, what(*have)),
-                "'kscfg scan' lists what the coupler has; nothing was done");
-  }
+  match_table9(L, *found, origin, "a 0x4501 sub-index");
 }
 
 }  // namespace kscfg

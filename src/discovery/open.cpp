@@ -9,6 +9,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/can_station.hpp"
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
@@ -55,6 +56,14 @@ class AdsDiscovery : public StationDiscovery {
   // The file's terminals with a number on port 100 against table 9, in order: a complex one by its
   // type, a digital one by its bits and direction (the file names which type it is); then its
   // layout against the coupler's image lengths.
+  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
+  // with the passive terminals table 9 does not list, checked against table 9 and the image lengths.
+  std::optional<StationLayout> match(const StationSpec& file) override {
+    StationLayout L = compute_layout(file, catalog_);
+    check_described(L, file, file.origin);
+    return L;
+  }
+
   void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override {
     const StationLayout* found = nullptr;
     try {
@@ -65,25 +74,7 @@ class AdsDiscovery : public StationDiscovery {
       return;
     }
     if (!found) return;
-    std::vector<const TerminalImage*> mine;
-    for (const auto& t : L.terminals)
-      if (adsreg::numbered(*t.type)) mine.push_back(&t);
-    for (std::size_t k = 0; k < std::max(mine.size(), found->terminals.size()); ++k) {
-      const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
-      const TerminalImage* have = k < found->terminals.size() ? &found->terminals[k] : nullptr;
-      auto what = [](const TerminalImage& t) { return t.inferred ? digital_label(t) : t.type->type; };
-      if (want && have && fits_type(*have, want->type->type)) continue;
-      throw Error(Exit::refused,
-                  want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
-                                             origin, want->position, want->type->type, k + 1, what(*have))
-                  : want       ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) with a number on "
-                                                   "port 100 (table 9)",
-                                             origin, want->position, want->type->type, found->terminals.size())
-                               : fmt::format("{} describes {} terminal(s) with a number on port 100, table 9 lists "
-                                                   "{}: terminal number {} is {}",
-                                             origin, mine.size(), found->terminals.size(), k + 1, what(*have)),
-                  "'kscfg scan' lists what the coupler has; nothing was done");
-    }
+    match_table9(L, *found, origin, "a number on port 100");
     judge_image(
         L, found_->image, spec, catalog_,
         [&](unsigned pos, unsigned ch) {

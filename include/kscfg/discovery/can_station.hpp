@@ -53,6 +53,9 @@ class CanDiscovery : public StationDiscovery {
   const StationSpec* station() override;
   // The file's terminals with a 0x4501 sub-index against table 9, in order (a complex one by its
   // type, a digital one by its bits and direction): Error(refused) naming the first difference.
+  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
+  // with the passive terminals table 9 does not list, checked against table 9.
+  std::optional<StationLayout> match(const StationSpec& file) override;
   void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override;
 
  private:
