@@ -106,8 +106,8 @@ def main():
         r = run([a.kscfg, "--port", uri, "--json", "scan"], 120)
         j = json.loads(r.stdout) if r.returncode == 0 else {}
         terms = [(t["position"], t["type"], t["r8"], t["r9"]) for t in j.get("terminals", [])]
-        check(terms == [(1, "KL6001", 6001, 0x3141), (2, None, 0, None), (3, "KL3022", 3022, 0x3141),
-                        (4, None, 0, None)]
+        check(terms == [(1, "KL6001", 6001, 0x3141), (2, None, None, None), (3, "KL3022", 3022, 0x3141),
+                        (4, None, None, None)]
               and [t.get("digital") for t in j.get("terminals", [])] == [None, "digital, 4 inputs", None,
                                                                            "digital, 4 outputs"]
               and "KL2134" in j["terminals"][3]["fits"] and "KL2404" in j["terminals"][3]["fits"],
