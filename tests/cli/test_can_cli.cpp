@@ -1,0 +1,159 @@
+// kscfg over slcan: end to end against `kscfg serve --can` through a socat pseudo-terminal pair (issue
+// 37): every register command on the emulated BK5120, backup -> change -> restore byte-identical, the
+// process image refused, a dead bus given up within two timeouts. The independent side is
+// tests/canopen_peer (CTest canopen_peer_e2e); this is kscfg's own server.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+#include "support.hpp"
+
+using namespace kscfg::test;
+
+namespace {
+
+// A socat pseudo-terminal pair: what an slcan adapter's two ends would be.
+struct PtyPair {
+  TempDir dir;
+  pid_t pid = -1;
+  std::string a, b;
+  bool ok() const { return !b.empty(); }
+  PtyPair() {
+    if (access("/usr/bin/socat", X_OK) != 0) return;
+    std::string err = dir.file("socat.err");
+    pid = fork();
+    if (pid == 0) {
+      int e = open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      dup2(e, 2);
+      execl("/usr/bin/socat", "socat", "-d", "-d", "pty,raw,echo=0", "pty,raw,echo=0", static_cast<char*>(nullptr));
+      _exit(127);
+    }
+    auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    std::regex pts("(/dev/pts/[0-9]+)");
+    while (pid > 0 && std::chrono::steady_clock::now() < deadline) {
+      std::string e = read_text(err);
+      std::vector<std::string> found;
+      for (std::sregex_iterator it(e.begin(), e.end(), pts), end; it != end; ++it) found.push_back((*it)[1]);
+      // The pair is ready once socat says it starts transferring (after both ends exist).
+      if (found.size() >= 2 && e.find("starting data transfer loop") != std::string::npos) {
+        a = found[0];
+        b = found[1];
+        return;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+  }
+  ~PtyPair() {
+    if (pid <= 0) return;
+    ::kill(pid, SIGTERM);
+    int st = 0;
+    ::waitpid(pid, &st, 0);
+  }
+  PtyPair(const PtyPair&) = delete;
+  PtyPair& operator=(const PtyPair&) = delete;
+};
+
+// The lines of a station file that are not comments (a backup's header names the time and the port).
+std::string body(const std::string& toml) {
+  std::istringstream in(toml);
+  std::string line, out;
+  while (std::getline(in, line))
+    if (line.rfind('#', 0) != 0) out += line + "\n";
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("kscfg over slcan against serve --can: every register command, backup/change/restore identical",
+          "[can][serve][cli]") {
+  PtyPair pair;
+  if (!pair.ok()) {
+    WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
+    return;
+  }
+  TempDir d;
+  Server s(d.file("emu.json"), {"--can", "slcan:" + pair.a, "--node", "3"}, d.file("serve.err"));
+  REQUIRE(s.uri == "slcan:" + pair.a + "?node=3");
+  const std::string port = "slcan:" + pair.b + "?node=3";
+
+  Run r = run_kscfg({"--port", port, "info"});
+  INFO(r.err);
+  REQUIRE(r.rc == 0);
+  CHECK(r.out.find("BK5120") != std::string::npos);
+  CHECK(r.out.find("KL6001") != std::string::npos);
+  r = run_kscfg({"--port", port, "--json", "scan"});
+  REQUIRE(r.rc == 0);
+  auto j = nlohmann::json::parse(r.out);
+  CHECK(j.at("coupler") == "BK5120");
+  CHECK(j.at("terminals").at(0).at("r8") == 6001);
+
+  r = run_kscfg({"--port", port, "backup", d.file("before.toml")});
+  REQUIRE(r.rc == 0);
+  // Changes through every writing command: set (a named parameter), write (a raw register),
+  // unlock/lock (the code word), reset (R7 command: factory settings of the KL6031).
+  r = run_kscfg({"--port", port, "-t", "KL6001", "set", "baud", "19200"});
+  CHECK(r.rc == 0);
+  r = run_kscfg({"--port", port, "-t", "KL6001", "read", "--raw", "R32"});
+  CHECK(r.out == "0x0007\n");
+  r = run_kscfg({"--port", port, "-t", "KL6031", "write", "R32", "0x0008"});
+  CHECK(r.rc == 0);
+  r = run_kscfg({"--port", port, "-t", "KL6031", "get", "baud"});
+  CHECK(r.out.find("38400") != std::string::npos);
+  r = run_kscfg({"--port", port, "-t", "1", "unlock"});
+  CHECK(r.rc == 0);
+  r = run_kscfg({"--port", port, "-t", "1", "read", "--raw", "R31"});
+  CHECK(r.out == "0x1235\n");
+  r = run_kscfg({"--port", port, "-t", "1", "lock"});
+  CHECK(r.rc == 0);
+  r = run_kscfg({"--port", port, "-t", "1", "read", "--raw", "R31"});
+  CHECK(r.out == "0x0000\n");
+  r = run_kscfg({"--port", port, "-t", "KL6001", "dump"});
+  CHECK(r.rc == 0);
+  CHECK(r.out.find("R32") != std::string::npos);
+  r = run_kscfg({"--port", port, "-t", "KL6001", "show"});
+  CHECK(r.rc == 0);
+  CHECK(r.out.find("19200") != std::string::npos);
+  r = run_kscfg({"--port", port, "diff", d.file("before.toml")});
+  CHECK(r.rc == 1);  // differences
+
+  r = run_kscfg({"--port", port, "restore", d.file("before.toml")});
+  INFO(r.err);
+  CHECK(r.rc == 10);
+  r = run_kscfg({"--port", port, "diff", d.file("before.toml")});
+  CHECK(r.rc == 0);
+  r = run_kscfg({"--port", port, "backup", d.file("after.toml")});
+  REQUIRE(r.rc == 0);
+  CHECK(body(read_text(d.file("after.toml"))) == body(read_text(d.file("before.toml"))));
+
+  // The image travels in PDOs that the bus master owns: refused, nothing sent on the bus.
+  r = run_kscfg({"--port", port, "data", "--once"});
+  CHECK(r.rc == 2);
+  CHECK(r.err.find("PDO") != std::string::npos);
+  CHECK(s.stop() == 0);
+}
+
+TEST_CASE("kscfg over slcan: a node that does not answer is given up within two timeouts, exit 3",
+          "[can][serve][cli]") {
+  PtyPair pair;
+  if (!pair.ok()) {
+    WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
+    return;
+  }
+  TempDir d;
+  Server s(d.file("emu.json"), {"--can", "slcan:" + pair.a, "--node", "3"}, d.file("serve.err"));
+  auto t0 = std::chrono::steady_clock::now();
+  Run r = run_kscfg({"--port", "slcan:" + pair.b + "?node=4", "--timeout", "300", "info"});
+  double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  CHECK(r.rc == 3);
+  CHECK(r.err.find("node 4") != std::string::npos);
+  CHECK(secs < 2 * 0.3 + 5);  // two timeouts, and starting kscfg on a loaded machine
+}
