@@ -25,15 +25,18 @@ class Coupler : public Command {
            "mode (1: fast Modbus; BK9000 from firmware B5). Over ADS (\\fBads://\\fR) they come from the "
            "coupler's tables on port 100: table 9 register 0 (the coupler's number) and table 100 (IP address, "
            "mask, device name, the ADS watchdog, whether Modbus TCP and ADS are enabled, the Ethernet mode, the "
-           "gateway, the Modbus TCP watchdog and port, how long an idle ADS connection lives). A register the "
+           "gateway, the Modbus TCP watchdog and port, how long an idle ADS connection lives). Over CANopen "
+           "(\\fBslcan:\\fR, \\fBsocketcan://\\fR) they are the device type (0x1000), the identity (0x1018: "
+           "vendor and product code) and table 100 through object 0x4500 (the mode, a fixed node id and bit "
+           "rate). A register the "
            "coupler does not serve is shown as \\fBnot served\\fR. Each line names the register and the public "
            "page that documents it; with \\fB\\-\\-json\\fR: \\fBport\\fR, \\fBprotocol\\fR and \\fBsettings\\fR "
            "(each \\fBname\\fR, \\fBvalue\\fR, \\fBregister_value\\fR, \\fBaddress\\fR, \\fBsource\\fR). The emulator "
            "(\\fBemu\\fR) is no coupler: serve it with \\fBkscfg serve\\fR and read that.";
   }
   std::vector<std::string> examples() const override {
-    return {"--port tcp://10.0.3.11 coupler", "--port ads://10.0.3.11 coupler",
-            "--port ads://10.0.3.11 --json coupler"};
+    return {"--port tcp://10.0.3.11 coupler", "--port ads://10.0.3.11 coupler", "--port ads://10.0.3.11 --json coupler",
+            "--port 'slcan:/dev/ttyACM0?node=3' coupler"};
   }
   void add_cli(CLI::App&) override {}
 

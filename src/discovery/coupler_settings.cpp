@@ -5,7 +5,9 @@
 
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/ads_registers.hpp"
+#include "kscfg/link/can_registers.hpp"
 #include "kscfg/link/modbus_client.hpp"
+#include "kscfg/link/sdo.hpp"
 
 namespace kscfg {
 
@@ -79,11 +81,65 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
   return s;
 }
 
+// BK51x0: "Object 0x1000 Device type", "0x1018 Identity", "Table 100" (node id and bit rate settings).
+constexpr const char* kCanDevicePage = "https://infosys.beckhoff.com/content/1033/bc5150/3969640971.html";
+constexpr const char* kCanIdentityPage = "https://infosys.beckhoff.com/content/1033/bk51x0/3173372171.html";
+constexpr const char* kCanTable100Page = "https://infosys.beckhoff.com/content/1033/bk51x0/3130082187.html";
+
+// A CANopen coupler: its identification objects and table 100 through 0x4500 (design 13). An object
+// or register the coupler aborts is "not served"; a bus that does not answer is the error it is.
+CouplerSettings canopen_settings(SdoClient& sdo, unsigned timeout_ms) {
+  CouplerSettings s{"canopen", {}};
+  auto served = [&](const char* name, std::string where, const char* page, auto read, auto describe) {
+    CouplerSetting st{name, "not served", std::nullopt, std::move(where), page};
+    try {
+      unsigned v = read();
+      st.raw = v;
+      st.value = describe(v);
+    } catch (const SdoAbort& a) {
+      st.value = fmt::format("not served ({})", sdo::abort_text(a.code()));
+    }
+    s.settings.push_back(std::move(st));
+  };
+  served(
+      "device-type", "SDO 0x1000", kCanDevicePage, [&] { return sdo.upload_u32(0x1000, 0); },
+      [](unsigned v) {
+        std::string kinds;
+        const char* names[] = {"digital inputs", "digital outputs", "analog inputs", "analog outputs"};
+        for (unsigned b = 0; b < 4; ++b)
+          if (v & (1u << (16 + b))) kinds += (kinds.empty() ? "" : ", ") + std::string(names[b]);
+        return fmt::format("0x{:08X} (profile {}{}{})", v, v & 0xFFFF, kinds.empty() ? "" : ": ", kinds);
+      });
+  served(
+      "vendor", "SDO 0x1018 sub 1", kCanIdentityPage, [&] { return sdo.upload_u32(0x1018, 1); },
+      [](unsigned v) { return v == 2 ? std::string("2 (Beckhoff)") : std::to_string(v); });
+  served(
+      "product-code", "SDO 0x1018 sub 2", kCanIdentityPage, [&] { return sdo.upload_u32(0x1018, 2); },
+      [](unsigned v) {
+        return v > 0x10000 && v < 0x20000 ? fmt::format("0x{:08X} (type {})", v, v - 0x10000)
+                                          : fmt::format("0x{:08X}", v);
+      });
+  canreg::Registers regs(sdo, timeout_ms);
+  auto table100 = [&](const char* name, unsigned reg, auto describe) {
+    served(
+        name, fmt::format("SDO 0x4500, table 100 register {}", reg), kCanTable100Page,
+        [&] { return unsigned{regs.read_table(100, reg)}; }, describe);
+  };
+  table100("mode", 5, [](unsigned v) {
+    return fmt::format("0x{:04X}: auto baud {}, node ids up to {}, {}", v, v & 1 ? "on" : "off", v & 0x100 ? 127 : 63,
+                       v & 0x8000 ? "operational by itself" : "waits for the NMT master");
+  });
+  table100("fixed-node-id", 9, [](unsigned v) { return v ? std::to_string(v) : std::string("0 (the switches)"); });
+  table100("fixed-bitrate", 10, [](unsigned v) { return fmt::format("index {}", v); });
+  return s;
+}
+
 }  // namespace
 
 CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms) {
   if (auto* m = link.modbus_registers()) return modbus_settings(*m);
   if (auto* a = link.ads_connection()) return ads_settings(*a, timeout_ms);
+  if (auto* c = link.sdo_connection()) return canopen_settings(*c, timeout_ms);
   throw Error(
       Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator", link.describe()),
       "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");

@@ -96,6 +96,14 @@ TEST_CASE("kscfg over slcan against serve --can: every register command, backup/
   CHECK(j.at("coupler") == "BK5120");
   CHECK(j.at("terminals").at(0).at("r8") == 6001);
 
+  // The coupler's settings: its identification objects over SDO.
+  r = run_kscfg({"--port", port, "--json", "coupler"});
+  REQUIRE(r.rc == 0);
+  j = nlohmann::json::parse(r.out);
+  CHECK(j.at("protocol") == "canopen");
+  CHECK(j.at("settings").at(1).at("value") == "2 (Beckhoff)");
+  CHECK(j.at("settings").at(2).at("register_value") == 0x11400);
+
   r = run_kscfg({"--port", port, "backup", d.file("before.toml")});
   REQUIRE(r.rc == 0);
   // Changes through every writing command: set (a named parameter), write (a raw register),

@@ -1,5 +1,6 @@
 // The documented settings of a coupler, read only (kscfg coupler): over Modbus the watchdog
-// registers 0x1120..0x1123, over ADS the coupler's tables 9 and 100 on port 100. Each setting
+// registers 0x1120..0x1123, over ADS the coupler's tables 9 and 100 on port 100, over CANopen its
+// identification objects and table 100 through 0x4500. Each setting
 // names the register it came from and the public page that documents it.
 #pragma once
 #include <optional>
@@ -19,7 +20,7 @@ struct CouplerSetting {
 };
 
 struct CouplerSettings {
-  std::string protocol;  // "modbus" or "ads"
+  std::string protocol;  // "modbus", "ads" or "canopen"
   std::vector<CouplerSetting> settings;
 };
 
