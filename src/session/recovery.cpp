@@ -19,7 +19,7 @@ namespace {
 // timeout) may pass next time and keeps the journal, with a warning (also without -v: the terminal
 // may be left as the dead process left it); anything else (an address the coupler does not have:
 // not this station) will not. A journal is released once its entries were tried.
-// Only entries of its own kind (`direct`: ADS port 100; else the image handshake) are handed on: a
+// Only entries of its own kind (`direct`: ADS port 100 or CANopen SDO; else the image handshake) are handed on: a
 // journal that names a channel of the other kind stays for a kscfg of that kind (its keys are
 // apart, link/coupler_key.hpp; an older kscfg's journal might not be), never dropped untouched.
 // The outputs a dead `data force` left forced are dealt with after the entries, through `image`
@@ -40,7 +40,8 @@ void each_dead_entry(const SessionOptions& so, const char* left, bool direct,
                 fmt::format("journal of kscfg process {}: terminal {} channel {} {} over {}; kept for a kscfg "
                             "over {}",
                             d.pid, e.position, e.channel + 1, e.direct ? "left unlocked" : "left in register mode",
-                            e.direct ? "ADS" : "Modbus", e.direct ? "ads://" : "tcp:// or rtu:"));
+                            e.direct ? "direct register access" : "the process image",
+                            e.direct ? "ads://, slcan: or socketcan://" : "tcp:// or rtu:"));
           continue;
         }
         try {
