@@ -213,11 +213,7 @@ std::string coupler_key(const ModbusTarget& t) {
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
 
 std::string coupler_key(const CanTarget& t) {
-  // An slcan adapter's tty is held by one program at a time: every node behind it is one key, so that
-  // a second kscfg waits its turn instead of finding the tty in use. A SocketCAN interface is shared
-  // by the kernel: one key per node.
-  if (t.scheme == "slcan") return "can-" + device_key(t.device);
-  return fmt::format("can-{}-n{}", safe(t.device), t.node);
+  return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
 }
 
 std::string listener_key(const ModbusTarget& t) {
@@ -258,8 +254,6 @@ std::string station_key(const ModbusTarget& t) { return fmt::format("{}-unit{}",
 
 std::string station_key(const AdsTarget& t) { return coupler_key(t) + "-ads"; }
 
-std::string station_key(const CanTarget& t) {
-  return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
-}
+std::string station_key(const CanTarget& t) { return coupler_key(t); }
 
 }  // namespace kscfg

@@ -123,9 +123,7 @@ TEST_CASE("CAN port URIs: a bad node, bit rate, option or name is a one-line usa
   }
 }
 
-TEST_CASE(
-    "CAN coupler keys: one per slcan adapter, one per SocketCAN interface and node, every name of a device one key",
-    "[link][can][lock]") {
+TEST_CASE("CAN coupler keys: one per interface and node, every name of a device one key", "[link][can][lock]") {
   // A real tty and a link to it: one adapter, one key.
   int master = -1, slave = -1;
   char name[128] = {};
@@ -136,20 +134,18 @@ TEST_CASE(
   for (char& c : spelled)
     if (c == '/') c = '_';
 
-  // The adapter's tty is held by one program at a time: every node behind it takes turns on one key;
-  // the journal is the node's.
-  CHECK(coupler_key(can(std::string("slcan:") + name + "?node=3")) == "can-" + spelled);
-  CHECK(coupler_key(can("slcan://" + dir.file("by-id-adapter") + "?node=3&bitrate=125000")) == "can-" + spelled);
-  CHECK(coupler_key(can(std::string("slcan:") + name + "?node=4")) == "can-" + spelled);
-  CHECK(coupler_key(can(std::string("slcan:") + name)) == "can-" + spelled);
+  CHECK(coupler_key(can(std::string("slcan:") + name + "?node=3")) == "can-" + spelled + "-n3");
+  CHECK(coupler_key(can("slcan://" + dir.file("by-id-adapter") + "?node=3&bitrate=125000")) ==
+        "can-" + spelled + "-n3");
+  CHECK(coupler_key(can(std::string("slcan:") + name + "?node=4")) == "can-" + spelled + "-n4");
+  CHECK(coupler_key(can(std::string("slcan:") + name)) == "can-" + spelled + "-n1");
   CHECK(station_key(can(std::string("slcan:") + name + "?node=3")) == "can-" + spelled + "-n3");
-  CHECK(station_key(can(std::string("slcan:") + name + "?node=4")) == "can-" + spelled + "-n4");
 
   CHECK(coupler_key(can("socketcan://can0?node=3")) == "can-can0-n3");
   CHECK(coupler_key(can("socketcan:can0?node=3")) == "can-can0-n3");
   CHECK(coupler_key(can("socketcan:can0?node=5")) == "can-can0-n5");
   CHECK(coupler_key(can("socketcan:can1?node=3")) == "can-can1-n3");
-  CHECK(coupler_key(can("slcan:/dev/ttyACM0?node=3")) == "can-_dev_ttyACM0");  // not there: by its path
+  CHECK(coupler_key(can("slcan:/dev/ttyACM0?node=3")) == "can-_dev_ttyACM0-n3");  // not there: by its path
 
   CHECK(std::filesystem::path(coupler_lock_path(can("socketcan:can0?node=3"))).filename() == "can-can0-n3.lock");
   CHECK(coupler_lock_path(can("slcan://" + dir.file("by-id-adapter") + "?node=3")) ==

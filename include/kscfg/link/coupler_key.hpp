@@ -50,7 +50,7 @@ std::string host_key_address(const std::string& host);
 // "rtu-DEVICE". Modbus TCP and ADS to one coupler give one key.
 std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
-// "can-_dev_ttyACM0" (slcan: the adapter, every node behind it), "can-can0-n3" (SocketCAN: the node).
+// "can-_dev_ttyACM0-n3" (slcan), "can-can0-n3" (SocketCAN).
 std::string coupler_key(const CanTarget& target);
 
 // A listener's own key, records not followed: what a CouplerAlias is made of.
@@ -78,7 +78,7 @@ std::string station_key(const ModbusTarget& target);
 // The session journals of direct register access over ADS (their entries are of another kind than
 // a Modbus session's, docs/design.md 6.2): "ip-10.0.3.11-ads".
 std::string station_key(const AdsTarget& target);
-// A CANopen node is one station and reached one way (SDO): "can-_dev_ttyACM0-n3", "can-can0-n3".
+// A CANopen node is one station and reached one way (SDO): its coupler key, "can-can0-n3".
 std::string station_key(const CanTarget& target);
 
 }  // namespace kscfg
