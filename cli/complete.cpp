@@ -209,6 +209,17 @@ void ports(Completions& c, const std::string& cur) {
   add(c, "socketcan://", "CANopen coupler on a SocketCAN interface: socketcan://IFACE[?node=N]");
 }
 
+// serve --can: the line serve plays an slcan adapter on (a tty or pseudo-terminal), or a CAN interface.
+void can_serve_uris(Completions& c, const std::string& cur) {
+  if (cur.rfind("slcan:", 0) == 0) {
+    if (cur.size() > 6) files_after(c, "slcan:", cur.substr(6));
+    else add(c, "slcan:/dev/pts/", "one end of a pseudo-terminal pair (socat)");
+    return;
+  }
+  add(c, "slcan:", "play an slcan adapter on a serial line: slcan:PATH[?bitrate=N]");
+  add(c, "socketcan:", "a Linux CAN interface: socketcan:IFACE");
+}
+
 void terminals(Completions& c, const Scene& s, const Catalog& cat) {
   if (s.layout) {
     std::set<std::string> seen;
@@ -224,6 +235,7 @@ void terminals(Completions& c, const Scene& s, const Catalog& cat) {
 void option_value(Completions& c, const CLI::Option* o, const Scene& s, const Catalog& cat, const std::string& cur) {
   std::string n = o->get_name(), text = o->get_option_text();
   if (n == "--port") return ports(c, cur);
+  if (n == "--can") return can_serve_uris(c, cur);
   if (n == "--terminal") return terminals(c, s, cat);
   if (n == "--channel") {
     unsigned k = s.type ? s.type->channels : 2;

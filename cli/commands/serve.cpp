@@ -1,5 +1,6 @@
 // kscfg serve: the emulated station behind a Modbus TCP or RTU server (BK9000/BK7300 register map),
-// an ADS server (BK9000), or Modbus TCP and ADS at once.
+// an ADS server (BK9000), a CANopen coupler's SDO server on a CAN bus (BK5120: slcan or SocketCAN),
+// or several of them at once on one station.
 #include <fmt/format.h>
 
 #include <functional>
@@ -15,6 +16,7 @@
 #include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/emulator/ads_server.hpp"
+#include "kscfg/emulator/can_server.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/emulator/poll_loop.hpp"
@@ -31,8 +33,8 @@ class Serve : public Command {
  public:
   std::string name() const override { return "serve"; }
   std::string brief() const override {
-    return "Serve the emulated station over Modbus TCP, Modbus RTU, ADS, or Modbus TCP and ADS at once (its state "
-           "file: --port emu:PATH)";
+    return "Serve the emulated station over Modbus TCP, Modbus RTU, ADS or CANopen (slcan, SocketCAN), or several at "
+           "once (its state file: --port emu:PATH)";
   }
   std::string man() const override {
     return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
@@ -102,7 +104,28 @@ class Serve : public Command {
            "address. \\fB\\-\\-max\\-connections\\fR applies to each server; \\fB\\-\\-unit\\fR, \\fB\\-\\-fault\\fR "
            "and "
            "\\fB\\-\\-seed\\fR to the Modbus one. Two kscfg reaching the station by tcp:// and by ads:// take "
-           "the one lock of the coupler they both name, and take turns.";
+           "the one lock of the coupler they both name, and take turns.\n"
+           ".IP\n"
+           "\\fB\\-\\-can slcan:\\fR\\fIPATH\\fR serves the station as a CANopen coupler (a BK5120) behind a USB slcan "
+           "adapter that serve plays on the serial line \\fIPATH\\fR, typically one end of a pseudo\\-terminal pair "
+           "(\\fBsocat \\-d \\-d pty,raw,echo=0 pty,raw,echo=0\\fR) whose other end a client opens as "
+           "\\fBslcan:\\fR\\fIOTHER\\fR. The adapter answers the Lawicel commands (\\fBC\\fR, \\fBS\\fR\\fIn\\fR, "
+           "\\fBO\\fR, \\fBL\\fR, \\fBV\\fR, \\fBN\\fR, \\fBF\\fR, \\fBZ\\fR, frames \\fBt\\fR, \\fBT\\fR, \\fBr\\fR, "
+           "\\fBR\\fR) with CR, a refused or unknown one (a frame while the channel is closed) with BELL, and "
+           "acknowledges each frame it sends with \\fBz\\fR (\\fB\\-\\-can\\-no\\-ack\\fR: CR alone); frames from the "
+           "coupler come as \\fBt\\fR lines while the channel is open. The bus runs at 500 kbit/s "
+           "(\\fB?bitrate=\\fR\\fIN\\fR sets another): an adapter opened at another rate hears nothing. "
+           "\\fB\\-\\-can socketcan:\\fR\\fIIFACE\\fR serves on a Linux CAN interface instead. The coupler is node "
+           "\\fB\\-\\-node\\fR \\fIN\\fR (1..127, default 1) and answers SDO requests to 0x600+\\fIN\\fR on "
+           "0x580+\\fIN\\fR: 0x1000 device type, 0x1008 device name, 0x1009, 0x100A versions, 0x1018 identity "
+           "(vendor 2), 0x4500 sub 0 the coupler's tables (table 9: the terminals) and 0x4501 sub \\fIN\\fR the "
+           "registers of terminal \\fIN\\fR (sub 0: how many), as Beckhoff's register communication over SDO "
+           "describes it; NMT start, stop and reset are obeyed. A mute terminal (\\fBkscfg emu fault\\fR) is given "
+           "up after the coupler's 500 ms with abort 0x05040047. \\fB\\-\\-can\\-register\\-ms\\fR \\fIMS\\fR makes "
+           "each register access take \\fIMS\\fR. The URI printed is \\fBslcan:\\fR\\fIPATH\\fR\\fB?node=\\fR\\fIN\\fR "
+           "(\\fB\\-\\-json\\fR: \\fB\\(dqcan\\(dq\\fR, or \\fB\\(dqport\\(dq\\fR when it is the only one). "
+           "\\fB\\-\\-can\\fR goes alone or beside \\fB\\-\\-tcp\\fR, \\fB\\-\\-rtu\\fR, \\fB\\-\\-pty\\fR or "
+           "\\fB\\-\\-ads\\fR: one station, one loop for every client.";
   }
   std::vector<std::string> examples() const override {
     return {"serve --tcp 127.0.0.1:5020",
@@ -111,7 +134,9 @@ class Serve : public Command {
             "serve --rtu /dev/ttyUSB1?baud=19200&parity=E --unit 3",
             "serve --tcp 127.0.0.1:0 --fault drop=0.1,busy=0.05,delay=0.1 --seed 7",
             "serve --ads 127.0.0.1:48898 --ads-route 192.168.1.20.1.1",
-            "serve --tcp 127.0.0.1:5020 --ads 127.0.0.1:48898"};
+            "serve --tcp 127.0.0.1:5020 --ads 127.0.0.1:48898",
+            "serve --can slcan:/dev/pts/7 --node 3",
+            "serve --tcp 127.0.0.1:5020 --can socketcan:vcan0"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--tcp", tcp_, "Serve Modbus TCP on ADDR:PORT (port 0: any free port)")->option_text("ADDR:PORT");
@@ -138,60 +163,86 @@ class Serve : public Command {
     sub.add_option("--ads-register-ms", ads_register_ms_,
                    "ADS: every terminal register access takes this long, one at a time (default 0)")
         ->option_text("MS");
+    sub.add_option("--can", can_,
+                   "Serve CANopen as a BK5120: slcan:PATH plays an slcan adapter on a serial line or pty, "
+                   "socketcan:IFACE uses a CAN interface")
+        ->option_text("URI");
+    sub.add_option("--node", node_, "CANopen: the coupler's node id, 1..127 (default 1)")->option_text("N");
+    sub.add_option("--can-register-ms", can_register_ms_,
+                   "CANopen: every terminal register access takes this long (default 0)")
+        ->option_text("MS");
+    sub.add_flag("--can-no-ack", can_no_ack_, "slcan: answer a sent frame with CR alone, not z");
   }
 
   int run(Context& ctx) override {
     int modbus = !tcp_.empty() + !rtu_.empty() + pty_;
-    bool ads = !ads_.empty();
-    if (modbus > 1 || (modbus == 0 && !ads))
+    bool ads = !ads_.empty(), can = !can_.empty();
+    if (modbus > 1 || (modbus == 0 && !ads && !can))
       throw Error(Exit::usage,
-                  "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty or --ads ADDR:PORT (or --tcp and "
-                  "--ads together: both protocols on one station)");
+                  "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty, --ads ADDR:PORT or --can URI (or --tcp and "
+                  "--ads together, and --can beside any: one station)");
     if (ads && modbus && tcp_.empty())
       throw Error(Exit::usage,
                   "--ads goes with --tcp only: a BK9000 answers Modbus TCP and ADS, no coupler RTU and ADS");
     if (!ads && (!ads_routes_.empty() || !ads_netid_.empty() || !ads_idle_.empty() || !ads_register_ms_.empty()))
       throw Error(Exit::usage, "--ads-route, --ads-netid, --ads-idle-ms and --ads-register-ms go with --ads ADDR:PORT");
+    if (!can && (!node_.empty() || !can_register_ms_.empty() || can_no_ack_))
+      throw Error(Exit::usage, "--node, --can-register-ms and --can-no-ack go with --can URI");
     if (!modbus && (!unit_.empty() || !fault_.empty() || !seed_.empty()))
-      throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus; --ads serves ADS");
+      throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus (--tcp, --rtu, --pty)");
     std::optional<ServeOptions> so;
     std::optional<AdsServeOptions> ao;
+    std::optional<CanServeOptions> co;
     if (modbus) so = modbus_options(ctx);
     if (ads) ao = ads_options(ctx);
+    if (can) co = can_options(ctx);
     std::string path;
     std::optional<ServeStats> st;
     std::optional<AdsServeStats> at;
+    std::optional<CanServeStats> ct;
     auto stop = [&ctx] { return ctx.cancel()->signalled(); };
     serve_station(ctx, path, [&](EmulatedStation& station, const Saver& save, const Listening& listening) {
-      if (so && ao) {
-        // One station, one K-bus, one saver; both servers in one loop.
-        ServedStation shared(station, ServedStation::Options{so->cycle_us, save, so->save_delay_ms, so->warn});
-        ModbusServer m(shared, *so);
-        ao->modbus_port = port_of(m.endpoint());  // table 100 register 26: where the image lengths are
-        AdsServer a(shared, *ao);
-        // An ADS client asks the Modbus port at the address it reached (a BK9000 answers both on its
-        // one IP address): the Modbus server must be there too, or on every address.
-        if (host_of(m.endpoint()) != host_of(a.endpoint()) && host_of(m.endpoint()) != "0.0.0.0" &&
-            host_of(m.endpoint()) != "[::]")
-          throw Error(Exit::usage,
-                      fmt::format("--tcp {} and --ads {}: serve both on one address (or --tcp on 0.0.0.0 or [::])",
-                                  m.endpoint(), a.endpoint()),
-                      "an ADS client looks for the Modbus port (table 100 register 26) at the address it reached, as "
-                      "a BK9000 answers both on its one IP address");
-        // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and
-        // they take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
+      if (modbus + ads + can > 1) {
+        // One station, one K-bus, one saver; every server in one loop.
+        auto warn = so ? so->warn : ao ? ao->warn : co->warn;
+        unsigned cycle_us = so ? so->cycle_us : ao ? ao->cycle_us : co->cycle_us;
+        unsigned delay = so ? so->save_delay_ms : ao ? ao->save_delay_ms : co->save_delay_ms;
+        ServedStation shared(station, ServedStation::Options{cycle_us, save, delay, warn});
+        std::optional<ModbusServer> m;
+        std::optional<AdsServer> a;
+        std::optional<CanServer> c;
         std::optional<CouplerAlias> alias;
-        try {
-          alias.emplace(listener_key(local_ads(a.endpoint())), listener_key(local_modbus(m.endpoint())));
-        } catch (const Error& e) {
-          so->warn(
-              fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), m.endpoint(), a.endpoint()));
+        std::vector<std::string> uris;
+        std::vector<PollSource*> sources;
+        if (so) {
+          m.emplace(shared, *so);
+          uris.push_back(m->endpoint());
+          sources.push_back(&m->poll_source());
         }
-        listening({m.endpoint(), a.endpoint()});
-        run_poll_loop({&m.poll_source(), &a.poll_source()}, stop);
+        if (ao) {
+          if (m) ao->modbus_port = port_of(m->endpoint());  // table 100 register 26: where the image lengths are
+          a.emplace(shared, *ao);
+          uris.push_back(a->endpoint());
+          sources.push_back(&a->poll_source());
+          if (m) check_tcp_ads(m->endpoint(), a->endpoint(), so->warn, alias);
+        }
+        if (co) {
+          c.emplace(shared, *co);
+          uris.push_back(c->endpoint());
+          sources.push_back(&c->poll_source());
+        }
+        listening(uris);
+        run_poll_loop(sources, stop);
         shared.flush();
-        st = m.stats();
-        at = a.stats();
+        if (m) st = m->stats();
+        if (a) at = a->stats();
+        if (c) ct = c->stats();
+      } else if (co) {
+        co->save_state = save;
+        CanServer c(station, *co);
+        listening({c.endpoint()});
+        c.run(stop);
+        ct = c.stats();
       } else if (so) {
         so->save_state = save;
         ModbusServer m(station, *so);
@@ -223,6 +274,11 @@ class Serve : public Command {
           "disconnected, {} malformed; state saved to {}\n",
           at->requests, at->connections, at->refused, ao->max_connections, at->idle_cut, at->timed_out, at->malformed,
           where);
+    if (ct && (ctx.options().verbose || ct->refused || ct->dropped))
+      std::cerr << fmt::format(
+          "kscfg: serve: {} slcan line(s), {} frame(s) to node {}, {} answered; {} refused (BELL), {} byte(s) the "
+          "host did not read; state saved to {}\n",
+          ct->lines, ct->frames_in, co->node, ct->frames_out, ct->refused, ct->dropped, where);
     return 0;
   }
 
@@ -256,6 +312,39 @@ class Serve : public Command {
     so.faults = parse_faults(fault_);
     if (!seed_.empty()) so.seed = parse_uint(seed_, UINT64_MAX, "seed");
     return so;
+  }
+
+  CanServeOptions can_options(Context& ctx) const {
+    CanServeOptions co = can_serve_options(can_);
+    if (!node_.empty()) {
+      co.node = static_cast<unsigned>(parse_uint(node_, 127, "node id"));
+      if (co.node == 0) throw Error(Exit::usage, "invalid --node 0: a CANopen node id is 1..127");
+    }
+    if (!can_register_ms_.empty())
+      co.register_ms = static_cast<unsigned>(parse_uint(can_register_ms_, 60000, "register access time"));
+    co.ack = !can_no_ack_;
+    co.cancel = ctx.cancel();
+    common_options(ctx, co);
+    return co;
+  }
+
+  // serve --tcp --ads: an ADS client asks the Modbus port at the address it reached (a BK9000
+  // answers both on its one IP address): the Modbus server must be there too, or on every address.
+  // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and they
+  // take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
+  static void check_tcp_ads(const std::string& modbus, const std::string& ads,
+                            const std::function<void(const std::string&)>& warn, std::optional<CouplerAlias>& alias) {
+    if (host_of(modbus) != host_of(ads) && host_of(modbus) != "0.0.0.0" && host_of(modbus) != "[::]")
+      throw Error(
+          Exit::usage,
+          fmt::format("--tcp {} and --ads {}: serve both on one address (or --tcp on 0.0.0.0 or [::])", modbus, ads),
+          "an ADS client looks for the Modbus port (table 100 register 26) at the address it reached, as "
+          "a BK9000 answers both on its one IP address");
+    try {
+      alias.emplace(listener_key(local_ads(ads)), listener_key(local_modbus(modbus)));
+    } catch (const Error& e) {
+      warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), modbus, ads));
+    }
   }
 
   AdsServeOptions ads_options(Context& ctx) const {
@@ -319,10 +408,12 @@ class Serve : public Command {
       o.cycle_us = static_cast<unsigned>(parse_uint(cycle_, 1000000, "cycle time"));
       if (o.cycle_us < 50) throw Error(Exit::usage, fmt::format("invalid --cycle-us {}: at least 50", cycle_));
     }
-    if (!watchdog_.empty()) o.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
-    if (!max_conn_.empty()) {
-      o.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
-      if (o.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
+    if constexpr (requires { o.watchdog_ms; }) {
+      if (!watchdog_.empty()) o.watchdog_ms = static_cast<unsigned>(parse_uint(watchdog_, 65535, "watchdog preset"));
+      if (!max_conn_.empty()) {
+        o.max_connections = static_cast<unsigned>(parse_uint(max_conn_, 100000, "connection limit"));
+        if (o.max_connections == 0) throw Error(Exit::usage, "invalid --max-connections 0: at least 1");
+      }
     }
     if (ctx.options().verbose) o.trace = [&ctx](const std::string& s) { ctx.trace("serve: " + s); };
     o.warn = [](const std::string& s) { std::cerr << "kscfg: warning: serve: " << s << std::endl; };
@@ -349,7 +440,7 @@ class Serve : public Command {
       store.announce(uris);  // another kscfg on the file is told where to go (every URI)
       if (ctx.json()) {
         nlohmann::json j{{"port", uris.front()}, {"state", path}};
-        if (uris.size() > 1) j["ads"] = uris[1];
+        for (std::size_t k = 1; k < uris.size(); ++k) j[uris[k].rfind("ads://", 0) == 0 ? "ads" : "can"] = uris[k];
         std::cout << j.dump() << std::endl;
       } else {
         for (const auto& u : uris) std::cout << u << "\n";
@@ -363,9 +454,9 @@ class Serve : public Command {
   }
 
   std::string tcp_, rtu_, unit_, cycle_, watchdog_, fault_, seed_, max_conn_, ads_, ads_netid_, ads_idle_,
-      ads_register_ms_;
+      ads_register_ms_, can_, node_, can_register_ms_;
   std::vector<std::string> ads_routes_;
-  bool pty_ = false;
+  bool pty_ = false, can_no_ack_ = false;
 };
 
 }  // namespace
