@@ -71,7 +71,7 @@ class Info : public Command {
     std::map<unsigned, std::size_t> job_of;
     for (unsigned pos : positions) {
       const TerminalImage& t = L.terminal(pos);
-      if (!t.type->has_registers || t.channels.empty() || !t.channels[0].window) continue;
+      if (!t.type->has_registers || !reaches_registers(L, t, 0)) continue;
       ChannelReads j;
       j.position = pos;
       j.regs = ctx.known_r8(pos) ? std::vector<unsigned>{9} : std::vector<unsigned>{8, 9};

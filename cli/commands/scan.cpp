@@ -15,6 +15,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/ads_station.hpp"
+#include "kscfg/discovery/can_station.hpp"
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/map.hpp"
@@ -96,7 +97,8 @@ class Scan : public Command {
     };
     ScanResult r;
     std::vector<std::optional<std::uint16_t>> r9;  // ADS only: each terminal's R9
-    bool ads = false;
+    bool ads = false;                              // ADS, or CANopen (can): the terminals from the coupler's table 9
+    bool can = false;
     Link* link = &ctx.link();
     if (AdsClient* a = link->ads_connection()) {
       // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
@@ -107,12 +109,24 @@ class Scan : public Command {
       r = std::move(s.result);
       r9 = std::move(s.r9);
       ads = true;
+    } else if (SdoClient* c = link->sdo_connection()) {
+      // CANopen SDO: identification, table 9 through 0x4500, each terminal's registers over 0x4501
+      // (discovery/can_station.hpp).
+      CanScanOptions so;
+      if (ce || wa || mo) so.settings = overridden;
+      so.origin = fmt::format("scan of {}", link->describe());
+      CanScan s = scan_can_station(*c, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
+      r = std::move(s.result);
+      r9 = std::move(s.r9);
+      ads = can = true;
     } else {
       ModbusRegisters* regs = link->modbus_registers();
       if (!regs)
-        throw Error(Exit::usage,
-                    fmt::format("'kscfg scan' reads a Modbus or ADS coupler; the port is '{}'", ctx.options().port),
-                    "use --port tcp://HOST, rtu:DEVICE or ads://HOST; 'kscfg info' shows the emulator's station");
+        throw Error(
+            Exit::usage,
+            fmt::format("'kscfg scan' reads a Modbus, ADS or CANopen coupler; the port is '{}'", ctx.options().port),
+            "use --port tcp://HOST, rtu:DEVICE, ads://HOST or slcan:DEVICE; 'kscfg info' shows the "
+            "emulator's station");
       std::optional<MappingSettings> settings;
       // Defaults of the coupler family, overridden: ask the coupler who it is first.
       if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(*regs), "", std::nullopt).settings);
@@ -153,10 +167,12 @@ class Scan : public Command {
       for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
         const auto& t = r.layout.terminals[i];
         // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-        nlohmann::json term = {{"position", t.position},
-                               {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
-                               {"r8", i < r.r8.size() ? r.r8[i] : 0},
-                               {"image", image_json(t)}};
+        nlohmann::json term = {
+            {"position", t.position},
+            {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
+            // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
+            {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
+            {"image", image_json(t)}};
         if (t.inferred) {
           term["digital"] = digital_label(t);
           term["fits"] = t.fits;
@@ -196,7 +212,8 @@ class Scan : public Command {
           r.ident_read ? fmt::format("identification \"{}\"", r.ident) : std::string("no identification"), r.coupler);
     std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
                              r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
-    if (ads)
+    if (can) std::cout << "watchdog  the bus master's (CANopen node guarding or heartbeat; not read)\n";
+    else if (ads)
       std::cout << (r.watchdog_preset
                         ? fmt::format("watchdog  {} ms (ADS watchdog, table 100 register 14)\n", *r.watchdog_preset)
                         : std::string("watchdog  unknown (the coupler does not serve table 100)\n"));

@@ -5,6 +5,7 @@
 #include <algorithm>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/link/ads_registers.hpp"
 
 namespace kscfg {
 
@@ -96,6 +97,28 @@ StationLayout match_scan(const ScanResult& scan, const StationSpec& file, const 
     L.out_bytes = L.complex_out + (scan.digital_out_bits + 7) / 8;
   }
   return L;
+}
+
+void match_table9(const StationLayout& described, const StationLayout& found, const std::string& origin,
+                  const std::string& numbered_by) {
+  std::vector<const TerminalImage*> mine;
+  for (const auto& t : described.terminals)
+    if (adsreg::numbered(*t.type)) mine.push_back(&t);
+  auto what = [](const TerminalImage& t) { return t.inferred ? digital_label(t) : t.type->type; };
+  for (std::size_t k = 0; k < std::max(mine.size(), found.terminals.size()); ++k) {
+    const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
+    const TerminalImage* have = k < found.terminals.size() ? &found.terminals[k] : nullptr;
+    if (want && have && fits_type(*have, want->type->type)) continue;
+    throw Error(Exit::refused,
+                want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
+                                           origin, want->position, want->type->type, k + 1, what(*have))
+                : want ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) with {} (table 9)", origin,
+                                     want->position, want->type->type, found.terminals.size(), numbered_by)
+                       : fmt::format("{} describes {} terminal(s) with {}, table 9 lists {}: terminal number {} "
+                                     "is {}",
+                                     origin, mine.size(), numbered_by, found.terminals.size(), k + 1, what(*have)),
+                "'kscfg scan' lists what the coupler has; nothing was done");
+  }
 }
 
 }  // namespace kscfg

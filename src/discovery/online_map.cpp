@@ -25,7 +25,7 @@ OnlineMap map_online(Engine& engine, const StationLayout& current, const Station
     if (regs.empty()) continue;
     const TerminalImage& t = current.terminal(pos);
     for (unsigned ch = 0; ch < type.channels; ++ch) {
-      if (ch >= t.channels.size() || !t.channels[ch].window) {
+      if (!reaches_registers(current, t, ch)) {
         m.notes.push_back(
             fmt::format("terminal {} ({}){}: control/status byte not mapped, so R{} cannot be read; "
                         "its format follows the described settings",

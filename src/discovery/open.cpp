@@ -8,15 +8,21 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/ads_station.hpp"
+#include "kscfg/discovery/can_station.hpp"
+#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/ads_registers.hpp"
+#include "kscfg/link/can_link.hpp"
+#include "kscfg/link/can_registers.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
+#include "kscfg/link/slcan.hpp"
 #include "kscfg/session/ads_access.hpp"
+#include "kscfg/session/sdo_access.hpp"
 #include "kscfg/session/session.hpp"
 
 namespace kscfg {
@@ -50,6 +56,14 @@ class AdsDiscovery : public StationDiscovery {
   // The file's terminals with a number on port 100 against table 9, in order: a complex one by its
   // type, a digital one by its bits and direction (the file names which type it is); then its
   // layout against the coupler's image lengths.
+  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
+  // with the passive terminals table 9 does not list, checked against table 9 and the image lengths.
+  std::optional<StationLayout> match(const StationSpec& file) override {
+    StationLayout L = compute_layout(file, catalog_);
+    check_described(L, file, file.origin);
+    return L;
+  }
+
   void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override {
     const StationLayout* found = nullptr;
     try {
@@ -60,25 +74,7 @@ class AdsDiscovery : public StationDiscovery {
       return;
     }
     if (!found) return;
-    std::vector<const TerminalImage*> mine;
-    for (const auto& t : L.terminals)
-      if (adsreg::numbered(*t.type)) mine.push_back(&t);
-    for (std::size_t k = 0; k < std::max(mine.size(), found->terminals.size()); ++k) {
-      const TerminalImage* want = k < mine.size() ? mine[k] : nullptr;
-      const TerminalImage* have = k < found->terminals.size() ? &found->terminals[k] : nullptr;
-      auto what = [](const TerminalImage& t) { return t.inferred ? digital_label(t) : t.type->type; };
-      if (want && have && fits_type(*have, want->type->type)) continue;
-      throw Error(Exit::refused,
-                  want && have ? fmt::format("{}: position {} is {}, the coupler's terminal number {} is {} (table 9)",
-                                             origin, want->position, want->type->type, k + 1, what(*have))
-                  : want       ? fmt::format("{}: position {} is {}, the coupler has {} terminal(s) with a number on "
-                                                   "port 100 (table 9)",
-                                             origin, want->position, want->type->type, found->terminals.size())
-                               : fmt::format("{} describes {} terminal(s) with a number on port 100, table 9 lists "
-                                                   "{}: terminal number {} is {}",
-                                             origin, mine.size(), found->terminals.size(), k + 1, what(*have)),
-                  "'kscfg scan' lists what the coupler has; nothing was done");
-    }
+    match_table9(L, *found, origin, "a number on port 100");
     judge_image(
         L, found_->image, spec, catalog_,
         [&](unsigned pos, unsigned ch) {
@@ -135,6 +131,49 @@ std::string coupler_lock_path(const AdsTarget& t) {
   return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
 }
 
+std::string coupler_lock_path(const CanTarget& t) {
+  return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
+}
+
+namespace {
+
+// A CANopen coupler (BK5120/BK515x, LC5100, ...) on an slcan adapter or a SocketCAN interface: its
+// register communication over SDO (objects 0x4500/0x4501), the station from its table 9 (design 13).
+OpenedPort open_can_port(const PortUri& p, const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
+  CanTarget target = can_target(p, uri);
+  // One kscfg at a time on a node of this computer's CAN interface: before the bus is opened.
+  OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target),
+                                      fmt::format("the CANopen coupler at {}", target.where()), opt.lock_wait);
+  // Each SDO frame's answer may take the whole --timeout; two unanswered in a row give the bus up.
+  const unsigned frame_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
+  std::unique_ptr<CanBus> bus = p.scheme == "slcan" ? open_slcan(target.device, target.bitrate, frame_ms, opt.cancel)
+                                                    : open_socketcan(target.device, opt.cancel);
+  SdoOptions sdo;
+  sdo.node = target.node;
+  sdo.response_timeout_ms = frame_ms;
+  sdo.trace = opt.trace;
+  auto link = std::make_unique<CanLink>(target, std::move(bus), sdo, std::move(lock));
+  // Channels unlocked over SDO are noted in the session journal of this node, so that the next
+  // kscfg relocks what a killed one left (session/sdo_access.hpp).
+  if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
+  auto discovery = std::make_unique<CanDiscovery>(*link->sdo_connection(), catalog, opt.timeout_ms, opt.trace);
+  OpenedPort port;
+  port.link = std::move(link);
+  std::function<const StationLayout&()> layout = opt.layout;
+  if (!layout)
+    layout = [d = discovery.get()]() -> const StationLayout& {
+      const StationLayout* L = d->layout();
+      if (!L) throw Error(Exit::usage, "the station behind the CANopen coupler is unknown", "give --station FILE");
+      return *L;
+    };
+  port.access = open_register_access(*port.link, port_session(opt), std::move(layout));
+  port.engine = std::make_unique<Engine>(*port.access);
+  port.discovery = std::move(discovery);
+  return port;
+}
+
+}  // namespace
+
 OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   PortUri p = parse_port_uri(uri);
   if (p.scheme == "emu") {
@@ -180,6 +219,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     port.discovery = std::move(discovery);
     return port;
   }
+  if (p.scheme == "slcan" || p.scheme == "socketcan") return open_can_port(p, uri, catalog, opt);
   // Modbus TCP (BK9000) or RTU (BK7300). One exchange may take a third of the ack timeout; a
   // timeout is tried twice more, so a silent coupler is reported within about --timeout.
   ModbusOptions mo;
@@ -219,6 +259,10 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
     auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
     return std::make_unique<AdsAccess>(*ads, number, so);
   }
+  if (auto* sdo = link.sdo_connection()) {
+    auto number = [layout](unsigned position) { return canreg::terminal_number(layout(), position); };
+    return std::make_unique<SdoAccess>(*sdo, number, so);
+  }
   return std::make_unique<HandshakeAccess>(link, handshake_options(so));
 }
 
@@ -226,15 +270,16 @@ void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, c
                            const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
   // Outputs a dead `data force` left forced: the terminal at the journal's position owns that byte.
   auto force_fits = [&](const SessionJournal::Forced& f) { return forced_fits(layout_upto(f.position), f); };
-  if (link.ads_connection()) {
-    // Direct access: the channels a dead kscfg unlocked over port 100.
+  if (link.ads_connection() || link.sdo_connection()) {
+    // Direct access: the channels a dead kscfg unlocked over port 100 or over SDO. (A CANopen
+    // coupler's image is not kscfg's: no output was forced through it.)
     finish_dead_direct_sessions(
         engine, so,
         [&](unsigned position) -> const TerminalImage* {
           const StationLayout& L = layout_upto(position);
           return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
         },
-        &link, force_fits);
+        link.sdo_connection() ? nullptr : &link, force_fits);
     return;
   }
   auto fits = [&](const SessionJournal::Entry& e) {

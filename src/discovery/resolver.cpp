@@ -24,6 +24,9 @@ StationResolver::~StationResolver() = default;
 void StationResolver::set_layout(StationLayout L, bool complete) {
   // Sessions may point into the layout they were opened with: an older one stays alive.
   if (layout_) retired_.push_back(std::move(layout_));
+  // Over ADS port 100 and CANopen SDO the coupler reaches the registers itself: no channel needs a
+  // register window.
+  if (direct_access()) L.registers_direct = true;
   layout_ = std::make_unique<StationLayout>(std::move(L));
   layout_complete_ = complete;
 }
@@ -196,6 +199,13 @@ const StationLayout& StationResolver::layout_for(const StationSpec& file) {
     layout_upto(0);
     matched_ = port_.discovery->match(file);
     if (!matched_) return *layout_;
+    // Direct register access (ADS port 100, CANopen SDO) numbers the terminals from the station the
+    // command works on (layout()): from here on, the file's, whose positions count the passive
+    // terminals table 9 leaves out.
+    if (direct_access()) {
+      matched_->registers_direct = true;
+      set_layout(*matched_, true);
+    }
   }
   return *matched_;
 }

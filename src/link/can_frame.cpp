@@ -27,11 +27,12 @@ std::optional<char> bitrate_code(unsigned bitrate) {
 }
 
 std::string encode(const CanFrame& f) {
+  const unsigned len = std::min<unsigned>(f.len, 8);  // the length digit says what follows, never "9"
   std::string s;
-  if (f.extended) s = fmt::format("{}{:08X}{}", f.rtr ? 'R' : 'T', f.id & 0x1FFFFFFFu, unsigned{f.len});
-  else s = fmt::format("{}{:03X}{}", f.rtr ? 'r' : 't', f.id & 0x7FFu, unsigned{f.len});
+  if (f.extended) s = fmt::format("{}{:08X}{}", f.rtr ? 'R' : 'T', f.id & 0x1FFFFFFFu, len);
+  else s = fmt::format("{}{:03X}{}", f.rtr ? 'r' : 't', f.id & 0x7FFu, len);
   if (!f.rtr)
-    for (unsigned k = 0; k < f.len && k < 8; ++k) s += fmt::format("{:02X}", f.data[k]);
+    for (unsigned k = 0; k < len; ++k) s += fmt::format("{:02X}", f.data[k]);
   return s + "\r";
 }
 

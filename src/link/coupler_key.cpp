@@ -28,6 +28,7 @@
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/ams.hpp"
+#include "kscfg/link/can_link.hpp"
 
 namespace kscfg {
 
@@ -180,6 +181,16 @@ std::string record_pid(const std::string& path) {
   return r.text.substr(0, r.text.find('\n'));
 }
 
+// A serial device as the kernel knows it; one that is not there (yet) by its absolute path, and its
+// open says what is wrong.
+std::string device_key(const std::string& device) {
+  std::error_code ec;
+  std::filesystem::path real = std::filesystem::canonical(device, ec);
+  if (ec) real = std::filesystem::weakly_canonical(std::filesystem::absolute(device, ec), ec);
+  if (ec) real = device;
+  return safe(real.string());
+}
+
 }  // namespace
 
 std::string host_key_address(const std::string& host) {
@@ -196,16 +207,14 @@ std::string host_key_address(const std::string& host) {
 
 std::string coupler_key(const ModbusTarget& t) {
   if (t.tcp) return ip_key(t.host, t.port, kModbusPort);
-  // The device as the kernel knows it; one that is not there (yet) by its absolute path, and its
-  // open says what is wrong.
-  std::error_code ec;
-  std::filesystem::path real = std::filesystem::canonical(t.device, ec);
-  if (ec) real = std::filesystem::weakly_canonical(std::filesystem::absolute(t.device, ec), ec);
-  if (ec) real = t.device;
-  return "rtu-" + safe(real.string());
+  return "rtu-" + device_key(t.device);
 }
 
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
+
+std::string coupler_key(const CanTarget& t) {
+  return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
+}
 
 std::string listener_key(const ModbusTarget& t) {
   return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : coupler_key(t);
@@ -244,5 +253,7 @@ CouplerAlias::~CouplerAlias() {
 std::string station_key(const ModbusTarget& t) { return fmt::format("{}-unit{}", coupler_key(t), t.unit); }
 
 std::string station_key(const AdsTarget& t) { return coupler_key(t) + "-ads"; }
+
+std::string station_key(const CanTarget& t) { return coupler_key(t); }
 
 }  // namespace kscfg

@@ -105,6 +105,9 @@ std::string ModbusTarget::where() const {
 }
 
 ModbusTarget modbus_target(const PortUri& p, const std::string& uri) {
+  // A CAN port is never taken for a serial Modbus line (a Modbus request on an slcan adapter).
+  if (p.scheme != "tcp" && p.scheme != "rtu")
+    throw Error(Exit::usage, fmt::format("port '{}' is not a Modbus port (tcp://, rtu:)", uri));
   ModbusTarget t;
   t.uri = uri;
   t.tcp = p.scheme == "tcp";

@@ -48,10 +48,15 @@ PortUri parse_port_uri(const std::string& uri) {
   } else if (uri.rfind("rtu:", 0) == 0) {
     p.scheme = "rtu";
     rest = uri.substr(4);
+  } else if (uri.rfind("slcan:", 0) == 0 || uri.rfind("socketcan:", 0) == 0) {
+    // slcan:DEVICE and slcan://DEVICE (slcan:///dev/ttyACM0 is /dev/ttyACM0); socketcan alike.
+    p.scheme = uri.substr(0, uri.find(':'));
+    rest = uri.substr(p.scheme.size() + 1);
+    if (rest.rfind("//", 0) == 0) rest.erase(0, 2);
   } else {
-    throw Error(
-        Exit::usage,
-        fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT] or rtu:DEVICE", uri));
+    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT], "
+                                         "rtu:DEVICE, slcan:DEVICE or socketcan:IFACE",
+                                         uri));
   }
   auto qm = rest.find('?');
   if (qm != std::string::npos) {
@@ -86,6 +91,27 @@ PortUri parse_port_uri(const std::string& uri) {
         throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (unit)", uri, k));
       if (p.scheme == "ads" && k != "netid" && k != "source")
         throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (netid, source)", uri, k));
+    }
+  } else if (p.scheme == "slcan") {
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));
+    p.target = rest;
+    for (const auto& [k, v] : p.query)
+      if (k != "bitrate" && k != "node")
+        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (bitrate, node)", uri, k));
+  } else if (p.scheme == "socketcan") {
+    // An interface name as the kernel takes it: 1..15 characters, no '/', ':' or blank.
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no interface", uri));
+    if (rest.size() > 15 || rest == "." || rest == ".." ||
+        std::any_of(rest.begin(), rest.end(), [](char c) { return c == '/' || c == ':' || c <= ' ' || c > '~'; }))
+      throw Error(Exit::usage, fmt::format("invalid port '{}': '{}' is not a network interface name", uri, rest),
+                  "give the CAN interface as 'ip link' lists it, e.g. socketcan://can0");
+    p.target = rest;
+    for (const auto& [k, v] : p.query) {
+      if (k == "bitrate")
+        throw Error(Exit::usage,
+                    fmt::format("invalid port '{}': a SocketCAN interface has its bit rate set by the system", uri),
+                    fmt::format("drop ?bitrate=; set it with 'ip link set {} up type can bitrate 500000'", rest));
+      if (k != "node") throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (node)", uri, k));
     }
   } else {
     if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));

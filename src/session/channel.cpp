@@ -18,7 +18,7 @@ const TerminalImage& register_terminal(const StationLayout& layout, unsigned pos
   if (channel >= t.type->channels)
     throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", position,
                                          t.type->type, t.type->channels, channel + 1));
-  if (channel >= t.channels.size() || !t.channels[channel].window) {
+  if (!reaches_registers(layout, t, channel)) {
     std::string why = channel < t.channels.size() && !t.channels[channel].no_window.empty()
                           ? t.channels[channel].no_window
                           : fmt::format("its {} image is not mapped", t.format);

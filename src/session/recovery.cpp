@@ -157,7 +157,8 @@ void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
       so, "left unlocked", true,
       [&](const SessionJournal::Dead& d, const SessionJournal::Entry& e) {
         const TerminalImage* t = terminal(e.position);
-        if (!t || e.channel >= t->channels.size() || !t->channels[e.channel].window) {
+        // Direct access needs no register window: a channel of a terminal with registers.
+        if (!t || !t->type->has_registers || e.channel >= t->type->channels) {
           if (so.trace)
             so.trace(
                 fmt::format("journal of kscfg process {}: terminal {} channel {} is not a channel with registers "

@@ -49,6 +49,11 @@ std::string fits_text(const TerminalImage& t, std::size_t max) {
   return s.empty() ? "no catalog type" : s;
 }
 
+bool reaches_registers(const StationLayout& L, const TerminalImage& t, unsigned ch) {
+  if (L.registers_direct) return t.type->has_registers && ch < t.type->channels;
+  return ch < t.channels.size() && t.channels[ch].window.has_value();
+}
+
 std::string StationLayout::unidentified_digital() const {
   std::size_t in = 0, out = 0;
   for (const auto& t : terminals)

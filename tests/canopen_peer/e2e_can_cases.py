@@ -252,15 +252,26 @@ def c_select(ctx):
 @case("digital-terminal-refused", "a digital terminal has no registers; this coupler takes the download "
       "and answers the upload with SDO abort 0x08000020 (peer README choice): exit 5, the code named")
 def c_digital(ctx):
-    rc, _, err = ctx.kscfg("-t", "5", "read", "R8")
-    check(rc == 5, "exit %s: %s" % (rc, err.strip()[:200]))
+    digital_refused(ctx, 5)
 
 
 @case("digital-terminal-abort-at-download", "as digital-terminal-refused with a coupler that aborts the "
       "download itself (0x06090030)", peer=["--abort-digital", "0x06090030@download"])
 def c_digital_dl(ctx):
-    rc, _, err = ctx.kscfg("-t", "6", "read", "R8")
-    check(rc == 5, "exit %s: %s" % (rc, err.strip()[:200]))
+    digital_refused(ctx, 6)
+
+
+def digital_refused(ctx, pos):
+    """Table 9 says the terminal is digital: kscfg refuses before it sends a request for it (exit 2, a
+    usage error naming the terminal), or, had it asked, the coupler's abort is named (exit 5)."""
+    rc, _, err = ctx.kscfg("-t", str(pos), "read", "R8")
+    check(rc in (2, 5), "exit %s: %s" % (rc, err.strip()[:200]))
+    check("no registers" in err or "0x0" in err, "neither 'no registers' nor an abort code: %s" % err.strip()[:200])
+    if rc == 2:
+        # Only the discovery's requests (identification, table 9, the complex terminals' registers):
+        # none to the digital terminal's sub-index (the peer logs the last 50 requests, this case's).
+        log = [req for req, _ in ctx.state()["sdo_log"] if req[2:8] == "0145%02x" % pos]
+        check(not log, "kscfg refused, yet asked sub-index %d: %r" % (pos, log[:3]))
 
 
 @case("unanswered-terminal-bounded", "a terminal that never answers keeps its entry's access bit set "
@@ -298,7 +309,10 @@ def c_dead_bus(ctx):
     left_unlocked = 0
     for n in sorted({max(2, total // 4), total // 2, (3 * total) // 4}):
         rc, secs, err = dead_bus_run(ctx, n, want)
-        check(rc == 3, "--stop-after %d: exit %s (want 3, link): %s" % (n, rc, err.strip()[:200]))
+        # 3: the bus died before a change (nothing written, or each change verified and rolled back);
+        # 9: a change failed and its rollback could not be verified on a dead bus (design 6: the state
+        # is unknown; the journal makes the next kscfg finish it).
+        check(rc in (3, 9), "--stop-after %d: exit %s (want 3 or 9): %s" % (n, rc, err.strip()[:200]))
         check(secs < 2 * 0.4 + 1.5, "--stop-after %d: gave up after %.2f s with --timeout 400" % (n, secs))
         st = ctx.state()
         left_unlocked += bool(ctx.unlocked(st))
@@ -347,7 +361,7 @@ def c_bad_uri(ctx):
                      ({"colour": "red"}, "colour")):
         rc, _, err = ctx.kscfg("info", port=ctx.uri(**q))
         check(rc == 2, "%r: exit %s (want 2): %s" % (q, rc, err.strip()[:160]))
-        check(named in err and "invalid port" not in err, "%r: the error does not name %r (or kscfg has no slcan): %s"
+        check(named in err, "%r: the error does not name %r: %s"
               % (q, named, err.strip()[:160]))
     check(ctx.state()["sdo_requests"] == 0, "SDO requests were sent")
 

@@ -26,4 +26,13 @@ void check_image_lengths(const StationLayout& described, const std::array<unsign
 // mapping registers as the scan read them. Error(refused) naming the difference.
 StationLayout match_scan(const ScanResult& scan, const StationSpec& file, const Catalog& catalog);
 
+// A station description (laid out as `described`) against the terminals a coupler's table 9 lists
+// (`found`: an ADS or CANopen coupler's discovery): the described terminals that have a number there
+// (adsreg::numbered: not the passive ones), in plug order, must be the listed ones, a complex
+// terminal by its type and a digital one by its bits and direction (fits_type). Error(refused)
+// naming the first difference; `origin` names the description, `numbered_by` how the coupler numbers
+// its terminals ("a number on port 100", "a 0x4501 sub-index").
+void match_table9(const StationLayout& described, const StationLayout& found, const std::string& origin,
+                  const std::string& numbered_by);
+
 }  // namespace kscfg

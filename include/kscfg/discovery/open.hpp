@@ -1,6 +1,8 @@
-// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:) or an
-// ADS coupler (ads://), with the port's one register access and engine, and the discovery that
-// finds the station behind a coupler (a Modbus scan, an ADS coupler's table 9).
+// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:), an
+// ADS coupler (ads://) or a CANopen coupler (slcan:, socketcan://; its registers over SDO: an SDO
+// link's register access is SdoAccess), with the port's one register access and engine, and the
+// discovery that finds the station behind a coupler (a Modbus scan, an ADS or CANopen coupler's
+// table 9).
 #pragma once
 #include <functional>
 #include <memory>
@@ -79,10 +81,12 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 // The lock file of a coupler on this computer (lock_dir()), one per coupler identity
 // (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
 // unit) and ADS (port 48898) to one coupler, a serial device and every link to it take one lock,
-// and two kscfg processes on one coupler take turns (docs/design.md 6.9). Error(Exit::link) when
-// the host does not resolve.
+// a CANopen node takes one per CAN interface and node id, and two kscfg processes on one coupler
+// take turns (docs/design.md 6.9). Error(Exit::link) when the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);
+struct CanTarget;  // link/can_link.hpp
+std::string coupler_lock_path(const CanTarget& target);
 
 // Finishes what kscfg processes that died on this port left in register mode (their journals,
 // finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position

@@ -132,6 +132,9 @@ class StationResolver {
   bool check_cached_ = true;                      // layout(): check a cached layout's R8s
   std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
   std::optional<StationLayout> matched_;
+  // The port's register access is direct (ADS port 100, CANopen SDO): the coupler reaches a
+  // terminal's registers itself and numbers its terminals from layout().
+  bool direct_access() { return link().ads_connection() || link().sdo_connection(); }
   // The session that checked the selected terminal's R8, handed out by session().
   struct Kept {
     unsigned position = 0, channel = 0;

@@ -1,7 +1,7 @@
 // CAN frames and the frame mover below the CANopen link (issue 37, docs/design.md section 13):
 // a CanBus sends and receives classic CAN 2.0 frames and knows nothing of CANopen. Two buses share
 // everything above it: SlcanBus (link/slcan.hpp, the Lawicel ASCII protocol of USB-CAN adapters on
-// a serial port, through libserialport as the RTU link) and SocketCanBus (open_socketcan(), a raw
+// a serial port, opened as the RTU link opens its line) and SocketCanBus (open_socketcan(), a raw
 // CAN socket of the Linux kernel). The SDO client (link/sdo.hpp) runs on either.
 #pragma once
 #include <array>

@@ -9,22 +9,25 @@
 //   byte 1: value high, byte 0: value low
 // "Id=0x603 DLC=8; Data=23 01 45 05 35 12 1F 80": node 3, download to 0x4501 sub 5 of
 // 0x801F1235: access bit, channel 0, R31 = 0x1235 (the code word to the terminal in slot 5).
-// A write downloads the word with the access bit set and uploads the entry until the access bit
-// reads 0 (the coupler has carried it out); a read downloads the address with the access bit
-// clear and uploads the entry until the access bit reads 0 and the register is the one asked for,
-// its value then in bytes 0..1. (PROVISIONAL until design 13 settles it from the manual.)
+// A write downloads the word with the access bit set (the download answer: done); a read downloads
+// the address with the access bit clear and uploads the entry while the access bit reads 1 (the
+// coupler sets it "until the correct value is available"), its answer echoing channel and register,
+// the value in bytes 0..1. An access aborted with 0x06010021 ("function still active") is asked
+// again until the timeout. 0x4500 is addressed at sub-index 0. (The procedure is in one place:
+// src/link/can_registers.cpp.)
 #pragma once
 #include <cstdint>
 #include <string>
 
 #include "kscfg/link/sdo.hpp"
+#include "kscfg/station/layout.hpp"
 
 namespace kscfg::canreg {
 
 constexpr std::uint16_t kCouplerObject = 0x4500;
 constexpr std::uint16_t kTerminalObject = 0x4501;
 constexpr std::uint32_t kAccessBit = 0x80000000u;
-constexpr unsigned kMaxTerminals = 255;  // sub-indices 1..255
+constexpr unsigned kMaxTerminals = 254;  // sub-indices 1..0xFE
 
 struct Word {
   bool access = false;
@@ -35,6 +38,12 @@ struct Word {
 };
 std::uint32_t encode(const Word& w);
 Word decode(std::uint32_t v);
+
+// The 0x4501 sub-index of the terminal at plug position `position` (1-based) in `layout`; 0 when it
+// has none. PROVISIONAL (design 13): every terminal the coupler sees on the K-bus counts, digital
+// ones too, passive ones (KL9010, KL9100) not: the numbering of ADS port 100 (adsreg::numbered).
+// Error(usage) for a position outside the station.
+unsigned terminal_number(const StationLayout& layout, unsigned position);
 
 // The client calls for register communication over an SdoClient (the safety rules are above the
 // register-access seam, session/access.hpp). Every wait is bounded by `timeout_ms` overall.

@@ -26,6 +26,11 @@
 //
 // A serial device is keyed by its real path (realpath: a /dev/serial/by-id/ link and its target
 // are one key), whatever the unit: one master at a time on a line. "rtu-_dev_ttyUSB0".
+//
+// A CANopen coupler (link/can_link.hpp) is keyed by its CAN interface and its node id: an slcan
+// adapter by the real path of its serial device, a SocketCAN interface by its name, plus the node:
+// "can-_dev_ttyACM0-n3", "can-can0-n3". SDO transfers to two nodes do not disturb each other; two
+// clients of one node would mix their transfers (one SDO channel per node) and take turns.
 #pragma once
 #include <string>
 
@@ -33,6 +38,8 @@
 #include "kscfg/link/modbus_client.hpp"
 
 namespace kscfg {
+
+struct CanTarget;  // link/can_link.hpp
 
 // The numeric address that keys `host` (the rule above): "10.0.3.11", "fd00::7", "fe80::1%eth0", and
 // "127.0.0.1" for every address of this computer.
@@ -43,6 +50,8 @@ std::string host_key_address(const std::string& host);
 // "rtu-DEVICE". Modbus TCP and ADS to one coupler give one key.
 std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
+// "can-_dev_ttyACM0-n3" (slcan), "can-can0-n3" (SocketCAN).
+std::string coupler_key(const CanTarget& target);
 
 // A listener's own key, records not followed: what a CouplerAlias is made of.
 std::string listener_key(const ModbusTarget& target);
@@ -69,5 +78,7 @@ std::string station_key(const ModbusTarget& target);
 // The session journals of direct register access over ADS (their entries are of another kind than
 // a Modbus session's, docs/design.md 6.2): "ip-10.0.3.11-ads".
 std::string station_key(const AdsTarget& target);
+// A CANopen node is one station and reached one way (SDO): its coupler key, "can-can0-n3".
+std::string station_key(const CanTarget& target);
 
 }  // namespace kscfg

@@ -63,10 +63,13 @@ struct SdoOptions {
 class SdoClient {
  public:
   SdoClient(CanBus& bus, SdoOptions opt);
-  // The object's bytes (expedited or segmented upload). Error(Exit::timeout) when the node does not
-  // answer within the timeout (an abort frame 0x05040000 "SDO protocol timed out" is sent to it);
-  // SdoAbort when it aborts; Error(Exit::link) for an answer that breaks the protocol (wrong
-  // index/sub-index, bad toggle) and for a bus that is gone.
+  // The object's bytes (expedited or segmented upload). Error(Exit::link) naming the node and bus
+  // when the node does not answer a frame within response_timeout_ms (an abort frame 0x05040000
+  // "SDO protocol timed out" is sent to it; a silent node is a dead link, not a terminal that did
+  // not acknowledge); SdoAbort when it aborts; Error(Exit::link) for an answer that breaks the
+  // protocol (another index/sub-index, a bad toggle: an abort is sent) and for a bus that is gone.
+  // Frames of other ids are ignored (EMCY and boot-up traced); frames that came in before the
+  // request are dropped (a late answer to a request that timed out).
   std::vector<std::uint8_t> upload(std::uint16_t index, std::uint8_t sub);
   // Writes 1..4 bytes (expedited download); errors as upload(). A lost answer is not repeated: the
   // outcome is unknown and the caller reads back.
@@ -83,6 +86,16 @@ class SdoClient {
   bool proven_dead() const { return silent_ >= 2; }
 
  private:
+  std::string where() const;  // "node 3 on slcan:/dev/ttyACM0 at 500000 bit/s"
+  void trace(const std::string& line) const;
+  void drain();
+  void send_abort(std::uint16_t index, std::uint8_t sub, std::uint32_t code) noexcept;
+  // Sends `req` and waits for the node's answer (response_timeout_ms).
+  CanFrame exchange(const CanFrame& req, std::uint16_t index, std::uint8_t sub, const char* what);
+  // An abort (SdoAbort) or an answer for another object (Error(link)).
+  void check_answer(const CanFrame& f, std::uint16_t index, std::uint8_t sub, const char* what);
+  [[noreturn]] void protocol_error(const CanFrame& f, std::uint16_t index, std::uint8_t sub, const char* what,
+                                   const std::string& why, std::uint32_t abort_code);
   CanBus& bus_;
   SdoOptions opt_;
   std::size_t exchanges_ = 0;

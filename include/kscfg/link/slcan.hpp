@@ -26,10 +26,14 @@ std::string encode(const CanFrame& f);
 std::optional<CanFrame> decode(std::string_view line);
 }  // namespace slcan
 
-// Opens `device` (a tty or pseudo-terminal) through libserialport at 115200 8N1 (a USB-CDC adapter
-// ignores the serial speed), closes and reopens the CAN channel at `bitrate` ("C", "Sn", "O"), and
-// moves frames. Error(Exit::link) naming the device when it cannot be opened or does not answer the
-// setup within `timeout_ms`; Error(Exit::usage) for a bit rate slcan has no code for.
+// Opens `device` (a tty or pseudo-terminal) at 115200 8N1 as the RTU link opens its line
+// (open_serial(): raw, locked against a second program; a USB-CDC adapter ignores the serial speed),
+// closes and reopens the CAN channel at `bitrate` ("C", "Sn", "O"), and moves frames.
+// Error(Exit::link) naming the device when it cannot be opened or does not answer the setup within
+// `timeout_ms`; Error(Exit::usage) for a bit rate slcan has no code for. send() does not wait for
+// the adapter's acknowledgement (some send none): acknowledgements are skipped whenever they come,
+// and a BELL is Error(Exit::link) naming the frame sent last, from that send() or the receive()
+// after it. The destructor closes the CAN channel ("C"), bounded, never throwing.
 std::unique_ptr<CanBus> open_slcan(const std::string& device, unsigned bitrate, unsigned timeout_ms,
                                    const CancelToken* cancel);
 
@@ -39,5 +43,8 @@ std::unique_ptr<CanBus> open_socketcan(const std::string& iface, const CancelTok
 // Whether this machine can make a virtual CAN interface (the vcan kernel module): the SocketCAN
 // tests run only where it can and report themselves skipped elsewhere.
 bool socketcan_available();
+// The name of a virtual CAN interface of this machine that is up ("vcan0"), nullopt when there is
+// none (the SocketCAN tests run on it, or make one when socketcan_available() says they can).
+std::optional<std::string> vcan_interface();
 
 }  // namespace kscfg

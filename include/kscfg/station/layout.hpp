@@ -76,12 +76,20 @@ struct StationLayout {
   std::string image_refused, image_refused_hint;
   // Not contradicted and not confirmed either: why the coupler could not be asked (a note).
   std::string image_unconfirmed;
+  // The port's register access reaches a terminal's registers without the process image (CANopen
+  // SDO, session/sdo_access.hpp): a channel needs no register window (reaches_registers()).
+  bool registers_direct = false;
 
   const TerminalImage& terminal(unsigned position) const;  // throws Error(usage)
   // The digital bits the coupler reports that no terminal of the layout accounts for (a Modbus
   // scan sees digital terminals only as bit totals): "4 input and 4 output bits"; "" when none.
   std::string unidentified_digital() const;
 };
+
+// Whether register requests reach channel `ch` (0-based) of terminal `t` of `L`: over the image
+// through the channel's register window; with L.registers_direct, every channel of a terminal with
+// registers.
+bool reaches_registers(const StationLayout& L, const TerminalImage& t, unsigned ch);
 
 using RegisterSource =
     std::function<std::array<std::uint16_t, proto::kRegisterCount>(unsigned position, unsigned channel)>;
