@@ -9,9 +9,11 @@ manual's K-bus cycle: the first upload after a register's address answers busy) 
 with --busy-uploads 0 (peer0: every value at the first upload, the fewest frames the manual's
 procedure allows). For each:
 
-  frames    one `kscfg -t 1 dump` (64 registers of the KL6001) and one `kscfg -t 1 read R8` through a
-            tap that passes the slcan lines on and keeps every CAN frame (`t` lines) both ways; a
-            register's frames are the difference over 63, the command's are all of them
+  frames    one `kscfg -t 1 dump` (the KL6001's registers the catalog defines, R0..R47: R48..R63
+            are shown as not implemented, not read) and one `kscfg -t 1 read R8` through a tap that
+            passes the slcan lines on and keeps every CAN frame (`t` lines) both ways; the registers
+            read are counted from the frames (each download of an address to 0x4501); a register's
+            frames are the difference of the two commands' over the difference of their reads
   floor     each frame's exact length on a 500 kbit/s bus: a classic base frame with DLC d is
             1+11+1+1+1+4+8d+15 bits from SOF to the CRC, stuffed (one bit after five equal ones:
             computed from the frame's own bits and CRC-15), then CRC delimiter, ACK slot and
@@ -20,10 +22,10 @@ procedure allows). For each:
             length of the frames kscfg sent and got: the least time those frames take on a real bus
             (no arbitration losses, no other traffic, the coupler answering in zero time)
   time      -n runs each of the dump and the read, directly on the pty (no tap); per register =
-            (median dump - median read) / 63, the command's startup and the station's
-            identification cancelled; also the whole dump / 64
+            (median dump - median read) / (registers of the dump - 1), the command's startup and the
+            station's identification cancelled; also the whole dump / its registers
   baseline  a python-can client (python3-can's slcan interface on the same pty) doing the same SDO
-            procedure for the same 64 registers back to back (download the address, upload until the
+            procedure for the same registers back to back (download the address, upload until the
             access bit reads 0): its time per register, its frames per register
 
 A pseudo-terminal has no bit timing: the frames cross it as fast as the processes write them, so
@@ -83,6 +85,13 @@ def frame_bits(can_id, data):
             stuffed += 1
             run, last = 1, 1 - b  # the stuff bit starts the next run
     return len(body) + stuffed + 1 + 2 + 7 + 3
+
+
+def register_reads(frames):
+    """The register reads among FRAMES: (sub-index, register) of each download of an address to
+    0x4501 with the access bit clear."""
+    return [(d[3], d[6]) for i, d in frames
+            if 0x600 < i < 0x680 and len(d) == 8 and d[0] == 0x23 and d[1:3] == b"\x01\x45" and not d[7] & 0x80]
 
 
 def parse_frames(lines):
@@ -268,25 +277,31 @@ def main():
                 td = tg.time(["-t", "1", "dump"], n)
                 tr = tg.time(["-t", "1", "read", "R8"], n)
                 md, mr = statistics.median(td), statistics.median(tr)
-                per = (md - mr) / 63
-                floor = us(bits_d - bits_r) / 63 / 1e6
-                frames_per = (len(fd) - len(fr)) / 63
-                bl = [baseline(tg.device) for _ in range(max(1, n // 5))]
-                bl_t = statistics.median(x[0] for x in bl) / 64
-                bl_f = bl[0][1] / 64
+                # the dump reads the registers the catalog defines (R48.. of a KL6001 are shown as not
+                # implemented, not read): count them from its frames
+                rd, rr = register_reads(fd), register_reads(fr)
+                k = len(rd) - len(rr)
+                per = (md - mr) / k
+                floor = us(bits_d - bits_r) / k / 1e6
+                frames_per = (len(fd) - len(fr)) / k
+                regs = sorted({r for sub, r in rd if sub == 1})
+                bl = [baseline(tg.device, regs) for _ in range(max(1, n // 5))]
+                bl_t = statistics.median(x[0] for x in bl) / len(regs)
+                bl_f = bl[0][1] / len(regs)
                 rows.append((kind, len(fd), len(fr), frames_per, us(bits_d), floor, md, mr, per, min(td), max(td),
-                             bl_t, bl_f))
+                             bl_t, bl_f, len(rd), len(rr)))
             finally:
                 tg.close()
     print(f"load average at end: {' '.join('%.2f' % x for x in os.getloadavg())}\n")
     print("| target | frames: dump / read R8 / per register | floor: dump, per register | kscfg dump median "
-          "(min-max) | read R8 | kscfg per register (dump / 64) | / floor | python-can per register (frames) | "
+          "(min-max) | read R8 | kscfg per register (whole dump / registers) | / floor | python-can per register "
+          "(frames) | "
           "kscfg / python-can |")
     print("|---|---|---|---|---|---|---:|---|---:|")
-    for (kind, nd, nr, fpr, fl_d, fl, md, mr, per, lo, hi, bl_t, bl_f) in rows:
-        print(f"| {kind} | {nd} / {nr} / {fpr:.1f} | {fl_d / 1000:.1f} ms, {fl * 1e6:.0f} us | "
+    for (kind, nd, nr, fpr, fl_d, fl, md, mr, per, lo, hi, bl_t, bl_f, kd, kr) in rows:
+        print(f"| {kind} | {nd} ({kd} reg.) / {nr} ({kr} reg.) / {fpr:.1f} | {fl_d / 1000:.1f} ms, {fl * 1e6:.0f} us | "
               f"{md * 1000:.0f} ms ({lo * 1000:.0f}-{hi * 1000:.0f}) | {mr * 1000:.0f} ms | {per * 1e3:.2f} ms "
-              f"({md / 64 * 1e3:.2f} ms) | "
+              f"({md / (kd - kr + 1) * 1e3:.2f} ms) | "
               f"{per / fl:.1f} | {bl_t * 1e3:.2f} ms ({bl_f:.1f}) | {per / bl_t:.2f} |")
 
 
