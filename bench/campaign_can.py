@@ -433,6 +433,7 @@ def canwriters(C, kind, n, seed, work):
     tg = Target(C, kind, work, f"canwriters-{kind}")
     rnd = random.Random(seed)
     codes = {}
+    busy = {False: 0, True: 0}  # exit 11 with both spelled alike / the second spelled otherwise
     for i in range(n):
         same = rnd.random() < 0.5
         if same:
@@ -446,7 +447,8 @@ def canwriters(C, kind, n, seed, work):
         before = tg.begin(t)
         # The same bus and node spelled another way: one lock all the same (issue 37).
         dev = tg.uri[len("slcan:"):].split("?")[0]
-        uris = [tg.uri, f"slcan://{dev}?bitrate=500000&node=1" if rnd.random() < 0.5 else tg.uri]
+        other = rnd.random() < 0.5
+        uris = [tg.uri, f"slcan://{dev}?bitrate=500000&node=1" if other else tg.uri]
         # Half of the second writers do not wait for the coupler (--lock-wait 0): exit 11 if it is taken.
         opts = [("--timeout", "1000"), ("--timeout", "1000") + (("--lock-wait", "0") if rnd.random() < 0.5 else ())]
         res = [None, None]
@@ -464,6 +466,8 @@ def canwriters(C, kind, n, seed, work):
         for k in (0, 1):
             rc, _, err, _ = res[k]
             codes[rc] = codes.get(rc, 0) + 1
+            if rc == 11:
+                busy[other] += 1
             if judge(C, t, rc, err, f"writer {k}", ok=(0,), expected=(11,)) == "ok":
                 okk.append(k)
         tg.stop(t)
@@ -493,7 +497,8 @@ def canwriters(C, kind, n, seed, work):
             t.add("left in register mode")
             t.note("process data touched by two writers")
         tg.relock(unl)
-    t.note("exit statuses of the writers: " + ", ".join(f"{k}: {v}" for k, v in sorted(codes.items(), key=str)))
+    t.note("exit statuses of the writers: " + ", ".join(f"{k}: {v}" for k, v in sorted(codes.items(), key=str))
+           + f"; exit 11 with both ports spelled alike {busy[False]}, spelled otherwise {busy[True]}")
     tg.close(t)
     return t
 
@@ -650,8 +655,8 @@ def candead(C, kind, n, seed, work, timeout_ms=400):
         check(t, tg, before, want, f"apply stopped after {at} requests, then a read", rc)
     times.sort()
     if times:
-        t.note(f"dead bus given up after {times[len(times) // 2]:.2f} s median, {times[-1]:.2f} s max "
-               f"(two timeouts: {2 * timeout_ms / 1000:.2f} s), {len(times)} of {n} stopped; a whole apply "
+        t.note(f"dead bus given up after {times[0] * 1000:.0f}-{times[-1] * 1000:.0f} ms, median "
+               f"{times[len(times) // 2] * 1000:.0f} ms (two timeouts: {2 * timeout_ms} ms), {len(times)} of {n} stopped; a whole apply "
                f"{total} SDO requests")
     t.note("exit statuses: " + ", ".join(f"{k}: {v}" for k, v in sorted(codes.items(), key=str)))
     if kind == "peer":
