@@ -544,7 +544,7 @@ def canint(C, kind, n, seed, work):
         else:
             # the first signal's note ("kscfg: interrupted: rolling back ...") comes before the error
             rest = "".join(l for l in err.splitlines(keepends=True) if not l.startswith("kscfg: interrupted: "))
-            if judge(C, t, rc, rest, f"SIGINT of {op}", ok=(8,)) == "clean":
+            if judge(C, t, rc, rest, f"SIGINT of {op}", ok=(8,), expected=(rc,)) == "clean":
                 t.note(f"SIGINT of {op}: exit {rc}: {err.strip()[-400:]}")
         tg.stop(t)
         check(t, tg, before, want, f"SIGINT of {op}", rc, exact)
