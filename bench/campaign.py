@@ -18,7 +18,9 @@ CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in 
 own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
 an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer);
 issue 32's spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped during
-such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS).
+such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS);
+issue 37's cankill9, canwriters, canint, candead (CANopen over slcan: serve --can and the CANopen
+peer; kill -9, two writers on one node, SIGINT, a coupler that stops answering mid-apply).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
@@ -426,7 +428,8 @@ def campaign_durability(n, seed, work):
 ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign_sessions"),
              **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"),
              **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"),
-             **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings")}
+             **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings"),
+             **dict.fromkeys(("cankill9", "canwriters", "canint", "candead"), "campaign_can")}
 
 
 def main():
