@@ -137,6 +137,18 @@ void SdoClient::drain() {
   while (auto f = bus_.receive(std::chrono::steady_clock::now())) trace("dropped " + format_frame(*f));
 }
 
+void SdoClient::settle_owed() {
+  if (!owed_) return;
+  auto deadline = *owed_;
+  owed_.reset();
+  const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
+  while (auto f = bus_.receive(deadline)) {
+    bool ours = !f->extended && !f->rtr && f->id == reply_id;
+    trace(std::string(ours ? "dropped the late answer " : "dropped ") + format_frame(*f));
+    if (ours) return;
+  }
+}
+
 void SdoClient::send_abort(std::uint16_t index, std::uint8_t sub, std::uint32_t code) noexcept {
   try {
     CanFrame f = sdo::abort_request(opt_.node, index, sub, code);
@@ -153,11 +165,14 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
         Exit::link,
         fmt::format("{} is given up: two SDO requests in a row got no answer (the bus or the node is dead)", where()),
         "check the CAN wiring, the node id (?node=), the bit rate and the coupler's power");
+  settle_owed();
   trace("-> " + format_frame(req));
   bus_.send(req);
   ++exchanges_;
   const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
   auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(opt_.response_timeout_ms);
+  // Owed until the answer is taken or the wait ends: a wait cut short by cancellation leaves it owed.
+  owed_ = deadline;
   for (;;) {
     std::optional<CanFrame> f = bus_.receive(deadline);
     if (!f) break;
@@ -171,8 +186,10 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
     }
     trace("<- " + format_frame(*f));
     silent_ = 0;
+    owed_.reset();
     return *f;
   }
+  owed_.reset();
   ++silent_;
   send_abort(index, sub, 0x05040000);
   throw Error(Exit::link,

@@ -32,6 +32,8 @@ class LoopbackBus : public CanBus {
   const CancelToken* cancel = nullptr;
   std::deque<CanFrame> rx;
   std::vector<CanFrame> sent;
+  // Frames that come in later (a node's late answer): given once their time has come.
+  std::vector<std::pair<std::chrono::steady_clock::time_point, CanFrame>> later;
 
   std::string describe() const override { return "loopback"; }
   void send(const CanFrame& f) override {
@@ -42,6 +44,13 @@ class LoopbackBus : public CanBus {
   std::optional<CanFrame> receive(std::chrono::steady_clock::time_point deadline) override {
     for (;;) {
       if (cancel && cancel->cancelled()) throw Error(Exit::interrupted, "interrupted");
+      for (auto it = later.begin(); it != later.end();)
+        if (it->first <= std::chrono::steady_clock::now()) {
+          rx.push_back(it->second);
+          it = later.erase(it);
+        } else {
+          ++it;
+        }
       if (!rx.empty()) {
         CanFrame f = rx.front();
         rx.pop_front();

@@ -1,6 +1,7 @@
 // The SDO client and the 0x4500/0x4501 register words (link/sdo.hpp, link/can_registers.hpp)
 // against a CANopen coupler in this process (fake_canopen.hpp).
 #include <catch2/catch.hpp>
+#include <csignal>
 
 #include "fake_canopen.hpp"
 #include "kscfg/catalog/catalog.hpp"
@@ -11,6 +12,8 @@
 using namespace kscfg;
 using kscfg::test::FakeCanopenCoupler;
 using kscfg::test::LoopbackBus;
+
+using namespace std::chrono_literals;
 
 namespace {
 
@@ -254,4 +257,33 @@ TEST_CASE("0x4501 sub-indices count the terminals the coupler sees, not passive 
   CHECK(canreg::terminal_number(L, 4) == 3);
   CHECK(canreg::terminal_number(L, 5) == 4);
   CHECK_THROWS_AS(canreg::terminal_number(L, 6), Error);
+}
+
+TEST_CASE("SDO client: the answer owed to a request cut short by Ctrl-C is not taken for the next one's",
+          "[link][sdo]") {
+  // Found by the SIGINT campaign (bench/campaign_can.py canint): the write's answer came after the
+  // rollback's first request went out and was taken for its answer; every retry stayed one behind.
+  Rig r;
+  CancelToken cancel;
+  r.bus.cancel = &cancel;
+  auto coupler = r.bus.peer;
+  bool first = true;
+  r.bus.peer = [&](const CanFrame& f) -> std::vector<CanFrame> {
+    auto answers = coupler(f);
+    if (first) {
+      // The node works on the write; Ctrl-C comes before its answer, which comes 40 ms later.
+      first = false;
+      cancel.signal(SIGINT);
+      for (const auto& a : answers) r.bus.later.push_back({std::chrono::steady_clock::now() + 40ms, a});
+      return {};
+    }
+    return answers;
+  };
+  Error e = caught([&] { r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({true, 0, 32, 7})); });
+  CHECK(e.code() == Exit::interrupted);
+  // The rollback, shielded: its read of the same entry gets its own answer, not the write's 0x60.
+  ShieldScope shield(&cancel);
+  r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({false, 0, 32, 0}));
+  CHECK(canreg::decode(r.client.upload_u32(canreg::kTerminalObject, 2)).reg == 32);
+  CHECK(r.traced_with("dropped the late answer 583#60"));
 }

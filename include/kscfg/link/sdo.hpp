@@ -96,8 +96,13 @@ class SdoClient {
   void check_answer(const CanFrame& f, std::uint16_t index, std::uint8_t sub, const char* what);
   [[noreturn]] void protocol_error(const CanFrame& f, std::uint16_t index, std::uint8_t sub, const char* what,
                                    const std::string& why, std::uint32_t abort_code);
+  // Before a request goes out: the answer still owed to one whose wait was cut short (Ctrl-C while the
+  // node worked on it) is waited for until that request's deadline and dropped, so that it is not
+  // taken for the answer to the next one (SDO answers carry no transaction number).
+  void settle_owed();
   CanBus& bus_;
   SdoOptions opt_;
+  std::optional<std::chrono::steady_clock::time_point> owed_;  // the deadline of an answer still owed
   std::size_t exchanges_ = 0;
   unsigned silent_ = 0;
 };
