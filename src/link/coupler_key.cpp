@@ -216,6 +216,10 @@ std::string coupler_key(const CanTarget& t) {
   return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
 }
 
+std::string lock_key(const CanTarget& t) {
+  return t.scheme == "slcan" ? "slcan-" + device_key(t.device) : coupler_key(t);
+}
+
 std::string listener_key(const ModbusTarget& t) {
   return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : coupler_key(t);
 }
