@@ -87,3 +87,48 @@ TEST_CASE("slcan: a kscfg on another node of a busy adapter waits its turn, nami
   CHECK(c.wait(20) == 3);
   CHECK(c.err().find("did not answer 'C'") != std::string::npos);
 }
+
+TEST_CASE("port URIs: a query key given twice is refused, not the last one taken", "[can][uri]") {
+  // Before: 'slcan:/dev/x?node=3&node=4' reached node 4, 'tcp://h?unit=1&unit=2' unit 2.
+  for (const std::string uri :
+       {"slcan:/dev/x?node=3&node=4", "slcan:/dev/x?bitrate=125000&node=3&bitrate=500000",
+        "socketcan:can0?node=3&node=3", "tcp://127.0.0.1?unit=1&unit=2", "rtu:/dev/x?baud=9600&baud=19200",
+        "ads://127.0.0.1?netid=1.2.3.4.1.1&netid=1.2.3.4.1.1"}) {
+    INFO(uri);
+    try {
+      parse_port_uri(uri);
+      FAIL("accepted");
+    } catch (const Error& e) {
+      CHECK(e.code() == Exit::usage);
+      CHECK_THAT(e.what(), Catch::Contains("is given twice"));
+    }
+  }
+  Run r = run_kscfg({"--port", "slcan:/dev/x?node=3&node=4", "info"});
+  CHECK(r.rc == 2);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("'node' is given twice"));
+}
+
+TEST_CASE("port URIs: a 100 kB URI, key, value or device is quoted cut to a readable line", "[can][uri]") {
+  // Before: each error echoed the whole URI (100 kB lines, twice: 200 kB), and a long slcan or rtu
+  // device was 'cannot open the lock file ...' (exit 7) naming the lock file at full length.
+  const std::string big(100000, 'a');
+  const std::vector<std::pair<std::string, int>> uris{{"slcan:/dev/x?node=" + big, 2},
+                                                      {"slcan:/dev/x?" + big + "=1", 2},
+                                                      {"slcan:/dev/x?bitrate=" + big, 2},
+                                                      {"socketcan://" + big, 2},
+                                                      {"socketcan://can0?" + big + "=1", 2},
+                                                      {"tcp://h?" + big + "=1", 2},
+                                                      {"rtu:/dev/x?parity=" + big, 2},
+                                                      {"slcan:/dev/x?node=1&" + big, 2},
+                                                      {"slcan:/dev/" + big, 2},
+                                                      {"slcan:/dev/" + big.substr(0, 3000), 3},
+                                                      {"rtu:/dev/" + big.substr(0, 3000), 3}};
+  for (const auto& [uri, rc] : uris) {
+    Run r = run_kscfg({"--port", uri, "info"});
+    INFO(uri.substr(0, 40) << " " << r.err.substr(0, 300));
+    CHECK(r.rc == rc);
+    CHECK(one_line_error(r));
+    CHECK(r.err.size() < 400);
+  }
+}
