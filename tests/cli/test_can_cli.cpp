@@ -109,10 +109,10 @@ TEST_CASE("port URIs: a query key given twice is refused, not the last one taken
   CHECK_THAT(r.err, Catch::Contains("'node' is given twice"));
 }
 
-TEST_CASE("port URIs: a 100 kB URI, key, value or device is quoted cut to a readable line", "[can][uri]") {
-  // Before: each error echoed the whole URI (100 kB lines, twice: 200 kB), and a long slcan or rtu
+TEST_CASE("port URIs: a long URI, key, value or device is quoted cut to a readable line", "[can][uri]") {
+  // Before: each error echoed the whole URI (a 100 kB URI: 200 kB lines), and a long slcan or rtu
   // device was 'cannot open the lock file ...' (exit 7) naming the lock file at full length.
-  const std::string big(100000, 'a');
+  const std::string big(3000, 'a');  // within the 4096 bytes of a URI, past a readable line
   const std::vector<std::pair<std::string, int>> uris{{"slcan:/dev/x?node=" + big, 2},
                                                       {"slcan:/dev/x?" + big + "=1", 2},
                                                       {"slcan:/dev/x?bitrate=" + big, 2},
@@ -121,14 +121,40 @@ TEST_CASE("port URIs: a 100 kB URI, key, value or device is quoted cut to a read
                                                       {"tcp://h?" + big + "=1", 2},
                                                       {"rtu:/dev/x?parity=" + big, 2},
                                                       {"slcan:/dev/x?node=1&" + big, 2},
-                                                      {"slcan:/dev/" + big, 2},
-                                                      {"slcan:/dev/" + big.substr(0, 3000), 3},
-                                                      {"rtu:/dev/" + big.substr(0, 3000), 3}};
+                                                      {"slcan:/dev/x?node=3&" + std::string(100000, 'a'), 2},
+                                                      {"slcan:/dev/" + big, 3},
+                                                      {"rtu:/dev/" + big, 3}};
   for (const auto& [uri, rc] : uris) {
     Run r = run_kscfg({"--port", uri, "info"});
     INFO(uri.substr(0, 40) << " " << r.err.substr(0, 300));
     CHECK(r.rc == rc);
     CHECK(one_line_error(r));
     CHECK(r.err.size() < 400);
+  }
+}
+
+TEST_CASE("serve --can: its URI parsed as -p parses it, the node id given once", "[can][uri][serve]") {
+  // Before: serve had a parser of its own: '?node=3&node=4' served node 4, '?node=3' with '--node 5'
+  // node 5, a 16-character interface name was tried, and '--node 128' said '(0..127)'.
+  TempDir d;
+  SilentPty pty;
+  const std::string a = "slcan:" + pty.name;
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases{
+      {{"--can", a + "?node=3&node=4"}, "'node' is given twice"},
+      {{"--can", a + "?node=3", "--node", "5"}, "names node 3 and --node 5"},
+      {{"--can", a, "--node", "128"}, "invalid --node '128': a CANopen node id is 1..127"},
+      {{"--can", "socketcan://can0123456789abcd"}, "is not a network interface name"},
+      {{"--can", a + "?bitrate=500000&bitrate=125000"}, "'bitrate' is given twice"},
+      {{"--can", a + "?" + std::string(3000, 'k') + "=1"}, "unknown option 'kkkk"}};
+  for (const auto& [args, what] : cases) {
+    std::vector<std::string> argv = {"--port", "emu:" + d.file("e.json"), "serve"};
+    argv.insert(argv.end(), args.begin(), args.end());
+    Run r = run_kscfg(argv, {}, 10);
+    INFO(args[1].substr(0, 60) << " " << r.err.substr(0, 300));
+    CHECK(r.rc == 2);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains(what));
+    CHECK(r.err.size() < 400);
+    CHECK(r.out.empty());
   }
 }
