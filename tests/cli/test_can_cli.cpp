@@ -158,3 +158,21 @@ TEST_CASE("serve --can: its URI parsed as -p parses it, the node id given once",
     CHECK(r.out.empty());
   }
 }
+
+TEST_CASE("serve --can: a kscfg on its state file is told to use the other end of its line, not its own",
+          "[can][serve][lock]") {
+  // Before: '(reach the same station through it with -p slcan:/dev/pts/N?node=3, ...)', the serve's own
+  // end, which -p is refused ('serial port /dev/pts/N is in use by another program').
+  TempDir d;
+  SilentPty pty;
+  const std::string state = d.file("station.json");
+  Server srv(state, {"--can", "slcan:" + pty.name, "--node", "3"}, d.file("serve.err"));
+  REQUIRE(srv.uri == "slcan:" + pty.name + "?node=3");
+  Run r = run_kscfg({"--port", "emu:" + state, "read", "R8"}, {}, 10);
+  INFO(r.err);
+  CHECK(r.rc == 11);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("through the other end of the serial line it plays an slcan adapter on (" +
+                                    srv.uri + ")"));
+  CHECK_THAT(r.err, !Catch::Contains("-p " + srv.uri));
+}
