@@ -84,6 +84,12 @@ CouplerSettings ads_settings(AdsClient& c, unsigned timeout_ms) {
 CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms) {
   if (auto* m = link.modbus_registers()) return modbus_settings(*m);
   if (auto* a = link.ads_connection()) return ads_settings(*a, timeout_ms);
+  if (link.sdo_connection())
+    throw Error(Exit::usage,
+                fmt::format("'kscfg coupler' reads the documented settings of a Modbus or ADS coupler; "
+                            "'{}' is a CANopen coupler, whose settings kscfg does not describe",
+                            link.describe()),
+                "its terminals' registers are in reach: kscfg info, dump, show");
   throw Error(
       Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator", link.describe()),
       "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");

@@ -9,7 +9,9 @@
 #include <optional>
 #include <string>
 
+#include "../link/fake_canopen.hpp"
 #include "kscfg/base/owner_lock.hpp"
+#include "kscfg/discovery/coupler_settings.hpp"
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/coupler_key.hpp"
@@ -175,4 +177,18 @@ TEST_CASE("serve --can: a kscfg on its state file is told to use the other end o
   CHECK_THAT(r.err, Catch::Contains("through the other end of the serial line it plays an slcan adapter on (" +
                                     srv.uri + ")"));
   CHECK_THAT(r.err, !Catch::Contains("-p " + srv.uri));
+}
+
+TEST_CASE("kscfg coupler over CANopen: refused naming a CANopen coupler, not 'the emulator'", "[can][coupler]") {
+  // Before: "'kscfg coupler' reads a coupler's settings; 'slcan:/dev/pts/7?node=3' is the emulator".
+  CanTarget t = can("slcan:/dev/loopback?node=2");
+  CanLink link(t, std::make_unique<test::LoopbackBus>(), SdoOptions{2, 200, {}});
+  try {
+    read_coupler_settings(link, 200);
+    FAIL("read");
+  } catch (const Error& e) {
+    CHECK(e.code() == Exit::usage);
+    CHECK_THAT(e.what(), Catch::Contains("'slcan:/dev/loopback?node=2' is a CANopen coupler"));
+    CHECK_THAT(e.what(), !Catch::Contains("emulator"));
+  }
 }
