@@ -34,7 +34,7 @@ std::optional<bool> on_off(const std::string& v, const char* what) {
 class Scan : public Command {
  public:
   std::string name() const override { return "scan"; }
-  std::string brief() const override { return "Discover the station behind a Modbus or ADS coupler"; }
+  std::string brief() const override { return "Discover the station behind a Modbus, ADS or CANopen coupler"; }
   std::string man() const override {
     return "Reads a Modbus coupler's identification (0x1000..0x1006; two characters per register or one, "
            "either byte order), its image lengths in bits (0x1010..0x1013) and its watchdog settings (0x1120 "
@@ -67,7 +67,12 @@ class Scan : public Command {
            "every channel, all in one batch of requests in flight together, and the image lengths are those of "
            "the layout; the watchdog is the ADS watchdog (table 100 register 14). A coupler that does not serve "
            "table 9 is walked by terminal number (R8 of 1, 2, ... until ADS error 0x702); its terminals "
-           "without registers are then counted, not listed. No byte of the process image is touched.";
+           "without registers are then counted, not listed. Over \\fBslcan:\\fR and \\fBsocketcan:\\fR (a CANopen "
+           "coupler) the identification is the node's 0x1000, 0x1018 (its product code first), 0x1008, 0x1009 and "
+           "0x100A, the terminals are its table 9 read through 0x4500 sub 0 (as over ADS), the registers that "
+           "decide each image are read through 0x4501, one request at a time (the coupler has one SDO server), "
+           "and the image is laid out by the coupler family's rules; the watchdog is the bus master's and is not "
+           "read. No byte of the process image is touched.";
   }
   std::vector<std::string> examples() const override {
     return {"--port tcp://192.168.1.10 scan", "--port tcp://127.0.0.1:5020 scan --write station.toml",

@@ -317,8 +317,17 @@ class Serve : public Command {
   CanServeOptions can_options(Context& ctx) const {
     CanServeOptions co = can_serve_options(can_);
     if (!node_.empty()) {
-      co.node = static_cast<unsigned>(parse_uint(node_, 127, "node id"));
-      if (co.node == 0) throw Error(Exit::usage, "invalid --node 0: a CANopen node id is 1..127");
+      unsigned n = 0;
+      try {
+        n = static_cast<unsigned>(parse_uint(node_, 127, "node id"));
+      } catch (const Error&) {}
+      if (n == 0)
+        throw Error(Exit::usage, fmt::format("invalid --node {}: a CANopen node id is 1..127", quote_input(node_, 20)));
+      // Given twice, in --can's ?node= and --node: one of them would be dropped without a word.
+      if (parse_port_uri(can_).query.count("node") && n != co.node)
+        throw Error(Exit::usage, fmt::format("--can {} names node {} and --node {}: give the node id once",
+                                             quote_input(can_), co.node, n));
+      co.node = n;
     }
     if (!can_register_ms_.empty())
       co.register_ms = static_cast<unsigned>(parse_uint(can_register_ms_, 60000, "register access time"));

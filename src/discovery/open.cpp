@@ -132,7 +132,7 @@ std::string coupler_lock_path(const AdsTarget& t) {
 }
 
 std::string coupler_lock_path(const CanTarget& t) {
-  return (std::filesystem::path(lock_dir()) / (coupler_key(t) + ".lock")).string();
+  return (std::filesystem::path(lock_dir()) / (lock_key(t) + ".lock")).string();
 }
 
 namespace {
@@ -141,9 +141,13 @@ namespace {
 // register communication over SDO (objects 0x4500/0x4501), the station from its table 9 (design 13).
 OpenedPort open_can_port(const PortUri& p, const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   CanTarget target = can_target(p, uri);
-  // One kscfg at a time on a node of this computer's CAN interface: before the bus is opened.
-  OwnerLock lock = OwnerLock::acquire(coupler_lock_path(target),
-                                      fmt::format("the CANopen coupler at {}", target.where()), opt.lock_wait);
+  // One kscfg at a time on a node of this computer's CAN interface, and on an slcan adapter (its tty
+  // is one program's): before the bus is opened.
+  OwnerLock lock = OwnerLock::acquire(
+      coupler_lock_path(target),
+      p.scheme == "slcan" ? fmt::format("the slcan adapter {} (node {} behind it)", target.device, target.node)
+                          : fmt::format("the CANopen coupler at {}", target.where()),
+      opt.lock_wait);
   // Each SDO frame's answer may take the whole --timeout; two unanswered in a row give the bus up.
   const unsigned frame_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
   std::unique_ptr<CanBus> bus = p.scheme == "slcan" ? open_slcan(target.device, target.bitrate, frame_ms, opt.cancel)

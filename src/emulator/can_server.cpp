@@ -16,7 +16,9 @@
 #include "kscfg/base/parse.hpp"
 #include "kscfg/emulator/canopen_requests.hpp"
 #include "kscfg/emulator/slcan_adapter.hpp"
+#include "kscfg/link/can_link.hpp"       // can_target
 #include "kscfg/link/modbus_client.hpp"  // open_serial
+#include "kscfg/link/port_uri.hpp"
 #include "kscfg/link/slcan.hpp"
 #include "stream_server.hpp"
 
@@ -38,39 +40,15 @@ CanServeOptions can_serve_options(const std::string& uri) {
   auto colon = uri.find(':');
   o.scheme = colon == std::string::npos ? "" : uri.substr(0, colon);
   if (o.scheme != "slcan" && o.scheme != "socketcan")
-    throw Error(Exit::usage, fmt::format("invalid --can '{}': give slcan:PATH or socketcan:IFACE", uri),
+    throw Error(Exit::usage, fmt::format("invalid --can {}: give slcan:PATH or socketcan:IFACE", quote_input(uri)),
                 "e.g. --can slcan:/dev/pts/7 (one end of a pseudo-terminal pair) or --can socketcan:vcan0");
-  std::string rest = uri.substr(colon + 1);
-  if (rest.rfind("//", 0) == 0) rest = rest.substr(2);
-  std::string query;
-  if (auto q = rest.find('?'); q != std::string::npos) {
-    query = rest.substr(q + 1);
-    rest = rest.substr(0, q);
-  }
-  if (rest.empty())
-    throw Error(Exit::usage,
-                fmt::format("invalid --can '{}': no {}", uri, o.scheme == "slcan" ? "serial line" : "interface"));
-  o.device = rest;
-  std::size_t at = 0;
-  while (!query.empty() && at <= query.size()) {
-    std::size_t end = std::min(query.find('&', at), query.size());
-    std::string kv = query.substr(at, end - at), k = kv.substr(0, kv.find('=')),
-                v = kv.find('=') == std::string::npos ? "" : kv.substr(kv.find('=') + 1);
-    if (k == "node") {
-      o.node = static_cast<unsigned>(parse_uint(v, 127, "node id"));
-      if (o.node == 0) throw Error(Exit::usage, "invalid node id 0: give 1..127");
-    } else if (k == "bitrate" && o.scheme == "slcan") {
-      o.bitrate = static_cast<unsigned>(parse_uint(v, 1000000, "bit rate"));
-      if (!slcan::bitrate_code(o.bitrate))
-        throw Error(Exit::usage, fmt::format("invalid bit rate {}: slcan has codes for 10000, 20000, 50000, 100000, "
-                                             "125000, 250000, 500000, 800000 and 1000000",
-                                             v));
-    } else {
-      throw Error(Exit::usage, fmt::format("invalid --can '{}': unknown setting '{}'", uri, k),
-                  o.scheme == "slcan" ? "slcan takes ?bitrate=N&node=N" : "socketcan takes ?node=N");
-    }
-    at = end + 1;
-  }
+  // The client's parser (link/port_uri.hpp, link/can_link.hpp can_target()), so that serve takes
+  // what -p takes: a key given twice, an interface name the kernel cannot have, a long URI refused
+  // as there.
+  CanTarget t = can_target(parse_port_uri(uri), uri);
+  o.device = t.device;
+  o.node = t.node;
+  o.bitrate = t.bitrate;
   return o;
 }
 

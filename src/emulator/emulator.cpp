@@ -332,13 +332,21 @@ OwnerLock lock_state_file(const std::string& path, const LockWait& wait) {
       sane = sane && !u.empty() && u.size() < 300 &&
              std::all_of(u.begin(), u.end(), [](char c) { return c > ' ' && c < 0x7F; });
     std::string uri = sane ? fmt::format("{}", fmt::join(uris, " and ")) : "";
-    std::string dash_p = sane ? fmt::format("-p {}", fmt::join(uris, " or -p ")) : "";
+    // An slcan URI names the serve's own end of a serial line (a pseudo-terminal pair's): a client
+    // opens the other end, which the serve does not know; -p with the serve's end is refused "in use".
+    std::vector<std::string> reach, lines_served;
+    for (const auto& u : uris) (u.rfind("slcan:", 0) == 0 ? lines_served : reach).push_back(u);
+    std::vector<std::string> ways;
+    if (!reach.empty()) ways.push_back(fmt::format("through it with -p {}", fmt::join(reach, " or -p ")));
+    if (!lines_served.empty())
+      ways.push_back(fmt::format("through the other end of the serial line it plays an slcan adapter on ({})",
+                                 fmt::join(lines_served, ", ")));
     auto holder = sane ? OwnerLock::holder(lock_path) : std::nullopt;
     if (holder && std::to_string(holder->pid) == pid)
       throw Error(Exit::busy,
                   fmt::format("the emulator state file {} is held by kscfg serve (process {}), which serves it at {}",
                               path, pid, uri),
-                  fmt::format("reach the same station through it with {}, or stop the serve", dash_p));
+                  fmt::format("reach the same station {}, or stop the serve", fmt::join(ways, ", or ")));
   }
   OwnerLock lock = OwnerLock::acquire(lock_path, fmt::format("the emulator state file {}", path), wait);
   // A record left by a serve that was killed (-9): nobody serves the file now.

@@ -17,6 +17,7 @@
 #include <map>
 
 #include "kscfg/base/cancel.hpp"
+#include "kscfg/base/parse.hpp"
 
 namespace kscfg {
 
@@ -52,8 +53,8 @@ AdsTarget ads_target(const PortUri& p, const std::string& uri) {
     auto id = ams::parse_netid(it->second);
     if (!id)
       throw Error(Exit::usage,
-                  fmt::format("invalid port '{}': {} '{}' is not an AMS NetId (six numbers 0..255: A.B.C.D.E.F)", uri,
-                              key, it->second),
+                  fmt::format("invalid port {}: {} {} is not an AMS NetId (six numbers 0..255: A.B.C.D.E.F)",
+                              quote_input(uri), key, quote_input(it->second)),
                   "a coupler's NetId is its IP address plus .1.1, e.g. 10.0.3.11.1.1");
     (std::string(key) == "netid" ? t.netid : t.source) = *id;
   }

@@ -28,8 +28,8 @@ CanTarget can_target(const PortUri& p, const std::string& uri) {
         n = 0;
       }
       if (n < 1)
-        throw Error(Exit::usage, fmt::format("invalid port '{}': node id {} (a CANopen node id is 1..127)", uri,
-                                             quote_input(v, 20)));
+        throw Error(Exit::usage, fmt::format("invalid port {}: node id {} (a CANopen node id is 1..127)",
+                                             quote_input(uri), quote_input(v, 20)));
       t.node = static_cast<unsigned>(n);
     } else if (k == "bitrate" && p.scheme == "slcan") {
       std::uint64_t b = 0;
@@ -40,13 +40,13 @@ CanTarget can_target(const PortUri& p, const std::string& uri) {
       }
       if (!slcan::bitrate_code(static_cast<unsigned>(b)))
         throw Error(Exit::usage,
-                    fmt::format("invalid port '{}': bit rate {} (slcan: 10000, 20000, 50000, 100000, 125000, "
+                    fmt::format("invalid port {}: bit rate {} (slcan: 10000, 20000, 50000, 100000, 125000, "
                                 "250000, 500000, 800000 or 1000000)",
-                                uri, quote_input(v, 20)));
+                                quote_input(uri), quote_input(v, 20)));
       t.bitrate = static_cast<unsigned>(b);
     } else {
-      throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' ({})", uri, quote_input(k, 20),
-                                           p.scheme == "slcan" ? "bitrate, node" : "node"));
+      throw Error(Exit::usage, fmt::format("invalid port {}: unknown option {} ({})", quote_input(uri),
+                                           quote_input(k, 20), p.scheme == "slcan" ? "bitrate, node" : "node"));
     }
   }
   return t;

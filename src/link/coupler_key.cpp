@@ -188,7 +188,14 @@ std::string device_key(const std::string& device) {
   std::filesystem::path real = std::filesystem::canonical(device, ec);
   if (ec) real = std::filesystem::weakly_canonical(std::filesystem::absolute(device, ec), ec);
   if (ec) real = device;
-  return safe(real.string());
+  // A lock file's name has at most 255 bytes (NAME_MAX): a longer key (a device path no adapter has;
+  // its open says what is wrong) is cut, with the FNV-1a hash of the whole so that two stay two.
+  std::string key = safe(real.string());
+  constexpr std::size_t kMaxKey = 180;
+  if (key.size() <= kMaxKey) return key;
+  std::uint64_t h = 0xcbf29ce484222325ULL;
+  for (unsigned char c : real.string()) h = (h ^ c) * 0x100000001b3ULL;
+  return fmt::format("{}-{:016x}", key.substr(0, kMaxKey - 17), h);
 }
 
 }  // namespace
@@ -214,6 +221,10 @@ std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams:
 
 std::string coupler_key(const CanTarget& t) {
   return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
+}
+
+std::string lock_key(const CanTarget& t) {
+  return t.scheme == "slcan" ? "slcan-" + device_key(t.device) : coupler_key(t);
 }
 
 std::string listener_key(const ModbusTarget& t) {

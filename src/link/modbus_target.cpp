@@ -122,27 +122,31 @@ ModbusTarget modbus_target(const PortUri& p, const std::string& uri) {
     t.device = p.target;
     if (auto* v = get("baud")) {
       t.baud = static_cast<unsigned>(parse_uint(*v, 4000000, "baud rate"));
-      if (t.baud == 0) throw Error(Exit::usage, fmt::format("invalid port '{}': baud rate 0", uri));
+      if (t.baud == 0) throw Error(Exit::usage, fmt::format("invalid port {}: baud rate 0", quote_input(uri)));
     }
     if (auto* v = get("parity")) {
       if (*v == "N" || *v == "n" || *v == "none") t.parity = 'N';
       else if (*v == "E" || *v == "e" || *v == "even") t.parity = 'E';
       else if (*v == "O" || *v == "o" || *v == "odd") t.parity = 'O';
-      else throw Error(Exit::usage, fmt::format("invalid port '{}': parity '{}' (N, E or O)", uri, *v));
+      else
+        throw Error(Exit::usage,
+                    fmt::format("invalid port {}: parity {} (N, E or O)", quote_input(uri), quote_input(*v)));
     }
     if (auto* v = get("data")) {
       t.data_bits = static_cast<unsigned>(parse_uint(*v, 8, "data bits"));
-      if (t.data_bits < 5) throw Error(Exit::usage, fmt::format("invalid port '{}': data bits {} (5..8)", uri, *v));
+      if (t.data_bits < 5)
+        throw Error(Exit::usage, fmt::format("invalid port {}: data bits {} (5..8)", quote_input(uri), *v));
     }
     if (auto* v = get("stop")) {
       t.stop_bits = static_cast<unsigned>(parse_uint(*v, 2, "stop bits"));
-      if (t.stop_bits < 1) throw Error(Exit::usage, fmt::format("invalid port '{}': stop bits {} (1 or 2)", uri, *v));
+      if (t.stop_bits < 1)
+        throw Error(Exit::usage, fmt::format("invalid port {}: stop bits {} (1 or 2)", quote_input(uri), *v));
     }
   }
   if (auto* v = get("unit")) {
     t.unit = static_cast<int>(parse_uint(*v, 255, "unit id"));
     if (!t.tcp && (t.unit < 1 || t.unit > 247))
-      throw Error(Exit::usage, fmt::format("invalid port '{}': RTU unit id {} (1..247)", uri, t.unit));
+      throw Error(Exit::usage, fmt::format("invalid port {}: RTU unit id {} (1..247)", quote_input(uri), t.unit));
   }
   return t;
 }
@@ -180,32 +184,34 @@ bool is_pty(const std::string& device) { return device.rfind("/dev/pts/", 0) == 
 
 int open_serial(const std::string& device, unsigned baud, char parity, unsigned data_bits, unsigned stop_bits) {
   speed_t speed = speed_of(baud);
+  // The device as messages name it: a path too long to be one (up to the 4096 bytes of a port URI) cut.
+  const std::string name = device.size() > kQuoteMax ? quote_input(device) : device;
   int fd = ::open(device.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) {
     int e = errno;
     if (e == ENOENT || e == ENODEV || e == ENXIO)
-      throw Error(Exit::link, fmt::format("serial port {} does not exist", device),
+      throw Error(Exit::link, fmt::format("serial port {} does not exist", name),
                   "'kscfg ports' lists the serial ports of this machine");
     if (e == EACCES || e == EPERM)
-      throw Error(Exit::link, fmt::format("permission denied opening {}", device),
+      throw Error(Exit::link, fmt::format("permission denied opening {}", name),
                   "add yourself to the dialout group: sudo usermod -aG dialout $USER, then log in again");
     if (e == EBUSY)
-      throw Error(Exit::link, fmt::format("serial port {} is busy", device), "another program holds it open");
-    throw Error(Exit::link, fmt::format("cannot open {}: {}", device, std::strerror(e)));
+      throw Error(Exit::link, fmt::format("serial port {} is busy", name), "another program holds it open");
+    throw Error(Exit::link, fmt::format("cannot open {}: {}", name, std::strerror(e)));
   }
   auto fail = [&](Error err) -> Error {
     ::close(fd);
     return err;
   };
   if (!isatty(fd))
-    throw fail(Error(Exit::link, fmt::format("{} is not a serial port (not a tty)", device),
+    throw fail(Error(Exit::link, fmt::format("{} is not a serial port (not a tty)", name),
                      "give a serial device such as /dev/ttyUSB0; 'kscfg ports' lists them"));
   if (flock(fd, LOCK_EX | LOCK_NB) != 0)
-    throw fail(Error(Exit::link, fmt::format("serial port {} is in use by another program", device),
+    throw fail(Error(Exit::link, fmt::format("serial port {} is in use by another program", name),
                      "close the other program (kscfg serve, a terminal program, ModemManager)"));
   termios t{};
   if (tcgetattr(fd, &t) != 0)
-    throw fail(Error(Exit::link, fmt::format("{}: cannot read the line settings: {}", device, std::strerror(errno))));
+    throw fail(Error(Exit::link, fmt::format("{}: cannot read the line settings: {}", name, std::strerror(errno))));
   // Raw 8N1 at the speed first, then each setting on its own, so a refusal names the setting.
   cfmakeraw(&t);
   t.c_cflag |= CLOCAL | CREAD;
@@ -221,7 +227,7 @@ int open_serial(const std::string& device, unsigned baud, char parity, unsigned 
         cfgetospeed(&back) != cfgetospeed(&t)) {
       int e = errno;
       throw fail(Error(Exit::link,
-                       fmt::format("{} refuses {}{}", device, setting,
+                       fmt::format("{} refuses {}{}", name, setting,
                                    e ? fmt::format(" (tcsetattr: {})", std::strerror(e)) : std::string()),
                        hint));
     }

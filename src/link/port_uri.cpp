@@ -19,8 +19,11 @@ std::map<std::string, std::string> parse_query(const std::string& uri, const std
     std::string kv = q.substr(pos, amp == std::string::npos ? std::string::npos : amp - pos);
     auto eq = kv.find('=');
     if (kv.empty() || eq == std::string::npos || eq == 0 || eq + 1 == kv.size())
-      throw Error(Exit::usage, fmt::format("invalid port '{}': query items are key=value", uri));
-    out[kv.substr(0, eq)] = kv.substr(eq + 1);
+      throw Error(Exit::usage, fmt::format("invalid port {}: query items are key=value", quote_input(uri)));
+    // A key given twice is refused, not the last one taken: "?node=3&node=4" would reach node 4.
+    if (!out.emplace(kv.substr(0, eq), kv.substr(eq + 1)).second)
+      throw Error(Exit::usage,
+                  fmt::format("invalid port {}: {} is given twice", quote_input(uri), quote_input(kv.substr(0, eq))));
     if (amp == std::string::npos) break;
     pos = amp + 1;
   }
@@ -30,6 +33,11 @@ std::map<std::string, std::string> parse_query(const std::string& uri, const std
 }  // namespace
 
 PortUri parse_port_uri(const std::string& uri) {
+  // No device path, host or interface name is this long (PATH_MAX): refused before any is used as a
+  // file name (the lock file's, the device's), each of which would echo it whole.
+  constexpr std::size_t kMaxUri = 4096;
+  if (uri.size() > kMaxUri)
+    throw Error(Exit::usage, fmt::format("invalid port {}: longer than {} bytes", quote_input(uri), kMaxUri));
   PortUri p;
   std::string rest;
   if (uri == "emu" || uri.rfind("emu:", 0) == 0) {
@@ -54,9 +62,9 @@ PortUri parse_port_uri(const std::string& uri) {
     rest = uri.substr(p.scheme.size() + 1);
     if (rest.rfind("//", 0) == 0) rest.erase(0, 2);
   } else {
-    throw Error(Exit::usage, fmt::format("invalid port '{}': use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT], "
+    throw Error(Exit::usage, fmt::format("invalid port {}: use emu, emu:PATH, tcp://HOST[:PORT], ads://HOST[:PORT], "
                                          "rtu:DEVICE, slcan:DEVICE or socketcan:IFACE",
-                                         uri));
+                                         quote_input(uri)));
   }
   auto qm = rest.find('?');
   if (qm != std::string::npos) {
@@ -68,9 +76,10 @@ PortUri parse_port_uri(const std::string& uri) {
     bool has_port = false;
     if (!rest.empty() && rest.front() == '[') {  // [IPv6]:port
       auto close = rest.find(']');
-      if (close == std::string::npos) throw Error(Exit::usage, fmt::format("invalid port '{}': missing ']'", uri));
+      if (close == std::string::npos)
+        throw Error(Exit::usage, fmt::format("invalid port {}: missing ']'", quote_input(uri)));
       if (close + 1 < rest.size()) {
-        if (rest[close + 1] != ':') throw Error(Exit::usage, fmt::format("invalid port '{}'", uri));
+        if (rest[close + 1] != ':') throw Error(Exit::usage, fmt::format("invalid port {}", quote_input(uri)));
         port_text = rest.substr(close + 2);
         has_port = true;
       }
@@ -82,44 +91,52 @@ PortUri parse_port_uri(const std::string& uri) {
     }
     if (has_port) {
       p.port = static_cast<unsigned>(parse_uint(port_text, 65535, "TCP port"));
-      if (p.port == 0) throw Error(Exit::usage, fmt::format("invalid port '{}': TCP port 0", uri));
+      if (p.port == 0) throw Error(Exit::usage, fmt::format("invalid port {}: TCP port 0", quote_input(uri)));
     }
-    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no host", uri));
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port {}: no host", quote_input(uri)));
     p.target = rest;
     for (const auto& [k, v] : p.query) {
       if (p.scheme == "tcp" && k != "unit")
-        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (unit)", uri, k));
+        throw Error(Exit::usage,
+                    fmt::format("invalid port {}: unknown option {} (unit)", quote_input(uri), quote_input(k)));
       if (p.scheme == "ads" && k != "netid" && k != "source")
-        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (netid, source)", uri, k));
+        throw Error(Exit::usage, fmt::format("invalid port {}: unknown option {} (netid, source)", quote_input(uri),
+                                             quote_input(k)));
     }
   } else if (p.scheme == "slcan") {
-    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port {}: no device", quote_input(uri)));
     p.target = rest;
     for (const auto& [k, v] : p.query)
       if (k != "bitrate" && k != "node")
-        throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (bitrate, node)", uri, k));
+        throw Error(Exit::usage, fmt::format("invalid port {}: unknown option {} (bitrate, node)", quote_input(uri),
+                                             quote_input(k)));
   } else if (p.scheme == "socketcan") {
     // An interface name as the kernel takes it: 1..15 characters, no '/', ':' or blank.
-    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no interface", uri));
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port {}: no interface", quote_input(uri)));
     if (rest.size() > 15 || rest == "." || rest == ".." ||
         std::any_of(rest.begin(), rest.end(), [](char c) { return c == '/' || c == ':' || c <= ' ' || c > '~'; }))
-      throw Error(Exit::usage, fmt::format("invalid port '{}': '{}' is not a network interface name", uri, rest),
-                  "give the CAN interface as 'ip link' lists it, e.g. socketcan://can0");
+      throw Error(
+          Exit::usage,
+          fmt::format("invalid port {}: {} is not a network interface name", quote_input(uri), quote_input(rest)),
+          "give the CAN interface as 'ip link' lists it, e.g. socketcan://can0");
     p.target = rest;
     for (const auto& [k, v] : p.query) {
       if (k == "bitrate")
+        throw Error(
+            Exit::usage,
+            fmt::format("invalid port {}: a SocketCAN interface has its bit rate set by the system", quote_input(uri)),
+            fmt::format("drop ?bitrate=; set it with 'ip link set {} up type can bitrate 500000'", rest));
+      if (k != "node")
         throw Error(Exit::usage,
-                    fmt::format("invalid port '{}': a SocketCAN interface has its bit rate set by the system", uri),
-                    fmt::format("drop ?bitrate=; set it with 'ip link set {} up type can bitrate 500000'", rest));
-      if (k != "node") throw Error(Exit::usage, fmt::format("invalid port '{}': unknown option '{}' (node)", uri, k));
+                    fmt::format("invalid port {}: unknown option {} (node)", quote_input(uri), quote_input(k)));
     }
   } else {
-    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port '{}': no device", uri));
+    if (rest.empty()) throw Error(Exit::usage, fmt::format("invalid port {}: no device", quote_input(uri)));
     p.target = rest;
     for (const auto& [k, v] : p.query)
       if (k != "unit" && k != "baud" && k != "parity" && k != "data" && k != "stop")
-        throw Error(Exit::usage,
-                    fmt::format("invalid port '{}': unknown option '{}' (baud, parity, data, stop, unit)", uri, k));
+        throw Error(Exit::usage, fmt::format("invalid port {}: unknown option {} (baud, parity, data, stop, unit)",
+                                             quote_input(uri), quote_input(k)));
   }
   return p;
 }

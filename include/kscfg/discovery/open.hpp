@@ -81,8 +81,9 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 // The lock file of a coupler on this computer (lock_dir()), one per coupler identity
 // (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
 // unit) and ADS (port 48898) to one coupler, a serial device and every link to it take one lock,
-// a CANopen node takes one per CAN interface and node id, and two kscfg processes on one coupler
-// take turns (docs/design.md 6.9). Error(Exit::link) when the host does not resolve.
+// a CANopen node takes one per CAN interface and node id (every node behind one slcan adapter takes
+// the adapter's one: lock_key()), and two kscfg processes on one coupler take turns (docs/design.md 6.9).
+// Error(Exit::link) when the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);
 struct CanTarget;  // link/can_link.hpp

@@ -36,7 +36,8 @@ struct CanServeOptions {
 };
 
 // `--can URI`: slcan:PATH or slcan://PATH, socketcan:IFACE or socketcan://IFACE, with
-// ?bitrate=N (slcan) and ?node=N. Error(Exit::usage) for anything else.
+// ?bitrate=N (slcan) and ?node=N, parsed as -p parses it (parse_port_uri(), can_target()).
+// Error(Exit::usage) for anything else.
 CanServeOptions can_serve_options(const std::string& uri);
 
 struct CanServeStats {
