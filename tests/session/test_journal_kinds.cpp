@@ -73,7 +73,9 @@ TEST_CASE("a dead journal's entry of the other kind (ADS unlock, image register 
   CHECK(st.outputs() == before);
   CHECK(files_in(dir) == 1);
   REQUIRE(traced.size() == 1);
-  CHECK_THAT(traced[0], Catch::Contains("terminal 3 channel 1 left unlocked over ADS; kept for a kscfg over ads://"));
+  CHECK_THAT(traced[0],
+             Catch::Contains("terminal 3 channel 1 left unlocked over direct register access; kept for a kscfg "
+                             "over ads://, slcan: or socketcan://"));
 
   // A Modbus kscfg's register mode, found by an ADS run: kept too (the terminal is not asked).
   std::string dir2 = tmp.file("sessions2");
@@ -90,6 +92,6 @@ TEST_CASE("a dead journal's entry of the other kind (ADS unlock, image register 
   CHECK_FALSE(asked);
   CHECK(files_in(dir2) == 1);
   REQUIRE(traced.size() == 1);
-  CHECK_THAT(traced[0], Catch::Contains("terminal 3 channel 1 left in register mode over Modbus; kept for a kscfg "
-                                        "over tcp:// or rtu:"));
+  CHECK_THAT(traced[0], Catch::Contains("terminal 3 channel 1 left in register mode over the process image; kept "
+                                        "for a kscfg over tcp:// or rtu:"));
 }
