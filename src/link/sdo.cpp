@@ -134,7 +134,12 @@ void SdoClient::trace(const std::string& line) const {
 // Frames that came in since the last transfer (a late answer to a request that timed out, a
 // heartbeat) are not answers to the next one: dropped before it goes out.
 void SdoClient::drain() {
-  while (auto f = bus_.receive(std::chrono::steady_clock::now())) trace("dropped " + format_frame(*f));
+  const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
+  while (auto f = bus_.receive(std::chrono::steady_clock::now())) {
+    trace("dropped " + format_frame(*f));
+    // The answer still owed (settle_owed) has come and gone: nothing more to wait for.
+    if (!f->extended && !f->rtr && f->id == reply_id) owed_.reset();
+  }
 }
 
 void SdoClient::settle_owed() {
@@ -167,12 +172,14 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
         "check the CAN wiring, the node id (?node=), the bit rate and the coupler's power");
   settle_owed();
   trace("-> " + format_frame(req));
-  bus_.send(req);
-  ++exchanges_;
   const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
   auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(opt_.response_timeout_ms);
-  // Owed until the answer is taken or the wait ends: a wait cut short by cancellation leaves it owed.
+  // Owed from before the frame goes out until the answer is taken or the wait ends: a send or a wait
+  // cut short by cancellation (the bus looks at the run's token after it wrote the frame) leaves it
+  // owed.
   owed_ = deadline;
+  bus_.send(req);
+  ++exchanges_;
   for (;;) {
     std::optional<CanFrame> f = bus_.receive(deadline);
     if (!f) break;

@@ -287,3 +287,31 @@ TEST_CASE("SDO client: the answer owed to a request cut short by Ctrl-C is not t
   CHECK(canreg::decode(r.client.upload_u32(canreg::kTerminalObject, 2)).reg == 32);
   CHECK(r.traced_with("dropped the late answer 583#60"));
 }
+
+TEST_CASE("SDO client: an owed answer that came before the next request is dropped once, not waited for again",
+          "[link][sdo]") {
+  // Found by the SIGINT campaign: the owed answer was in the queue already, dropped with the frames
+  // that came before the request, and then waited for until its deadline, which ate the rollback's
+  // read of R36 ("did not have the value within 1000 ms").
+  Rig r(1000);
+  CancelToken cancel;
+  r.bus.cancel = &cancel;
+  auto coupler = r.bus.peer;
+  bool first = true;
+  r.bus.peer = [&](const CanFrame& f) -> std::vector<CanFrame> {
+    auto answers = coupler(f);
+    if (first) {
+      first = false;
+      cancel.signal(SIGINT);
+      for (const auto& a : answers) r.bus.later.push_back({std::chrono::steady_clock::now(), a});
+      return {};
+    }
+    return answers;
+  };
+  Error e = caught([&] { r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({true, 0, 32, 7})); });
+  CHECK(e.code() == Exit::interrupted);
+  ShieldScope shield(&cancel);
+  auto t0 = std::chrono::steady_clock::now();
+  r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({false, 0, 32, 0}));
+  CHECK(std::chrono::steady_clock::now() - t0 < 500ms);  // not the owed answer's 1000 ms deadline
+}
