@@ -1,6 +1,7 @@
 #include "kscfg/session/ack_latency.hpp"
 
 #include <algorithm>
+#include <functional>
 
 namespace kscfg {
 
@@ -16,11 +17,8 @@ constexpr microseconds kStep{250};
 
 microseconds cap_of(std::chrono::milliseconds timeout) { return std::chrono::duration_cast<microseconds>(timeout); }
 
-// An answer came after the wait, which now stands at t.wait: the probes stay above it for a while.
-void slow_seen(AckTiming& t) {
-  t.slow = std::max(t.slow, t.wait);
-  t.slow_age = 0;
-}
+// One more answer in the ring of recent ones (`d`: timed from below; 0: found at the first poll).
+void answered(AckTiming& t, microseconds d) { t.recent[t.recent_n++ % kRecent] = d; }
 
 // The wait stands as it is: no longer suspect, the samples begin again.
 void settled(AckTiming& t) {
@@ -36,8 +34,9 @@ void sample(AckTiming& t, const AckPlan& p, microseconds took, bool hit) {
   if (hit) ++t.sample_hits;
   else if (t.fastest.count() <= 0 || took < t.fastest) t.fastest = took;
   t.sample_max = std::max(t.sample_max, took);
-  // The terminal does not beat the wait by much (or a recent answer came after it): confirmed.
-  if (8 * std::max(t.sample_max, t.slow) >= 7 * p.wait) {
+  // The terminal does not beat the wait by much (or its recent answers' spread reaches it): confirmed.
+  const microseconds floor = ack_floor(t);
+  if (8 * std::max(t.sample_max, floor) >= 7 * p.wait) {
     settled(t);
     return;
   }
@@ -47,7 +46,7 @@ void sample(AckTiming& t, const AckPlan& p, microseconds took, bool hit) {
   t.suspect = t.kept = false;
   if (t.sampled < kSampleRun) return;
   const bool hits = t.sample_hits > 0;
-  t.wait = std::min(p.wait, std::max({t.sample_max, t.slow, microseconds(1)}));
+  t.wait = std::min(p.wait, std::max({t.sample_max, floor, microseconds(1)}));
   settled(t);
   // Answers that were there at the probe may have come much earlier: measured again below.
   t.measuring = hits && t.wait < p.wait;
@@ -118,6 +117,8 @@ void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took, 
   ++t.acks;
   if (late) ++t.late;
   const microseconds cap = cap_of(timeout);
+  // Timed from below when a poll before this one missed it; a late poll timed this process.
+  if (!late) answered(t, poll > 1 ? std::min(took, cap) : microseconds(0));
   if (!p.known()) {
     // Learning: time a few acknowledges, then trust the longest; a poll this process sent late
     // timed its own delay, not the terminal's.
@@ -126,7 +127,6 @@ void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took, 
     if (++t.samples >= kLearnSamples) t.wait = std::min(t.longest, cap);
     return;
   }
-  if (t.slow.count() > 0 && ++t.slow_age >= kSlowFor) t.slow = microseconds(0);
   if (poll == 1 && !p.probe) ++t.streak;
   if (p.probe) {
     t.streak = 0;
@@ -148,7 +148,6 @@ void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, microseconds took, 
     // loaded machine must not make every later read slow); suspect until a probe says otherwise.
     t.wait = std::min({took, 2 * p.wait, cap});
     t.suspect = true;
-    slow_seen(t);
   }
 }
 
@@ -162,7 +161,16 @@ void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout) {
   // The terminal quantises its latency by its bus cycle: the edge is near, an eighth more.
   if (t.wait.count() <= 0) return;
   t.wait = std::min(t.wait + t.wait / 8, cap_of(timeout));
-  slow_seen(t);
+  answered(t, t.wait);  // later than the wait was: an answer as slow as the new one
+}
+
+microseconds ack_floor(const AckTiming& t) {
+  std::array<microseconds, kRecent> r = t.recent;
+  std::partial_sort(r.begin(), r.begin() + kOutliers + 1, r.end(), std::greater<>());
+  // The slowest ones count when they are within the spread of the others: half as slow again.
+  unsigned i = 0;
+  while (i < kOutliers && 2 * r[i] > 3 * r[kOutliers]) ++i;
+  return r[i];
 }
 
 bool ack_speculate(const AckTiming& t) { return t.misses < kMaxMisses || kMissShare * t.misses <= t.acks; }

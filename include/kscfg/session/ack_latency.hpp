@@ -16,13 +16,18 @@
 //    nothing is followed by polls at the link's own pace up to the wait, so a probe times the answer
 //    to within a pace whether or not it came before half the wait; on RTU and over ADS the poll after
 //    a probe goes at the wait, as before. A probe that times the answer below the wait is a sample;
-//    once kSampleRun samples are in, the wait goes down to the slowest of them (never below the
-//    slowest recent answer that came after the wait, `slow`, forgotten after kSlowFor
-//    acknowledges). The wait has to cover the slowest answers, not the typical one: where a terminal
-//    answers after one or two bus cycles at random, one fast sample lowered the wait below every
-//    other answer and made every other read-ahead come too early (issue 22). If a sample reaches
-//    seven eighths of the wait, or the answer is there only at the poll at the wait, the wait is
-//    confirmed and kept as it is. If some samples were there already at the probe (the answer may
+//    once kSampleRun samples are in, the wait goes down to the slowest of them, never below the
+//    recent answers' spread (`recent`, ack_floor): the terminal's last kRecent answers, each timed
+//    from below when a poll missed it, and the wait covers all of them but the kOutliers slowest
+//    (those too where they are within half again of the next: the spread, not an outlier).
+//    The wait has to cover the slowest answers, not the typical one: where a terminal answers after
+//    one or two bus cycles at random, one fast sample lowered the wait below every other answer and
+//    made every other read-ahead come too early (issue 22); an answer slow one time in four or
+//    more often is always among them. One late answer is not: before, the slowest answer of the
+//    last 64 held the wait up, and one answer at 6.4 ms from a terminal answering at 2.0 ms kept a
+//    5.0 ms wait for the rest of the run and, through the scan cache, into the next (issue 34).
+//    If a sample reaches seven eighths of the wait, or the answer is there only at the poll at the
+//    wait, the wait is confirmed and kept as it is. If some samples were there already at the probe (the answer may
 //    have come much earlier), the lowered wait is measured again. A measurement
 //    that is not finished is not kept as a suspicion between runs (`measuring`): a run too short
 //    to finish one (an `info`) would leave every next one probing. Every
@@ -46,10 +51,16 @@
 // A station engine (issue 22) that runs several terminals' handshakes at once uses the same
 // functions per terminal.
 #pragma once
+#include <array>
 #include <chrono>
 #include <map>
 
 namespace kscfg {
+
+// The answers of a terminal that the wait covers: the last kRecent, all but the kOutliers slowest
+// (ack_floor): about the 94th percentile; an outlier is more than half as slow again as the next.
+constexpr unsigned kRecent = 16;
+constexpr unsigned kOutliers = 1;
 
 // How fast one terminal answers: what the fields mean and how they move is said above.
 struct AckTiming {
@@ -65,9 +76,11 @@ struct AckTiming {
   unsigned streak = 0;                   // first polls at `wait` that found the answer since the last probe
   unsigned probes = 0;                   // polls below `wait` (this run), and how many found the answer
   unsigned probe_hits = 0;
-  std::chrono::microseconds slow{0};        // the slowest recent answer that came after the wait (this run):
-                                            // a probe never lowers the wait below it
-  unsigned slow_age = 0;                    // acknowledges since `slow` was last raised
+  // The last kRecent answers (this run, not learned from late polls), by acknowledge: when a poll
+  // found it after one that missed it (timed from below: the answer came between the two), 0 when the
+  // first poll found it (no slower than that poll: no sign of a slow answer). A ring at recent_n.
+  std::array<std::chrono::microseconds, kRecent> recent{};
+  unsigned recent_n = 0;
   unsigned late = 0;                        // acknowledges seen by a poll this process sent late (this run):
                                             // not learned (ack_seen)
   bool kept = false;                        // `wait` was kept from an earlier run and not yet checked in this one
@@ -148,11 +161,14 @@ bool ack_plausible(std::chrono::microseconds kept, std::chrono::milliseconds tim
 bool ack_suspect_when_kept(std::chrono::microseconds kept, std::chrono::milliseconds timeout);
 constexpr unsigned kProbeEvery = 32;
 constexpr unsigned kGuessTrusted = 3;
-constexpr unsigned kSlowFor = 2 * kProbeEvery;
 constexpr unsigned kSampleRun = 4;
 constexpr unsigned kKeptCheckAfter = 8;
 constexpr unsigned kMaxMisses = 3;
 constexpr unsigned kMissShare = 8;
+// The slowest of the terminal's recent answers the wait has to cover: the (kOutliers + 1)-th
+// slowest of the last kRecent, or a slower one within half again of it (0: none timed from below).
+// A probe never lowers the wait below it.
+std::chrono::microseconds ack_floor(const AckTiming& t);
 // What the scan cache keeps for the next run (0: nothing learned).
 std::chrono::microseconds ack_keep(const AckTiming& t);
 
