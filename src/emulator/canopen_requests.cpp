@@ -7,6 +7,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/link/ads_registers.hpp"
+#include "kscfg/link/can_registers.hpp"
 
 namespace kscfg {
 
@@ -25,22 +26,14 @@ namespace {
 //   the answer waits for the K-bus). The entry keeps the word as written, the access bit set.
 // The coupler carries out one access at a time: another download meanwhile is refused with
 //   0x06010021 "function still active, try again later".
-constexpr std::uint16_t kCouplerObject = 0x4500, kTerminalObject = 0x4501;
+using canreg::kAccessBit;
+using canreg::kCouplerObject;
+using canreg::kTerminalObject;
 constexpr std::uint8_t kCouplerSub = 0;  // 0x4500 is one entry: sub-index 0
-constexpr std::uint32_t kAccessBit = 0x80000000u;
-
-struct Word {
-  bool access = false;
-  unsigned group = 0;  // channel or table
-  unsigned reg = 0;
-  std::uint16_t value = 0;
-};
-Word unpack(std::uint32_t v) {
-  return {(v & kAccessBit) != 0, (v >> 24) & 0x7F, (v >> 16) & 0xFF, static_cast<std::uint16_t>(v & 0xFFFF)};
-}
-std::uint32_t pack(const Word& w) {
-  return (w.access ? kAccessBit : 0) | ((w.group & 0x7Fu) << 24) | ((w.reg & 0xFFu) << 16) | w.value;
-}
+// The word as the client's side writes it down (link/can_registers.hpp): one layout, both sides.
+using canreg::Word;
+Word unpack(std::uint32_t v) { return canreg::decode(v); }
+std::uint32_t pack(const Word& w) { return canreg::encode(w); }
 bool is_write(const Word& asked) { return asked.access; }
 constexpr bool kWriteAnsweredWhenDone = true;
 std::uint32_t shown_reading(const Word& asked) { return (pack(asked) & 0xFFFF0000u) | kAccessBit; }
