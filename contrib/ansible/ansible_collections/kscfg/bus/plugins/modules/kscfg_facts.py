@@ -20,8 +20,8 @@ description:
 options:
   port:
     description:
-      - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11) or
-        C(ads://10.0.3.11).
+      - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11),
+        C(ads://10.0.3.11) or C(slcan:/dev/ttyACM0?node=3).
       - Default, kscfg's default (C(KSCFG_PORT), else its emulator).
     type: str
   unit:

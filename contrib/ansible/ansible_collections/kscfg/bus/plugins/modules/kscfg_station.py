@@ -62,7 +62,8 @@ options:
   port:
     description:
       - The port URI kscfg uses (C(kscfg --port)), for example C(tcp://10.0.3.11),
-        C(tcp://10.0.3.11:502), C(rtu:/dev/ttyUSB0?baud=19200&parity=E) or C(ads://10.0.3.11).
+        C(tcp://10.0.3.11:502), C(rtu:/dev/ttyUSB0?baud=19200&parity=E), C(ads://10.0.3.11) or
+        C(slcan:/dev/ttyACM0?node=3).
       - Default, kscfg's default (the environment variable C(KSCFG_PORT), else its emulator).
     type: str
   unit:
