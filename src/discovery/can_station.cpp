@@ -110,7 +110,13 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
   }
   std::vector<std::uint16_t> t9;
   for (unsigned k = 1; k <= canreg::kMaxTerminals; ++k) {
-    std::uint16_t v = regs.read_table(kTable9, k);
+    // Past the last terminal: 0, or (not documented either way) an abort, which ends the list too.
+    std::uint16_t v = 0;
+    try {
+      v = regs.read_table(kTable9, k);
+    } catch (const SdoAbort& a) {
+      trace(fmt::format("table 9 register {}: {}: the end of the list", k, sdo::abort_text(a.code())));
+    }
     if (v == 0) break;
     t9.push_back(v);
   }

@@ -76,6 +76,11 @@ TEST_CASE("CANopen station: identification and table 9 laid out by the coupler f
   CHECK(can_coupler_name(std::nullopt, std::nullopt, "BK5120 V2") == "BK5120");
   CHECK(can_coupler_name(0x00020001, 0, "CX8050") == "");
 
+  // A coupler that aborts the register past its last terminal instead of answering 0: the same list.
+  rig.coupler.table9_past_end_aborts = true;
+  CHECK(scan_can_station(rig.sdo(), Catalog::standard(), 300).result.spec.terminals.size() == 4);
+  rig.coupler.table9_past_end_aborts = false;
+
   // A coupler without table 9 over 0x4500: the station must be described.
   rig.coupler.no_table9 = true;
   try {

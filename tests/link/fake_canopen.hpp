@@ -99,6 +99,8 @@ class FakeCanopenCoupler {
   std::vector<CanFrame> before_next;
   // A coupler that does not serve table 9 through 0x4500.
   bool no_table9 = false;
+  // A coupler that aborts a table 9 register past its last terminal (0x06020010) instead of giving 0.
+  bool table9_past_end_aborts = false;
   // Segmented upload answers whose toggle bit is wrong (a broken server).
   bool bad_toggle = false;
   std::string name = "BK5120", hardware = "B1", software = "C4";
@@ -216,6 +218,7 @@ class FakeCanopenCoupler {
     if (index == canreg::kCouplerObject) {
       if (w.access) return abort(index, sub, 0x06010022);  // the tables' write protection
       if (w.group != 9 || no_table9) return abort(index, sub, 0x06020011);
+      if (table9_past_end_aborts && w.reg > numbered_.size()) return abort(index, sub, 0x06020010);
       e.shown = canreg::Word{true, w.group, w.reg, 0};
       e.word = canreg::Word{false, w.group, w.reg, table(w.group, w.reg)};
       e.busy = busy_polls;
