@@ -38,16 +38,6 @@ std::optional<std::uint16_t> value_of(const AdsClient::Reply& r) {
   return ams::get16(r.data.data());
 }
 
-// A catalog type with this digital image (as read_ads_station finds one).
-const TerminalType* digital_type(const Catalog& catalog, const adsreg::Table9Entry& e) {
-  for (const auto& [name, t] : catalog.types()) {
-    if (t->has_registers || t->images.size() != 1 || t->images[0].complex()) continue;
-    const auto& f = t->images[0];
-    if (f.bits_in == (e.input ? e.bits : 0) && f.bits_out == (e.output ? e.bits : 0)) return t.get();
-  }
-  return nullptr;
-}
-
 // Table 9 of the coupler: register 0 and the terminals, or nothing when the coupler does not serve
 // it. Register 0 and the first 64 entries in one batch, the rest only when those are all taken.
 std::optional<std::vector<std::uint16_t>> read_table9(AdsClient& client, unsigned timeout_ms) {
@@ -72,6 +62,31 @@ std::optional<std::vector<std::uint16_t>> read_table9(AdsClient& client, unsigne
 }
 
 }  // namespace
+
+const TerminalType& table9_type(const Catalog& catalog, const adsreg::Table9Entry& e, unsigned number) {
+  const TerminalType* t = nullptr;
+  if (e.digital) {
+    // A catalog type with this digital image.
+    for (const auto& [name, c] : catalog.types()) {
+      if (c->has_registers || c->images.size() != 1 || c->images[0].complex()) continue;
+      const auto& f = c->images[0];
+      if (f.bits_in == (e.input ? e.bits : 0) && f.bits_out == (e.output ? e.bits : 0)) {
+        t = c.get();
+        break;
+      }
+    }
+  } else {
+    t = catalog.find_by_number(static_cast<std::uint16_t>(e.type_number));
+  }
+  if (!t)
+    throw Error(Exit::usage,
+                e.digital ? fmt::format("terminal number {}: no catalog type with {} digital {} bit(s)", number, e.bits,
+                                        e.output ? "output" : "input")
+                          : fmt::format("terminal number {} reports type {}, which the catalog does not know", number,
+                                        e.type_number),
+                "describe it with --catalog DIR, or give --station FILE");
+  return *t;
+}
 
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt) {
   const auto& settings = opt.settings;
@@ -134,15 +149,7 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
     coupler_number = (*t9)[0];
     for (std::size_t i = 1; i < t9->size(); ++i) {
       auto e = adsreg::decode_table9((*t9)[i]);
-      const TerminalType* t =
-          e.digital ? digital_type(catalog, e) : catalog.find_by_number(static_cast<std::uint16_t>(e.type_number));
-      if (!t)
-        throw Error(Exit::usage,
-                    e.digital ? fmt::format("terminal number {}: no catalog type with {} digital {} bit(s)", i, e.bits,
-                                            e.output ? "output" : "input")
-                              : fmt::format("terminal number {} reports type {}, which the catalog does not know", i,
-                                            e.type_number),
-                    "describe it with --catalog DIR, or give --station FILE");
+      const TerminalType* t = &table9_type(catalog, e, static_cast<unsigned>(i));
       found.push_back({t, static_cast<unsigned>(i), std::nullopt, e.digital});
       if (e.digital) digital.push_back(std::to_string(i));
     }

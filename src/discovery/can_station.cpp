@@ -8,6 +8,7 @@
 #include <cctype>
 #include <set>
 
+#include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/link/ads_registers.hpp"
@@ -37,16 +38,6 @@ std::string visible(const std::vector<std::uint8_t>& b) {
   }
   while (!s.empty() && s.back() == ' ') s.pop_back();
   return s;
-}
-
-// A catalog type with this digital image (as the ADS station finds one).
-const TerminalType* digital_type(const Catalog& catalog, const adsreg::Table9Entry& e) {
-  for (const auto& [name, t] : catalog.types()) {
-    if (t->has_registers || t->images.size() != 1 || t->images[0].complex()) continue;
-    const auto& f = t->images[0];
-    if (f.bits_in == (e.input ? e.bits : 0) && f.bits_out == (e.output ? e.bits : 0)) return t.get();
-  }
-  return nullptr;
 }
 
 unsigned digits_of(const std::string& s) {
@@ -132,15 +123,7 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
   for (std::size_t i = 0; i < t9.size(); ++i) {
     auto e = adsreg::decode_table9(t9[i]);
     unsigned n = static_cast<unsigned>(i + 1);
-    const TerminalType* t =
-        e.digital ? digital_type(catalog, e) : catalog.find_by_number(static_cast<std::uint16_t>(e.type_number));
-    if (!t)
-      throw Error(Exit::usage,
-                  e.digital ? fmt::format("terminal number {}: no catalog type with {} digital {} bit(s)", n, e.bits,
-                                          e.output ? "output" : "input")
-                            : fmt::format("terminal number {} reports type {}, which the catalog does not know", n,
-                                          e.type_number),
-                  "describe it with --catalog DIR, or give --station FILE");
+    const TerminalType* t = &table9_type(catalog, e, n);
     found.push_back({t, n, e.digital});
     if (e.digital) digital.push_back(std::to_string(n));
   }

@@ -9,10 +9,16 @@
 #include "kscfg/discovery/ads_image.hpp"
 #include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/link/ads_client.hpp"
+#include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
+
+// The catalog type of a table 9 entry (an ADS or CANopen coupler's terminal number `number`): a
+// complex terminal by its type number, a digital one as the first type with its bits and direction.
+// Error(usage) naming the terminal number when the catalog has none.
+const TerminalType& table9_type(const Catalog& catalog, const adsreg::Table9Entry& e, unsigned number);
 
 // The station and `kscfg scan` over ADS (docs/design.md section 4.9): what a Modbus scan reports,
 // from port 100.
