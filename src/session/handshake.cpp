@@ -67,6 +67,7 @@ void HandshakeAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry& e,
 }
 
 void HandshakeAccess::finish(Chan& c, std::vector<Program*>& done) {
+  c.stash.reset();
   done.push_back(c.prog);
   c.prog = nullptr;
 }
@@ -75,6 +76,7 @@ void HandshakeAccess::fail(Chan& c, Error e, std::vector<Program*>& done) {
   // The control byte holds a request whose answer is unknown: the next request looks first.
   c.req.reset();
   c.ahead.reset();
+  c.stash.reset();
   c.last_status.reset();
   if (!c.prog) return;
   c.prog->error = std::move(e);

@@ -96,7 +96,8 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   // it: never the code word (a relock ahead would make the write before it fail).
   bool replaceable = !r.write || op.repeatable;
   if (replaceable && !r.probe && speculate && !c.ahead) {
-    const RegisterOp* next = k + 1 < p.ops.size() ? &p.ops[k + 1] : nullptr;
+    const std::size_t n = next_op(c);
+    const RegisterOp* next = n < p.ops.size() ? &p.ops[n] : nullptr;
     if (next && next->reg != r.reg && (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
       put_request(c, next->write, next->reg, next->value);  // read-ahead (or write-ahead)
       c.with_ahead = true;
@@ -109,6 +110,8 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
     }
   }
 }
+
+std::size_t HandshakeAccess::next_op(const Chan& c) { return c.prog->values.size() + (c.stash ? 2 : 1); }
 
 bool HandshakeAccess::paced_probes() const {
   // A link that is Modbus TCP: a poll costs a round trip, not line time (ADS keeps its plan).
@@ -220,12 +223,16 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
                 ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
                               late ? fmt::format(" (the poll {} us late: not learned)", us(t - planned).count()) : "")
                 : "",
-            c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[p.values.size() + 1].reg) : "",
+            c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[next_op(c)].reg) : "",
             c.with_restore ? ", control byte restored with the poll" : ""));
       p.values.push_back(value());
 #ifdef KSCFG_TEST_HOOKS
       if (r.write && opt_.after_write) opt_.after_write(r.reg);
 #endif
+      if (c.stash) {  // the next op, read out of turn: its turn now
+        p.values.push_back(*c.stash);
+        c.stash.reset();
+      }
       if (p.progress) p.progress(p.values.size());
     }
     if (c.with_restore) {
@@ -259,13 +266,26 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     return;
   }
   if (c.with_ahead) {
-    const RegisterOp& n = p.ops[p.values.size() + 1];
+    const RegisterOp& n = p.ops[next_op(c)];
     c.ahead = sent_request(c, n.write, n.reg, n.value, t);
+    c.ahead_status = st;
   }
   if (c.ahead && proto::is_ack(st, c.ahead->reg)) {
-    // The terminal took the request written ahead before answering ours: ask again.
+    // The terminal took the request written ahead before answering ours: ours is asked again. A
+    // read answered here is kept (c.stash) when the status changed to its acknowledge after it was
+    // written (decision 2: not an acknowledge of an earlier request for the same register), and
+    // ours is the only op before it: its value comes out of turn, and the read-ahead of ours goes
+    // to the op after it. A write, or an answer that cannot be told from an old one, is asked again.
     if (known) ack_replaced(*c.timing, opt_.timeout);
-    note_trace(fmt::format("{}: R{} answered before R{}; asking again", who(c), c.ahead->reg, r.reg));
+    const bool keep = !c.with_ahead && !c.ahead->write && !r.write && !c.stash && c.ahead_status &&
+                      !proto::is_ack(*c.ahead_status, c.ahead->reg);
+    if (keep) {
+      c.stash = value();
+      note_trace(fmt::format("{}: R{} answered before R{} (value 0x{:04X} kept); asking R{} again", who(c),
+                             c.ahead->reg, r.reg, *c.stash, r.reg));
+    } else {
+      note_trace(fmt::format("{}: R{} answered before R{}; asking again", who(c), c.ahead->reg, r.reg));
+    }
     c.last_status = st;
     c.req.reset();
     c.ahead.reset();

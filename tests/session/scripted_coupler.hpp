@@ -50,6 +50,7 @@ class ScriptedCoupler : public Link {
   }
   std::size_t exchanges_seen = 0;
   std::function<void(const std::vector<std::uint8_t>&)> on_exchange;  // the outputs as each exchange leaves them
+  std::function<unsigned()> cycles_now;  // the K-bus cycles after this exchange, if not `cycles`
 
  private:
   void exchange() {
@@ -60,7 +61,8 @@ class ScriptedCoupler : public Link {
     auto& out = st_.outputs();
     for (std::size_t b = 0; b < out.size(); ++b)
       out[b] = b >= slow_.first && b < slow_.second ? history_.front()[b] : master_[b];
-    for (unsigned i = 0; i < cycles_; ++i) st_.cycle();
+    const unsigned n = cycles_now ? cycles_now() : cycles_;
+    for (unsigned i = 0; i < n; ++i) st_.cycle();
   }
   EmulatedStation& st_;
   std::vector<std::uint8_t> master_;

@@ -121,7 +121,11 @@ class HandshakeAccess final : public RegisterAccess {
     std::optional<std::uint8_t> last_status;          // known status after our last acknowledged request
     std::optional<Request> req;                       // in the control byte, waiting for its acknowledge
     std::optional<Request> ahead;                     // the next read, written with a poll for `req` (read-ahead)
-    AckTiming* timing = nullptr;                      // timings_'s entry of its terminal (a link that pipelines)
+    std::optional<std::uint8_t> ahead_status;         // the status read by the poll that wrote `ahead`
+    // The value of the op after the current one, read out of turn: its read-ahead was answered
+    // before the current read, which is asked again (next_op()).
+    std::optional<std::uint16_t> stash;
+    AckTiming* timing = nullptr;  // timings_'s entry of its terminal (a link that pipelines)
     Clock::time_point last_poll{};
     Clock::time_point due{};  // when the poll of this exchange was planned to go out
     // This exchange.
@@ -156,6 +160,8 @@ class HandshakeAccess final : public RegisterAccess {
   // counts as the look a repeat poll waits after.
   void peek_result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
   void finish(Chan& c, std::vector<Program*>& done);
+  // The op a read-ahead asks for: the one after the current, or after the one read out of turn.
+  static std::size_t next_op(const Chan& c);
   void fail(Chan& c, Error e, std::vector<Program*>& done);
   void put_request(Chan& c, bool write, unsigned reg, std::uint16_t value);
   void put_restore(Chan& c, bool ctrl_only);
