@@ -212,9 +212,12 @@ std::string host_key_address(const std::string& host) {
   return known.emplace(host, a).first->second;
 }
 
+// A serial line: one program at a time, whatever it speaks on it (Modbus RTU, slcan).
+std::string serial_key(const std::string& device) { return "rtu-" + device_key(device); }
+
 std::string coupler_key(const ModbusTarget& t) {
   if (t.tcp) return ip_key(t.host, t.port, kModbusPort);
-  return "rtu-" + device_key(t.device);
+  return serial_key(t.device);
 }
 
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
@@ -223,9 +226,7 @@ std::string coupler_key(const CanTarget& t) {
   return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
 }
 
-std::string lock_key(const CanTarget& t) {
-  return t.scheme == "slcan" ? "slcan-" + device_key(t.device) : coupler_key(t);
-}
+std::string lock_key(const CanTarget& t) { return t.scheme == "slcan" ? serial_key(t.device) : coupler_key(t); }
 
 std::string listener_key(const ModbusTarget& t) {
   return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : coupler_key(t);

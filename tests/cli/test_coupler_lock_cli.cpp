@@ -134,6 +134,13 @@ TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][se
   CHECK(r.rc == 11);
   CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port '{}' --station",
                                                 first->pid, s.srv->uri)));
+  // slcan: on the same tty is another name for the line (one program at a time): it waits too,
+  // through the link, and never opens the device under the holder (that was exit 3 at once).
+  Run c = run_kscfg({"--port", "slcan:" + s.dir.file("usb-Beckhoff-if00") + "?node=3", "--lock-wait", "0.5", "-t", "1",
+                     "read", "--raw", "R8"});
+  CHECK(c.rc == 11);
+  CHECK_THAT(c.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port '{}' --station",
+                                                first->pid, s.srv->uri)));
   first->signal(SIGINT);
   CHECK(first->wait() == 0);
 }

@@ -12,6 +12,7 @@
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/coupler_key.hpp"
+#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "support.hpp"
 
@@ -150,6 +151,11 @@ TEST_CASE("CAN coupler keys: one per interface and node, every name of a device 
   CHECK(std::filesystem::path(coupler_lock_path(can("socketcan:can0?node=3"))).filename() == "can-can0-n3.lock");
   CHECK(coupler_lock_path(can("slcan://" + dir.file("by-id-adapter") + "?node=3")) ==
         coupler_lock_path(can(std::string("slcan:") + name + "?node=3")));
+  // Every node of one adapter, and an RTU link on the same tty: the serial line's one lock.
+  const std::string line = coupler_lock_path(modbus_target(parse_port_uri(std::string("rtu:") + name), name));
+  CHECK(std::filesystem::path(line).filename() == "rtu-" + spelled + ".lock");
+  CHECK(coupler_lock_path(can(std::string("slcan:") + name + "?node=3")) == line);
+  CHECK(coupler_lock_path(can("slcan:" + dir.file("by-id-adapter") + "?node=9")) == line);
   ::close(master);
   ::close(slave);
 }

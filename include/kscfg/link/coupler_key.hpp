@@ -53,9 +53,10 @@ std::string coupler_key(const AdsTarget& target);
 // "can-_dev_ttyACM0-n3" (slcan), "can-can0-n3" (SocketCAN).
 std::string coupler_key(const CanTarget& target);
 // What a CAN target's lock stands for (discovery/open.hpp coupler_lock_path()): an slcan adapter
-// is one program's at a time (open_serial() locks its tty), so every node behind it takes the
-// adapter's one lock, "slcan-_dev_ttyACM0", and kscfg processes on two nodes of one adapter take
-// turns as on a serial RTU line; a SocketCAN interface is shared: its node's coupler_key().
+// is one program's at a time (open_serial() locks its tty), so every node behind it takes the lock
+// of its serial line, the one an RTU link on that device takes ("rtu-_dev_ttyACM0"): kscfg
+// processes on two nodes of one adapter, or on one tty by rtu: and slcan:, take turns; a SocketCAN
+// interface is shared: its node's coupler_key().
 std::string lock_key(const CanTarget& target);
 
 // A listener's own key, records not followed: what a CouplerAlias is made of.
