@@ -259,6 +259,19 @@ int Server::stop(int sig) {
   return -9;
 }
 
+int Server::wait_exit(double timeout_s) {
+  if (pid <= 0) return -1;
+  int status = 0;
+  for (double waited = 0; waited < timeout_s; waited += 0.01) {
+    if (waitpid(pid, &status, WNOHANG) == pid) {
+      pid = -1;
+      return WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+    }
+    usleep(10000);
+  }
+  return -1;
+}
+
 void Server::kill_now() {
   if (pid > 0) {
     kill(pid, SIGKILL);

@@ -100,6 +100,8 @@ struct Server {
   Server& operator=(const Server&) = delete;
   // Stops with `sig`; returns the exit status (bounded: SIGKILL after 60 s).
   int stop(int sig = 15);
+  // Waits for it to end on its own: its exit status, or -1 when it still runs after `timeout_s`.
+  int wait_exit(double timeout_s);
   void kill_now();
   std::string errors() const { return read_text(err_path); }
   std::string host_port() const { return uri.substr(6); }  // tcp://HOST:PORT

@@ -69,6 +69,9 @@ class Serve : public Command {
            "SIGINT, SIGTERM or SIGHUP stops the server; the emulator state is saved, one line on stderr names the "
            "signal and the process that sent it (\\fBkscfg: serve: stopped by SIGTERM from process 4242 (pkill "
            "kscfg)\\fR), and the exit status is 0. "
+           "A serial line given by its path (\\fB\\-\\-rtu\\fR, \\fB\\-\\-can slcan:\\fR) whose other end goes away (a "
+           "USB adapter unplugged, the program holding the other end of a pseudo-terminal ended) ends the server "
+           "at once with exit status 3, the state saved, naming the line; a client that closes its end is no end. "
            "The state file served is that of \\fB\\-\\-port\\fR: \\fB\\-\\-port emu:\\fR\\fIPATH\\fR "
            "serves \\fIPATH\\fR (created with the default station when missing), \\fBemu\\fR the default one in "
            "\\fB$XDG_STATE_HOME/kscfg/\\fR. The server holds the file's lock while it runs, and records beside it "
@@ -232,8 +235,9 @@ class Serve : public Command {
           sources.push_back(&c->poll_source());
         }
         listening(uris);
-        run_poll_loop(sources, stop);
+        auto ended = run_poll_loop(sources, stop);
         shared.flush();
+        if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
         if (m) st = m->stats();
         if (a) at = a->stats();
         if (c) ct = c->stats();

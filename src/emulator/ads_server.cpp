@@ -175,8 +175,9 @@ bool AdsServer::Impl::expire(Conn& c, Clock::time_point now) {
 }
 
 void AdsServer::run(const std::function<bool()>& stop) {
-  run_poll_loop({impl_.get()}, stop);
+  auto ended = run_poll_loop({impl_.get()}, stop);
   (*impl_->host)->flush();
+  if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
 }
 
 PollSource& AdsServer::poll_source() { return *impl_; }

@@ -204,8 +204,9 @@ CanServeStats CanServer::stats() const {
 }
 
 void CanServer::run(const std::function<bool()>& stop) {
-  run_poll_loop({impl_.get()}, stop);
+  auto ended = run_poll_loop({impl_.get()}, stop);
   (*impl_->host)->flush();
+  if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
 }
 
 PollSource& CanServer::poll_source() { return *impl_; }

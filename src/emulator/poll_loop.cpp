@@ -11,7 +11,7 @@
 
 namespace kscfg {
 
-void run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop) {
+std::optional<std::string> run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop) {
   using Clock = PollSource::Clock;
   using std::chrono::milliseconds;
   std::vector<pollfd> fds;
@@ -38,7 +38,10 @@ void run_poll_loop(std::span<PollSource* const> sources, const std::function<boo
       sources[s]->ready(std::span<const pollfd>(fds.data() + first[s], first[s + 1] - first[s]), now);
     more = false;
     for (auto* s : sources) more |= s->work(now);
+    for (auto* s : sources)
+      if (auto why = s->ended()) return why;
   }
+  return std::nullopt;
 }
 
 }  // namespace kscfg

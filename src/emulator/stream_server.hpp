@@ -97,7 +97,8 @@ class StreamServer : public PollSource {
       if (fds[i].revents & POLLOUT) flush(c, now);
       if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) {
         if (sockets || (fds[i].revents & POLLIN)) receive(c, now);
-        else c.quiet_until = now + milliseconds(50);  // a hung-up serial port: do not spin
+        else if (fds[i].revents & POLLHUP) hung_up(c, "hung up");
+        else c.quiet_until = now + milliseconds(50);  // an error on a serial port: do not spin
       }
     }
   }
@@ -202,6 +203,21 @@ class StreamServer : public PollSource {
     }
   }
 
+  // A serial line whose other end is gone for good (EIO, end of file, a hang-up: an adapter
+  // unplugged, the program holding the other end of a pseudo-terminal ended): the server has ended.
+  // Its own pseudo-terminal (serve --pty) never hangs up: it holds both ends.
+  void hung_up(Conn& c, const std::string& why) {
+    if (c.dead) return;
+    ended_ = fmt::format(
+        "the serial line {} is gone ({}): its other end went away (an adapter unplugged, or the "
+        "program holding the other end of the pseudo-terminal ended)",
+        c.peer, why);
+    c.dead = true;
+    ::close(c.fd);
+    c.fd = -1;
+  }
+  std::optional<std::string> ended() const override { return ended_; }
+
   void close(Conn& c, const std::string& why) {
     if (c.dead) return;
     if (!sockets) {
@@ -251,12 +267,13 @@ class StreamServer : public PollSource {
         if (errno == EINTR) continue;
         if (errno == EAGAIN || errno == EWOULDBLOCK) return;
         if (sockets) close(c, fmt::format("receive: {}", std::strerror(errno)));
+        else if (errno == EIO) hung_up(c, std::strerror(errno));
         else c.quiet_until = now + milliseconds(50);
         return;
       }
       if (n == 0) {
         if (sockets) close(c, "disconnected");
-        else c.quiet_until = now + milliseconds(50);
+        else hung_up(c, "end of file");
         return;
       }
       if (c.in.empty()) c.frame_start = now;
@@ -301,6 +318,7 @@ class StreamServer : public PollSource {
   unsigned frame_timeout_ms;
   bool sockets = true;  // false: the one connection is the RTU line, which is never closed
   std::function<void(const std::string&)> trace_fn, warn_fn;
+  std::optional<std::string> ended_;  // hung_up()
   int listen_fd = -1;
   unsigned bound_port = 0;
   Clock::time_point accept_paused_until{};

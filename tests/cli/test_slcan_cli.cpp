@@ -52,11 +52,14 @@ struct PtyPair {
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
   }
-  ~PtyPair() {
+  ~PtyPair() { stop(); }
+  // Ends socat: both ends of the pair go (an adapter unplugged).
+  void stop() {
     if (pid <= 0) return;
     ::kill(pid, SIGTERM);
     int st = 0;
     ::waitpid(pid, &st, 0);
+    pid = -1;
   }
   PtyPair(const PtyPair&) = delete;
   PtyPair& operator=(const PtyPair&) = delete;
@@ -164,4 +167,30 @@ TEST_CASE("kscfg over slcan: a node that does not answer is given up within two 
   CHECK(r.rc == 3);
   CHECK(r.err.find("node 4") != std::string::npos);
   CHECK(secs < 2 * 0.3 + 5);  // two timeouts, and starting kscfg on a loaded machine
+}
+
+TEST_CASE("serve --can and serve --rtu on a serial line whose other end goes away end at once, exit 3, saying so",
+          "[can][serve][cli]") {
+  for (const std::string kind : {"--can", "--rtu"}) {
+    INFO(kind);
+    PtyPair pair;
+    if (!pair.ok()) {
+      WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
+      return;
+    }
+    TempDir d;
+    // (pseudo-terminals refuse even parity, the RTU default)
+    Server s(d.file("emu.json"), {kind, kind == "--can" ? "slcan:" + pair.a : pair.a + "?parity=N"},
+             d.file("serve.err"));
+    const std::string port = kind == "--can" ? "slcan:" + pair.b : "rtu:" + pair.b + "?parity=N";
+    Run r = run_kscfg({"--port", port, "-t", "1", "read", "--raw", "R8"});
+    CHECK(r.rc == 0);  // served, and a client that went away is no end
+    r = run_kscfg({"--port", port, "-t", "1", "read", "--raw", "R8"});
+    CHECK(r.out == "0x1771\n");
+    pair.stop();  // the adapter unplugged: before, serve went on polling a dead line in silence
+    CHECK(s.wait_exit(10) == 3);
+    std::string err = s.errors();
+    CHECK_THAT(err, Catch::Contains("kscfg: error: serve: the serial line " + pair.a + " is gone ("));
+    CHECK_THAT(err, Catch::Contains("start serve again"));
+  }
 }

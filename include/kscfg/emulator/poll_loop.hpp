@@ -8,7 +8,9 @@
 #include <chrono>
 #include <functional>
 #include <initializer_list>
+#include <optional>
 #include <span>
+#include <string>
 #include <vector>
 
 namespace kscfg {
@@ -24,13 +26,22 @@ class PollSource {
   // Deadlines and the whole frames received; true when a whole frame is left for the next turn
   // (the loop then polls without waiting).
   virtual bool work(Clock::time_point now) = 0;
+  // Why nothing more can be served on it (a serial line whose other end is gone: an adapter
+  // unplugged, the program holding the other end of a pseudo-terminal ended); the loop then ends.
+  virtual std::optional<std::string> ended() const { return std::nullopt; }
 };
 
-// Serves `sources` until `stop()` says so (looked at every 50 ms at least). Error(Exit::link) when
-// poll() fails.
-void run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop);
-inline void run_poll_loop(std::initializer_list<PollSource*> sources, const std::function<bool()>& stop) {
-  run_poll_loop(std::span<PollSource* const>(sources.begin(), sources.size()), stop);
+// The hint of the Error(Exit::link) a server ends with when a source has ended.
+inline constexpr const char* kLineGoneHint =
+    "plug the adapter in again, or restart the program at the other end of the pseudo-terminal, then start serve "
+    "again";
+
+// Serves `sources` until `stop()` says so (looked at every 50 ms at least), or until one of them has
+// ended: then what ended it. Error(Exit::link) when poll() fails.
+std::optional<std::string> run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop);
+inline std::optional<std::string> run_poll_loop(std::initializer_list<PollSource*> sources,
+                                                const std::function<bool()>& stop) {
+  return run_poll_loop(std::span<PollSource* const>(sources.begin(), sources.size()), stop);
 }
 
 }  // namespace kscfg
