@@ -262,4 +262,16 @@ class FakeCanopenCoupler {
   std::uint8_t seg_sub_ = 0;
 };
 
+// BK5120 | KL1104 KL3202 KL9010 KL6001 KL2134: the station the SDO tests run against.
+inline StationSpec can_station() {
+  StationSpec s;
+  s.coupler = "BK5120";
+  for (const char* t : {"KL1104", "KL3202", "KL9010", "KL6001", "KL2134"}) {
+    TerminalSpec ts;
+    ts.type = t;
+    s.terminals.push_back(ts);
+  }
+  return s;
+}
+
 }  // namespace kscfg::test

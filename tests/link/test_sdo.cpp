@@ -10,23 +10,13 @@
 #include "kscfg/link/sdo.hpp"
 
 using namespace kscfg;
+using kscfg::test::can_station;
 using kscfg::test::FakeCanopenCoupler;
 using kscfg::test::LoopbackBus;
 
 using namespace std::chrono_literals;
 
 namespace {
-
-StationSpec can_station() {
-  StationSpec s;
-  s.coupler = "BK5120";
-  for (const char* t : {"KL1104", "KL3202", "KL9010", "KL6001", "KL2134"}) {
-    TerminalSpec ts;
-    ts.type = t;
-    s.terminals.push_back(ts);
-  }
-  return s;
-}
 
 // A bus with the coupler (node 3) behind it and a client on it.
 struct Rig {

@@ -28,24 +28,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-StationSpec can_station() {
-  StationSpec s;
-  s.coupler = "BK5120";
-  for (const char* t : {"KL1104", "KL3202", "KL9010", "KL6001", "KL2134"}) {
-    TerminalSpec ts;
-    ts.type = t;
-    s.terminals.push_back(ts);
-  }
-  return s;
-}
-
 // The coupler (node 1) behind a loopback bus, and the port's access and engine over it.
 struct CanPort {
-  EmulatedStation station{can_station(), Catalog::standard()};
+  EmulatedStation station{test::can_station(), Catalog::standard()};
   test::FakeCanopenCoupler coupler{station, 1};
   test::LoopbackBus bus;
   SdoClient client{bus, SdoOptions{1, 150, {}}};
-  StationLayout layout = compute_layout(can_station(), Catalog::standard());
+  StationLayout layout = compute_layout(test::can_station(), Catalog::standard());
   SessionOptions so;
   std::vector<std::string> notices;
   std::unique_ptr<SdoAccess> access;
