@@ -15,29 +15,10 @@ AdsAccess::AdsAccess(AdsClient& client, std::function<unsigned(unsigned)> number
       regs_(client, static_cast<unsigned>(so.timeout.count())),
       number_(std::move(number)),
       cancel_(so.cancel),
-      journal_(so.journal) {
+      chans_(so.journal) {
 #ifdef KSCFG_TEST_HOOKS
   after_write_ = so.after_write;
 #endif
-}
-
-ChannelFound AdsAccess::found(ChannelKey key) const {
-  ChannelFound f;
-  if (auto it = chans_.find(key); it != chans_.end() && it->second.dead_pid) {
-    f.dead_pid = it->second.dead_pid;
-    f.dead_unlocked = true;
-  }
-  return f;
-}
-
-void AdsAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) { chans_.at(key).dead_pid = pid; }
-
-void AdsAccess::leave(ChannelKey key, Chan& c) noexcept {
-  if (!c.journaled || !journal_) return;
-  c.journaled = false;
-  try {
-    journal_->leave(key.position, key.channel);
-  } catch (...) {}
 }
 
 void AdsAccess::open(const TerminalImage& t, unsigned channel) {
@@ -94,17 +75,13 @@ std::vector<Program*> AdsAccess::advance() {
       if (op.write && i > k) break;
       adsreg::RegisterAccess::Address a = c.addr;
       a.reg = op.reg;
-      // Noted before the code word goes out: a kill -9 from here on leaves the entry.
-      if (op.write && op.reg == proto::kCodeWordRegister && op.value == proto::kCodeWord && !c.journaled && journal_) {
-        journal_->enter_direct(key.position, key.channel);
-        c.journaled = journal_->enabled();
-      }
+      chans_.before(key, c, op);  // the code word noted before it goes out
       calls.push_back(op.write ? regs_.write_call(a, op.value) : regs_.read_call(a));
       sent.push_back({&c, i});
       if (op.write) break;
     }
   }
-  for (const auto& key : closing) close_now(key, false);
+  for (const auto& key : closing) chans_.close_now(key);
   if (calls.empty()) return done;
   std::vector<AdsClient::Reply> replies;
   try {
@@ -153,42 +130,11 @@ std::vector<Program*> AdsAccess::advance() {
 #ifdef KSCFG_TEST_HOOKS
     if (op.write && after_write_) after_write_(op.reg);
 #endif
-    // Locked again (the rules above read R31 back): nothing left for a next kscfg to relock.
-    if (op.write && op.reg == proto::kCodeWordRegister && op.value != proto::kCodeWord) {
-      c.unsure = false;
-      leave(p.key, c);
-    }
+    chans_.answered(p.key, c, op);  // a relock leaves the journal entry
     if (p.progress) p.progress(p.values.size());
     if (p.values.size() == p.ops.size() && !p.close_after) finish(c);
   }
   return done;
-}
-
-void AdsAccess::close_now(ChannelKey key, bool) noexcept {
-  auto it = chans_.find(key);
-  if (it == chans_.end()) return;
-  if (--it->second.users == 0) {
-    // Its work ended with every request answered (an unlock meant to stay, or a relock that did
-    // not take, which the rules above reported): the entry goes. A request left unanswered keeps it.
-    if (!it->second.unsure) leave(key, it->second);
-    chans_.erase(it);
-  } else {
-    it->second.prog = nullptr;
-  }
-}
-
-void AdsAccess::lock_unverified(ChannelKey key) noexcept {
-  auto it = chans_.find(key);
-  if (it == chans_.end() || !it->second.journaled || !journal_) return;
-  try {
-    journal_->lock_unverified(key.position, key.channel);
-  } catch (...) {}
-}
-
-void AdsAccess::close_all() noexcept {
-  for (auto& [key, c] : chans_)
-    if (!c.unsure) leave(key, c);
-  chans_.clear();
 }
 
 }  // namespace kscfg

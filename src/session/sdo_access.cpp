@@ -13,7 +13,7 @@ SdoAccess::SdoAccess(SdoClient& client, std::function<unsigned(unsigned)> number
       regs_(client, static_cast<unsigned>(so.timeout.count())),
       number_(std::move(number)),
       cancel_(so.cancel),
-      journal_(so.journal) {
+      chans_(so.journal) {
 #ifdef KSCFG_TEST_HOOKS
   after_write_ = so.after_write;
 #endif
@@ -21,25 +21,6 @@ SdoAccess::SdoAccess(SdoClient& client, std::function<unsigned(unsigned)> number
 
 std::string SdoAccess::describe() const {
   return fmt::format("CANopen node {} on {}", client_.node(), client_.bus().describe());
-}
-
-ChannelFound SdoAccess::found(ChannelKey key) const {
-  ChannelFound f;
-  if (auto it = chans_.find(key); it != chans_.end() && it->second.dead_pid) {
-    f.dead_pid = it->second.dead_pid;
-    f.dead_unlocked = true;
-  }
-  return f;
-}
-
-void SdoAccess::adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) { chans_.at(key).dead_pid = pid; }
-
-void SdoAccess::leave(ChannelKey key, Chan& c) noexcept {
-  if (!c.journaled || !journal_) return;
-  c.journaled = false;
-  try {
-    journal_->leave(key.position, key.channel);
-  } catch (...) {}
 }
 
 void SdoAccess::open(const TerminalImage& t, unsigned channel) {
@@ -63,11 +44,7 @@ void SdoAccess::run_next(ChannelKey key, Chan& c, std::vector<Program*>& done) {
     c.prog = nullptr;
   };
   const RegisterOp& op = p.ops[p.values.size()];
-  // Noted before the code word goes out: a kill -9 from here on leaves the entry.
-  if (op.write && op.reg == proto::kCodeWordRegister && op.value == proto::kCodeWord && !c.journaled && journal_) {
-    journal_->enter_direct(key.position, key.channel);
-    c.journaled = journal_->enabled();
-  }
+  chans_.before(key, c, op);  // the code word noted before it goes out
   std::uint16_t value = 0;
   try {
     // Clean-up runs under a shield: the first signal does not cut its waits short, a second does.
@@ -88,11 +65,7 @@ void SdoAccess::run_next(ChannelKey key, Chan& c, std::vector<Program*>& done) {
 #ifdef KSCFG_TEST_HOOKS
   if (op.write && after_write_) after_write_(op.reg);
 #endif
-  // Locked again (the rules above read R31 back): nothing left for a next kscfg to relock.
-  if (op.write && op.reg == proto::kCodeWordRegister && op.value != proto::kCodeWord) {
-    c.unsure = false;
-    leave(key, c);
-  }
+  chans_.answered(key, c, op);  // a relock leaves the journal entry
   if (p.progress) p.progress(p.values.size());
   if (p.values.size() == p.ops.size() && !p.close_after) finish();
 }
@@ -116,7 +89,7 @@ std::vector<Program*> SdoAccess::advance() {
     done.push_back(c.prog);
     c.prog = nullptr;
   }
-  for (const auto& key : closing) close_now(key, false);
+  for (const auto& key : closing) chans_.close_now(key);
   if (!done.empty()) return done;
   // One request: the next channel after the one served last that has one.
   auto pick = chans_.upper_bound(last_);
@@ -128,33 +101,6 @@ std::vector<Program*> SdoAccess::advance() {
   last_ = pick->first;
   run_next(pick->first, pick->second, done);
   return done;
-}
-
-void SdoAccess::close_now(ChannelKey key, bool) noexcept {
-  auto it = chans_.find(key);
-  if (it == chans_.end()) return;
-  if (--it->second.users == 0) {
-    // Its work ended with every request answered (an unlock meant to stay, or a relock that did
-    // not take, which the rules above reported): the entry goes. A request left unanswered keeps it.
-    if (!it->second.unsure) leave(key, it->second);
-    chans_.erase(it);
-  } else {
-    it->second.prog = nullptr;
-  }
-}
-
-void SdoAccess::lock_unverified(ChannelKey key) noexcept {
-  auto it = chans_.find(key);
-  if (it == chans_.end() || !it->second.journaled || !journal_) return;
-  try {
-    journal_->lock_unverified(key.position, key.channel);
-  } catch (...) {}
-}
-
-void SdoAccess::close_all() noexcept {
-  for (auto& [key, c] : chans_)
-    if (!c.unsure) leave(key, c);
-  chans_.clear();
 }
 
 }  // namespace kscfg

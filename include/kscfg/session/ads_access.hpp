@@ -24,7 +24,7 @@
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
-#include "kscfg/session/open_channels.hpp"
+#include "kscfg/session/direct_channels.hpp"
 
 namespace kscfg {
 
@@ -37,33 +37,28 @@ class AdsAccess final : public RegisterAccess {
 
   std::string describe() const override { return client_.target().uri; }
   void open(const TerminalImage& t, unsigned channel) override;
-  ChannelFound found(ChannelKey key) const override;
-  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) override;
+  ChannelFound found(ChannelKey key) const override { return chans_.found(key); }
+  void adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) override { chans_.adopt_dead(key, pid); }
   void submit(Program& p) override { chans_.submit(p); }
   std::vector<Program*> advance() override;
   bool busy() const override { return chans_.busy(); }
-  void close_now(ChannelKey key, bool quiet) noexcept override;
-  void lock_unverified(ChannelKey key) noexcept override;
-  void close_all() noexcept override;
+  void close_now(ChannelKey key, bool) noexcept override { chans_.close_now(key); }
+  void lock_unverified(ChannelKey key) noexcept override { chans_.lock_unverified(key); }
+  void close_all() noexcept override { chans_.close_all(); }
   std::size_t exchanges() const override { return client_.exchanges(); }
 
  private:
-  struct Chan : OpenChannel {              // erased once its last user closed it
+  struct Chan : DirectChannel {            // erased once its last user closed it
     adsreg::RegisterAccess::Address addr;  // terminal number and channel; the register per request
-    bool journaled = false;                // the journal has its "u" entry open
-    bool unsure = false;                   // a request of it went unanswered: the entry stays at the end
-    long dead_pid = 0;                     // adopt_dead()
   };
-  void leave(ChannelKey key, Chan& c) noexcept;
   AdsClient& client_;
   adsreg::RegisterAccess regs_;
   std::function<unsigned(unsigned)> number_;
   CancelToken* cancel_;
-  std::shared_ptr<SessionJournal> journal_;
 #ifdef KSCFG_TEST_HOOKS
   std::function<void(unsigned reg)> after_write_;  // SessionOptions::after_write
 #endif
-  OpenChannels<Chan> chans_;
+  DirectChannels<Chan> chans_;  // and their journal entries
 };
 
 }  // namespace kscfg

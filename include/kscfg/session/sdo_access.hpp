@@ -3,10 +3,11 @@
 // LC5100, BC5150, a CX8050's CAN interface) reads and writes a terminal's registers itself through
 // the objects 0x4500/0x4501 (link/can_registers.hpp): no handshake, no byte of the process image
 // (the PDOs the bus's master owns) touched, so nothing is saved or put back. As over ADS
-// (ads_access.hpp), the session journal notes each channel the code word is written to, before it
-// goes out, and leaves it once the channel is locked again or its work ended with every request
-// answered: a kscfg killed in between leaves the entry, and the next kscfg on this coupler relocks
-// the channel if R31 still holds the code word (recovery.cpp). The safety rules above the seam
+// (ads_access.hpp; the bookkeeping of both in direct_channels.hpp), the session journal notes each
+// channel the code word is written to, before it goes out, and leaves it once the channel is locked
+// again or its work ended with every request answered: a kscfg killed in between leaves the entry,
+// and the next kscfg on this coupler relocks the channel if R31 still holds the code word
+// (recovery.cpp). The safety rules above the seam
 // (session/channel.hpp) are the same as over the handshake.
 //
 // One request at a time: the coupler has one SDO server (object 0x1200 only) and its default SDO
@@ -25,7 +26,7 @@
 #include "kscfg/link/sdo.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
-#include "kscfg/session/open_channels.hpp"
+#include "kscfg/session/direct_channels.hpp"
 
 namespace kscfg {
 
@@ -38,36 +39,31 @@ class SdoAccess final : public RegisterAccess {
 
   std::string describe() const override;
   void open(const TerminalImage& t, unsigned channel) override;
-  ChannelFound found(ChannelKey key) const override;
-  void adopt_dead(ChannelKey key, const SessionJournal::Entry& e, long pid) override;
+  ChannelFound found(ChannelKey key) const override { return chans_.found(key); }
+  void adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) override { chans_.adopt_dead(key, pid); }
   void submit(Program& p) override { chans_.submit(p); }
   std::vector<Program*> advance() override;
   bool busy() const override { return chans_.busy(); }
-  void close_now(ChannelKey key, bool quiet) noexcept override;
-  void lock_unverified(ChannelKey key) noexcept override;
-  void close_all() noexcept override;
+  void close_now(ChannelKey key, bool) noexcept override { chans_.close_now(key); }
+  void lock_unverified(ChannelKey key) noexcept override { chans_.lock_unverified(key); }
+  void close_all() noexcept override { chans_.close_all(); }
   std::size_t exchanges() const override { return client_.exchanges(); }
 
  private:
-  struct Chan : OpenChannel {  // erased once its last user closed it
-    unsigned terminal = 0;     // 0x4501 sub-index
-    bool journaled = false;    // the journal has its "u" entry open
-    bool unsure = false;       // a request of it went unanswered: the entry stays at the end
-    long dead_pid = 0;         // adopt_dead()
+  struct Chan : DirectChannel {  // erased once its last user closed it
+    unsigned terminal = 0;       // 0x4501 sub-index
   };
-  void leave(ChannelKey key, Chan& c) noexcept;
   // Runs the next request of `c` (one SDO register access); false when it failed (p.error set).
   void run_next(ChannelKey key, Chan& c, std::vector<Program*>& done);
   SdoClient& client_;
   canreg::Registers regs_;
   std::function<unsigned(unsigned)> number_;
   CancelToken* cancel_;
-  std::shared_ptr<SessionJournal> journal_;
 #ifdef KSCFG_TEST_HOOKS
   std::function<void(unsigned reg)> after_write_;  // SessionOptions::after_write
 #endif
-  OpenChannels<Chan> chans_;
-  ChannelKey last_{};  // the channel served last: the next one after it goes first
+  DirectChannels<Chan> chans_;  // and their journal entries
+  ChannelKey last_{};           // the channel served last: the next one after it goes first
 };
 
 }  // namespace kscfg
