@@ -235,9 +235,7 @@ class Serve : public Command {
           sources.push_back(&c->poll_source());
         }
         listening(uris);
-        auto ended = run_poll_loop(sources, stop);
-        shared.flush();
-        if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
+        run_poll_loop(sources, stop, [&shared] { shared.flush(); });
         if (m) st = m->stats();
         if (a) at = a->stats();
         if (c) ct = c->stats();

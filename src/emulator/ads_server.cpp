@@ -175,9 +175,7 @@ bool AdsServer::Impl::expire(Conn& c, Clock::time_point now) {
 }
 
 void AdsServer::run(const std::function<bool()>& stop) {
-  auto ended = run_poll_loop({impl_.get()}, stop);
-  (*impl_->host)->flush();
-  if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
+  run_poll_loop({impl_.get()}, stop, [this] { (*impl_->host)->flush(); });
 }
 
 PollSource& AdsServer::poll_source() { return *impl_; }

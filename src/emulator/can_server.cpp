@@ -204,9 +204,7 @@ CanServeStats CanServer::stats() const {
 }
 
 void CanServer::run(const std::function<bool()>& stop) {
-  auto ended = run_poll_loop({impl_.get()}, stop);
-  (*impl_->host)->flush();
-  if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
+  run_poll_loop({impl_.get()}, stop, [this] { (*impl_->host)->flush(); });
 }
 
 PollSource& CanServer::poll_source() { return *impl_; }

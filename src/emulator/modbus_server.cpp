@@ -167,9 +167,7 @@ void ModbusServer::Impl::deadline(const Conn& c, Clock::time_point& next) const 
 // The loop
 
 void ModbusServer::run(const std::function<bool()>& stop) {
-  auto ended = run_poll_loop({impl_.get()}, stop);
-  (*impl_->host)->flush();
-  if (ended) throw Error(Exit::link, "serve: " + *ended, kLineGoneHint);
+  run_poll_loop({impl_.get()}, stop, [this] { (*impl_->host)->flush(); });
 }
 
 PollSource& ModbusServer::poll_source() { return *impl_; }

@@ -11,7 +11,9 @@
 
 namespace kscfg {
 
-std::optional<std::string> run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop) {
+namespace {
+
+std::optional<std::string> serve(std::span<PollSource* const> sources, const std::function<bool()>& stop) {
   using Clock = PollSource::Clock;
   using std::chrono::milliseconds;
   std::vector<pollfd> fds;
@@ -42,6 +44,18 @@ std::optional<std::string> run_poll_loop(std::span<PollSource* const> sources, c
       if (auto why = s->ended()) return why;
   }
   return std::nullopt;
+}
+
+}  // namespace
+
+void run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop,
+                   const std::function<void()>& flush) {
+  std::optional<std::string> ended = serve(sources, stop);
+  flush();
+  if (ended)
+    throw Error(Exit::link, "serve: " + *ended,
+                "plug the adapter in again, or restart the program at the other end of the pseudo-terminal, then "
+                "start serve again");
 }
 
 }  // namespace kscfg

@@ -316,7 +316,7 @@ class StreamServer : public PollSource {
 
   StreamLimits limits;
   unsigned frame_timeout_ms;
-  bool sockets = true;  // false: the one connection is the RTU line, which is never closed
+  bool sockets = true;  // false: the one connection is the serial line, closed only once it is gone (hung_up)
   std::function<void(const std::string&)> trace_fn, warn_fn;
   std::optional<std::string> ended_;  // hung_up()
   int listen_fd = -1;

@@ -31,17 +31,14 @@ class PollSource {
   virtual std::optional<std::string> ended() const { return std::nullopt; }
 };
 
-// The hint of the Error(Exit::link) a server ends with when a source has ended.
-inline constexpr const char* kLineGoneHint =
-    "plug the adapter in again, or restart the program at the other end of the pseudo-terminal, then start serve "
-    "again";
-
-// Serves `sources` until `stop()` says so (looked at every 50 ms at least), or until one of them has
-// ended: then what ended it. Error(Exit::link) when poll() fails.
-std::optional<std::string> run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop);
-inline std::optional<std::string> run_poll_loop(std::initializer_list<PollSource*> sources,
-                                                const std::function<bool()>& stop) {
-  return run_poll_loop(std::span<PollSource* const>(sources.begin(), sources.size()), stop);
+// Serves `sources` until `stop()` says so (looked at every 50 ms at least), then calls `flush` (the
+// station's state saved). A source that has ended (PollSource::ended) ends the loop too: `flush`, then
+// Error(Exit::link) naming what ended it. Error(Exit::link) when poll() fails.
+void run_poll_loop(std::span<PollSource* const> sources, const std::function<bool()>& stop,
+                   const std::function<void()>& flush);
+inline void run_poll_loop(std::initializer_list<PollSource*> sources, const std::function<bool()>& stop,
+                          const std::function<void()>& flush) {
+  run_poll_loop(std::span<PollSource* const>(sources.begin(), sources.size()), stop, flush);
 }
 
 }  // namespace kscfg

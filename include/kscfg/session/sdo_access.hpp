@@ -7,8 +7,8 @@
 // channel the code word is written to, before it goes out, and leaves it once the channel is locked
 // again or its work ended with every request answered: a kscfg killed in between leaves the entry,
 // and the next kscfg on this coupler relocks the channel if R31 still holds the code word
-// (recovery.cpp). The safety rules above the seam
-// (session/channel.hpp) are the same as over the handshake.
+// (recovery.cpp). The safety rules above the seam (session/channel.hpp) are the same as over the
+// handshake.
 //
 // One request at a time: the coupler has one SDO server (object 0x1200 only) and its default SDO
 // channel carries one transfer at a time, and a register access through it is a download and then
