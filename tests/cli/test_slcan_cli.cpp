@@ -65,6 +65,13 @@ struct PtyPair {
   PtyPair& operator=(const PtyPair&) = delete;
 };
 
+// The pair is there; if not (no socat), the test says it is skipped.
+bool usable(const PtyPair& pair) {
+  if (pair.ok()) return true;
+  WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
+  return false;
+}
+
 // The lines of a station file that are not comments (a backup's header names the time and the port).
 std::string body(const std::string& toml) {
   std::istringstream in(toml);
@@ -79,10 +86,7 @@ std::string body(const std::string& toml) {
 TEST_CASE("kscfg over slcan against serve --can: every register command, backup/change/restore identical",
           "[can][serve][cli]") {
   PtyPair pair;
-  if (!pair.ok()) {
-    WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
-    return;
-  }
+  if (!usable(pair)) return;
   TempDir d;
   Server s(d.file("emu.json"), {"--can", "slcan:" + pair.a, "--node", "3"}, d.file("serve.err"));
   REQUIRE(s.uri == "slcan:" + pair.a + "?node=3");
@@ -155,10 +159,7 @@ TEST_CASE("kscfg over slcan against serve --can: every register command, backup/
 TEST_CASE("kscfg over slcan: a node that does not answer is given up within two timeouts, exit 3",
           "[can][serve][cli]") {
   PtyPair pair;
-  if (!pair.ok()) {
-    WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
-    return;
-  }
+  if (!usable(pair)) return;
   TempDir d;
   Server s(d.file("emu.json"), {"--can", "slcan:" + pair.a, "--node", "3"}, d.file("serve.err"));
   auto t0 = std::chrono::steady_clock::now();
@@ -174,10 +175,7 @@ TEST_CASE("serve --can and serve --rtu on a serial line whose other end goes awa
   for (const std::string kind : {"--can", "--rtu"}) {
     INFO(kind);
     PtyPair pair;
-    if (!pair.ok()) {
-      WARN("kscfg-test-skipped: needs socat for a pseudo-terminal pair (apt-get install socat)");
-      return;
-    }
+    if (!usable(pair)) return;
     TempDir d;
     // (pseudo-terminals refuse even parity, the RTU default)
     Server s(d.file("emu.json"), {kind, kind == "--can" ? "slcan:" + pair.a : pair.a + "?parity=N"},

@@ -2,6 +2,7 @@
 // against a CANopen coupler in this process (fake_canopen.hpp).
 #include <catch2/catch.hpp>
 #include <csignal>
+#include <utility>
 
 #include "fake_canopen.hpp"
 #include "kscfg/catalog/catalog.hpp"
@@ -33,6 +34,19 @@ struct Rig {
     return std::any_of(traced.begin(), traced.end(), [&](const auto& s) { return s.find(part) != std::string::npos; });
   }
 };
+
+// Ctrl-C (SIGINT on `cancel`, the bus's token) comes while the node works on the first request; its
+// answers come `delay` later. Every later request is answered at once.
+void owe_first_answer(Rig& r, CancelToken& cancel, std::chrono::milliseconds delay) {
+  r.bus.cancel = &cancel;
+  r.bus.peer = [&r, &cancel, delay, coupler = r.bus.peer, first = true](const CanFrame& f) mutable {
+    std::vector<CanFrame> answers = coupler(f);
+    if (!std::exchange(first, false)) return answers;
+    cancel.signal(SIGINT);
+    for (const auto& a : answers) r.bus.later.push_back({std::chrono::steady_clock::now() + delay, a});
+    return std::vector<CanFrame>{};
+  };
+}
 
 template <class F>
 Error caught(F&& f) {
@@ -255,20 +269,7 @@ TEST_CASE("SDO client: the answer owed to a request cut short by Ctrl-C is not t
   // rollback's first request went out and was taken for its answer; every retry stayed one behind.
   Rig r;
   CancelToken cancel;
-  r.bus.cancel = &cancel;
-  auto coupler = r.bus.peer;
-  bool first = true;
-  r.bus.peer = [&](const CanFrame& f) -> std::vector<CanFrame> {
-    auto answers = coupler(f);
-    if (first) {
-      // The node works on the write; Ctrl-C comes before its answer, which comes 40 ms later.
-      first = false;
-      cancel.signal(SIGINT);
-      for (const auto& a : answers) r.bus.later.push_back({std::chrono::steady_clock::now() + 40ms, a});
-      return {};
-    }
-    return answers;
-  };
+  owe_first_answer(r, cancel, 40ms);  // the node works on the write; Ctrl-C comes before its answer
   Error e = caught([&] { r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({true, 0, 32, 7})); });
   CHECK(e.code() == Exit::interrupted);
   // The rollback, shielded: its read of the same entry gets its own answer, not the write's 0x60.
@@ -285,19 +286,7 @@ TEST_CASE("SDO client: an owed answer that came before the next request is dropp
   // read of R36 ("did not have the value within 1000 ms").
   Rig r(1000);
   CancelToken cancel;
-  r.bus.cancel = &cancel;
-  auto coupler = r.bus.peer;
-  bool first = true;
-  r.bus.peer = [&](const CanFrame& f) -> std::vector<CanFrame> {
-    auto answers = coupler(f);
-    if (first) {
-      first = false;
-      cancel.signal(SIGINT);
-      for (const auto& a : answers) r.bus.later.push_back({std::chrono::steady_clock::now(), a});
-      return {};
-    }
-    return answers;
-  };
+  owe_first_answer(r, cancel, 0ms);
   Error e = caught([&] { r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({true, 0, 32, 7})); });
   CHECK(e.code() == Exit::interrupted);
   ShieldScope shield(&cancel);
