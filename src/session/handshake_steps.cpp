@@ -277,8 +277,8 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     // ours is the only op before it: its value comes out of turn, and the read-ahead of ours goes
     // to the op after it. A write, or an answer that cannot be told from an old one, is asked again.
     if (known) ack_replaced(*c.timing, opt_.timeout);
-    const bool keep = !c.with_ahead && !c.ahead->write && !r.write && !c.stash && c.ahead_status &&
-                      !proto::is_ack(*c.ahead_status, c.ahead->reg);
+    const bool keep =
+        !c.ahead->write && !r.write && !c.stash && c.ahead_status && !proto::is_ack(*c.ahead_status, c.ahead->reg);
     if (keep) {
       c.stash = value();
       note_trace(fmt::format("{}: R{} answered before R{} (value 0x{:04X} kept); asking R{} again", who(c),
