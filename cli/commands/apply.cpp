@@ -33,6 +33,8 @@ std::string coupler_identification(Context& ctx) {
   }
 }
 
+}  // namespace
+
 // How many automatic backups of a port to keep: --keep-backups, else KSCFG_BACKUP_KEEP, else 20.
 unsigned backup_keep(std::optional<unsigned> keep) {
   if (keep) return *keep;
@@ -41,7 +43,39 @@ unsigned backup_keep(std::optional<unsigned> keep) {
   return 20;
 }
 
-}  // namespace
+BackupInfo backup_info(Context& ctx) {
+  BackupInfo info;
+  info.coupler = ctx.layout().coupler;
+  nlohmann::json lj = ctx.link_json();
+  info.port = lj["port"].get<std::string>();
+  if (!lj["unit"].is_null()) info.unit = lj["unit"].get<unsigned>();
+  info.identification = coupler_identification(ctx);
+  std::error_code ec;
+  if (!ctx.options().station.empty()) info.station = std::filesystem::absolute(ctx.options().station, ec).string();
+  info.version = KSCFG_VERSION;
+  return info;
+}
+
+UndoSaver::UndoSaver(Context& ctx, std::string kind)
+    : ctx_(ctx), kind_(std::move(kind)), info_(backup_info(ctx)), layout_(ctx.layout()) {
+  info_.automatic = true;
+  info_.keep = backup_keep(std::nullopt);
+}
+
+std::string UndoSaver::operator()(const SessionJournal::Change& change) {
+  path_ = default_backup_path(info_.port, kind_);
+  SavedUndo saved = save_undo_file(layout_, info_.coupler, change, path_, info_, kind_);
+  undo_ = saved.undo;
+  if (ctx_.options().verbose)
+    for (const auto& old : saved.rotated) ctx_.trace("removed old backup " + old);
+  return saved.undo;
+}
+
+void UndoSaver::say() const {
+  if (path_.empty()) return;
+  std::cerr << "kscfg: backup of the touched registers: " << path_ << '\n';
+  std::cerr << "kscfg: undo with: " << undo_ << '\n';
+}
 
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
               const std::string& what, std::optional<unsigned> keep) {
@@ -71,16 +105,10 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     }
     return dry_run && plan.changes() ? static_cast<int>(Exit::differences) : 0;
   }
-  BackupInfo info;
+  BackupInfo info = backup_info(ctx);
   info.coupler = layout.coupler;
-  nlohmann::json lj = ctx.link_json();
-  info.port = lj["port"].get<std::string>();
-  if (!lj["unit"].is_null()) info.unit = lj["unit"].get<unsigned>();
-  info.identification = coupler_identification(ctx);
   std::error_code ec;
   info.applied = file == "-" ? std::string("- (stdin)") : std::filesystem::absolute(file, ec).string();
-  if (!ctx.options().station.empty()) info.station = std::filesystem::absolute(ctx.options().station, ec).string();
-  info.version = KSCFG_VERSION;
   info.automatic = backup.empty();
   info.keep = backup_keep(keep);
   std::string path = backup.empty() ? default_apply_backup_path(info.port) : backup;

@@ -19,6 +19,32 @@ std::string plan_text(const Plan& plan);
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
               const std::string& what = "apply", std::optional<unsigned> keep = std::nullopt);
 
+// How many automatic backups of a port to keep: `keep` (--keep-backups), else KSCFG_BACKUP_KEEP,
+// else 20.
+unsigned backup_keep(std::optional<unsigned> keep);
+// What a backup records about this run: port, unit, coupler, its identification, --station, version.
+BackupInfo backup_info(Context& ctx);
+
+// `set` and `reset`: the undo file of the change, saved before its first write
+// (SessionOptions::save_undo, Channel::save_undo_with) as an automatic backup of KIND; say() tells
+// where it is and the command that puts it back, on stderr, when one was written. Made before the
+// session works (it reads the coupler's identification).
+class UndoSaver {
+ public:
+  UndoSaver(Context& ctx, std::string kind);
+  std::string operator()(const SessionJournal::Change& change);
+  void say() const;
+  const std::string& path() const { return path_; }
+  const std::string& undo() const { return undo_; }
+
+ private:
+  Context& ctx_;
+  std::string kind_;
+  BackupInfo info_;
+  const StationLayout& layout_;
+  std::string path_, undo_;
+};
+
 // apply and restore share their arguments and their run(); they differ in name and text.
 class ApplyCommand : public Command {
  public:

@@ -10,6 +10,7 @@
 #include "kscfg/base/parse.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/session/verdict.hpp"
+#include "provision_util.hpp"
 
 namespace kscfg::cli {
 
@@ -25,7 +26,8 @@ class Reset : public Command {
            "word and then checks every parameter register against its factory value. Otherwise (KL6001, "
            "KL5101, ...) it writes the catalog's factory value to every register the catalog describes "
            "(never the hardware version R16 or undescribed manufacturer registers), as one change that is "
-           "rolled back on failure. It first states exactly what it will do and asks for confirmation on "
+           "rolled back on failure, saved first to an undo file as \\fBset\\fR does. It first states exactly what it "
+           "will do and asks for confirmation on "
            "the terminal; \\fB\\-y\\fR skips the question. Without a terminal on stdin it refuses unless "
            "\\fB\\-y\\fR is given. Factory values that would leave a terminal without its register window "
            "(e.g. a KL6001's alternative format on a coupler without complete evaluation) are refused with "
@@ -69,8 +71,13 @@ class Reset : public Command {
       }
     }
     auto s = ctx.session();
+    // Catalog defaults are a change of registers: saved first, as `set` does (R7 is a command that
+    // cannot be taken back, docs/design.md 6.5).
+    UndoSaver undo(ctx, "reset");
+    s->work().save_undo_with([&undo](const SessionJournal::Change& c) { return undo(c); });
     auto results = factory_reset(*s, plan);  // R7: before and after the command, read
     s->close();
+    undo.say();
     bool changed = std::any_of(results.begin(), results.end(), [](auto& w) { return w.changed; });
     if (ctx.json()) {
       nlohmann::json rs = nlohmann::json::array();
@@ -78,6 +85,8 @@ class Reset : public Command {
         rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j.update({{"method", plan.r7 ? "r7" : "defaults"}, {"changed", changed}, {"registers", rs}});
+      j["backup"] = undo.path().empty() ? nlohmann::json(nullptr) : nlohmann::json(undo.path());
+      if (!undo.path().empty()) j["undo"] = undo.undo();
       print_json(j);
       return 0;
     }

@@ -10,6 +10,7 @@
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/session/verdict.hpp"
 #include "param_util.hpp"
+#include "provision_util.hpp"
 
 namespace kscfg::cli {
 
@@ -24,9 +25,14 @@ class Set : public Command {
            "against the catalog before anything is read or written: an unknown name, a value outside the "
            "enumeration or range, or a parameter of another terminal type is an error and nothing is "
            "touched. Parameters that share a register (e.g. the R34 feature bits) are combined into one "
-           "write; registers whose value does not change are not rewritten. The code word is set once, the "
+           "write; registers whose value does not change are not rewritten. Before the first write it saves the "
+           "registers it changes, as found, to a station file that \\fBkscfg restore\\fR puts back (its path and "
+           "the undo command on stderr; \\fB\\-\\-json\\fR: \\fBbackup\\fR and \\fBundo\\fR; kept with "
+           "\\fBapply\\fR's backups), and notes the change in the session journal. The code word is set once, the "
            "registers are written, the code word is cleared and every register is read back. If any write "
            "or read-back fails, every register already written is restored and the exit status says why. "
+           "A kscfg killed in the middle of a change of several registers leaves it half done in the journal: the "
+           "next kscfg on the coupler reads them and rolls the change back (see \\fBFILES\\fR). "
            "A baud rate must be one of the terminal's rates (\\fBkscfg show\\fR lists them); a near miss such as "
            "1920 is refused with the rate it probably meant (\\(lqdid you mean 19200?\\(rq). Another rate needs "
            "\\fB\\-\\-divisor\\fR: it is reached through the divisor form where the terminal has one "
@@ -74,8 +80,13 @@ class Set : public Command {
     auto s = ctx.session();
     Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(),
                                 planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
+    // Before the first write: the registers it changes, as found, in an undo file `restore` puts
+    // back (as apply's backup).
+    UndoSaver undo(ctx, "set");
+    s->work().save_undo_with([&undo](const SessionJournal::Change& c) { return undo(c); });
     SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
     s->close();
+    undo.say();
     // A mapping register (KL6001 R34/R35, ...) changes the image only when the coupler starts again.
     if (r.changed)
       if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
@@ -87,6 +98,8 @@ class Set : public Command {
         rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
       nlohmann::json j = terminal_json(s->terminal(), s->channel());
       j.update({{"changed", r.changed}, {"params", ps}, {"registers", rs}});
+      j["backup"] = undo.path().empty() ? nlohmann::json(nullptr) : nlohmann::json(undo.path());
+      if (!undo.path().empty()) j["undo"] = undo.undo();
       print_json(j);
       return 0;
     }

@@ -240,7 +240,14 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
-  if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(link->client().target()));
+  // Journals per coupler (docs/design.md 6.2): a BK9000 is one coupler whatever unit a request names,
+  // so over TCP the journals every unit of it wrote are this run's to finish (a kill -9 on ?unit=3
+  // left a terminal in register mode that a unit-1 run never looked at); on an RTU line each unit
+  // is a coupler of its own.
+  if (opt.journal && !opt.journal_dir.empty()) {
+    const ModbusTarget& mt = link->client().target();
+    opt.journal->open(opt.journal_dir, station_key(mt), mt.tcp ? coupler_key(mt) + "-unit" : std::string());
+  }
   // The scan's sessions run on the port's engine, with its options (a notice: e.g. a dead
   // session's register mode, finished by the scan's session).
   SessionOptions so = port_session(opt);
@@ -283,7 +290,7 @@ void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, c
           const StationLayout& L = layout_upto(position);
           return position >= 1 && position <= L.terminals.size() ? &L.terminal(position) : nullptr;
         },
-        link.sdo_connection() ? nullptr : &link, force_fits);
+        link.sdo_connection() ? nullptr : &link, force_fits, layout_upto);
     return;
   }
   auto fits = [&](const SessionJournal::Entry& e) {
@@ -299,7 +306,7 @@ void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, c
     return e.type == t.type->type && j.ctrl == w.ctrl && j.status == w.status && j.out_lo == w.out_lo &&
            j.out_hi == w.out_hi && j.in_lo == w.in_lo && j.in_hi == w.in_hi;
   };
-  finish_dead_sessions(engine, link, catalog, so, fits, force_fits);
+  finish_dead_sessions(engine, link, catalog, so, fits, force_fits, layout_upto);
 }
 
 }  // namespace kscfg

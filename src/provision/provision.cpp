@@ -218,21 +218,6 @@ std::vector<PlannedWrite> planned_writes(const Plan& plan, const StationSpec* fi
 
 namespace {
 
-// A folder name from a port: its letters, digits, '.', '-' and '_', other runs as one '_'.
-std::string port_folder(const std::string& port) {
-  std::string out;
-  for (char c : port) {
-    bool keep = std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '_';
-    if (keep) out += c;
-    else if (!out.empty() && out.back() != '_') out += '_';
-  }
-  while (!out.empty() && (out.back() == '_' || out.back() == '.')) out.pop_back();
-  while (!out.empty() && out.front() == '.') out.erase(out.begin());
-  if (out.empty()) out = "port";
-  if (out.size() > 80) out = fmt::format("{}-{:08x}", out.substr(0, 70), std::hash<std::string>{}(port)&0xFFFFFFFFu);
-  return out;
-}
-
 // Plug positions as ranges: "1-12", "1, 3-5".
 std::string position_ranges(std::vector<unsigned> v) {
   std::sort(v.begin(), v.end());
@@ -247,64 +232,7 @@ std::string position_ranges(std::vector<unsigned> v) {
   return out;
 }
 
-// One line of a TOML comment: no control characters.
-std::string comment_text(std::string s) {
-  for (auto& c : s)
-    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7F) c = '?';
-  return s;
-}
-
 }  // namespace
-
-std::string shell_word(const std::string& s) {
-  bool plain = !s.empty() && std::all_of(s.begin(), s.end(), [](char c) {
-    return std::isalnum(static_cast<unsigned char>(c)) ||
-           std::string_view("@%+=:,./-_").find(c) != std::string_view::npos;
-  });
-  if (plain) return s;
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
-
-std::string default_apply_backup_path(const std::string& port) {
-  auto state = std::filesystem::path(state_dir());
-  auto since = std::chrono::system_clock::now().time_since_epoch();
-  std::time_t now = static_cast<std::time_t>(std::chrono::duration_cast<std::chrono::seconds>(since).count());
-  auto usec = std::chrono::duration_cast<std::chrono::microseconds>(since).count() % 1000000;
-  char stamp[32];
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", &tm);
-  return (state / "backups" / port_folder(port) /
-          fmt::format("apply-{}.{:06d}Z-{}.toml", stamp, static_cast<long>(usec), ::getpid()))
-      .string();
-}
-
-std::vector<std::string> rotate_backups(const std::string& dir, unsigned keep, const std::string& keep_path) {
-  std::vector<std::string> removed;
-  if (keep == 0) return removed;
-  std::error_code ec;
-  std::vector<std::filesystem::path> found;
-  for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-    const auto name = it->path().filename().string();
-    if (name.rfind("apply-", 0) == 0 && name.size() > 5 && name.ends_with(".toml") && it->is_regular_file(ec))
-      found.push_back(it->path());
-  }
-  if (found.size() <= keep) return removed;
-  // The names sort by time (UTC stamp, then process id); the newest stay.
-  std::sort(found.begin(), found.end());
-  std::size_t excess = found.size() - keep;
-  for (const auto& p : found) {
-    if (excess == 0) break;
-    if (std::filesystem::equivalent(p, keep_path, ec)) continue;
-    if (std::filesystem::remove(p, ec)) {
-      removed.push_back(p.string());
-      --excess;
-    }
-  }
-  return removed;
-}
 
 ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
                        const std::string& coupler, const std::string& backup_path, const Progress& progress,
@@ -312,49 +240,18 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   ApplyResult res;
   res.plan = plan;
   if (!plan.changes()) return res;
-  // Safety first: the touched registers as they are now, as a station file `restore` can apply.
-  StationSpec undo;
-  undo.coupler = coupler;
-  for (const auto& t : layout.terminals) {
-    TerminalSpec ts;
-    ts.type = t.type->type;
-    undo.terminals.push_back(std::move(ts));
-  }
+  // Safety first: the touched registers as they are now, as a station file `restore` can apply;
+  // and the change's intent as the journal keeps it.
+  SessionJournal::Change intent;
   for (const auto& cp : plan.channels) {
-    auto& ts = undo.terminals.at(cp.position - 1);
-    if (ts.channels.size() <= cp.channel) ts.channels.resize(cp.channel + 1);
-    for (const auto& rc : cp.registers) ts.channels[cp.channel].registers[rc.reg] = rc.from;
+    if (cp.registers.empty()) continue;
+    intent.channels.push_back({cp.position, cp.channel, cp.type, {}});
+    for (const auto& rc : cp.registers) intent.channels.back().registers.push_back({rc.reg, rc.from, rc.to});
   }
-  std::error_code ec;
-  auto dir = std::filesystem::path(backup_path).parent_path();
-  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  // Everything needed to tell this backup from others and to use it as printed.
-  std::string cmd = "kscfg";
-  if (!info.port.empty()) cmd += " --port " + shell_word(info.port);
-  if (!info.station.empty()) cmd += " --station " + shell_word(info.station);
-  res.undo = cmd + " restore " + shell_word(backup_path);
-  std::time_t now = std::time(nullptr);
-  char when[40];
-  std::tm tm{};
-  gmtime_r(&now, &tm);
-  std::strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", &tm);
-  std::string head = "# kscfg apply: the registers it touched, before the change.\n";
-  if (!info.port.empty())
-    head +=
-        comment_text(fmt::format("# port: {}{}", info.port, info.unit ? fmt::format(" (unit {})", *info.unit) : "")) +
-        "\n";
-  head +=
-      comment_text(fmt::format("# coupler: {}{}", coupler,
-                               info.identification.empty() ? "" : ", identification '" + info.identification + "'")) +
-      "\n";
-  if (!info.applied.empty()) head += comment_text("# applied: " + info.applied) + "\n";
-  if (!info.station.empty()) head += comment_text("# station: " + info.station) + "\n";
-  head += fmt::format("# time: {}\n", when);
-  if (!info.version.empty()) head += comment_text("# kscfg version: " + info.version) + "\n";
-  head += "# Undo with:\n#   " + comment_text(res.undo) + "\n";
-  write_file_atomic(backup_path, head + station_to_toml(undo));
+  SavedUndo saved = save_undo_file(layout, coupler, intent, backup_path, info, "apply");
+  res.undo = intent.undo = saved.undo;
   res.backup_path = backup_path;
-  if (info.automatic && !dir.empty()) res.rotated = rotate_backups(dir.string(), info.keep, backup_path);
+  res.rotated = std::move(saved.rotated);
 
   // Every terminal's change at once; each is all or nothing on its own (ChangeFailed says how far
   // its rollback got). If one fails, the others are rolled back too, from what they hold.
@@ -378,8 +275,15 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   const std::string undoing =
       fmt::format("rolling back terminal(s) {} to the values saved in {}", position_ranges(positions), backup_path);
   CancelNote note(so.cancel, undoing);
-  write_channels(engine, layout, jobs, so, tick);
+  // The change's intent before its first write, every terminal of it in one record: a kill -9 in
+  // its middle leaves it half done, and the next kscfg on the coupler rolls it back from what the
+  // terminals hold (docs/design.md 6.2). Each channel's write_masked notes none of its own.
+  const unsigned journaled = so.journal ? so.journal->begin_change(intent) : 0;
+  SessionOptions each = so;
+  each.change_journaled = journaled != 0;
+  write_channels(engine, layout, jobs, each, tick);
   if (std::none_of(jobs.begin(), jobs.end(), [](const ChannelChange& j) { return j.error != nullptr; })) {
+    if (journaled) so.journal->end_change(journaled);
     res.changed = true;
     return res;
   }
@@ -448,6 +352,9 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
     roll_back_channels(engine, layout, back, so);
   }
   for (std::size_t n = 0; n < back.size(); ++n) account(*back_of[n], back[n].result);
+  // Rolled back and verified everywhere: whole again. Otherwise the journal keeps the change, and
+  // the next kscfg on the coupler rolls it back from what the terminals hold.
+  if (journaled && unverified.empty()) so.journal->end_change(journaled);
   std::sort(rolled.begin(), rolled.end());
   std::string terms;
   for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
@@ -481,8 +388,9 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
                             msg, common_text.empty() ? "" : " (" + common_text + ")", res.undo,
                             unverified.size() == 1 ? "" : "s", unverified.size() == 1 ? "s" : "", count,
                             count == 1 ? "" : "s", count == 1 ? "" : "s",
-                            // Channels left unlocked or in register mode stay in the journal (6.2).
-                            so.journal && so.journal->enabled()
+                            // The change stays in the journal (6.2): the next kscfg rolls it back.
+                            journaled ? "; the next kscfg on this port rolls them back (session journal)"
+                            : so.journal && so.journal->enabled()
                                 ? "; the next kscfg on this port relocks them and ends register mode (session journal)"
                                 : ""))
         .with_details(std::move(lines));

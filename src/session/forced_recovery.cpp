@@ -19,13 +19,18 @@ ForceFit forced_fits(const StationLayout& L, const SessionJournal::Forced& f) {
     return digital && f.position >= 1 ? ForceFit::unknown : ForceFit::foreign;
   }
   const TerminalImage& t = L.terminal(f.position);
-  if (!t.type || t.type->type != f.type) return ForceFit::foreign;
+  if (!t.type) return ForceFit::foreign;
   if (t.complex) {
+    // A complex terminal tells its type (R8, table 9): the journal's must be it.
+    if (t.type->type != f.type) return ForceFit::foreign;
     if (f.channel >= t.channels.size()) return ForceFit::foreign;
     const auto& out = t.channels[f.channel].out;
     return fit(std::any_of(out.begin(), out.end(), [&](const ImageByte& b) { return b.offset == f.offset; }));
   }
-  // A digital terminal's output bits: every bit of the mask is one of them.
+  // A digital terminal's output bits: every bit of the mask is one of them. Its type name is not
+  // compared: no coupler tells a digital terminal's type (table 9 and a scan give bits and
+  // direction), so the name is one that fits (KL2134 or KL2114), and another run may name another.
+  // Position and bits decide.
   if (f.channel != 0 || !t.bits_out) return ForceFit::foreign;
   for (unsigned bit = 0; bit < 8; ++bit) {
     if (!(f.mask >> bit & 1)) continue;
@@ -67,6 +72,13 @@ bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOption
     } catch (const Error& e) {
       if (e.code() == Exit::interrupted) throw;
       fit = ForceFit::unknown;  // the station could not be walked that far: told, kept
+    }
+    if (fit == ForceFit::foreign && d.other_unit) {
+      // Another Modbus unit's journal: that unit's station, perhaps. Kept for it.
+      trace(fmt::format("journal of kscfg process {} (another unit): forced {} is not this station's; kept", d.pid,
+                        forced_text(f)));
+      all = false;
+      continue;
     }
     if (fit == ForceFit::foreign) {
       trace(fmt::format("journal of kscfg process {}: forced {} is not this station's; not touched", d.pid,

@@ -8,11 +8,12 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <charconv>
 #include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <map>
+
+#include "journal_text.hpp"
 
 namespace kscfg {
 
@@ -20,33 +21,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using namespace journal_text;
+
 constexpr std::size_t kMaxSaved = 512;   // an image is at most 512 bytes
 constexpr std::size_t kMaxOffset = 511;  // nor is any offset beyond it
-
-bool number(std::string_view s, std::size_t& v) {
-  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  return ec == std::errc() && p == s.data() + s.size() && !s.empty();
-}
-
-std::vector<std::string_view> words(std::string_view s, std::size_t n) {
-  // The first n-1 space-separated words, then the rest of the line as the last one.
-  std::vector<std::string_view> w;
-  while (w.size() + 1 < n) {
-    auto sp = s.find(' ');
-    if (sp == std::string_view::npos) break;
-    w.push_back(s.substr(0, sp));
-    s.remove_prefix(sp + 1);
-  }
-  w.push_back(s);
-  return w;
-}
-
-int hex(char c) {
-  if (c >= '0' && c <= '9') return c - '0';
-  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-  return -1;
-}
 
 }  // namespace
 
@@ -90,9 +68,10 @@ SessionJournal::~SessionJournal() {
   ::close(fd_);
 }
 
-void SessionJournal::open(std::string dir, std::string key) {
+void SessionJournal::open(std::string dir, std::string key, std::string siblings) {
   dir_ = std::move(dir);
   prefix_ = (fs::path(dir_) / key).string();
+  siblings_ = std::move(siblings);
 }
 
 void SessionJournal::give_up(const std::string& why) {
@@ -193,21 +172,6 @@ void SessionJournal::unforce(unsigned position, unsigned channel, std::size_t of
   append(fmt::format("r {} {} {}\n", position, channel, offset));
   if (enabled()) forced_.erase(offset);
 }
-
-namespace {
-
-bool hex_byte(std::string_view w, std::uint8_t& v) {
-  if (w.size() != 2 || hex(w[0]) < 0 || hex(w[1]) < 0) return false;
-  v = static_cast<std::uint8_t>(hex(w[0]) << 4 | hex(w[1]));
-  return true;
-}
-
-// "POS CH" within the limits every line kind keeps.
-bool place(std::string_view p, std::string_view c, std::size_t& pos, std::size_t& ch) {
-  return number(p, pos) && number(c, ch) && pos >= 1 && pos <= 1024 && ch <= 256;
-}
-
-}  // namespace
 
 bool SessionJournal::parse_forced_line(std::string_view rest, Forced& f) {
   auto w = words(rest, 7);
@@ -320,8 +284,20 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
   for (; it != fs::directory_iterator(); it.increment(ec)) {
     if (ec) break;
     std::string name = it->path().filename().string();
-    if (name.rfind(base, 0) != 0) continue;
-    std::string rest = name.substr(base.size());
+    // This key's journals, or a sibling key's (another Modbus unit of this coupler): SIBLINGS + digits.
+    bool other = false;
+    std::string rest;
+    if (name.rfind(base, 0) == 0) {
+      rest = name.substr(base.size());
+    } else if (!siblings_.empty() && name.rfind(siblings_, 0) == 0) {
+      std::size_t n = siblings_.size(), d = n;
+      while (d < name.size() && d - n < 4 && name[d] >= '0' && name[d] <= '9') ++d;
+      if (d == n || d >= name.size() || name[d] != '.') continue;
+      rest = name.substr(d + 1);
+      other = true;
+    } else {
+      continue;
+    }
     std::string path = it->path().string();
     if (rest.size() > 4 && rest.ends_with(".new")) {
       // Left by a process killed while it created its journal (nothing was entered yet).
@@ -350,14 +326,14 @@ std::vector<SessionJournal::Dead> SessionJournal::claim_dead() {
     char buf[4096];
     for (ssize_t n; text.size() <= kMaxJournalBytes && (n = ::read(fd, buf, sizeof buf)) > 0;)
       text.append(buf, static_cast<std::size_t>(n));
-    std::vector<Entry> open = parse_open(text);
-    std::vector<Forced> forced = parse_forced(text);
     Dead d;
     d.path = path;
     d.pid = static_cast<long>(pid);
     d.fd = fd;
-    d.open = std::move(open);
-    d.forced = std::move(forced);
+    d.open = parse_open(text);
+    d.forced = parse_forced(text);
+    d.changes = parse_changes(text);
+    d.other_unit = other;
     dead.push_back(std::move(d));
   }
   return dead;

@@ -93,12 +93,26 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
                        const std::string& coupler, const std::string& backup_path, const Progress& progress = {},
                        const BackupInfo& info = {});
 
-// $XDG_STATE_HOME/kscfg/backups/PORT/apply-YYYYmmdd-HHMMSS.uuuuuuZ-PID.toml: one folder per port
-// (its name made of the port's letters, digits, '.', '-' and '_'), UTC time stamps that sort in order.
+// $XDG_STATE_HOME/kscfg/backups/PORT/KIND-YYYYmmdd-HHMMSS.uuuuuuZ-PID.toml (KIND: apply, set,
+// reset): one folder per port (its name made of the port's letters, digits, '.', '-' and '_'), UTC
+// time stamps that sort in order.
+std::string default_backup_path(const std::string& port, const std::string& kind);
 std::string default_apply_backup_path(const std::string& port = "emu");
 
-// Removes the oldest apply-*.toml in `dir` beyond `keep` (never `keep_path`); returns what it removed.
+// Removes the oldest automatic backups (apply-*, set-*, reset-*.toml, by their time stamps) in `dir`
+// beyond `keep` (never `keep_path`); returns what it removed.
 std::vector<std::string> rotate_backups(const std::string& dir, unsigned keep, const std::string& keep_path);
+
+struct SavedUndo {
+  std::string undo;                  // kscfg --port PORT [--station F] restore PATH
+  std::vector<std::string> rotated;  // older automatic backups removed (BackupInfo::keep)
+};
+// Saves the registers `change` touches, as found (each register's `before`), at `path` as a station
+// file `kscfg restore` puts back: every terminal of `layout` by type, the change's channels with
+// their registers; atomically, its comments recording `info` and the undo command, `what` made it
+// ("apply", "set"). Before the change's first write.
+SavedUndo save_undo_file(const StationLayout& layout, const std::string& coupler, const SessionJournal::Change& change,
+                         const std::string& path, const BackupInfo& info, const std::string& what);
 
 // `s` quoted for a POSIX shell when it needs it.
 std::string shell_word(const std::string& s);

@@ -75,6 +75,13 @@ struct SessionOptions {
   bool release_forced = false;
   std::string release_hint;
   std::function<void(const DeadForce&)> dead_force;
+  // Before the first write of a change (write_masked): saves the registers it touches as found and
+  // returns the command that puts them back (the undo file of `set` and `reset`; "" for none). An
+  // Error from it stops the change before anything is written.
+  std::function<std::string(const SessionJournal::Change&)> save_undo;
+  // The caller noted the change in the journal itself (apply_plan: every terminal of it in one
+  // record, before its first write): write_masked notes none of its own.
+  bool change_journaled = false;
 #ifdef KSCFG_TEST_HOOKS
   // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; set from the
   // environment by Context::session_options in cli/context.cpp): write without the code word;
@@ -197,6 +204,9 @@ class Channel {
    private:
     Channel& c_;
   };
+
+  // SessionOptions::save_undo for this channel's changes from now on.
+  void save_undo_with(std::function<std::string(const SessionJournal::Change&)> f) { opt_.save_undo = std::move(f); }
 
   const TerminalImage& terminal() const { return term_; }
   unsigned channel() const { return key_.channel; }

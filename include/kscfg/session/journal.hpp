@@ -28,6 +28,14 @@
 //   f POS CH OFFSET MASK BEFORE AFTER TYPE        `data force`: the bits MASK of output byte OFFSET
 //                                                 go from BEFORE to AFTER (hex; written before they
 //                                                 are); "r POS CH OFFSET" once they read back as before
+//   c ID POS CH TYPE REG:BEFORE:AFTER,...         a change of several registers (`set`, `reset`,
+//   C ID N [UNDO]                                 `apply`, `restore`): one "c" line per terminal
+//                                                 channel with each register's value found and the
+//                                                 value to write (hex), then "C" with the number of
+//                                                 "c" lines and the command that undoes it; all in
+//                                                 one write(2), before the change's first write
+//   e ID                                          the change ended whole: every register verified at
+//                                                 its new value, or rolled back and verified
 // An entry is left ("-", "r") only once what was put back is known to be there: the exchange that
 // carried it was answered. A dead link, a timeout or a relock that failed keeps it open, and a
 // journal with an open entry outlives its process (docs/design.md 6.2).
@@ -73,6 +81,23 @@ class SessionJournal {
     std::uint8_t mask = 0, before = 0, after = 0;
     std::string type;  // catalog type name
   };
+  // A change of several registers (journal "c"/"C"), noted before its first write: what a kscfg
+  // killed in its middle leaves half done, for the next kscfg to roll back (change_recovery.cpp).
+  struct ChangeRegister {
+    unsigned reg = 0;
+    std::uint16_t before = 0, after = 0;  // the value found, the value it writes
+  };
+  struct ChangeChannel {
+    unsigned position = 0;  // 1-based plug position
+    unsigned channel = 0;   // 0-based
+    std::string type;       // catalog type name
+    std::vector<ChangeRegister> registers;
+  };
+  struct Change {
+    unsigned id = 0;  // this process's number for it
+    std::vector<ChangeChannel> channels;
+    std::string undo;  // the command that puts it back ("kscfg --port P restore FILE"; "" none)
+  };
   // At most this many control bytes kept per entry (Entry::ctrl).
   static constexpr std::size_t kMaxCtrl = 4;
   // Longest journal read; a journal holds a few lines, more is not one of ours.
@@ -81,8 +106,12 @@ class SessionJournal {
   struct Dead {
     std::string path;
     long pid = 0;
-    std::vector<Entry> open;     // entries never closed: terminals it may have left in register mode
-    std::vector<Forced> forced;  // outputs it forced and did not put back
+    std::vector<Entry> open;      // entries never closed: terminals it may have left in register mode
+    std::vector<Forced> forced;   // outputs it forced and did not put back
+    std::vector<Change> changes;  // changes it began and did not end
+    // Written through another Modbus unit of this coupler (open(..., siblings)): an entry or change
+    // that does not fit this station keeps the journal (it may be that unit's station).
+    bool other_unit = false;
     int fd = -1;
   };
 
@@ -92,7 +121,9 @@ class SessionJournal {
   SessionJournal& operator=(const SessionJournal&) = delete;
 
   // Journals for one port live in `dir` as KEY.PID-TIME.sessions. Nothing is written before enter().
-  void open(std::string dir, std::string key);
+  // `siblings`: the journals of every KEY' = SIBLINGS + digits are this coupler's too (the Modbus
+  // units of one BK9000, docs/design.md 6.2), claimed with Dead::other_unit.
+  void open(std::string dir, std::string key, std::string siblings = {});
   bool enabled() const { return !prefix_.empty(); }
 
   // Before the first register-mode byte goes to a terminal channel / after its process-data bytes
@@ -111,8 +142,15 @@ class SessionJournal {
   // outlives its process like one with an open entry.
   void force(const Forced& f);
   void unforce(unsigned position, unsigned channel, std::size_t offset);
-  // Entries entered and not left, forced bytes not put back: the file stays when the process ends.
-  bool has_open() const { return !open_.empty() || !forced_.empty(); }
+  // Before the first write of a change of several registers: its intent, in one write(2) (the
+  // change's id is set here). Returns the id, 0 when the journal is not written.
+  unsigned begin_change(Change c);
+  // The change ended whole ("e"): its registers verified at their new values, or rolled back and
+  // verified. A change not ended keeps the journal when the process ends.
+  void end_change(unsigned id);
+  // Entries entered and not left, forced bytes not put back, changes not ended: the file stays
+  // when the process ends.
+  bool has_open() const { return !open_.empty() || !forced_.empty() || !changes_.empty(); }
   const std::string& why() const { return why_; }
 
   // The journals of this port whose processes are gone, each locked until release(). Journals of
@@ -142,6 +180,11 @@ class SessionJournal {
   static std::vector<Forced> parse_forced(std::string_view text);
   static std::string format_forced(const Forced& f);
   static bool parse_forced_line(std::string_view rest, Forced& f);
+  // The lines of a change ("c" lines and "C"), and the changes a journal's text leaves (begun, not
+  // ended), in id order; bounded and strict as parse_open: a change whose "C" line is missing, or
+  // whose "c" lines are not all there, is none.
+  static std::string format_change(const Change& c);
+  static std::vector<Change> parse_changes(std::string_view text);
 
  private:
   bool create();
@@ -149,12 +192,15 @@ class SessionJournal {
   void give_up(const std::string& why);
 
   std::string dir_;
-  std::string prefix_;  // dir/KEY
-  std::string path_;    // dir/KEY.PID-TIME.sessions once created
+  std::string siblings_;  // open(): KEY' = SIBLINGS + digits are this coupler's journals too
+  std::string prefix_;    // dir/KEY
+  std::string path_;      // dir/KEY.PID-TIME.sessions once created
   int fd_ = -1;
-  std::set<std::pair<unsigned, unsigned>> open_;            // entries entered and not left
-  std::set<std::pair<unsigned, unsigned>> unverified_;      // lock_unverified(): never left
-  std::set<std::size_t> forced_;                            // forced bytes not put back
+  std::set<std::pair<unsigned, unsigned>> open_;        // entries entered and not left
+  std::set<std::pair<unsigned, unsigned>> unverified_;  // lock_unverified(): never left
+  std::set<std::size_t> forced_;                        // forced bytes not put back
+  std::set<unsigned> changes_;                          // changes begun and not ended
+  unsigned next_change_ = 0;
   std::map<std::pair<unsigned, unsigned>, int> last_ctrl_;  // control byte last noted (-1: none)
   std::optional<std::map<std::pair<unsigned, unsigned>, std::pair<long, Entry>>> peeked_;  // peek_dead()
   std::string why_;

@@ -88,11 +88,15 @@ class RegisterSession {
 // now (still as forced), then put back (SessionOptions::release_forced) or named in a warning; a journal with outputs
 // still forced stays. `unknown`: the layout cannot tell (a Modbus scan places no digital terminal): named in the
 // warning, never put back, kept.
+// A change of several registers that the dead process began and did not end (journal "c" lines,
+// SessionJournal::Change) is judged after its entries, against `layout_upto(position)`
+// (finish_dead_changes); without `layout_upto` the journal keeps it.
 enum class ForceFit { fits, foreign, unknown };
 using ForceFits = std::function<ForceFit(const SessionJournal::Forced&)>;
+using DeadLayout = std::function<const StationLayout&(unsigned upto)>;
 void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
                           const std::function<bool(const SessionJournal::Entry&)>& fits = {},
-                          const ForceFits& force_fits = {});
+                          const ForceFits& force_fits = {}, const DeadLayout& layout_upto = {});
 // The forced outputs of one claimed dead journal (`d.forced`), as above; those dealt with are noted
 // in it (SessionJournal::unforce_dead). True when none is left forced (the journal may go).
 bool finish_dead_forces(SessionJournal::Dead& d, Link* link, const SessionOptions& so, const ForceFits& fits);
@@ -107,6 +111,17 @@ ForceFit forced_fits(const StationLayout& layout, const SessionJournal::Forced& 
 // (nullptr: none; the entry is then not this station's and dropped untouched). Never throws but Error(interrupted).
 void finish_dead_direct_sessions(Engine& engine, const SessionOptions& so,
                                  const std::function<const TerminalImage*(unsigned position)>& terminal,
-                                 Link* image = nullptr, const ForceFits& force_fits = {});
+                                 Link* image = nullptr, const ForceFits& force_fits = {},
+                                 const DeadLayout& layout_upto = {});
+
+// The changes of one claimed dead journal (`d.changes`): every register read; a change whose
+// registers all hold their old values was not written, one whose registers all hold their new
+// values is said to be done, one between is rolled back from what the terminals hold (verified) and
+// said; a register that holds a value the change neither found nor wrote stops the rollback and the
+// registers are named with the change's undo command. A change that does not fit `layout_upto` is
+// not touched. True when none must stay (a link error, a rollback that could not verify: warned,
+// kept for the next kscfg). Never throws but Error(interrupted).
+bool finish_dead_changes(SessionJournal::Dead& d, Engine& engine, const SessionOptions& so,
+                         const DeadLayout& layout_upto);
 
 }  // namespace kscfg
