@@ -137,6 +137,7 @@ LockWait Context::lock_wait() const {
   LockWait w;
   w.limit = std::chrono::milliseconds(opt_.lock_wait_ms);
   w.waiting = [](const std::string& s) { std::cerr << "kscfg: " << s << '\n'; };
+  w.notice = [](const std::string& s) { std::cerr << "kscfg: note: " << s << '\n'; };
   w.cancel = opt_.cancel;
   return w;
 }

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -33,7 +34,22 @@ void child_env(const std::string& cache, const std::map<std::string, std::string
   setenv("XDG_CACHE_HOME", cache.c_str(), 1);
   setenv("XDG_STATE_HOME", (cache + "/state").c_str(), 1);
   setenv("KSCFG_LOCK_DIR", (cache + "/locks").c_str(), 1);
-  for (const auto& [k, v] : env) setenv(k.c_str(), v.c_str(), 1);
+  for (const auto& [k, v] : env)
+    if (k != kRunAs) setenv(k.c_str(), v.c_str(), 1);
+}
+
+// In a forked child: kscfg with `args`, as the user env[kRunAs] names (through setpriv) if given.
+[[noreturn]] void exec_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env) {
+  std::vector<std::string> words;
+  if (auto it = env.find(kRunAs); it != env.end())
+    words = {"/usr/bin/setpriv", "--reuid=" + it->second, "--regid=" + it->second, "--clear-groups", "--"};
+  words.push_back(KSCFG_BIN);
+  words.insert(words.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& w : words) argv.push_back(w.data());
+  argv.push_back(nullptr);
+  execv(argv[0], argv.data());
+  _exit(127);
 }
 
 }  // namespace
@@ -52,14 +68,7 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
     close(err[0]);
     close(in[1]);
     child_env(cache, env);
-    std::vector<char*> argv;
-    std::string bin = KSCFG_BIN;
-    argv.push_back(bin.data());
-    std::vector<std::string> copy = args;
-    for (auto& a : copy) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    execv(bin.c_str(), argv.data());
-    _exit(127);
+    exec_kscfg(args, env);
   }
   close(out[1]);
   close(err[1]);
@@ -127,13 +136,7 @@ Child::Child(const std::vector<std::string>& args, const std::map<std::string, s
     dup2(e, 2);
     dup2(n, 0);
     child_env(cache, env);
-    std::vector<std::string> copy = args;
-    std::string bin = KSCFG_BIN;
-    std::vector<char*> argv{bin.data()};
-    for (auto& a : copy) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    execv(bin.c_str(), argv.data());
-    _exit(127);
+    exec_kscfg(args, env);
   }
   if (pid < 0) throw std::runtime_error("fork");
 }
@@ -296,6 +299,29 @@ std::size_t widest_line(const std::string& text) {
     }
   }
   return std::max(w, cur);
+}
+
+std::string other_user_unavailable() {
+  if (::geteuid() != 0) return "the test does not run as root, so it cannot act as another user";
+  if (::access("/usr/bin/setpriv", X_OK) != 0) return "/usr/bin/setpriv (util-linux) is not installed";
+  struct stat st {};
+  if (::stat(KSCFG_BIN, &st) != 0 || !(st.st_mode & S_IXOTH))
+    return std::string(KSCFG_BIN) + " is not executable by other users";
+  return {};
+}
+
+int run_as_other_user(const std::string& shell_command) {
+  pid_t pid = fork();
+  if (pid == 0) {
+    const std::string id = std::to_string(kOtherUser);
+    execl("/usr/bin/setpriv", "setpriv", ("--reuid=" + id).c_str(), ("--regid=" + id).c_str(), "--clear-groups", "--",
+          "/bin/sh", "-c", shell_command.c_str(), static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  if (pid < 0) throw std::runtime_error("fork");
+  int st = 0;
+  waitpid(pid, &st, 0);
+  return WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
 }
 
 }  // namespace kscfg::test

@@ -26,6 +26,17 @@ struct Run {
   std::string out, err;
 };
 
+// Another user of the computer for tests of what one user can do to another's kscfg: nobody.
+constexpr unsigned kOtherUser = 65534;
+// An `env` entry of run_kscfg() and Child that runs kscfg as that uid (through setpriv(1)), not
+// passed on as a variable: {kRunAs, "65534"}.
+constexpr const char* kRunAs = "@run-as";
+// Why a test cannot act as another user ("" when it can: root, with setpriv(1), and kscfg
+// executable by others). A test that needs it says so (SKIP) and ends.
+std::string other_user_unavailable();
+// `sh -c COMMAND` as kOtherUser (setpriv); its exit status.
+int run_as_other_user(const std::string& shell_command);
+
 // Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},

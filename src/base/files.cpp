@@ -155,6 +155,8 @@ struct OpenedFile {
   mode_t mode = 0;       // what is there (when it is not a regular file, fd < 0)
   bool changed = false;  // replaced between the look and the open
   off_t size = 0;
+  uid_t uid = 0;  // its owner
+  nlink_t nlink = 0;
 };
 
 OpenedFile open_regular(const std::string& path, bool follow) {
@@ -166,6 +168,8 @@ OpenedFile open_regular(const std::string& path, bool follow) {
   }
   f.mode = st.st_mode;
   f.size = st.st_size;
+  f.uid = st.st_uid;
+  f.nlink = st.st_nlink;
   if (!S_ISREG(st.st_mode)) return f;
   int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | (follow ? 0 : O_NOFOLLOW));
   if (fd < 0) {
@@ -208,6 +212,9 @@ RegularFile read_regular_file(const std::string& path, std::string_view what, st
   OpenedFile f = open_regular(path, false);
   if (f.err != 0 && f.mode == 0) return r;  // none
   r.exists = true;
+  r.uid = f.uid;
+  r.mode = f.mode;
+  r.nlink = f.nlink;
   if (f.changed) {
     r.refused = "changed while it was opened";
     return r;
@@ -344,15 +351,55 @@ void check_toml_limits(std::string_view text, std::string_view origin) {
 
 }  // namespace
 
+std::string not_a_directory(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    int e = errno;
+    if (e == ENOENT && ::lstat(path.c_str(), &st) == 0) return "is a symbolic link to nothing";
+    return e == ENOENT ? "does not exist" : fmt::format("cannot be looked at ({})", std::strerror(e));
+  }
+  if (S_ISDIR(st.st_mode)) return {};
+  return S_ISREG(st.st_mode) ? "is a file, not a directory"
+                             : std::string(not_regular(st.st_mode)) + ", not a directory";
+}
+
+std::string unquotable(const std::string& origin) {
+  // No file of that name: a text that came from elsewhere (standard input, a built-in catalog file).
+  struct stat st {};
+  if (origin.empty() || ::stat(origin.c_str(), &st) != 0) return {};
+  std::error_code ec;
+  std::filesystem::path real = std::filesystem::canonical(origin, ec);
+  if (ec) return fmt::format("{} cannot be looked at", origin);
+  // The file of the user kscfg runs as, who could show it as well (never root: every file is root's
+  // to read, a link named station.toml may lead to /etc/shadow).
+  if (::getuid() != 0 && ::geteuid() != 0 && st.st_uid == ::getuid()) return {};
+  if (!(st.st_mode & S_IROTH)) return fmt::format("{} is not readable by every user", origin);
+  for (auto dir = real.parent_path(); !dir.empty(); dir = dir.parent_path()) {
+    struct stat d {};
+    if (::stat(dir.c_str(), &d) != 0 || !(d.st_mode & S_IXOTH))
+      return fmt::format("{} is in {}, which not every user may enter", origin, dir.string());
+    if (dir == dir.root_path()) break;
+  }
+  return {};
+}
+
 toml::table parse_toml(std::string_view text, std::string_view origin) {
   check_toml_limits(text, origin);
   try {
     return toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
-    std::string line = line_of(text, e.source().begin.line);
-    if (line.size() > kQuoteMax) line = quote_input(line);  // a crafted line of megabytes: its start and size
-    throw Error(Exit::file, fmt::format("{}:{}:{}: {} (in: {})", origin, e.source().begin.line, e.source().begin.column,
-                                        e.description(), line));
+    // The line is quoted only when anyone may read it anyway (docs/design.md 10): a link named
+    // station.toml to /etc/shadow, given to kscfg run as root, printed a line of it.
+    std::string in;
+    if (std::string why = unquotable(std::string(origin)); !why.empty()) {
+      in = fmt::format(" (the line is not quoted: {})", why);
+    } else {
+      std::string line = line_of(text, e.source().begin.line);
+      if (line.size() > kQuoteMax) line = quote_input(line);  // a crafted line of megabytes: its start and size
+      in = " (in: " + line + ")";
+    }
+    throw Error(Exit::file, fmt::format("{}:{}:{}: {}{}", origin, e.source().begin.line, e.source().begin.column,
+                                        e.description(), in));
   }
 }
 

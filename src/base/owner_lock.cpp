@@ -12,6 +12,8 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
+#include <optional>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
@@ -146,23 +148,88 @@ std::string own_command_line() {
   return printable(out, kMaxCommand);
 }
 
-std::string lock_dir() {
-  if (const char* d = std::getenv("KSCFG_LOCK_DIR"); d && *d) return d;
-  // /run/lock is there for every user (mode 1777 on Debian): a lock taken there holds against
-  // kscfg processes of other users too. Its kscfg directory is made sticky and writable by all.
+namespace {
+
+// A directory of lock files is trusted when no one but this user and root can remove or replace
+// what is in it (issue: another user who made /run/lock/kscfg first, mode 0777, deleted root's
+// lock files, and a second root kscfg wrote at once): owned by root or by this user, and not
+// writable by others unless sticky (then only a file's owner removes it). `why`: what it is else.
+bool trusted_dir(const std::string& dir, std::string& why) {
   struct stat st {};
-  if (::stat("/run/lock", &st) == 0 && S_ISDIR(st.st_mode) && ::access("/run/lock", W_OK | X_OK) == 0) {
-    const char* dir = "/run/lock/kscfg";
-    if (::mkdir(dir, 01777) == 0) ::chmod(dir, 01777);
-    // Never through a link another user planted in /run/lock.
-    if (::lstat(dir, &st) == 0 && !S_ISDIR(st.st_mode))
-      throw Error(
-          Exit::file,
-          fmt::format("the lock directory {} is {} owned by {}, not kscfg's", dir, kind_of(st), user_text(st.st_uid)),
-          "remove it, or ask its owner to; or set KSCFG_LOCK_DIR");
-    if (S_ISDIR(st.st_mode) && ::access(dir, W_OK | X_OK) == 0) return dir;
+  if (::lstat(dir.c_str(), &st) != 0) {
+    why = fmt::format("cannot be looked at ({})", std::strerror(errno));
+    return false;
   }
-  return (std::filesystem::path(state_dir()) / "locks").string();
+  if (!S_ISDIR(st.st_mode)) {
+    why = fmt::format("is {} owned by {}, not a directory", S_ISREG(st.st_mode) ? "a file" : kind_of(st),
+                      user_text(st.st_uid));
+    return false;
+  }
+  if (st.st_uid != 0 && st.st_uid != ::geteuid()) {
+    why = fmt::format("belongs to {}, neither root nor you", user_text(st.st_uid));
+    return false;
+  }
+  if ((st.st_mode & (S_IWGRP | S_IWOTH)) && !(st.st_mode & S_ISVTX)) {
+    why = fmt::format("is writable by others without the sticky bit (mode {:04o})", st.st_mode & 07777);
+    return false;
+  }
+  return true;
+}
+
+struct LockDirChoice {
+  std::string dir;
+  std::string note;  // said once (take_lock_dir_note): why the shared directory is not used
+};
+
+LockDirChoice choose_lock_dir() {
+  const std::string fallback = (std::filesystem::path(state_dir()) / "locks").string();
+  std::string shared;
+  if (const char* d = std::getenv("KSCFG_LOCK_DIR"); d && *d) {
+    shared = d;
+    std::error_code ec;
+    std::filesystem::create_directories(shared, ec);  // this user's: trusted as made
+  } else {
+    // /run/lock is there for every user (mode 1777 on Debian): a lock taken there holds against
+    // kscfg processes of other users too. Its kscfg directory is made sticky and writable by all.
+    struct stat st {};
+    if (::stat("/run/lock", &st) != 0 || !S_ISDIR(st.st_mode) || ::access("/run/lock", W_OK | X_OK) != 0)
+      return {fallback, {}};
+    shared = "/run/lock/kscfg";
+    if (::mkdir(shared.c_str(), 01777) == 0) ::chmod(shared.c_str(), 01777);
+  }
+  std::string why;
+  // Never through a link or a directory another user planted (or made first): this user's own
+  // directory instead, where only this user's kscfg processes take turns, said in one line.
+  if (!trusted_dir(shared, why))
+    return {fallback, fmt::format("the lock directory {} {}: using {} instead, where only your own kscfg processes "
+                                  "take turns (make it root's, mode 1777, for every user to share it)",
+                                  shared, why, fallback)};
+  if (::access(shared.c_str(), W_OK | X_OK) != 0) return {fallback, {}};
+  return {shared, {}};
+}
+
+std::mutex g_lock_dir_mutex;
+std::optional<LockDirChoice> g_lock_dir;  // chosen once per process (and $KSCFG_LOCK_DIR)
+std::string g_lock_dir_env;
+bool g_lock_dir_said = false;
+
+}  // namespace
+
+std::string lock_dir() {
+  std::lock_guard<std::mutex> g(g_lock_dir_mutex);
+  const char* env = std::getenv("KSCFG_LOCK_DIR");
+  if (!g_lock_dir || g_lock_dir_env != (env ? env : "")) {
+    g_lock_dir = choose_lock_dir();
+    g_lock_dir_env = env ? env : "";
+  }
+  return g_lock_dir->dir;
+}
+
+std::string take_lock_dir_note() {
+  std::lock_guard<std::mutex> g(g_lock_dir_mutex);
+  if (!g_lock_dir || g_lock_dir_said || g_lock_dir->note.empty()) return {};
+  g_lock_dir_said = true;
+  return g_lock_dir->note;
 }
 
 OwnerLock& OwnerLock::operator=(OwnerLock&& o) noexcept {
@@ -198,19 +265,39 @@ std::optional<LockHolder> OwnerLock::holder(const std::string& path) {
 }
 
 OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, const LockWait& w) {
+  if (w.notice)
+    if (std::string n = take_lock_dir_note(); !n.empty()) w.notice(n);
   auto dir = std::filesystem::path(path).parent_path();
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   bool said = false;
+  // Who may remove another user's name in the lock directory (root, or the directory's owner): a
+  // name another user planted there, or a lock file of theirs that they could remove while this
+  // process holds it (and a second kscfg would then make a new one and go on at once), is replaced
+  // by a file of this user's, once its lock is held.
+  struct stat ds {};
+  const bool may_replace =
+      !dir.empty() && ::stat(dir.c_str(), &ds) == 0 && (::geteuid() == 0 || ds.st_uid == ::geteuid());
+  auto foreign = [](const struct stat& st) { return st.st_uid != ::geteuid() && st.st_uid != 0; };
+  int replaced = 0;  // names removed: a bound, should another user keep planting them
   for (;;) {
     // Never through a symbolic link, never anything but a regular file: in a directory every user
     // may write, a name planted there must not make kscfg write its record into another file, open
     // a device, or wait on a FIFO. Looked at before it is opened (a device is not even opened),
     // and what was opened looked at again.
     struct stat st {};
-    if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) refuse(path, what, st);
+    if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) {
+      if (may_replace && foreign(st) && !S_ISDIR(st.st_mode) && replaced < 3 && ::unlink(path.c_str()) == 0) {
+        ++replaced;
+        if (w.notice)
+          w.notice(fmt::format("removed {}, {} owned by {} where the lock file of {} belongs", path, kind_of(st),
+                               user_text(st.st_uid), what));
+        continue;
+      }
+      refuse(path, what, st);
+    }
     int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY, 0644);
     if (fd < 0 && (errno == EACCES || errno == EPERM))  // another user's lock file: lock it, record nothing
       fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
@@ -260,6 +347,13 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
     // file nobody else will look at. Open the name again.
     struct stat now {};
     if (::stat(path.c_str(), &now) != 0 || now.st_ino != st.st_ino || now.st_dev != st.st_dev) {
+      ::close(fd);
+      continue;
+    }
+    // Another user's file, which that user could remove under this process: removed while its lock
+    // is held (as release() does), and a file of this user's made in its place.
+    if (may_replace && foreign(st) && replaced < 3 && ::unlink(path.c_str()) == 0) {
+      ++replaced;
       ::close(fd);
       continue;
     }

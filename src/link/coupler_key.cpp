@@ -145,10 +145,12 @@ std::string aliased(const std::string& key) {
   } catch (const Error&) {
     return key;  // no lock directory: nothing recorded either
   }
-  struct stat st {};
-  if (::lstat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return key;
   RegularFile r = read_regular_file(path, "coupler alias", 512);
-  if (!r.exists || !r.refused.empty()) return key;
+  if (!r.exists || !r.refused.empty() || !S_ISREG(r.mode) || r.nlink != 1) return key;
+  // Written by this user or by root, and no one else can write it: another user's record would
+  // send this kscfg to a lock nobody holds (root's write went through while another root kscfg
+  // held the coupler).
+  if ((r.uid != 0 && r.uid != ::geteuid()) || (r.mode & (S_IWGRP | S_IWOTH))) return key;
   auto nl = r.text.find('\n');
   if (nl == std::string::npos || nl == 0 || nl > 10) return key;
   std::string pid = r.text.substr(0, nl), to = r.text.substr(nl + 1);
@@ -159,7 +161,7 @@ std::string aliased(const std::string& key) {
   // Its writer: a kscfg of the record's owner that still runs.
   struct stat ps {};
   std::string proc = "/proc/" + pid;
-  if (::stat(proc.c_str(), &ps) != 0 || ps.st_uid != st.st_uid) return key;
+  if (::stat(proc.c_str(), &ps) != 0 || ps.st_uid != r.uid) return key;
   RegularFile comm = read_regular_file(proc + "/comm", "process name", 64);
   if (!comm.exists || !comm.refused.empty() || comm.text != "kscfg\n") return key;
   return to;

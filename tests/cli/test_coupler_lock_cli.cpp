@@ -1,8 +1,9 @@
 // Issue 32 items 1 and 6, end to end against `kscfg serve`: one lock per coupler whatever name
 // reaches it (localhost and 127.0.0.1 over Modbus TCP and ADS, a serial device and a link to it),
 // and a lock directory every user may write in that no user can use to block or fool kscfg (a
-// planted link, FIFO or directory is refused naming its owner; lock files 0644; another user's
-// lock file locked without trusting or rewriting its record).
+// planted link or FIFO is removed by root and refused naming its owner by others, a directory
+// refused; lock files 0644; another user's lock file made root's by root, locked by others without
+// trusting or rewriting its record).
 #include <fmt/format.h>
 #include <pwd.h>
 #include <signal.h>
@@ -13,6 +14,7 @@
 #include <chrono>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <memory>
 
 #include "support.hpp"
@@ -146,8 +148,8 @@ TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][se
 }
 
 TEST_CASE(
-    "a lock name planted as a link, FIFO or directory is refused at once naming its owner, lock files are "
-    "0644 whatever the umask",
+    "a lock name another user planted as a link, FIFO or hard link is removed by root and refused by others naming "
+    "its owner; a directory is refused; lock files are 0644 whatever the umask",
     "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
   const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
@@ -162,9 +164,10 @@ TEST_CASE(
       {"a symbolic link", [&] { fs::create_symlink(s.dir.file("victim"), lock); }},
       {"a symbolic link", [&] { fs::create_symlink(s.dir.file("nowhere"), lock); }},  // dangling
       {"a FIFO", [&] { REQUIRE(::mkfifo(lock.c_str(), 0666) == 0); }},
-      {"a directory", [&] { fs::create_directory(lock); }},
       {"a file with 2 hard links", [&] { fs::create_hard_link(s.dir.file("victim"), lock); }},
   };
+  // Root may remove another user's name from the lock directory: it does, says so, and goes on (a
+  // name planted there blocked every user, root too, with exit 7).
   for (const auto& p : plants) {
     INFO(p.kind);
     p.make();
@@ -172,14 +175,23 @@ TEST_CASE(
     auto t0 = std::chrono::steady_clock::now();
     Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "5", "read", "--raw", "R8"}, {}, 20);
     CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(3));  // no wait, no hang
-    CHECK(r.rc == 7);
-    CHECK(one_line_error(r));
-    CHECK(r.err == "kscfg: error: the lock file " + lock + " of the coupler at " + s.srv->host_port() + " unit 1 is " +
-                       p.kind + " owned by " + user_of(other) +
-                       ", not a kscfg lock (remove it, or ask its owner to)\n");
-    fs::remove(lock);
+    CHECK(r.rc == 0);
+    CHECK(r.out == "0x1771\n");
+    CHECK(r.err == "kscfg: note: removed " + lock + ", " + p.kind + " owned by " + user_of(other) +
+                       " where the lock file of the coupler at " + s.srv->host_port() + " unit 1 belongs\n");
+    CHECK_FALSE(fs::exists(fs::symlink_status(lock)));  // let go: removed
   }
   CHECK(read_text(s.dir.file("victim")) == "precious\n");  // nothing written through a link
+  // A directory cannot be removed at once: refused, naming its owner.
+  fs::create_directory(lock);
+  REQUIRE(::lchown(lock.c_str(), other, other) == 0);
+  Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "5", "read", "--raw", "R8"}, {}, 20);
+  CHECK(r.rc == 7);
+  CHECK(one_line_error(r));
+  CHECK(r.err == "kscfg: error: the lock file " + lock + " of the coupler at " + s.srv->host_port() +
+                     " unit 1 is a directory owned by " + user_of(other) +
+                     ", not a kscfg lock (remove it, or ask its owner to)\n");
+  fs::remove(lock);
 
   // Made 0644 whatever the umask (and an older kscfg's 0666 file of this user too).
   mode_t before = ::umask(0);
@@ -197,28 +209,86 @@ TEST_CASE(
   CHECK((st.st_mode & 07777) == 0644);
   first->signal(SIGINT);
   CHECK(first->wait() == 0);
+
+  // A user who may not remove it (not root, not the directory's owner) is refused at once, naming
+  // the owner, and writes nothing through it.
+  if (std::string why = other_user_unavailable(); !why.empty()) {
+    WARN("kscfg-test-skipped: " + why);
+    return;
+  }
+  TempDir shared;
+  ::chmod(shared.path.c_str(), 0755);
+  const std::string dir = shared.file("locks"), home = shared.file("nobody");
+  fs::create_directories(dir);
+  ::chmod(dir.c_str(), 01777);  // root's, sticky: as /run/lock/kscfg
+  fs::create_directories(home);
+  REQUIRE(::chown(home.c_str(), other, other) == 0);
+  const std::string planted = dir + "/ip-127.0.0.1-" + s.port() + ".lock";
+  fs::create_symlink(s.dir.file("victim"), planted);
+  REQUIRE(::lchown(planted.c_str(), 65533, 65533) == 0);
+  r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "5", "read", "--raw", "R8"},
+                {{kRunAs, "65534"}, {"KSCFG_LOCK_DIR", dir}, {"XDG_STATE_HOME", home}, {"XDG_CACHE_HOME", home}}, 20);
+  CHECK(r.rc == 7);
+  CHECK(r.err == "kscfg: error: the lock file " + planted + " of the coupler at " + s.srv->host_port() +
+                     " unit 1 is a symbolic link owned by " + user_of(65533) +
+                     ", not a kscfg lock (remove it, or ask its owner to)\n");
+  CHECK(read_text(s.dir.file("victim")) == "precious\n");
 }
 
-TEST_CASE("another user's lock file is locked as it is: its record neither trusted nor rewritten, its owner named",
-          "[sessions][lock][serve]") {
+TEST_CASE(
+    "another user's lock file: root locks it and makes it its own; another user locks it as it is, its record "
+    "neither trusted nor rewritten, its owner named",
+    "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
   const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
   fs::create_directories(kscfg_lock_dir());
   // Left by a kill -9 of another user's kscfg, or planted: a record naming a live process that is
-  // not that user's (this test's own).
+  // not that user's (this test's own). That user could remove the file while root's kscfg holds it,
+  // and a second root kscfg would make a new one and go on at once.
   const std::string forged = std::to_string(::getpid()) + "\nkscfg --port tcp://elsewhere data\n";
   write_text(lock, forged);
   REQUIRE(::chown(lock.c_str(), 65534, 65534) == 0);
   REQUIRE(::chmod(lock.c_str(), 0644) == 0);
-  Child first({"--port", s.srv->uri, "data"});
+  {
+    auto first = holder({"--port", s.srv->uri}, lock);  // its record: the file is root's now
+    struct stat st {};
+    REQUIRE(::stat(lock.c_str(), &st) == 0);
+    CHECK(st.st_uid == ::geteuid());
+    Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "0.5", "read", "--raw", "R8"});
+    CHECK(r.rc == 11);
+    CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid,
+                                                  s.srv->uri)));
+    CHECK(r.err.find(std::to_string(::getpid())) == std::string::npos);
+    first->signal(SIGINT);
+    CHECK(first->wait() == 0);
+  }
+  if (std::string why = other_user_unavailable(); !why.empty()) {
+    WARN("kscfg-test-skipped: " + why);
+    return;
+  }
+  // A user who cannot remove it (in root's sticky directory) locks it as it is.
+  TempDir shared;
+  ::chmod(shared.path.c_str(), 0755);
+  const std::string dir = shared.file("locks"), home = shared.file("nobody");
+  fs::create_directories(dir);
+  ::chmod(dir.c_str(), 01777);
+  fs::create_directories(home);
+  REQUIRE(::chown(home.c_str(), 65534, 65534) == 0);
+  const std::string theirs = dir + "/ip-127.0.0.1-" + s.port() + ".lock";
+  write_text(theirs, forged);
+  REQUIRE(::chown(theirs.c_str(), 65533, 65533) == 0);
+  REQUIRE(::chmod(theirs.c_str(), 0644) == 0);
+  const std::map<std::string, std::string> as_nobody{
+      {kRunAs, "65534"}, {"KSCFG_LOCK_DIR", dir}, {"XDG_STATE_HOME", home}, {"XDG_CACHE_HOME", home}};
+  Child first({"--port", s.srv->uri, "data"}, as_nobody);
   REQUIRE(wait_for([&] { return !first.out().empty(); }));  // its live view: it holds the coupler
-  Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "0.5", "read", "--raw", "R8"});
+  Run r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "0.5", "read", "--raw", "R8"}, as_nobody);
   CHECK(r.rc == 11);
-  CHECK_THAT(r.err, Catch::EndsWith(" is in use by another kscfg process (lock file owned by " + user_of(65534) +
+  CHECK_THAT(r.err, Catch::EndsWith(" is in use by another kscfg process (lock file owned by " + user_of(65533) +
                                     "); gave up after waiting 0.5 s (try again when it has finished, or wait longer "
                                     "with --lock-wait SECONDS)\n"));
   CHECK(r.err.find(std::to_string(::getpid())) == std::string::npos);
-  CHECK(read_text(lock) == forged);  // not this user's to write
+  CHECK(read_text(theirs) == forged);  // not this user's to write
   first.signal(SIGINT);
   CHECK(first.wait() == 0);
 }

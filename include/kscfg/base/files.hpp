@@ -1,5 +1,6 @@
 // Files the tool owns: atomic replacement and bounded locking.
 #pragma once
+#include <sys/types.h>
 #include <toml++/toml.h>
 
 #include <string>
@@ -51,6 +52,10 @@ struct RegularFile {
   // Why it was not read, words that follow its path: "is a FIFO", "is a symbolic link",
   // "has N bytes, more than a WHAT has (K KiB at most)", "cannot be read (reason)", ...
   std::string refused;
+  // What is at the path (lstat; the same file as was read): its owner, mode and links.
+  uid_t uid = 0;
+  mode_t mode = 0;
+  nlink_t nlink = 0;
 };
 RegularFile read_regular_file(const std::string& path, std::string_view what, std::size_t max_bytes);
 
@@ -59,6 +64,17 @@ RegularFile read_regular_file(const std::string& path, std::string_view what, st
 // `path` is refused, never followed or waited on. Returns the descriptor; closing it releases the
 // lock. Throws Error(Exit::file).
 int lock_file(const std::string& path, double timeout_s, const CancelToken* cancel);
+
+// Why the content of the file at `origin` must not be quoted in an error ("" when it may): kscfg
+// quotes a file only when whoever reads the message may read it anyway (docs/design.md 10): a file
+// of the user kscfg runs as, when that is not root; a file every user may read (mode o+r, every
+// directory on its real path o+x); a text that is no file (standard input, a built-in catalog
+// file: no file of that name). Otherwise an error names the place (line and column) only, and why.
+std::string unquotable(const std::string& origin);
+
+// What is at `path` when it is not a directory (a link is followed), in words that follow its name:
+// "does not exist", "is a file, not a directory", "is a FIFO, not a directory"; "" for a directory.
+std::string not_a_directory(const std::string& path);
 
 // Line `line` (1-based) of `text`, for error messages that show the offending line.
 std::string line_of(std::string_view text, std::size_t line);

@@ -46,6 +46,8 @@ struct LockWait {
   // The run's cancellation (base/cancel.hpp): the wait ends with Error(Exit::interrupted) once it
   // is cancelled. Null: never cancelled.
   const CancelToken* cancel = nullptr;
+  // Told once per process why the shared lock directory is not used (take_lock_dir_note()).
+  std::function<void(const std::string&)> notice;
 };
 
 class OwnerLock {
@@ -79,8 +81,14 @@ class OwnerLock {
 
 // Where the coupler locks live: $KSCFG_LOCK_DIR if set, else /run/lock/kscfg (shared by every user
 // of the computer, mode 1777: two engineers on one coupler take turns too), else
-// $XDG_STATE_HOME/kscfg/locks. Error(Exit::file) when /run/lock/kscfg is not a directory (a link).
+// $XDG_STATE_HOME/kscfg/locks. The shared directory is trusted only when it is a directory owned
+// by root or by this user that others cannot write to without the sticky bit (docs/design.md 6.9):
+// anything else there (another user's directory, a file or link planted in its place) neither
+// misleads nor blocks, this user's own directory is used, and take_lock_dir_note() says why once.
+// Chosen once per process.
 std::string lock_dir();
+// Why lock_dir() is not the shared directory, once per process ("" when it is, or said already).
+std::string take_lock_dir_note();
 
 // This process's command line as LockHolder::command shows it (read from /proc/self/cmdline).
 std::string own_command_line();
