@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
 
 namespace kscfg {
@@ -97,6 +98,10 @@ const Catalog& Catalog::standard() {
     std::filesystem::path dir = g_user_dir;
     if (dir.empty())
       if (const char* env = std::getenv("KSCFG_CATALOG"); env && *env) dir = env;
+    // Said as what it is: a file given as the directory is not a directory that "does not exist".
+    if (std::string what = dir.empty() ? "" : not_a_directory(dir.string()); !what.empty())
+      throw Error(Exit::file, fmt::format("catalog directory '{}' {}", dir.string(), what),
+                  "--catalog and KSCFG_CATALOG name a directory of TYPE.toml files");
     if (!dir.empty()) c.add_dir(dir);
     return c;
   }();
