@@ -5,9 +5,11 @@
 
 #include <functional>
 #include <iostream>
+#include <memory>
 #include <optional>
 #include <tuple>
 #include <utility>
+#include <vector>
 
 #include "../app.hpp"
 #include "../command.hpp"
@@ -22,6 +24,7 @@
 #include "kscfg/emulator/poll_loop.hpp"
 #include "kscfg/emulator/served_station.hpp"
 #include "kscfg/link/ams.hpp"
+#include "kscfg/link/can_link.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"
 
@@ -214,7 +217,7 @@ class Serve : public Command {
         std::optional<ModbusServer> m;
         std::optional<AdsServer> a;
         std::optional<CanServer> c;
-        std::optional<CouplerAlias> alias;
+        std::vector<std::unique_ptr<CouplerAlias>> aliases;
         std::vector<std::string> uris;
         std::vector<PollSource*> sources;
         if (so) {
@@ -227,13 +230,19 @@ class Serve : public Command {
           a.emplace(shared, *ao);
           uris.push_back(a->endpoint());
           sources.push_back(&a->poll_source());
-          if (m) check_tcp_ads(m->endpoint(), a->endpoint(), so->warn, alias);
+          if (m) check_tcp_ads(m->endpoint(), a->endpoint());
         }
         if (co) {
           c.emplace(shared, *co);
           uris.push_back(c->endpoint());
           sources.push_back(&c->poll_source());
         }
+        // One coupler by every protocol: kscfg over each takes the lock of the one over the first.
+        std::vector<std::vector<std::string>> keys;
+        if (m) keys.push_back(modbus_client_keys(*so, m->endpoint()));
+        if (a) keys.push_back({listener_key(local_ads(a->endpoint()))});
+        if (c) keys.push_back(can_client_keys(*co));
+        record_aliases(keys, uris, warn, aliases);
         listening(uris);
         run_poll_loop(sources, stop, [&shared] { shared.flush(); });
         if (m) st = m->stats();
@@ -341,20 +350,79 @@ class Serve : public Command {
 
   // serve --tcp --ads: an ADS client asks the Modbus port at the address it reached (a BK9000
   // answers both on its one IP address): the Modbus server must be there too, or on every address.
-  // One coupler by both ports: kscfg over ads:// takes the lock of the one over tcp://, and they
-  // take turns, as on a BK9000's standard ports (link/coupler_key.hpp).
-  static void check_tcp_ads(const std::string& modbus, const std::string& ads,
-                            const std::function<void(const std::string&)>& warn, std::optional<CouplerAlias>& alias) {
+  static void check_tcp_ads(const std::string& modbus, const std::string& ads) {
     if (host_of(modbus) != host_of(ads) && host_of(modbus) != "0.0.0.0" && host_of(modbus) != "[::]")
       throw Error(
           Exit::usage,
           fmt::format("--tcp {} and --ads {}: serve both on one address (or --tcp on 0.0.0.0 or [::])", modbus, ads),
           "an ADS client looks for the Modbus port (table 100 register 26) at the address it reached, as "
           "a BK9000 answers both on its one IP address");
-    try {
-      alias.emplace(listener_key(local_ads(ads)), listener_key(local_modbus(modbus)));
-    } catch (const Error& e) {
-      warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), modbus, ads));
+  }
+
+  // The keys of the kscfg clients of this computer that reach the Modbus server: its TCP port, the
+  // pseudo-terminal it made (--pty), or the other ends of the pseudo-terminal pair it serves on
+  // (--rtu PATH; a serial line to another computer has none here).
+  static std::vector<std::string> modbus_client_keys(const ServeOptions& so, const std::string& endpoint) {
+    if (so.mode == ServeOptions::Mode::tcp) return {listener_key(local_modbus(endpoint))};
+    ModbusTarget t;
+    t.tcp = false;
+    if (so.mode == ServeOptions::Mode::pty) {
+      t.device = endpoint.substr(4, endpoint.find('?') - 4);  // rtu:/dev/pts/N?parity=N
+      return {listener_key(t)};
+    }
+    std::vector<std::string> keys;
+    for (const auto& peer : pty_peers(so.device)) {
+      t.device = peer;
+      keys.push_back(listener_key(t));
+    }
+    return keys;
+  }
+  // ... of the CANopen server: the SocketCAN interface and node, or the other ends of the
+  // pseudo-terminal pair it plays an slcan adapter on.
+  static std::vector<std::string> can_client_keys(const CanServeOptions& co) {
+    CanTarget t;
+    t.scheme = co.scheme;
+    t.node = co.node;
+    if (co.scheme == "socketcan") {
+      t.device = co.device;
+      return {listener_key(t)};
+    }
+    std::vector<std::string> keys;
+    for (const auto& peer : pty_peers(co.device)) {
+      t.device = peer;
+      keys.push_back(listener_key(t));
+    }
+    return keys;
+  }
+  // One coupler by every protocol it serves (link/coupler_key.hpp): each client key beyond the
+  // first protocol's first stands for it while this serve runs, so kscfg over any of them takes one
+  // lock and they take turns, as on a BK9000's standard ports (serve --tcp --can gave its two
+  // protocols no common lock: Modbus and slcan writers lost verified writes to each other's
+  // rollbacks). A protocol whose clients cannot be named from here (an slcan line to another
+  // computer) is said.
+  static void record_aliases(const std::vector<std::vector<std::string>>& keys, const std::vector<std::string>& uris,
+                             const std::function<void(const std::string&)>& warn,
+                             std::vector<std::unique_ptr<CouplerAlias>>& aliases) {
+    std::string primary;
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      if (keys[i].empty()) {
+        warn(
+            fmt::format("{}: no client of this computer found on its other end; kscfg over it and over {} will not "
+                        "take turns",
+                        uris[i], uris[i == 0 ? 1 : 0]));
+        continue;
+      }
+      for (const auto& k : keys[i]) {
+        if (primary.empty()) {
+          primary = k;
+          continue;
+        }
+        try {
+          aliases.push_back(std::make_unique<CouplerAlias>(k, primary));
+        } catch (const Error& e) {
+          warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), uris[0], uris[i]));
+        }
+      }
     }
   }
 

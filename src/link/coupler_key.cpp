@@ -23,6 +23,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <vector>
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
@@ -136,9 +137,15 @@ std::string alias_path(const std::string& key) {
 // The key `key` stands for while a listener's CouplerAlias records it; `key` when none does (no
 // record, a process that is gone or is not a kscfg of the record's owner, a record that is not one).
 // Only listeners of this computer are aliased: a record never speaks for a coupler elsewhere.
+// A key of this computer: a listener on one of its addresses, a serial line or CAN interface of its
+// own (a pseudo-terminal a serve plays an adapter on, a SocketCAN interface).
+bool local_key(const std::string& key) {
+  return key.rfind(std::string("ip-") + kThisComputer + "-", 0) == 0 || key.rfind("rtu-", 0) == 0 ||
+         key.rfind("can-", 0) == 0;
+}
+
 std::string aliased(const std::string& key) {
-  const std::string local = std::string("ip-") + kThisComputer + "-";
-  if (key.rfind(local, 0) != 0) return key;
+  if (!local_key(key)) return key;
   std::string path;
   try {
     path = alias_path(key);
@@ -155,7 +162,7 @@ std::string aliased(const std::string& key) {
   if (nl == std::string::npos || nl == 0 || nl > 10) return key;
   std::string pid = r.text.substr(0, nl), to = r.text.substr(nl + 1);
   if (!to.empty() && to.back() == '\n') to.pop_back();
-  if (!std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; }) || to.rfind(local, 0) != 0 ||
+  if (!std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; }) || !local_key(to) ||
       to.size() > 200 || safe(to) != to)
     return key;
   // Its writer: a kscfg of the record's owner that still runs.
@@ -219,7 +226,7 @@ std::string serial_key(const std::string& device) { return "rtu-" + device_key(d
 
 std::string coupler_key(const ModbusTarget& t) {
   if (t.tcp) return ip_key(t.host, t.port, kModbusPort);
-  return serial_key(t.device);
+  return aliased(serial_key(t.device));
 }
 
 std::string coupler_key(const AdsTarget& t) { return ip_key(t.host, t.port, ams::kTcpPort); }
@@ -228,10 +235,48 @@ std::string coupler_key(const CanTarget& t) {
   return fmt::format("can-{}-n{}", t.scheme == "slcan" ? device_key(t.device) : safe(t.device), t.node);
 }
 
-std::string lock_key(const CanTarget& t) { return t.scheme == "slcan" ? serial_key(t.device) : coupler_key(t); }
+std::string lock_key(const CanTarget& t) { return aliased(listener_key(t)); }
 
 std::string listener_key(const ModbusTarget& t) {
-  return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : coupler_key(t);
+  return t.tcp ? raw_ip_key(t.host, t.port, kModbusPort) : serial_key(t.device);
+}
+
+std::string listener_key(const CanTarget& t) { return t.scheme == "slcan" ? serial_key(t.device) : coupler_key(t); }
+
+std::vector<std::string> pty_peers(const std::string& device) {
+  // The pseudo-terminal's number, then the process holding its master (/dev/ptmx with that
+  // tty-index in its fdinfo), then that process's other masters.
+  std::error_code ec;
+  const std::string real = std::filesystem::canonical(device, ec).string();
+  if (ec || real.rfind("/dev/pts/", 0) != 0) return {};
+  const std::string index = real.substr(9);
+  auto tty_index = [](const std::filesystem::path& fdinfo) {
+    RegularFile f = read_regular_file(fdinfo.string(), "fdinfo", 4096);
+    auto at = f.text.find("tty-index:");
+    if (at == std::string::npos) return std::string();
+    std::string v = f.text.substr(at + 10, f.text.find('\n', at) - at - 10);
+    v.erase(0, v.find_first_not_of(" \t"));
+    return v;
+  };
+  for (const auto& proc : std::filesystem::directory_iterator("/proc", ec)) {
+    const std::string pid = proc.path().filename().string();
+    if (pid.empty() || !std::all_of(pid.begin(), pid.end(), [](char c) { return c >= '0' && c <= '9'; })) continue;
+    std::vector<std::string> masters;  // tty-index of each /dev/ptmx it holds
+    std::error_code e2;
+    for (const auto& fd : std::filesystem::directory_iterator(proc.path() / "fd", e2)) {
+      std::error_code e3;
+      std::string target = std::filesystem::read_symlink(fd.path(), e3).string();
+      if (e3 || (target != "/dev/ptmx" && target != "/dev/pts/ptmx")) continue;
+      std::string n = tty_index(proc.path() / "fdinfo" / fd.path().filename());
+      if (!n.empty()) masters.push_back(n);
+    }
+    if (std::find(masters.begin(), masters.end(), index) == masters.end()) continue;
+    std::vector<std::string> peers;
+    for (const auto& n : masters)
+      if (n != index) peers.push_back("/dev/pts/" + n);
+    return peers;
+  }
+  return {};
 }
 
 std::string listener_key(const AdsTarget& t) { return raw_ip_key(t.host, t.port, ams::kTcpPort); }

@@ -17,6 +17,7 @@
 #include <map>
 #include <memory>
 
+#include "pty_pair.hpp"
 #include "support.hpp"
 
 using namespace kscfg::test;
@@ -315,6 +316,48 @@ TEST_CASE(
     CHECK(first->wait() == 0);
   }
   CHECK(run_kscfg({"--port", ads, "-t", "1", "read", "--raw", "R8"}).out == "0x1771\n");  // KL6001
+  CHECK(s.srv->stop() == 0);
+  CHECK_FALSE(fs::exists(alias));
+}
+
+TEST_CASE(
+    "serve --tcp --can is one coupler by both protocols: kscfg over slcan waits for kscfg over tcp:// and the "
+    "other way round",
+    "[sessions][lock][serve][can]") {
+  // Before, the two protocols took two locks: 3 Modbus and 3 slcan writers lost 20 verified slcan
+  // writes to Modbus rollbacks. serve finds the pseudo-terminal pair's other end (socat's other
+  // master) and records that its key stands for the Modbus port's.
+  PtyPair pair;
+  if (!usable(pair)) return;
+  Served s({"--tcp", "127.0.0.1:0", "--can", "slcan:" + pair.a});
+  REQUIRE(s.srv->next_line() == "slcan:" + pair.a + "?node=1");
+  const std::string can = "slcan:" + pair.b, key = "ip-127.0.0.1-" + s.port();
+  const std::string alias = kscfg_lock_dir() + "/alias-rtu-" + [&] {
+    std::string k = fs::canonical(pair.b).string();
+    for (char& c : k)
+      if (c == '/') c = '_';
+    return k;
+  }();
+  CHECK(read_text(alias) == fmt::format("{}\n{}\n", s.srv->pid, key));
+  auto first = holder({"--port", s.srv->uri}, lock_file(key));
+  Run r = run_kscfg({"--port", can, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 11);  // before: read at once, beside the Modbus session
+  CHECK_THAT(r.err, Catch::Contains(
+                        fmt::format(" is in use by kscfg process {} (kscfg --port {} data)", first->pid, s.srv->uri)));
+  first->signal(SIGINT);
+  CHECK(first->wait() == 0);
+  // The other way round: a kscfg over slcan (stopped by its test hook after a write) holds the lock
+  // of the Modbus port.
+#ifdef KSCFG_TEST_HOOKS
+  Child over_can({"--port", can, "-t", "1", "write", "R32", "4"}, {{"KSCFG_TEST_STOP_AFTER", "R32"}});
+  REQUIRE(wait_for([&] { return read_text(lock_file(key)).rfind(std::to_string(over_can.pid) + "\n", 0) == 0; }));
+  r = run_kscfg({"--port", s.srv->uri, "--lock-wait", "0.5", "-t", "1", "read", "--raw", "R8"});
+  CHECK(r.rc == 11);
+  CHECK_THAT(r.err, Catch::Contains(fmt::format(" is in use by kscfg process {} (kscfg --port {} -t 1 write R32 4)",
+                                                over_can.pid, can)));
+  over_can.signal(SIGCONT);
+  CHECK(over_can.wait() == 0);
+#endif
   CHECK(s.srv->stop() == 0);
   CHECK_FALSE(fs::exists(alias));
 }

@@ -18,11 +18,13 @@
 // the test suite's many serves side by side on 127.0.0.1) the key is address and port,
 // "ip-127.0.0.1-5020": only one listener can have a port, so the protocol need not be in it.
 //
-// A listener that serves one coupler on two ports of its own (`kscfg serve --tcp P1 --ads P2`, as a
-// BK9000 answers Modbus TCP on 502 and ADS on 48898) records that the second port's key stands for
-// the first's while it lives (CouplerAlias): clients over both protocols then take one lock and turns.
-// A record is used only for a listener of this computer ("ip-127.0.0.1-PORT" for another such key),
-// and only when it is a regular file whose owner runs the kscfg process it names.
+// A listener that serves one coupler by several protocols (`kscfg serve --tcp P1 --ads P2`, as a
+// BK9000 answers Modbus TCP on 502 and ADS on 48898; `--can slcan:PATH` beside them) records that
+// every other client key stands for the first's while it lives (CouplerAlias): clients over every
+// protocol then take one lock and turns. A record is used only for keys of this computer (a
+// listener on one of its addresses, a serial line, a CAN interface), and only when it is a regular
+// file of root or of this user that no one else may write, whose owner runs the kscfg process it
+// names.
 //
 // A serial device is keyed by its real path (realpath: a /dev/serial/by-id/ link and its target
 // are one key), whatever the unit: one master at a time on a line. "rtu-_dev_ttyUSB0".
@@ -33,6 +35,7 @@
 // clients of one node would mix their transfers (one SDO channel per node) and take turns.
 #pragma once
 #include <string>
+#include <vector>
 
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/modbus_client.hpp"
@@ -59,9 +62,17 @@ std::string coupler_key(const CanTarget& target);
 // interface is shared: its node's coupler_key().
 std::string lock_key(const CanTarget& target);
 
-// A listener's own key, records not followed: what a CouplerAlias is made of.
+// A listener's own key, records not followed: what a CouplerAlias is made of. For a serial line
+// or a CAN interface: the key of a client that opens that device ("rtu-_dev_pts_4", "can-vcan0-n1").
 std::string listener_key(const ModbusTarget& target);
 std::string listener_key(const AdsTarget& target);
+std::string listener_key(const CanTarget& target);
+
+// The other ends of the pseudo-terminal `device` when a process of this computer relays it to
+// others (socat pty pty, a test's relay): /dev/pts/M for each other pseudo-terminal master the
+// process that holds `device`'s master has open. Empty when `device` is no pseudo-terminal or no
+// such process can be seen. What a client of a `kscfg serve --rtu PATH` or `--can slcan:PATH` opens.
+std::vector<std::string> pty_peers(const std::string& device);
 
 // While it lives, coupler key `also` stands for `key` (the rule above): recorded in the lock directory
 // (base/owner_lock.hpp lock_dir()) as "alias-ALSO" holding "PID\nKEY\n", removed when it dies (if
