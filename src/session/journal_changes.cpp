@@ -40,6 +40,8 @@ bool parse_channel(std::string_view rest, std::size_t& id, SessionJournal::Chang
   if (w.size() != 5 || !number(w[0], id) || id == 0 || id > kMaxChangeId || !place(w[1], w[2], p, ch) || w[3].empty() ||
       w[3].size() > 64 || w[4].empty())
     return false;
+  for (char t : w[3])  // a type name, said in notes: printable
+    if (static_cast<unsigned char>(t) <= 0x20 || static_cast<unsigned char>(t) >= 0x7F) return false;
   c = SessionJournal::ChangeChannel{};
   c.position = static_cast<unsigned>(p);
   c.channel = static_cast<unsigned>(ch);
