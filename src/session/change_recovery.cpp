@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <set>
 
+#include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/session/station_work.hpp"
@@ -18,6 +19,8 @@
 namespace kscfg {
 
 namespace {
+
+constexpr int kSettleReads = 5;  // reads of a dead change's registers until two agree, at most
 
 using Change = SessionJournal::Change;
 using ChangeChannel = SessionJournal::ChangeChannel;
@@ -84,26 +87,39 @@ bool finish_dead_changes(SessionJournal::Dead& d, Engine& engine, const SessionO
       if (d.other_unit) all = false;  // another unit's station, perhaps: kept for it
       continue;
     }
-    // What the terminals hold now: every register of the change (and R8: the type is checked first).
+    // What the terminals hold now: every register of the change (and R8 first: the type is
+    // checked). A request the dead process sent just before the kill may still be carried out (a
+    // coupler works through a connection's requests after it closed): the registers are read
+    // again after a pause until two reads agree (at most kSettleReads), and the change is judged
+    // by what they hold then.
     std::vector<ChannelReads> reads;
-    for (const auto& ch : c.channels) {
-      ChannelReads r;
-      r.position = ch.position;
-      r.channel = ch.channel;
-      for (const auto& reg : ch.registers) r.regs.push_back(reg.reg);
-      r.expect_r8 = L.terminal(ch.position).type->r8;
-      reads.push_back(std::move(r));
-    }
-    read_channels(engine, L, reads, so);
     std::optional<Error> failed;
-    for (const auto& r : reads) {
-      if (!r.error) continue;
-      try {
-        std::rethrow_exception(r.error);
-      } catch (const Error& e) {
-        if (e.code() == Exit::interrupted) throw;
-        if (!failed || e.code() == Exit::link || e.code() == Exit::timeout) failed = e;
+    const auto pause = std::clamp(so.timeout / 4, std::chrono::milliseconds(50), std::chrono::milliseconds(500));
+    for (int round = 0; round < kSettleReads && !failed; ++round) {
+      std::vector<ChannelReads> now;
+      for (const auto& ch : c.channels) {
+        ChannelReads r;
+        r.position = ch.position;
+        r.channel = ch.channel;
+        for (const auto& reg : ch.registers) r.regs.push_back(reg.reg);
+        if (round == 0) r.expect_r8 = L.terminal(ch.position).type->r8;
+        now.push_back(std::move(r));
       }
+      read_channels(engine, L, now, so);
+      for (const auto& r : now) {
+        if (!r.error) continue;
+        try {
+          std::rethrow_exception(r.error);
+        } catch (const Error& e) {
+          if (e.code() == Exit::interrupted) throw;
+          if (!failed || e.code() == Exit::link || e.code() == Exit::timeout) failed = e;
+        }
+      }
+      const bool same = !reads.empty() && std::equal(reads.begin(), reads.end(), now.begin(),
+                                                     [](const auto& a, const auto& b) { return a.values == b.values; });
+      reads = std::move(now);
+      if (failed || same) break;
+      if (!sleep_for_or_cancelled(pause, so.cancel)) throw Error(Exit::interrupted, "interrupted");
     }
     if (failed) {
       if (failed->code() == Exit::link || failed->code() == Exit::timeout) {
