@@ -171,9 +171,17 @@ TEST_CASE("kill -9 of a two-terminal apply: the next command rolls every termina
              "type = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\nbaud = 2400\nframe = \"8E1\"\n[[terminal]]\ntype = "
              "\"KL3022\"\n");
   const auto t1 = c.regs(1, {32, 33}), t3 = c.regs(3, {32, 33});
-  Run r = c({"apply", c.dir.file("want.toml")}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
-  REQUIRE(r.rc == -9);
-  const auto h1 = c.regs(1, {32, 33}), h3 = c.regs(3, {32, 33});
+  // Killed after the first code word's answer, the writes that went out with it landed; on a loaded
+  // machine the kill may come before any did: tried again, up to five times.
+  std::vector<unsigned> h1 = t1, h3 = t3;
+  Run r;
+  for (int attempt = 0; attempt < 5 && h1 == t1 && h3 == t3; ++attempt) {
+    r = c({"apply", c.dir.file("want.toml")}, {{"KSCFG_TEST_KILL_AFTER", "R31"}});
+    REQUIRE(r.rc == -9);
+    h1 = c.regs(1, {32, 33});
+    h3 = c.regs(3, {32, 33});
+    if (h1 == t1 && h3 == t3) REQUIRE(c({"-t", "2", "read", "--raw", "R8"}).rc == 0);  // its leftovers finished
+  }
   REQUIRE((h1 != t1 || h3 != t3));  // something was written
   r = c({"-t", "2", "read", "--raw", "R8"});
   INFO(r.err);
