@@ -12,7 +12,8 @@ std::vector<std::pair<std::string, std::string>> decode_register(const TerminalT
   std::vector<std::pair<std::string, std::string>> out;
   for (const auto& p : type.params) {
     if (p.channel && *p.channel != channel) continue;
-    if (p.reg == reg) out.emplace_back(p.name + (p.reg_hi ? "(low)" : ""), p.reg_hi ? hex4(value) : decode_param(p, value));
+    if (p.reg == reg)
+      out.emplace_back(p.name + (p.reg_hi ? "(low)" : ""), p.reg_hi ? hex4(value) : decode_param(p, value));
     else if (p.reg_hi && *p.reg_hi == reg) out.emplace_back(p.name + "(high)", hex4(value));
   }
   return out;
