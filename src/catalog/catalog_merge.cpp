@@ -1,4 +1,4 @@
-// A description and the bases it includes (catalog/base/NAME.toml) merged into one TOML table,
+// A description and the bases it includes (catalog/base/<name>.toml) merged into one TOML table,
 // before it is read as a type (catalog_parse.cpp). The nodes are moved, not copied, so each keeps
 // its file and line for the errors (toml++ drops the source region on a copy).
 #include <fmt/format.h>

@@ -13,6 +13,7 @@
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/catalog/params.hpp"
+#include "kscfg/catalog/values.hpp"
 #include "parse_ctx.hpp"
 
 namespace kscfg {
@@ -207,10 +208,12 @@ void check_condition(const Ctx& c, const toml::table& at, std::string_view field
   const ParamDef* other = t.param(r.param);
   if (!other || other == self)
     c.fail(at, field, fmt::format("'{}={}' names no other parameter of {}", r.param, r.value, t.type));
-  try {
-    (void)encode_param(*other, r.value, 0);
-  } catch (const Error& e) {
-    c.fail(at, field, fmt::format("'{}={}': {}", r.param, r.value, e.what()));
+  for (const auto& v : alternatives(r.value)) {
+    try {
+      (void)encode_param(*other, v, 0);
+    } catch (const Error& e) {
+      c.fail(at, field, fmt::format("'{}={}': {}", r.param, v, e.what()));
+    }
   }
 }
 

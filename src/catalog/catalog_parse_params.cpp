@@ -43,11 +43,23 @@ std::vector<Requirement> Ctx::requirements(const toml::table& t, std::string_vie
       fail(&e, key, "must be \"PARAM=VALUE\" or a list of them");
     out.push_back({s->substr(0, eq), s->substr(eq + 1)});
   };
-  if (const auto* tb = n->as_table()) {  // when = { element = "PT1000", ... }
+  if (const auto* tb = n->as_table()) {  // when = { element = "PT1000", ... } or ["PT100", "PT1000"]
     for (auto&& [k, v] : *tb) {
-      auto s = v.value<std::string>();
-      if (!s) fail(&v, key, "values must be strings (the parameter's value as set would take it)");
-      out.push_back({std::string(k.str()), *s});
+      std::string any;
+      if (const auto* alts = v.as_array()) {
+        for (const auto& a : *alts) {
+          auto s = a.value<std::string>();
+          if (!s || s->empty() || s->find('|') != std::string::npos)
+            fail(&a, key, "values must be strings (the parameter's value as set would take it)");
+          any += (any.empty() ? "" : "|") + *s;
+        }
+        if (any.empty()) fail(&v, key, "an array of values must not be empty");
+      } else {
+        auto s = v.value<std::string>();
+        if (!s) fail(&v, key, "values must be strings (the parameter's value as set would take it)");
+        any = *s;
+      }
+      out.push_back({std::string(k.str()), any});
     }
   } else if (const auto* a = n->as_array()) {
     for (const auto& e : *a) one(e);

@@ -23,16 +23,29 @@ std::string DataValue::text() const {
   return s;
 }
 
+std::vector<std::string> alternatives(const std::string& value) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  for (;;) {
+    auto bar = value.find('|', start);
+    out.push_back(value.substr(start, bar == std::string::npos ? std::string::npos : bar - start));
+    if (bar == std::string::npos) return out;
+    start = bar + 1;
+  }
+}
+
 bool conditions_hold(const TerminalType& type, const std::vector<Requirement>& when,
                      const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
   for (const auto& r : when) {
     const ParamDef* p = type.param(r.param);
     if (!p) return false;
-    try {
-      if (p->field(encode_param(*p, r.value, 0)) != p->field(regs[p->reg])) return false;
-    } catch (const Error&) {
-      return false;
+    bool any = false;
+    for (const auto& v : alternatives(r.value)) {
+      try {
+        any = any || p->field(encode_param(*p, v, 0)) == p->field(regs[p->reg]);
+      } catch (const Error&) {}
     }
+    if (!any) return false;
   }
   return true;
 }

@@ -1,4 +1,4 @@
-// The families' golden vectors (tests/catalog/golden/FAMILY.toml, catalog/FORMAT.md "Golden
+// The families' golden vectors (tests/catalog/golden/<family>.toml, catalog/FORMAT.md "Golden
 // cases"): each case's defaults, settings, register values, parameter texts, refusals and data
 // words from a manual, checked against the built-in catalog and the parameter code; and the rule
 // that every fact of the catalog has a source.

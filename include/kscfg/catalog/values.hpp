@@ -20,6 +20,10 @@ struct DataValue {
   std::string text() const;        // "21.5 °C", "1.0 °C (overflow)"; "" when not known
 };
 
+// The values of a condition: `when` may give several values (an array), held in
+// Requirement::value as "A|B|C", any of which holds ("PT100|PT1000" -> PT100, PT1000).
+std::vector<std::string> alternatives(const std::string& value);
+
 // Whether every condition holds in the channel's registers (a condition naming no parameter of
 // the type does not hold).
 bool conditions_hold(const TerminalType& type, const std::vector<Requirement>& when,
