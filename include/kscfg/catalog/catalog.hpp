@@ -21,7 +21,7 @@ struct EmbeddedFile {
   const char* text;
 };
 const std::vector<EmbeddedFile>& builtin_catalog_files();
-// The family descriptions (catalog/base/NAME.toml) a type includes; not types themselves.
+// The family descriptions (catalog/base/<name>.toml) a type includes; not types themselves.
 const std::vector<EmbeddedFile>& builtin_base_files();
 const std::vector<EmbeddedFile>& builtin_coupler_files();
 
@@ -245,7 +245,7 @@ struct TerminalType {
   bool is_serial() const { return family == "serial"; }
 };
 
-// A base (catalog/base/NAME.toml) by name: its origin and text, or nothing.
+// A base (catalog/base/<name>.toml) by name: its origin and text, or nothing.
 struct BaseText {
   std::string origin;
   std::string_view text;
