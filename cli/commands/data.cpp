@@ -488,8 +488,13 @@ class Data : public Command {
            const ForcePlan* plan) {
     EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
-    // The settings an analog value follows (catalog [[value]]: a KL3202's element), read once.
-    ChannelSettings settings = read_value_settings(ctx.engine(), L, ctx.session_options(), only);
+    // The settings an analog value follows (catalog [[value]]: a KL3202's element), read once; the
+    // engine only where there is one to read.
+    ChannelSettings settings;
+    if (std::any_of(L.terminals.begin(), L.terminals.end(), [&](const TerminalImage& t) {
+          return (!only || t.position == only) && t.complex && !t.type->values.empty();
+        }))
+      settings = read_value_settings(ctx.engine(), L, ctx.session_options(), only);
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
     for (std::size_t n = 1;; ++n) {
