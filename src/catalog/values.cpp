@@ -94,7 +94,8 @@ DataValue data_value(const TerminalType& type, const std::array<std::uint16_t, p
   d.known = true;
   d.value = sc->value0 + (d.raw - sc->raw0) * (sc->value1 - sc->value0) / static_cast<double>(sc->raw1 - sc->raw0);
   d.unit = sc->unit;
-  d.decimals = decimals_for(*sc);
+  // A [[value]]: as many decimals as one digit needs; the type's one scale: three, as always.
+  d.decimals = def ? decimals_for(*sc) : 3;
   return d;
 }
 

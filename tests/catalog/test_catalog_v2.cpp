@@ -178,7 +178,7 @@ TEST_CASE("catalog v2: merge rules for params, lists, sources and drop_params", 
   CHECK(t.sources.at("overview") == "https://example.com/overview.html");
 }
 
-TEST_CASE("catalog v2: a base may include a base; a cycle or a missing base names the file", "[catalog][v2]") {
+TEST_CASE("catalog v2: a base may include a base, a cycle or a missing base names the file", "[catalog][v2]") {
   Catalog c = with_base();
   c.add_base("outer", "base/outer.toml", "include = \"test-rtd\"\nchannels = 4\n");
   REQUIRE_NOTHROW(c.add_text("KL9201.toml", replaced(kType, "\"test-rtd\"", "\"outer\"")));
@@ -324,7 +324,7 @@ TEST_CASE("catalog v2: requires names another parameter and one of its values", 
   CHECK_THAT(msg, Catch::Contains("maybe"));
 }
 
-TEST_CASE("catalog v2: coverage and unverified are kept; a base is no type", "[catalog][v2]") {
+TEST_CASE("catalog v2: coverage and unverified are kept, a base is no type", "[catalog][v2]") {
   Catalog c = with_base();
   c.add_text("KL9201.toml", replaced(kType, "r8 = 9201\n",
                                      "r8 = 9201\ncoverage = \"no public register description found\"\n"

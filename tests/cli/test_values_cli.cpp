@@ -295,7 +295,7 @@ TEST_CASE("values: fixed-point and signed values, per channel, in set, get, show
   CHECK(read_raw(port, 34) == 0x0080);
 }
 
-TEST_CASE("values: a parameter without effect is said so; an undocumented code is refused on every path",
+TEST_CASE("values: a parameter without effect is said so, an undocumented code is refused on every path",
           "[values][cli]") {
   Rig rig;
   rig.reset(station_of("KL3202"));

@@ -53,7 +53,7 @@ TEST_CASE("analog chain: a PT100 at 21.5 degrees is 215 with manufacturer scalin
   CHECK(r.word == static_cast<std::uint16_t>(-123));
 }
 
-TEST_CASE("analog chain: the element picks the range; a PT1000 reads the same temperature, Ni sensors stop at 250",
+TEST_CASE("analog chain: the element picks the range, a PT1000 reads the same temperature, Ni sensors stop at 250",
           "[emulator][analog]") {
   Regs pt1000 = with({{"element", "PT1000"}});
   CHECK(pt1000[32] == 0x2106);
