@@ -150,7 +150,7 @@ TEST_CASE("a serial device and a link to it take one lock", "[sessions][lock][se
 
 TEST_CASE(
     "a lock name another user planted as a link, FIFO or hard link is removed by root and refused by others naming "
-    "its owner; a directory is refused; lock files are 0644 whatever the umask",
+    "its owner, a directory is refused, lock files are 0644 whatever the umask",
     "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});
   const std::string lock = lock_file("ip-127.0.0.1-" + s.port());
@@ -237,7 +237,7 @@ TEST_CASE(
 }
 
 TEST_CASE(
-    "another user's lock file: root locks it and makes it its own; another user locks it as it is, its record "
+    "another user's lock file: root locks it and makes it its own, another user locks it as it is, its record "
     "neither trusted nor rewritten, its owner named",
     "[sessions][lock][serve]") {
   Served s({"--tcp", "127.0.0.1:0"});

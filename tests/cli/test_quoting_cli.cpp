@@ -53,7 +53,7 @@ TEST_CASE("a parse error quotes its line only from a file anyone may read, also 
   CHECK_THAT(r.err, Catch::EndsWith("(in: coupler = = 1)\n"));
 }
 
-TEST_CASE("--catalog naming a file, not a directory, says what it is", "[files][catalog]") {
+TEST_CASE("a catalog directory that is a file, given with --catalog, is said to be a file", "[files][catalog]") {
   TempDir d;
   write_text(d.file("KL6001.toml"), "type = \"KL6001\"\n");
   Run r = run_kscfg({"--catalog", d.file("KL6001.toml"), "--port", "emu:mem", "info"});
