@@ -131,6 +131,7 @@ bool finish_dead_changes(SessionJournal::Dead& d, Engine& engine, const SessionO
       } else {
         trace(fmt::format("journal of kscfg process {}: its change of {}: {}; not touched", d.pid,
                           who(c.channels.front()), failed->what()));
+        if (d.other_unit) all = false;  // another type there: another unit's station, perhaps
       }
       continue;
     }
