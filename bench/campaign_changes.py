@@ -172,6 +172,7 @@ def kill9change(C, kind, n, seed, work):
         station_file(files[-1], baud, frame)
     rc, out, err, _ = tg.kscfg(["apply", files[0]])
     if rc not in (0, 10):
+        tg.close(t)
         raise SystemExit(f"{kind}: the first apply failed: {err.strip()}")
     cur = 0
     spans = {}
