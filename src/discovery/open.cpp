@@ -197,6 +197,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     AdsOptions ao;
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+    ao.busy_wait_ms = ao.response_timeout_ms;  // a full server is tried again over --timeout (link/busy.hpp)
     ao.trace = opt.trace;
     ao.cancel = opt.cancel;
     AdsTarget target = ads_target(p, uri);
@@ -230,6 +231,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.response_timeout_ms = std::clamp(opt.timeout_ms / 3, 50u, 5000u);
   mo.timeout_retries = 2;
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+  mo.busy_wait_ms = std::clamp(opt.timeout_ms, 100u, 60000u);  // busy: tried again over --timeout (link/busy.hpp)
   mo.trace = opt.trace;
   mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);
