@@ -303,6 +303,30 @@ def main():
               f"Modbus TCP disabled: the layout not confirmed, said: {r.stderr.strip()[-300:]}")
         peer.table100[15] = 0
 
+        # A Modbus TCP side that does not answer (its port dropped): the first command waits its bound
+        # (1 s), the next ones do not ask for 10 minutes and say why (-v); kscfg scan asks again, and
+        # an answer ends it (before, every command that needed the layout waited 1 s, issue 45).
+        peer.modbus_mute = True
+        times = []
+        for _ in range(3):
+            t0 = time.monotonic()
+            r = run([a.kscfg, "--port", uri, "-v", "info"], 120)
+            times.append(time.monotonic() - t0)
+        check(r.returncode == 0 and times[0] >= 0.9 and max(times[1:]) < 0.6 and "did not answer" in r.stderr
+              and "not asked again" in r.stderr,
+              f"a silent Modbus TCP side is waited for once, then not asked: {[round(x, 2) for x in times]} "
+              f"{r.stderr.strip()[-300:]}")
+        t0 = time.monotonic()
+        r = run([a.kscfg, "--port", uri, "scan"], 120)
+        check(r.returncode == 0 and time.monotonic() - t0 >= 0.9 and "does not answer" in r.stderr,
+              f"scan asks the silent Modbus TCP side all the same: rc {r.returncode} {r.stderr.strip()[-300:]}")
+        peer.modbus_mute = False
+        r = run([a.kscfg, "--port", uri, "scan"], 120)
+        r2 = run([a.kscfg, "--port", uri, "-v", "info"], 120)
+        check(r.returncode == 0 and "not confirmed" not in r.stderr and r2.returncode == 0
+              and "not asked again" not in r2.stderr and "image lengths from" in r2.stderr,
+              f"once it answers again, the layout is confirmed: {r.stderr.strip()[-200:]} {r2.stderr.strip()[-300:]}")
+
         # Replies out of order (a coupler that overlaps requests): matched by invoke id only.
         peer.overlap, peer.latency = True, 0.004
         r = run([a.probe, uri, "read", "1", "0", "0", "48"])
