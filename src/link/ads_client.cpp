@@ -40,10 +40,11 @@ void check_interrupt(const AdsOptions& o) {
 }  // namespace
 
 struct AdsClient::Batch {
-  explicit Batch(std::size_t n) : first(n), done(n, false) {}
+  explicit Batch(std::size_t n) : first(n), done(n, false), timeouts(n) {}
   Clock::time_point start = Clock::now();
   std::vector<std::optional<Clock::time_point>> first;  // when each call first went out
   std::vector<bool> done;
+  std::vector<milliseconds> timeouts;  // each call's
   std::size_t finished = 0;
   std::map<std::uint32_t, std::size_t> pending;  // invoke id -> call, on the connection now open
   std::deque<std::size_t> todo;                  // calls to send, those to send again first
@@ -280,7 +281,10 @@ bool AdsClient::receive(int ms) {
 std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   if (!dead_.empty()) throw Error(Exit::link, dead_, "check that the coupler is running and reachable");
   Batch b(calls.size());
-  for (std::size_t i = 0; i < calls.size(); ++i) b.todo.push_back(i);
+  for (std::size_t i = 0; i < calls.size(); ++i) {
+    b.todo.push_back(i);
+    b.timeouts[i] = milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms);
+  }
   try {
     return run_batch(calls, b);
   } catch (const Error& e) {
@@ -291,16 +295,14 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
 
 void AdsClient::gave_up(const Batch& b) {
   if (b.full) return;  // the server answers, by turning connections away: it lives
-  // Silent: nothing came from the coupler since the oldest request still waiting went out (or, with
-  // none out, since the batch began: a connection that could not be made again).
-  Clock::time_point since = b.start;
-  bool any = false;
-  for (const auto& [id, i] : b.pending)
-    if (b.first[i] && (!any || *b.first[i] < since)) {
-      since = *b.first[i];
-      any = true;
-    }
-  if (last_heard_ >= since) return;
+  // Silent: the coupler said nothing while the batch waited, for a quarter of a second at least
+  // (half the timeout when that is shorter). A batch of pipelined requests is judged by the last
+  // answer of any request, not of its own: a coupler stopped in the middle of one answered the
+  // first requests after the late one went out.
+  milliseconds timeout(opt_.response_timeout_ms);
+  for (const auto& [id, i] : b.pending) timeout = std::max(timeout, b.timeouts[i]);
+  const auto quiet = Clock::now() - std::max(last_heard_, b.start);
+  if (quiet < std::min(milliseconds(250), timeout / 2)) return;
   if (++silent_ >= 2)
     dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
 }
@@ -436,7 +438,8 @@ std::vector<AdsClient::Reply> AdsClient::run_batch(std::span<const Call> calls, 
       throw Error(
           Exit::link,
           fmt::format("no answer from {} within {} ms ({})", target_.where(), ms_since(*b.first[i]), what_of(i)),
-          c.port == adsport::kRegisters && timeout_of(i).count() <= 1000
+          c.port != adsport::kRegisters ? "check that the coupler is running and reachable"
+          : timeout_of(i).count() <= 1000
               ? "the coupler needs more than 1 s for a register access: --timeout 2000"
               : "check that the coupler is running and reachable; a register access needs a timeout above "
                 "1 s (--timeout)");

@@ -128,11 +128,11 @@ class AdsClient {
   // after its request timed out, a duplicate, a coupler's mistake): counted, never fatal.
   std::size_t strays() const { return strays_; }
   // The dead-link rule, as the Modbus client's (ModbusClient::dead()): two batches in a row given up
-  // without any answer from the coupler while they waited (a timeout, a connection that could not
-  // be made again, a wait cut by cancellation) and the link is taken for dead; from then on every
-  // call fails at once with this reason, so that a rollback over a stopped coupler ends within two
-  // timeouts instead of waiting a timeout per register. Empty while the link lives; any answer
-  // ends a run of silent batches.
+  // (a timeout, a connection that could not be made again, a wait cut by cancellation) while the
+  // coupler said nothing for a quarter of a second at least, and the link is taken for dead; from
+  // then on every call fails at once with this reason, so that a rollback over a stopped coupler
+  // ends within two timeouts instead of waiting a timeout per register, and a Ctrl-C during such a
+  // stall within one. Empty while the link lives; any answer ends a run of silent batches.
   const std::string& dead() const { return dead_; }
 
  private:
