@@ -79,6 +79,8 @@ auto again_while_active(std::chrono::steady_clock::time_point deadline, F&& acce
   }
 }
 
+constexpr std::chrono::microseconds kShortestPause{200};
+
 // The uploads without a pacing of the session's: the first at once (a coupler table is the
 // coupler's own memory), the next ones every eighth of the time since the download, at least 250 us
 // apart.
@@ -125,7 +127,9 @@ std::uint16_t run(SdoClient& sdo, unsigned timeout_ms, std::uint16_t index, std:
       Clock::time_point planned =
           sent + (n <= kMaxUploads ? pace.next(n, last) : last + std::max(microseconds(250), last / 4));
       if (planned > deadline) planned = deadline;
-      if (planned > Clock::now()) sdo.pause_until(planned);
+      // A pause shorter than a frame's time on the bus (about 240 us at 500 kbit/s) is not slept: a
+      // sleep costs more than that on a loaded computer, the upload no more than a frame.
+      if (planned - Clock::now() > kShortestPause) sdo.pause_until(planned);
       const microseconds late =
           std::max(microseconds(0), std::chrono::duration_cast<microseconds>(Clock::now() - planned));
       last = us_since(sent);
