@@ -127,9 +127,10 @@ std::uint16_t run(SdoClient& sdo, unsigned timeout_ms, std::uint16_t index, std:
       Clock::time_point planned =
           sent + (n <= kMaxUploads ? pace.next(n, last) : last + std::max(microseconds(250), last / 4));
       if (planned > deadline) planned = deadline;
-      // A pause shorter than a frame's time on the bus (about 240 us at 500 kbit/s) is not slept: a
-      // sleep costs more than that on a loaded computer, the upload no more than a frame.
-      if (planned - Clock::now() > kShortestPause) sdo.pause_until(planned);
+      // Before the first upload, a pause shorter than a frame's time on the bus (about 240 us at
+      // 500 kbit/s) is not slept: a sleep costs more than that on a loaded computer, the upload no
+      // more than a frame. The later ones keep their spacing.
+      if (n > 1 || planned - Clock::now() > kShortestPause) sdo.pause_until(planned);
       const microseconds late =
           std::max(microseconds(0), std::chrono::duration_cast<microseconds>(Clock::now() - planned));
       last = us_since(sent);
