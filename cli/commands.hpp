@@ -35,6 +35,7 @@ std::unique_ptr<Command> make_coupler();
 std::unique_ptr<Command> make_ports();
 std::unique_ptr<Command> make_serve();
 std::unique_ptr<Command> make_emu();
+std::unique_ptr<Command> make_emu_input();  // the `emu input` subcommand (emu_input.cpp)
 std::unique_ptr<Command> make_completion();
 std::unique_ptr<Command> make_manpage();
 std::unique_ptr<Command> make_help();

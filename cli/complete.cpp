@@ -146,6 +146,7 @@ void param_values(Completions& c, const Scene& s, const Catalog& cat, const std:
         if (p->max - p->min <= 16)
           for (auto v = p->min; v <= p->max; ++v) add(c, std::to_string(v));
         break;
+      case ParamDef::Kind::fixed: break;  // a number in a range: nothing to list
     }
   }
 }

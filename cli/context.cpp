@@ -180,10 +180,20 @@ std::string terminal_prefix(Context& ctx, const TerminalImage& t) {
 }
 
 nlohmann::json param_json(const std::string& v) {
-  // The same rule as station files (station_to_toml): digits are a number, on/off a bool.
-  bool numeric = !v.empty() && v.size() < 10 &&
-                 std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
-  if (numeric) return std::stoll(v);
+  // The same rule as station files (station_to_toml): digits are a number (with a sign: a signed
+  // parameter's; with a decimal point: a fixed-point one's), on/off a bool.
+  std::string_view d = v;
+  if (!d.empty() && d[0] == '-') d.remove_prefix(1);
+  auto dot = d.find('.');
+  auto digits = [](std::string_view x) {
+    return !x.empty() &&
+           std::all_of(x.begin(), x.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
+  };
+  std::string_view whole = d.substr(0, dot);
+  if (whole.size() < 10 && digits(whole)) {
+    if (dot == std::string_view::npos) return std::stoll(v);
+    if (digits(d.substr(dot + 1))) return std::stod(v);
+  }
   if (v == "on") return true;
   if (v == "off") return false;
   return v;

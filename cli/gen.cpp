@@ -262,10 +262,17 @@ std::string generate_manpage(const App& a) {
     for (const auto& p : t->params) {
       std::string values;
       for (const auto& c : param_choices(p)) values += (values.empty() ? "" : ", ") + c;
+      std::string where = p.reg_hi ? fmt::format("R{} low word, R{} high word", p.reg, *p.reg_hi)
+                                   : fmt::format("R{}, mask 0x{:04X}", p.reg, p.mask);
+      std::string needs;
+      for (const auto& r : p.requirements) needs += (needs.empty() ? "" : " and ") + r.param + " " + r.value;
       m << ".TP\n\\fB" << roff(p.name) << "\\fR \\fI" << roff(values) << "\\fR\n"
         << roff(param_description(p.desc))
-        << fmt::format(" (R{}, mask 0x{:04X}; factory: {}", p.reg, p.mask, decode_param(p, t->regs[p.reg].def))
-        << (p.unit.empty() ? "" : ", " + roff(p.unit)) << ")."
+        << fmt::format(" ({}; factory: {}", where,
+                       decode_param(p, t->regs[p.reg].def, p.reg_hi ? t->regs[*p.reg_hi].def : 0))
+        << (p.unit.empty() ? "" : ", " + roff(p.unit))
+        << (p.channel ? fmt::format(", channel {} only", *p.channel + 1) : std::string()) << ")."
+        << (needs.empty() ? "" : " Only with " + roff(needs) + ".")
         << (p.divisor ? " Other rates by divisor: " +
                             roff(fmt::format("{} Hz / ({} x (HB + 1))", p.divisor->clock, p.divisor->prescale)) + "."
                       : std::string())

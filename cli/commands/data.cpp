@@ -40,8 +40,11 @@ std::string bits_text(const nlohmann::json& b, const TerminalType* type, const c
         break;
       }
   if (table) {
-    for (const auto& f : table->fields)
-      if (bits.contains(f.name)) s += fmt::format(" {}={}", f.name, bits.at(f.name).get<unsigned>());
+    for (const auto& f : table->fields) {
+      if (!bits.contains(f.name)) continue;
+      unsigned v = bits.at(f.name).get<unsigned>();
+      s += fmt::format(" {}={}", f.name, v < f.values.size() ? f.values[v] : std::to_string(v));
+    }
   } else {
     for (auto it = bits.begin(); it != bits.end(); ++it)
       s += fmt::format(" {}={}", it.key(), it.value().get<unsigned>());
@@ -135,8 +138,8 @@ std::string line_text(const nlohmann::json& j, const Catalog& cat, std::size_t w
   if (j.contains("latch")) parts.push_back(fmt::format("latch {}", j.at("latch").get<std::uint32_t>()));
   if (j.contains("word")) {
     std::string v = fmt::format("word {}", j.at("word").get<std::int32_t>());
-    if (j.contains("scaled"))
-      v += fmt::format(" = {:.3f} {}", j.at("scaled").get<double>(), j.at("measured_in").get<std::string>());
+    if (j.contains("reading")) v += " = " + j.at("reading").get<std::string>();
+    if (!j.value("settings_read", true)) v += " (settings not read: as delivered)";
     parts.push_back(v);
   }
   if (j.contains("inputs")) parts.push_back("inputs " + bit_string(j.at("inputs")));
@@ -190,7 +193,9 @@ class Data : public Command {
            "terminals (status TA, RR, IA, BUF_F, IL and control TR, RA, IR, OL, with the bytes IL and OL say are "
            "valid), the counter, latch and status bits of encoder and counter terminals (KL5101: OVERFLOW, "
            "UNDERFLOW, CNTSET_ACC, LAT_EXT_VAL, LATC_VAL), the data word of analog terminals and its value "
-           "in the catalog's unit (e.g. mA, V, \\(deC), and the bits of digital terminals. A channel whose "
+           "in the catalog's unit (e.g. mA, V, \\(deC) as the channel's settings make it (a KL3202 set to "
+           "PT1000 or to a resistance range, user scaling, sign/magnitude, Siemens format: the registers "
+           "that decide it are read once at the start), and the bits of digital terminals. A channel whose "
            "control byte has REG set is marked as being in register mode (its data bytes carry register values "
            "then). On a terminal screen the view refreshes in place every \\fB\\-\\-interval\\fR ms until "
            "Ctrl\\-C; otherwise each sample is printed after the previous one. \\fB\\-\\-once\\fR takes one "
@@ -483,6 +488,13 @@ class Data : public Command {
            const ForcePlan* plan) {
     EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
+    // The settings an analog value follows (catalog [[value]]: a KL3202's element), read once; the
+    // engine only where there is one to read.
+    ChannelSettings settings;
+    if (std::any_of(L.terminals.begin(), L.terminals.end(), [&](const TerminalImage& t) {
+          return (!only || t.position == only) && t.complex && !t.type->values.empty();
+        }))
+      settings = read_value_settings(ctx.engine(), L, ctx.session_options(), only);
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
     for (std::size_t n = 1;; ++n) {
@@ -492,7 +504,7 @@ class Data : public Command {
       // the input image until the terminal has seen the control byte go back.
       ImageSnapshot s =
           read_image_settled(link, L, std::chrono::milliseconds(ctx.options().timeout_ms), ctx.cancel(), only);
-      auto rows = decode_station(L, s, only);
+      auto rows = decode_station(L, s, only, &settings);
       if (!shown.empty())
         std::erase_if(rows, [&](const nlohmann::json& r) {
           return std::find(shown.begin(), shown.end(), r.value("position", 0u)) == shown.end();

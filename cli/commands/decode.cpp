@@ -81,7 +81,9 @@ class Decode : public Command {
     }
     std::cout << (type->has_registers ? "  process data mode (REG = 0)\n"
                                       : "  process data (the type has no register set)\n");
-    for (const auto& b : d.bits) std::cout << fmt::format("  {:<12} {:<3} {}\n", b.name, b.value, b.desc);
+    for (const auto& b : d.bits)
+      std::cout << fmt::format("  {:<12} {:<3} {}{}\n", b.name, b.value, b.desc,
+                               b.meaning.empty() ? "" : (b.desc.empty() ? "" : ": ") + b.meaning);
     return 0;
   }
 

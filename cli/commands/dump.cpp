@@ -70,9 +70,14 @@ class Dump : public Command {
                                    "not implemented");
         continue;
       }
-      bool differs = d.storage == proto::Storage::seerom && v[r] != d.def;
-      bool has_default = d.storage == proto::Storage::seerom || d.storage == proto::Storage::rom;
-      std::string def = has_default ? hex4(d.def) : "-";
+      // A value set per terminal at the factory (`typical`, calibration) has no factory value to
+      // differ from: "~" marks the typical one.
+      bool has_default = (d.storage == proto::Storage::seerom || d.storage == proto::Storage::rom) && !d.typical;
+      bool differs = d.storage == proto::Storage::seerom && has_default && v[r] != d.def;
+      std::string def = d.typical ? "~" + hex4(d.def) : has_default ? hex4(d.def) : "-";
+      // A two's-complement register shows its signed value.
+      std::string shown =
+          d.is_signed ? fmt::format("0x{:04X} {}", v[r], static_cast<std::int16_t>(v[r])) : format_value(v[r]);
       if (ctx.json()) {
         // RAM registers (process variables, the code word) have no factory value: null.
         arr.push_back({{"register", r},
@@ -85,9 +90,8 @@ class Dump : public Command {
                        {"meaning", register_meaning(type, r, v[r], ch)}});
       } else {
         std::cout << prefix
-                  << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, format_value(v[r]),
-                                 proto::storage_name(d.storage), def, differs ? "*" : "", register_label(type, r),
-                                 register_meaning(type, r, v[r], ch));
+                  << fmt::format("R{:<3} {:<12} {:<7} {:<7} {:1} {:<16} {}\n", r, shown, proto::storage_name(d.storage),
+                                 def, differs ? "*" : "", register_label(type, r), register_meaning(type, r, v[r], ch));
       }
     }
     nlohmann::json j = terminal_json(term, ch);

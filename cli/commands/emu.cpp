@@ -1,4 +1,4 @@
-// kscfg emu reset|fault|path: the embedded emulator's state.
+// kscfg emu reset|restart|fault|encoder|path: the embedded emulator's state (emu input: emu_input.cpp).
 #include <fmt/format.h>
 
 #include <cstdlib>
@@ -335,7 +335,9 @@ class EmuPath : public Command {
 class Emu : public Command {
  public:
   std::string name() const override { return "emu"; }
-  std::string brief() const override { return "Manage the embedded emulator (reset, restart, fault, encoder, path)"; }
+  std::string brief() const override {
+    return "Manage the embedded emulator (reset, restart, fault, encoder, input, path)";
+  }
   std::string man() const override {
     return "The embedded emulator is a fake of the hardware: a coupler whose terminals look at their "
            "control byte every K\\-bus cycle and answer in their status byte, with the register tables and "
@@ -345,13 +347,14 @@ class Emu : public Command {
   }
   void add_cli(CLI::App&) override {}
   int run(Context&) override { return 0; }
-  std::vector<Command*> children() override { return {&reset_, &restart_, &fault_, &encoder_, &path_}; }
+  std::vector<Command*> children() override { return {&reset_, &restart_, &fault_, &encoder_, input_.get(), &path_}; }
 
  private:
   EmuReset reset_;
   EmuRestart restart_;
   EmuFault fault_;
   EmuEncoder encoder_;
+  std::unique_ptr<Command> input_ = make_emu_input();
   EmuPath path_;
 };
 

@@ -57,7 +57,7 @@ class Get : public Command {
     std::map<unsigned, std::vector<unsigned>> regs;
     for (const auto& [pos, params] : work) {
       positions.push_back(pos);
-      regs[pos] = param_registers(params);
+      regs[pos] = param_registers(*ctx.layout().terminal(pos).type, params);
     }
     auto read = ctx.read_terminals(positions, [&](const TerminalImage& t) { return regs.at(t.position); });
     for (const auto& [pos, params] : work) {
@@ -70,9 +70,12 @@ class Get : public Command {
         docs.push_back(j);
         continue;
       }
-      // One terminal: bare values, one per line; several: "POS NAME VALUE".
-      for (const auto& v : vals)
+      // One terminal: bare values, one per line; several: "POS NAME VALUE". A value without effect
+      // (filter-constant with the filter off) is said on stderr, so $(kscfg get ...) stays the value.
+      for (const auto& v : vals) {
         std::cout << (several ? fmt::format("{} {} ", pos, v.param->name) : std::string()) << v.value << '\n';
+        if (!v.note.empty()) std::cerr << fmt::format("kscfg: note: {}: {}\n", v.param->name, v.note);
+      }
     }
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;

@@ -76,6 +76,8 @@ class Set : public Command {
                                 planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
     SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
     s->close();
+    // A parameter set while what it needs is off (filter-constant with the filter off): written, said.
+    for (const auto& n : r.notes) std::cerr << "kscfg: note: " << n << '\n';
     // A mapping register (KL6001 R34/R35, ...) changes the image only when the coupler starts again.
     if (r.changed)
       if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';

@@ -58,8 +58,8 @@ class Show : public Command {
     // Every terminal's handshake at once (the station engine); one terminal goes on from the check
     // of its type.
     unsigned ch = ctx.options().channel - 1;
-    auto values =
-        ctx.read_terminals(positions, [&](const TerminalImage& t) { return param_registers(params_of(t, ch)); });
+    auto values = ctx.read_terminals(
+        positions, [&](const TerminalImage& t) { return param_registers(*t.type, params_of(t, ch)); });
     for (unsigned pos : positions) {
       const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
       auto params = params_of(t, ch);
@@ -118,14 +118,14 @@ class Show : public Command {
     if (ctx.json()) {
       nlohmann::json arr = nlohmann::json::array();
       for (const auto& v : vals)
-        arr.push_back(
-            {{"name", v.param->name},
-             {"value", param_json(v.value)},
-             {"default", param_json(v.fallback)},
-             {"at_default", !v.differs},
-             {"register", v.param->reg},
-             {"register_value", v.reg_value},
-             {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)}});
+        arr.push_back({{"name", v.param->name},
+                       {"value", param_json(v.value)},
+                       {"default", param_json(v.fallback)},
+                       {"at_default", !v.differs},
+                       {"register", v.param->reg},
+                       {"register_value", v.reg_value},
+                       {"measured_in", v.param->unit.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.param->unit)},
+                       {"effective", v.note.empty()}});
       nlohmann::json j = terminal_json(term, ch);
       j["params"] = arr;
       return j;
@@ -138,8 +138,9 @@ class Show : public Command {
       rows.push_back(
           {false, prefix, "(no named parameters in the catalog; 'kscfg dump' shows the registers)", "", "", "", ""});
     for (const auto& v : vals)
-      rows.push_back({false, prefix, "", v.param->name, v.value + (v.differs ? " *" : ""), v.fallback,
-                      fmt::format("R{} {}", v.param->reg, hex4(v.reg_value))});
+      rows.push_back(
+          {false, prefix, "", v.param->name, v.value + (v.differs ? " *" : ""), v.fallback,
+           fmt::format("R{} {}", v.param->reg, hex4(v.reg_value)) + (v.note.empty() ? "" : " (" + v.note + ")")});
     return {};
   }
 };

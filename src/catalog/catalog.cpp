@@ -28,6 +28,17 @@ unsigned ParamDef::shift() const {
   return s;
 }
 
+unsigned ParamDef::width() const {
+  unsigned w = 0;
+  for (unsigned m = mask; m; m >>= 1) w += m & 1u;
+  return reg_hi ? w + 16 : w;
+}
+
+std::string TerminalType::source_url(const std::string& s) const {
+  if (auto it = sources.find(s); it != sources.end()) return it->second;
+  return s;
+}
+
 const ParamDef* TerminalType::param(std::string_view name) const {
   for (const auto& p : params)
     if (p.name == name) return &p;
@@ -66,7 +77,7 @@ Catalog Catalog::builtin() {
 const TerminalType* Catalog::parse_pending(std::map<std::string, const EmbeddedFile*>::iterator it) const {
   // Called with the mutex held. The entry goes from pending_ to types_ (or throws, and stays).
   std::string origin = std::string("built-in:") + it->second->name;
-  auto t = parse_description(origin, it->second->text);
+  auto t = parse_description(origin, it->second->text, base_finder());
   if (t->type != it->first)
     throw Error(Exit::file, fmt::format("{}: describes type '{}', but a built-in file is named after its type ({})",
                                         origin, t->type, it->first));

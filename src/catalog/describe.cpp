@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
 
 namespace kscfg {
@@ -10,9 +11,10 @@ std::vector<std::pair<std::string, std::string>> decode_register(const TerminalT
                                                                  std::uint16_t value, unsigned channel) {
   std::vector<std::pair<std::string, std::string>> out;
   for (const auto& p : type.params) {
-    if (p.reg != reg) continue;
     if (p.channel && *p.channel != channel) continue;
-    out.emplace_back(p.name, decode_param(p, value));
+    if (p.reg == reg)
+      out.emplace_back(p.name + (p.reg_hi ? "(low)" : ""), p.reg_hi ? hex4(value) : decode_param(p, value));
+    else if (p.reg_hi && *p.reg_hi == reg) out.emplace_back(p.name + "(high)", hex4(value));
   }
   return out;
 }
@@ -57,6 +59,7 @@ std::string register_meaning(const TerminalType& type, unsigned reg, std::uint16
 std::string register_label(const TerminalType& type, unsigned reg) {
   const auto& d = type.regs[reg];
   if (!d.name.empty()) return d.name;
+  if (d.reserved) return "reserved";
   return "-";
 }
 

@@ -45,7 +45,81 @@ std::string near_presets(const ParamDef& p, const std::string& text, std::uint64
   return out;
 }
 
+// The text as the field's raw number (signed domain for signed fields), checked against the range.
+std::int64_t number_of_text(const ParamDef& p, const std::string& text) {
+  if (p.kind == ParamDef::Kind::fixed) {
+    double v = parse_real(text, p.name);
+    if (v < p.vmin || v > p.vmax)
+      throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name,
+                                           p.vmin, p.vmax, p.unit.empty() ? "" : " " + p.unit));
+    // The nearest step: 1.3 with 2^-8 steps is 1.30078125 (set and get then say so).
+    double raw = p.step > 0 ? v / p.step : std::ldexp(v, static_cast<int>(p.frac_bits));
+    return std::llround(raw);
+  }
+  std::int64_t v = 0;
+  bool neg = !text.empty() && text[0] == '-';
+  if (neg && !p.is_signed)
+    throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name, p.min,
+                                         p.max, p.unit.empty() ? "" : " " + p.unit));
+  std::string_view digits = text;
+  if (neg || (!text.empty() && text[0] == '+')) digits.remove_prefix(1);
+  auto u = parse_uint(digits, std::uint64_t{1} << 40, p.name);
+  v = neg ? -static_cast<std::int64_t>(u) : static_cast<std::int64_t>(u);
+  if (v < p.min || v > p.max)
+    throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name, p.min,
+                                         p.max, p.unit.empty() ? "" : " " + p.unit));
+  return v;
+}
+
+// The raw number's bits in the field's width (two's complement for a negative one).
+std::uint32_t bits_of(const ParamDef& p, std::int64_t v) {
+  unsigned w = p.width();
+  std::uint64_t m = w >= 32 ? 0xFFFFFFFFull : (std::uint64_t{1} << w) - 1;
+  return static_cast<std::uint32_t>(static_cast<std::uint64_t>(v) & m);
+}
+
 }  // namespace
+
+std::int64_t param_number(const ParamDef& p, std::uint16_t reg, std::uint16_t hi) {
+  std::uint64_t raw = p.field(reg);
+  if (p.reg_hi) raw |= static_cast<std::uint64_t>(hi) << 16;
+  unsigned w = p.width();
+  if (p.is_signed && w > 0 && (raw >> (w - 1)) & 1u) return static_cast<std::int64_t>(raw) - (std::int64_t{1} << w);
+  return static_cast<std::int64_t>(raw);
+}
+
+std::string format_fixed(const ParamDef& p, std::int64_t raw) {
+  if (p.step > 0) {
+    // As many decimals as the step has, then no trailing zeros: 215 x 0.1 = "21.5".
+    std::string st = fmt::format("{:.12f}", p.step);
+    while (!st.empty() && st.back() == '0') st.pop_back();
+    auto dot = st.find('.');
+    int decimals = dot == std::string::npos ? 0 : static_cast<int>(st.size() - dot - 1);
+    std::string out = fmt::format("{:.{}f}", static_cast<double>(raw) * p.step, decimals);
+    if (out.find('.') != std::string::npos) {
+      while (out.back() == '0') out.pop_back();
+      if (out.back() == '.') out.pop_back();
+    }
+    return out == "-0" ? "0" : out;
+  }
+  // raw / 2^N exactly: every binary fraction has a finite decimal one (0x0140 / 2^8 = "1.25").
+  unsigned n = p.frac_bits;
+  std::uint64_t a = raw < 0 ? static_cast<std::uint64_t>(-raw) : static_cast<std::uint64_t>(raw);
+  std::uint64_t mask = (std::uint64_t{1} << n) - 1;
+  std::string out = fmt::format("{}{}", raw < 0 ? "-" : "", a >> n);
+  std::uint64_t frac = a & mask;
+  if (frac) out += '.';
+  while (frac) {
+    frac *= 10;
+    out += static_cast<char>('0' + (frac >> n));
+    frac &= mask;
+  }
+  return out;
+}
+
+std::uint16_t encode_param_hi(const ParamDef& p, const std::string& text) {
+  return static_cast<std::uint16_t>(bits_of(p, number_of_text(p, text)) >> 16);
+}
 
 double divisor_rate(const Divisor& d, std::uint16_t reg) {
   if ((reg & 0xFF) != d.low) return 0;
@@ -62,6 +136,7 @@ std::vector<std::string> param_choices(const ParamDef& p) {
     }
     case ParamDef::Kind::boolean: return {"on", "off"};
     case ParamDef::Kind::integer: return {fmt::format("{}..{}", p.min, p.max)};
+    case ParamDef::Kind::fixed: return {fmt::format("{}..{}", p.vmin, p.vmax)};
   }
   return {};
 }
@@ -74,12 +149,10 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
       if (t == "off" || t == "false" || t == "0" || t == "no") return p.with_field(current, 0);
       throw Error(Exit::usage, fmt::format("invalid value {} for {}: use on or off", quote_input(text), p.name));
     }
-    case ParamDef::Kind::integer: {
-      auto v = parse_uint(text, UINT64_MAX, p.name);
-      if (static_cast<std::int64_t>(v) < p.min || static_cast<std::int64_t>(v) > p.max)
-        throw Error(Exit::usage, fmt::format("invalid value {} for {}: allowed {}..{}{}", quote_input(text), p.name,
-                                             p.min, p.max, p.unit.empty() ? "" : " " + p.unit));
-      return p.with_field(current, static_cast<std::uint16_t>(v));
+    case ParamDef::Kind::integer:
+    case ParamDef::Kind::fixed: {
+      std::uint32_t bits = bits_of(p, number_of_text(p, text));
+      return p.with_field(current, static_cast<std::uint16_t>(bits & 0xFFFF));  // register_hi: the low word
     }
     case ParamDef::Kind::enumeration: {
       for (const auto& e : p.values)
@@ -158,9 +231,21 @@ std::string undocumented_value(const TerminalType& type, unsigned reg, std::uint
     std::uint16_t f = p.field(value);
     switch (p.kind) {
       case ParamDef::Kind::boolean: break;
-      case ParamDef::Kind::integer:
-        if (f < p.min || f > p.max) why.push_back(fmt::format("{} {} is outside {}..{}", p.name, f, p.min, p.max));
+      case ParamDef::Kind::integer: {
+        if (p.reg_hi) break;  // half of a 32-bit value says nothing on its own
+        std::int64_t v = param_number(p, value);
+        if (v < p.min || v > p.max) why.push_back(fmt::format("{} {} is outside {}..{}", p.name, v, p.min, p.max));
         break;
+      }
+      case ParamDef::Kind::fixed: {
+        if (p.reg_hi) break;
+        std::int64_t raw = param_number(p, value);
+        double v =
+            p.step > 0 ? static_cast<double>(raw) * p.step : std::ldexp(static_cast<double>(raw), -int(p.frac_bits));
+        if (v < p.vmin || v > p.vmax)
+          why.push_back(fmt::format("{} {} is outside {}..{}", p.name, format_fixed(p, raw), p.vmin, p.vmax));
+        break;
+      }
       case ParamDef::Kind::enumeration: {
         bool listed = std::any_of(p.values.begin(), p.values.end(), [&](const EnumValue& e) { return e.code == f; });
         if (listed) break;
@@ -216,11 +301,12 @@ std::vector<SettingConflict> setting_conflicts(const TerminalType& type,
   return out;
 }
 
-std::string decode_param(const ParamDef& p, std::uint16_t reg) {
+std::string decode_param(const ParamDef& p, std::uint16_t reg, std::uint16_t hi) {
   std::uint16_t f = p.field(reg);
   switch (p.kind) {
     case ParamDef::Kind::boolean: return f ? "on" : "off";
-    case ParamDef::Kind::integer: return fmt::format("{}", f);
+    case ParamDef::Kind::integer: return fmt::format("{}", param_number(p, reg, hi));
+    case ParamDef::Kind::fixed: return format_fixed(p, param_number(p, reg, hi));
     case ParamDef::Kind::enumeration:
       for (const auto& e : p.values)
         if (e.code == f) return e.name;

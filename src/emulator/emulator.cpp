@@ -33,6 +33,7 @@ ChannelModel::ChannelModel(const TerminalType& type, std::array<std::uint16_t, p
   for (unsigned r = 8; r < 15; ++r) regs_[r] = type.regs[r].def;
   if (type.is_serial()) serial_ = std::make_unique<SerialModel>(type);
   if (type.family == "encoder" && type.r8 == 5101) encoder_ = std::make_unique<EncoderModel>(type);
+  if (AnalogModel::applies(type)) analog_ = std::make_unique<AnalogModel>(type);
 }
 
 std::uint16_t ChannelModel::read_register(unsigned r) const {
@@ -42,9 +43,11 @@ std::uint16_t ChannelModel::read_register(unsigned r) const {
 }
 
 void ChannelModel::factory_reset() {
+  // The factory values; a value set per terminal at the factory (`typical`, calibration) stays.
   auto d = type_->defaults();
   for (unsigned r = 16; r < 48; ++r)
-    if (r != proto::kCodeWordRegister && type_->regs[r].storage == proto::Storage::seerom) regs_[r] = d[r];
+    if (r != proto::kCodeWordRegister && type_->regs[r].storage == proto::Storage::seerom && !type_->regs[r].typical)
+      regs_[r] = d[r];
 }
 
 void ChannelModel::power_cycle() {
@@ -56,6 +59,7 @@ void ChannelModel::power_cycle() {
   executed_ = false;
   if (serial_) serial_->power_cycle();
   if (encoder_) encoder_->power_cycle();
+  if (analog_) analog_->power_cycle();
 }
 
 void ChannelModel::write_register(unsigned r, std::uint16_t v) {
@@ -100,6 +104,7 @@ void ChannelModel::cycle(std::uint64_t n, std::span<const std::uint8_t> out, std
     reg_mode_ = false;
     if (serial_) serial_->handshake(out, in, regs_);
     if (encoder_) encoder_->process_data(out, in, regs_);
+    if (analog_) analog_->process_data(out, in, vidx, regs_);
     serial_registers();
     return;
   }
@@ -223,6 +228,7 @@ nlohmann::json EmulatedStation::to_json() const {
     if (s.model.faults.mute) c["mute"] = true;
     if (const auto* ser = s.model.serial()) c["serial"] = ser->to_json();
     if (const auto* enc = s.model.encoder()) c["encoder"] = enc->to_json();
+    if (const auto* an = s.model.analog(); an && !an->to_json().empty()) c["analog"] = an->to_json();
     chans.push_back(c);
   }
   j["channels"] = chans;
@@ -275,6 +281,7 @@ std::unique_ptr<EmulatedStation> EmulatedStation::from_json(const nlohmann::json
       slot.model.faults.mute = c.value("mute", false);
       if (auto* ser = slot.model.serial(); ser && c.contains("serial")) ser->from_json(c.at("serial"));
       if (auto* enc = slot.model.encoder(); enc && c.contains("encoder")) enc->from_json(c.at("encoder"));
+      if (auto* an = slot.model.analog(); an && c.contains("analog")) an->from_json(c.at("analog"));
     }
     // The image the coupler laid out at its last start, from the registers it read then (a state
     // without start_registers: from the registers as they are, as before they were kept).

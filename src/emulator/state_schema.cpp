@@ -102,6 +102,14 @@ constexpr Field kEncoder[] = {
     {"far_end", Kind::object, 0, 0, 0, 0, kEncoderFarEnd},
 };
 
+// analog: AnalogModel::to_json (analog_model.cpp)
+constexpr Field kAnalog[] = {
+    number("value", -1e9, 1e9),
+    text("unit", 16),
+    flag("open"),
+    flag("written"),
+};
+
 // channels[]: EmulatedStation::to_json (emulator.cpp)
 constexpr Field kChannel[] = {
     integer("position", 1, 65535, true),
@@ -113,6 +121,7 @@ constexpr Field kChannel[] = {
     flag("mute"),
     {"serial", Kind::object, 0, 0, 0, 0, kSerial},
     {"encoder", Kind::object, 0, 0, 0, 0, kEncoder},
+    {"analog", Kind::object, 0, 0, 0, 0, kAnalog},
 };
 
 // The file: EmulatedStation::to_json (emulator.cpp)

@@ -82,11 +82,13 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
         ChannelSpec cs;
         for (const auto& p : t.type->params) {
           if (p.channel && *p.channel != ch) continue;
-          if (!regs.count(p.reg)) continue;
+          if (!regs.count(p.reg) || (p.reg_hi && !regs.count(*p.reg_hi))) continue;
           // Only values that read back as themselves (an unknown code stays a raw register).
-          std::string text = decode_param(p, regs[p.reg]);
+          std::uint16_t hi = p.reg_hi ? regs[*p.reg_hi] : 0;
+          std::string text = decode_param(p, regs[p.reg], hi);
           try {
             if (encode_param(p, text, regs[p.reg]) != regs[p.reg]) continue;
+            if (p.reg_hi && encode_param_hi(p, text) != hi) continue;
           } catch (const Error&) {
             continue;
           }
@@ -168,7 +170,11 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
         if (std::find(j.regs.begin(), j.regs.end(), r) == j.regs.end()) j.regs.push_back(r);
       };
       for (const auto& [r, v] : cs.registers) need(r);
-      for (const auto& p : cs.params) need(type.param(p.name)->reg);
+      for (const auto& p : cs.params) {
+        const ParamDef* pd = type.param(p.name);
+        need(pd->reg);
+        if (pd->reg_hi) need(*pd->reg_hi);
+      }
       jobs.push_back(std::move(j));
       wants.push_back({i, ch});
     }
@@ -195,10 +201,12 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
     for (const auto& p : cs.params) {
       const ParamDef* pd = type.param(p.name);
       next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
+      if (pd->reg_hi) next[*pd->reg_hi] = encode_param_hi(*pd, p.value);
     }
     for (const auto& p : cs.params) {
       const ParamDef* pd = type.param(p.name);
-      std::string from = decode_param(*pd, cur[pd->reg]), to = decode_param(*pd, next[pd->reg]);
+      auto hi = [&](std::map<unsigned, std::uint16_t>& m) { return pd->reg_hi ? m[*pd->reg_hi] : std::uint16_t{0}; };
+      std::string from = decode_param(*pd, cur[pd->reg], hi(cur)), to = decode_param(*pd, next[pd->reg], hi(next));
       if (from != to) cp.params.push_back({p.name, from, to});
     }
     for (unsigned r : jobs[n].regs)

@@ -257,6 +257,7 @@ std::vector<PlannedWrite> planned_params(const TerminalType& type, unsigned posi
   for (const auto& [name, value] : pairs) {
     const ParamDef& p = find_param(type, name, catalog, channel);
     out.push_back({position, channel, p.reg, encode_param(p, value, 0, divisor), p.mask, std::nullopt, {}});
+    if (p.reg_hi) out.push_back({position, channel, *p.reg_hi, encode_param_hi(p, value), 0xFFFF, std::nullopt, {}});
   }
   return out;
 }

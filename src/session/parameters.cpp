@@ -10,6 +10,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
+#include "kscfg/catalog/values.hpp"
 
 namespace kscfg {
 
@@ -40,34 +41,62 @@ const ParamDef& find_param(const TerminalType& type, const std::string& name, co
               "kscfg show lists the parameters");
 }
 
-std::vector<unsigned> param_registers(const std::vector<const ParamDef*>& params) {
+std::vector<unsigned> param_registers(const TerminalType& type, const std::vector<const ParamDef*>& params) {
   std::vector<unsigned> order;
+  auto add = [&](unsigned r) {
+    if (std::find(order.begin(), order.end(), r) == order.end()) order.push_back(r);
+  };
+  for (const auto* p : params) {
+    add(p->reg);
+    if (p->reg_hi) add(*p->reg_hi);
+  }
   for (const auto* p : params)
-    if (std::find(order.begin(), order.end(), p->reg) == order.end()) order.push_back(p->reg);
+    for (const auto& r : p->requirements)
+      if (const ParamDef* o = type.param(r.param)) add(o->reg);
   return order;
+}
+
+std::string requirement_note(const TerminalType& type, const ParamDef& param,
+                             const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
+  std::vector<std::string> unmet;
+  for (const auto& r : param.requirements) {
+    const ParamDef* o = type.param(r.param);
+    if (!o) continue;
+    if (!conditions_hold(type, {r}, regs))
+      unmet.push_back(fmt::format("{} is {}", o->name, decode_param(*o, regs[o->reg])));
+  }
+  if (unmet.empty()) return "";
+  std::string s = "no effect while ";
+  for (std::size_t i = 0; i < unmet.size(); ++i) s += (i ? " and " : "") + unmet[i];
+  return s;
 }
 
 std::vector<ParamValue> decode_params(const TerminalType& type, const std::vector<const ParamDef*>& params,
                                       const std::vector<std::uint16_t>& values) {
-  std::vector<unsigned> order = param_registers(params);
-  std::map<unsigned, std::uint16_t> regs;
+  std::vector<unsigned> order = param_registers(type, params);
+  std::array<std::uint16_t, proto::kRegisterCount> regs = type.defaults();
   for (std::size_t i = 0; i < order.size() && i < values.size(); ++i) regs[order[i]] = values[i];
   std::vector<ParamValue> out;
   for (const auto* p : params) {
     ParamValue v;
     v.param = p;
     v.reg_value = regs[p->reg];
-    v.value = decode_param(*p, v.reg_value);
-    v.fallback = decode_param(*p, type.regs[p->reg].def);
-    v.differs = p->field(v.reg_value) != p->field(type.regs[p->reg].def) ||
-                (p->mask == 0xFFFF && v.reg_value != type.regs[p->reg].def);
+    std::uint16_t hi = p->reg_hi ? regs[*p->reg_hi] : 0, def_hi = p->reg_hi ? type.regs[*p->reg_hi].def : 0;
+    v.value = decode_param(*p, v.reg_value, hi);
+    v.fallback = decode_param(*p, type.regs[p->reg].def, def_hi);
+    v.differs = v.value != v.fallback || (p->mask == 0xFFFF && v.reg_value != type.regs[p->reg].def) ||
+                p->field(v.reg_value) != p->field(type.regs[p->reg].def);
+    // A value set per terminal at the factory is that terminal's own, not a change.
+    if (type.regs[p->reg].typical) v.differs = false;
+    v.note = requirement_note(type, *p, regs);
     out.push_back(v);
   }
   return out;
 }
 
 std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params) {
-  return decode_params(*s.terminal().type, params, s.read_many(param_registers(params)));
+  const TerminalType& type = *s.terminal().type;
+  return decode_params(type, params, s.read_many(param_registers(type, params)));
 }
 
 void check_params(const TerminalType& type, const std::vector<std::pair<std::string, std::string>>& pairs,
@@ -90,17 +119,32 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
   std::vector<unsigned> order;
   std::map<unsigned, std::uint16_t> cur, next;
   SetResult r;
+  auto touch = [&](unsigned reg) {
+    if (cur.count(reg)) return;
+    cur[reg] = s.read(reg);
+    next[reg] = cur[reg];
+    order.push_back(reg);
+  };
+  std::vector<const ParamDef*> set;
   for (const auto& [n, v] : pairs) {
     const ParamDef& p = find_param(type, n, catalog, s.channel());
-    if (!cur.count(p.reg)) {
-      cur[p.reg] = s.read(p.reg);
-      next[p.reg] = cur[p.reg];
-      order.push_back(p.reg);
-    }
-    std::string from = decode_param(p, next[p.reg]);
+    touch(p.reg);
+    if (p.reg_hi) touch(*p.reg_hi);
+    auto hi = [&] { return p.reg_hi ? next[*p.reg_hi] : std::uint16_t{0}; };
+    std::string from = decode_param(p, next[p.reg], hi());
     next[p.reg] = encode_param(p, v, next[p.reg], divisor);
-    r.params.push_back({&p, from, decode_param(p, next[p.reg])});
+    if (p.reg_hi) next[*p.reg_hi] = encode_param_hi(p, v);
+    r.params.push_back({&p, from, decode_param(p, next[p.reg], hi())});
+    set.push_back(&p);
   }
+  // What the change leaves of the settings the parameters need (`requires`): said, not refused.
+  std::array<std::uint16_t, proto::kRegisterCount> after = type.defaults();
+  for (const auto* p : set)
+    for (const auto& q : p->requirements)
+      if (const ParamDef* o = type.param(q.param); o && !cur.count(o->reg)) after[o->reg] = s.read(o->reg);
+  for (const auto& [reg, v] : next) after[reg] = v;
+  for (const auto* p : set)
+    if (auto note = requirement_note(type, *p, after); !note.empty()) r.notes.push_back(p->name + ": " + note);
   std::vector<std::pair<unsigned, std::uint16_t>> changes;
   for (unsigned reg : order) changes.emplace_back(reg, next[reg]);
   r.registers = s.write_all(changes);
@@ -140,9 +184,11 @@ ResetPlan reset_plan(const TerminalType& type) {
   plan.r7 = type.reset == FactoryReset::r7;
   for (unsigned r = 17; r < 48; ++r) {
     const RegisterDef& d = type.regs[r];
-    // Only registers whose factory value the catalog knows; never the hardware version (R16)
-    // or unknown manufacturer parameters (they may hold calibration data).
-    if (r == proto::kCodeWordRegister || !d.described || d.storage != proto::Storage::seerom || !d.writable) continue;
+    // Only registers whose factory value the catalog knows; never the hardware version (R16),
+    // unknown manufacturer parameters or a value set per terminal (`typical`: calibration data).
+    if (r == proto::kCodeWordRegister || !d.described || d.typical || d.reserved ||
+        d.storage != proto::Storage::seerom || !d.writable)
+      continue;
     plan.values.emplace_back(r, d.def);
   }
   return plan;
@@ -247,7 +293,8 @@ Decoded decode_ctst(const TerminalType& type, const std::string& kind, const std
   for (const auto& f : table->fields) {
     unsigned shift = 0;
     while (!((f.mask >> shift) & 1u)) ++shift;
-    d.bits.push_back({f.name, static_cast<unsigned>((value & f.mask) >> shift), f.mask, f.desc});
+    auto v = static_cast<unsigned>((value & f.mask) >> shift);
+    d.bits.push_back({f.name, v, f.mask, f.desc, v < f.values.size() ? f.values[v] : std::string()});
   }
   return d;
 }

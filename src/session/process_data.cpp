@@ -10,9 +10,11 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/catalog/values.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/parameters.hpp"
 #include "kscfg/session/serial_port.hpp"
+#include "kscfg/session/station_work.hpp"
 #include "kscfg/station/serial_image.hpp"
 
 namespace kscfg {
@@ -138,7 +140,8 @@ std::vector<int> bit_list(const std::vector<std::uint8_t>& image, std::size_t fi
 
 }  // namespace
 
-nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSnapshot& image) {
+nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSnapshot& image,
+                              const std::array<std::uint16_t, proto::kRegisterCount>* settings) {
   const TerminalType& type = *t.type;
   nlohmann::json j{{"position", t.position}};
   if (t.complex) j["channel"] = ch + 1;
@@ -209,13 +212,15 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
         bool input = type.family == "analog-in";
         if (auto v = data_value(input ? f->in : f->out, input ? in : out, 0)) {
           auto w = static_cast<std::uint16_t>(*v);
-          if (type.scale) {
-            j["word"] = type.scale->raw(w);
-            j["scaled"] = type.scale->value(w);
-            j["measured_in"] = type.scale->unit;
-          } else {
-            j["word"] = static_cast<std::int16_t>(w);
+          j["word"] = type.scale ? type.scale->raw(w) : static_cast<std::int16_t>(w);
+          // What the settings make of it ([[value]]), or the type's one scale.
+          DataValue d = kscfg::data_value(type, settings ? *settings : type.defaults(), w);
+          if (d.known) {
+            j["scaled"] = d.value;
+            j["measured_in"] = d.unit;
+            j["reading"] = d.text();
           }
+          if (!type.values.empty()) j["settings_read"] = settings != nullptr;
         }
       }
     }
@@ -225,17 +230,45 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
 }
 
 std::vector<nlohmann::json> decode_station(const StationLayout& layout, const ImageSnapshot& image,
-                                           unsigned only_position) {
+                                           unsigned only_position, const ChannelSettings* settings) {
   std::vector<nlohmann::json> v;
   for (const auto& t : layout.terminals) {
     if (only_position && t.position != only_position) continue;
     if (t.complex) {
-      for (unsigned c = 0; c < t.channels.size(); ++c) v.push_back(decode_channel(t, c, image));
+      for (unsigned c = 0; c < t.channels.size(); ++c) {
+        const std::array<std::uint16_t, proto::kRegisterCount>* regs = nullptr;
+        if (settings)
+          if (auto it = settings->find({t.position, c}); it != settings->end()) regs = &it->second;
+        v.push_back(decode_channel(t, c, image, regs));
+      }
     } else if (t.bits_in || t.bits_out) {
       v.push_back(decode_channel(t, 0, image));
     }
   }
   return v;
+}
+
+ChannelSettings read_value_settings(Engine& engine, const StationLayout& layout, const SessionOptions& so,
+                                    unsigned only) {
+  std::vector<ChannelReads> jobs;
+  for (const auto& t : layout.terminals) {
+    // Inputs only: register communication borrows an output's data bytes, which drive its output.
+    if ((only && t.position != only) || !t.complex || t.type->values.empty() || t.type->family != "analog-in") continue;
+    auto regs = value_registers(*t.type);
+    if (regs.empty()) continue;
+    for (unsigned c = 0; c < t.channels.size(); ++c)
+      if (t.channels[c].window) jobs.push_back({t.position, c, regs, std::nullopt, {}, nullptr});
+  }
+  ChannelSettings out;
+  if (jobs.empty()) return out;
+  read_channels(engine, layout, jobs, so);
+  for (const auto& j : jobs) {
+    if (j.error || j.values.size() != j.regs.size()) continue;
+    auto regs = layout.terminal(j.position).type->defaults();
+    for (std::size_t k = 0; k < j.regs.size(); ++k) regs[j.regs[k]] = j.values[k];
+    out[{j.position, j.channel}] = regs;
+  }
+  return out;
 }
 
 // ---------------------------------------------------------------------------------------------

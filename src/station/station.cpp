@@ -95,14 +95,19 @@ namespace {
   throw Error(code, fmt::format("{}: {}", origin, msg));
 }
 
-std::string value_text(std::string_view origin, const std::string& key, const toml::node& v) {
+// A value as its text. `number`: a parameter that takes a sign or decimals (signed int, fixed).
+std::string value_text(std::string_view origin, const std::string& key, const toml::node& v, bool number = false) {
   if (auto s = v.value_exact<std::string>()) return *s;
   if (auto i = v.value_exact<std::int64_t>()) {
-    if (*i < 0) fail_at(origin, &v, Exit::usage, fmt::format("{}: negative values are not allowed", quote_input(key)));
+    if (*i < 0 && !number)
+      fail_at(origin, &v, Exit::usage, fmt::format("{}: negative values are not allowed", quote_input(key)));
     return fmt::format("{}", *i);
   }
+  if (auto d = v.value_exact<double>(); d && number) return fmt::format("{}", *d);
   if (auto b = v.value_exact<bool>()) return *b ? "on" : "off";
-  fail_at(origin, &v, Exit::file, fmt::format("{}: expected a string, an integer or true/false", quote_input(key)));
+  fail_at(
+      origin, &v, Exit::file,
+      fmt::format("{}: expected a string, an integer{} or true/false", quote_input(key), number ? ", a number" : ""));
 }
 
 void parse_channel(std::string_view origin, const toml::table& t, const TerminalType& type, ChannelSpec& ch,
@@ -133,7 +138,8 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
       fail_at(origin, &v, Exit::usage,
               fmt::format("{} has no parameter {}{}", type.type, quote_input(key), hint.empty() ? "" : "; " + hint));
     }
-    Setting s{key, value_text(origin, key, v), line};
+    bool number = p->kind == ParamDef::Kind::fixed || (p->kind == ParamDef::Kind::integer && p->is_signed);
+    Setting s{key, value_text(origin, key, v, number), line};
     try {
       (void)encode_param(*p, s.value, 0);
     } catch (const Error& e) {
@@ -381,10 +387,18 @@ std::string toml_comment(std::string_view text) {
 }
 
 static std::string toml_value(const std::string& v) {
-  // A number as a TOML integer (it reads back as the same text): no sign, no leading zero.
-  bool numeric = !v.empty() && v.size() < 10 && (v == "0" || v[0] != '0') &&
-                 std::all_of(v.begin(), v.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
-  if (numeric) return v;
+  // A number as a TOML integer (it reads back as the same text): no leading zero; a sign only for
+  // a signed parameter's value, a decimal point only for a fixed-point one (they read back the same).
+  std::string_view digits = v;
+  if (!digits.empty() && digits[0] == '-') digits.remove_prefix(1);
+  auto dot = digits.find('.');
+  std::string_view whole = digits.substr(0, dot), frac = dot == std::string_view::npos ? "" : digits.substr(dot + 1);
+  auto all_digits = [](std::string_view d) {
+    return std::all_of(d.begin(), d.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
+  };
+  bool numeric = !whole.empty() && whole.size() < 10 && (whole == "0" || whole[0] != '0') && all_digits(whole) &&
+                 (dot == std::string_view::npos || (!frac.empty() && all_digits(frac) && frac.back() != '0'));
+  if (numeric && v != "-0") return v;
   if (v == "on") return "true";
   if (v == "off") return "false";
   return toml_string(v);
@@ -444,7 +458,10 @@ std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const Termina
   const ChannelSpec& ch = spec->channels[channel];
   for (const auto& [r, v] : ch.registers) regs[r] = v;
   for (const auto& s : ch.params)
-    if (const ParamDef* p = type.param(s.name)) regs[p->reg] = encode_param(*p, s.value, regs[p->reg]);
+    if (const ParamDef* p = type.param(s.name)) {
+      regs[p->reg] = encode_param(*p, s.value, regs[p->reg]);
+      if (p->reg_hi) regs[*p->reg_hi] = encode_param_hi(*p, s.value);
+    }
   return regs;
 }
 

@@ -281,6 +281,24 @@ class FactsTest(Tmp):
         self.assertEqual(sub, tomllib.loads(text))
         self.assertEqual(ku.parse_backup_toml(text), sub)
 
+    def test_the_subset_reader_takes_signed_and_fixed_point_values(self):
+        # A KL3202 (RTD): user-offset -20 and user-gain 0.75 are TOML numbers in a backup.
+        station = self.write('rtd.toml', 'coupler = "BK9000"\n[mapping]\ncomplete-evaluation = true\n'
+                                         '[[terminal]]\ntype = "KL3202"\n')
+        state = 'emu:' + self.path('emu.json')
+        kscfg('--port', state, 'emu', 'reset', '--station', station)
+        kscfg('--port', state, '-t', '1', 'set', 'user-offset', '-20', 'user-gain', '0.75')
+        text = self.backup_text(state)
+        sub = ku._parse_backup_subset(text)
+        params = ku.backup_channels(sub['terminal'][0])[0]['params']
+        self.assertEqual(params['user-offset'], -20)
+        self.assertEqual(params['user-gain'], 0.75)
+        try:
+            import tomllib
+        except ImportError:
+            self.skipTest('no tomllib (Python < 3.11)')
+        self.assertEqual(sub, tomllib.loads(text))
+
     def test_facts_of_the_emulated_station(self):
         state = 'emu:' + self.path('emu.json')
         kscfg('--port', state, 'emu', 'reset')

@@ -164,6 +164,20 @@ def main():
     run(['-t', '6', 'data', 'force', '1=on', '--yes', '--once'], 'data', lines=True, last='data_force')
     run(['-t', '1', 'data', 'force', 'D0=0x41', '--yes', '--once'], 'data', lines=True, last='data_force')
 
+    # An RTD input whose value follows its settings: emu input, show (a parameter without effect),
+    # data with the reading, the catalog's coverage.
+    rtd = os.path.join(d, 'rtd.toml')
+    with open(rtd, 'w') as f:
+        f.write('coupler = "BK9000"\n[mapping]\ncomplete-evaluation = true\n'
+                '[[terminal]]\ntype = "KL3202"\n[[terminal]]\ntype = "KL9010"\n')
+    run(['emu', 'reset', '--station', rtd], 'emu_reset')
+    run(['-t', '1', 'emu', 'input', '21.5'], 'emu_input')
+    run(['-t', '1', 'set', 'element', 'PT1000', 'user-gain', '1.25'], 'set')
+    run(['-t', '1', 'show'], 'show')
+    run(['-t', '1', 'get', 'user-gain', 'element'], 'get')
+    run(['data', '--once'], 'data', lines=True)
+    run(['catalog', 'KL3202'], 'catalog_type')
+
     # Errors: one object on stderr.
     r = subprocess.run([args.kscfg, '--json', 'read', 'R99'], capture_output=True, text=True, env=env, timeout=60)
     v = validator('error')

@@ -215,6 +215,10 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(J("data", {"-t", "2", "data", "--once"})["counter"] == 4);  // one channel: one JSON line
   CHECK(J("emu reset", {"emu", "reset"})["terminal_count"] == 7);
   CHECK(J("emu restart", {"emu", "restart"})["changed"] == false);
+  // An analog input with a processing chain: what it measures.
+  kscfg::test::write_text(d.file("rtd.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL3202\"\n");
+  CHECK(J("emu reset", {"emu", "reset", "--station", d.file("rtd.toml")})["terminal_count"] == 1);
+  CHECK(J("emu input", {"-t", "1", "emu", "input", "21.5"})["reading"] == "21.5 °C");
 
   // A Modbus link: scan, and the unit of the provisioning commands.
   kscfg::test::Server srv(d.file("served.json"), {"--json", "--tcp", "127.0.0.1:0"}, d.file("serve.err"));

@@ -46,7 +46,7 @@ TEST_CASE("parse errors are worded by kscfg, one line, exit 2", "[messages][cli]
       {{"-t", "1", "-t", "2", "info"}, "kscfg: error: -t/--terminal is given twice ('1', '2'); give it once"},
       {{"read", "--jsn", "R1"}, "kscfg: error: unknown option '--jsn' for 'kscfg read' (did you mean --json?)"},
       {{"--timeout", "read", "R32"}, "kscfg: error: --timeout needs MS before the command 'read'"},
-      {{"emu"}, "kscfg: error: 'kscfg emu' needs a command: reset, restart, fault, encoder or path"},
+      {{"emu"}, "kscfg: error: 'kscfg emu' needs a command: reset, restart, fault, encoder, input or path"},
       {{"emu", "rest"}, "kscfg: error: unknown command 'rest' for 'kscfg emu' (did you mean reset or restart?)"},
       {{"read"}, "kscfg: error: 'kscfg read' needs REG...: register(s) or range(s) to read"},
       {{"write", "R1", "2", "3"}, "kscfg: error: unexpected argument '3': 'kscfg write' takes REG VALUE"},

@@ -3,6 +3,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -20,6 +21,8 @@ struct EmbeddedFile {
   const char* text;
 };
 const std::vector<EmbeddedFile>& builtin_catalog_files();
+// The family descriptions (catalog/base/<name>.toml) a type includes; not types themselves.
+const std::vector<EmbeddedFile>& builtin_base_files();
 const std::vector<EmbeddedFile>& builtin_coupler_files();
 
 struct RegisterDef {
@@ -33,6 +36,13 @@ struct RegisterDef {
   bool described = false;  // listed in the type's [registers] table (its default is known)
   bool command = false;    // a command register (R7): each write is an action, never stored state
   bool code_word = false;  // the manual requires the code word in R31 before writing it (KL6031 R7)
+  bool is_signed = false;  // a two's-complement 16-bit number (dump shows it signed)
+  // Set per terminal at the factory (vendor calibration): `def` is a typical value, and a unit
+  // whose value differs has not been changed from its factory value.
+  bool typical = false;
+  bool reserved = false;  // the manual marks it reserved
+  std::string unit;       // unit of the raw value ("" = none given)
+  std::string source;     // catalog `source`: a key of the type's [sources], a URL or seed:NAME
 };
 
 // Bits of a process-data control or status byte/word, for `kscfg decode`.
@@ -40,6 +50,7 @@ struct BitField {
   std::string name;
   std::uint16_t mask = 0;
   std::string desc;
+  std::vector<std::string> values;  // names of a multi-bit field's codes, 0 first (may be empty)
 };
 
 struct DecodeTable {
@@ -67,8 +78,13 @@ struct Divisor {
   std::uint32_t max = 0;  // highest rate the manual allows (KL6001: 19200); 0 = none documented
 };
 
+// A parameter's condition (catalog `requires`, `when`): another parameter and its value as text.
+struct Requirement {
+  std::string param, value;
+};
+
 struct ParamDef {
-  enum class Kind { enumeration, boolean, integer };
+  enum class Kind { enumeration, boolean, integer, fixed };
   std::string name;
   std::string desc;
   std::string unit;
@@ -79,9 +95,18 @@ struct ParamDef {
   std::int64_t max = 0xFFFF;
   std::vector<EnumValue> values;
   std::optional<Divisor> divisor;
-  std::optional<unsigned> channel;  // only this channel (0-based); all channels when empty
+  std::optional<unsigned> channel;        // only this channel (0-based); all channels when empty
+  bool is_signed = false;                 // int/fixed: two's complement in the field's width
+  unsigned frac_bits = 0;                 // fixed: value = raw / 2^frac_bits (when step == 0)
+  double step = 0;                        // fixed: value = raw * step
+  double vmin = 0, vmax = 0;              // fixed: allowed range in the value's own units
+  std::vector<Requirement> requirements;  // `requires`: has an effect only while these hold
+  std::optional<unsigned> reg_hi;         // the high word of a 32-bit value (`register` holds the low word)
+  std::string source;                     // as RegisterDef::source
 
   unsigned shift() const;
+  // Bits of the field: the mask's, or 32 with register_hi.
+  unsigned width() const;
   std::uint16_t field(std::uint16_t reg_value) const { return (reg_value & mask) >> shift(); }
   std::uint16_t with_field(std::uint16_t reg_value, std::uint16_t field_value) const {
     return static_cast<std::uint16_t>((reg_value & ~mask) | ((field_value << shift()) & mask));
@@ -137,6 +162,50 @@ struct Scale {
   std::uint16_t word(double v) const;
 };
 
+// What a channel's data word means under the settings (catalog `[[value]]`): the first whose
+// `when` holds applies. `sign_magnitude`/`siemens`: parameters whose `on` changes how the word is
+// read (bit 15 the sign and bits 14..0 the magnitude; Siemens: status in bits 2..0, the value in
+// bits 15..3).
+struct ValueDef {
+  std::vector<Requirement> when;
+  Scale scale;
+  std::string sign_magnitude, siemens;
+};
+
+// How an analog channel makes its data word from what it measures (catalog `[chain]`): the
+// emulator computes it; `kscfg data` reads it back with `[[value]]`. Every stage is optional.
+struct ChainStage {  // one straight line: y = gain * x + offset, gain = register / 2^gain_frac_bits
+  std::string on;    // the on/off parameter that switches it ("" = always on)
+  unsigned offset_reg = 0, gain_reg = 0;
+  unsigned gain_frac_bits = 8;
+  bool gain_signed = true;
+};
+struct ChainRange {  // what the input means under some settings (the first whose `when` holds)
+  std::vector<Requirement> when;
+  std::string unit;         // the physical unit the emulator's input is in ("°C", "Ω", "mA", "V")
+  double digits = 1;        // data-word digits per unit before manufacturer and user scaling
+  double offset = 0;        // the digits at input 0 (4..20 mA ranges: the input at digit 0 is `min`)
+  double min = 0, max = 0;  // the valid measuring range, in `unit`
+};
+struct ChainLimit {  // a limit value compared with the output, reported in a status field
+  std::string on;
+  unsigned reg = 0;
+  std::uint16_t mask = 0;  // status field: 1 = below, 2 = above, 3 = equal (0 = not active)
+};
+struct SwitchOn {  // an output's value at power-on (first whose `when` holds)
+  std::vector<Requirement> when;
+  unsigned reg = 0;
+};
+struct Chain {
+  std::vector<ChainRange> ranges;
+  std::optional<ChainStage> vendor, manufacturer, user;
+  std::string protect;  // on/off parameter: clamp at the range's limits (over-range protection)
+  std::string sign_magnitude, siemens;
+  std::uint16_t over = 0, under = 0, error = 0;  // status bits set out of range
+  std::vector<ChainLimit> limits;
+  std::vector<SwitchOn> switch_on;
+};
+
 // Which way a terminal's process data goes. A one-way terminal maps the other side only together
 // with its control/status byte (complete evaluation): an analog input has no output data word.
 enum class Direction { in, out, both };
@@ -146,7 +215,11 @@ struct TerminalType {
   std::string title;
   std::string family;
   std::string source;
-  std::string origin;  // file it came from (built-in:NAME or a path)
+  std::string origin;                          // file it came from (built-in:NAME or a path)
+  std::vector<std::string> bases;              // catalog/base files included, in order (with their own)
+  std::map<std::string, std::string> sources;  // [sources]: short keys to URLs
+  std::string coverage;                        // why the type has no named parameters / register description
+  std::string unverified;                      // why no public page shows the type exists ("" = one does)
   bool has_registers = false;
   std::uint16_t r8 = 0;
   std::string version = "00";
@@ -159,14 +232,27 @@ struct TerminalType {
   std::vector<ParamDef> params;
   std::vector<ImageFormat> images;
   std::vector<DecodeTable> decode;
+  std::vector<ValueDef> values;
+  std::optional<Chain> chain;
 
   const ParamDef* param(std::string_view name) const;
+  // A `source` as a URL (or seed:NAME): a key of [sources] resolved, "" for none.
+  std::string source_url(const std::string& source) const;
   std::vector<std::string> param_names() const;
   // The image format selected by the given channel register values.
   const ImageFormat* image_for(const std::array<std::uint16_t, proto::kRegisterCount>& regs) const;
   std::array<std::uint16_t, proto::kRegisterCount> defaults() const;
   bool is_serial() const { return family == "serial"; }
 };
+
+// A base (catalog/base/<name>.toml) by name: its origin and text, or nothing.
+struct BaseText {
+  std::string origin;
+  std::string_view text;
+};
+using BaseFinder = std::function<std::optional<BaseText>(std::string_view name)>;
+// The built-in bases.
+std::optional<BaseText> builtin_base(std::string_view name);
 
 class Catalog {
  public:
@@ -177,7 +263,9 @@ class Catalog {
 
   // Parses one description; throws Error(Exit::file) naming file, line and field.
   void add_text(std::string_view origin, std::string_view text);
-  // Adds (or overrides) every *.toml in dir.
+  // Adds (or overrides) the family description (base) NAME that types include.
+  void add_base(std::string_view name, std::string_view origin, std::string_view text);
+  // Adds (or overrides) every *.toml in dir, and the bases in dir/base/*.toml.
   void add_dir(const std::filesystem::path& dir);
 
   const TerminalType* find(std::string_view type) const;
@@ -196,14 +284,18 @@ class Catalog {
   // A built-in file is named after its type (TYPE.toml, checked when it is parsed and by a test).
   // Lookups may come from serve's threads: the lazy part is behind a mutex.
   const TerminalType* parse_pending(std::map<std::string, const EmbeddedFile*>::iterator it) const;
+  // The user's bases (add_base, add_dir), then the built-in ones.
+  BaseFinder base_finder() const;
   mutable std::map<std::string, std::shared_ptr<const TerminalType>> types_;
-  mutable std::map<std::string, const EmbeddedFile*> pending_;  // not parsed yet, by type name
+  mutable std::map<std::string, const EmbeddedFile*> pending_;                     // not parsed yet, by type name
+  std::map<std::string, std::pair<std::string, std::string>, std::less<>> bases_;  // user bases: origin, text
   std::shared_ptr<std::mutex> mu_ = std::make_shared<std::mutex>();
 };
 
-// Parses one description (`origin` names it in errors); throws Error(Exit::file) naming file,
-// line and field.
-std::shared_ptr<const TerminalType> parse_description(std::string_view origin, std::string_view text);
+// Parses one description (`origin` names it in errors) with the bases it includes (built-in ones
+// when `bases` is empty); throws Error(Exit::file) naming file, line and field.
+std::shared_ptr<const TerminalType> parse_description(std::string_view origin, std::string_view text,
+                                                      const BaseFinder& bases = {});
 
 // Loads KSCFG_CATALOG/--catalog dirs into the standard catalog; call before first use.
 void set_user_catalog_dir(const std::filesystem::path& dir);

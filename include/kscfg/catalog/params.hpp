@@ -14,8 +14,18 @@ namespace kscfg {
 // set (the user asked for it: set --divisor) and only up to the divisor's documented maximum.
 std::uint16_t encode_param(const ParamDef& param, const std::string& text, std::uint16_t current, bool divisor = false);
 
-// Human text of the parameter's value in register value `reg`, e.g. "19200", "8N1", "on", "3".
-std::string decode_param(const ParamDef& param, std::uint16_t reg);
+// Human text of the parameter's value in register value `reg`, e.g. "19200", "8N1", "on", "3",
+// "-12" (signed), "1.25" (fixed); `hi`: the register_hi word of a 32-bit value.
+std::string decode_param(const ParamDef& param, std::uint16_t reg, std::uint16_t hi = 0);
+
+// A register_hi parameter: the high word for `text` (encode_param gives the low word).
+std::uint16_t encode_param_hi(const ParamDef& param, const std::string& text);
+
+// The field as a number: two's complement for a signed int/fixed, 32 bits with register_hi.
+std::int64_t param_number(const ParamDef& param, std::uint16_t reg, std::uint16_t hi = 0);
+
+// A fixed parameter's raw number as the shortest exact decimal: 0x0140 with frac_bits 8 = "1.25".
+std::string format_fixed(const ParamDef& param, std::int64_t raw);
 
 // Baud rate for a divisor-form register value (low byte == divisor.low), or 0.
 double divisor_rate(const Divisor& d, std::uint16_t reg);

@@ -12,6 +12,7 @@
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/emulator/analog_model.hpp"
 #include "kscfg/emulator/encoder_model.hpp"
 #include "kscfg/emulator/serial_model.hpp"
 #include "kscfg/link/link.hpp"
@@ -53,6 +54,10 @@ class ChannelModel {
   // The KL5101: counter, latches and the encoder on the far end; null for other types.
   EncoderModel* encoder() { return encoder_.get(); }
   const EncoderModel* encoder() const { return encoder_.get(); }
+  // An analog input or output with a `[chain]` in the catalog: what it measures or drives; null
+  // for other types.
+  AnalogModel* analog() { return analog_.get(); }
+  const AnalogModel* analog() const { return analog_.get(); }
 
   ChannelFaults faults;
 
@@ -66,6 +71,7 @@ class ChannelModel {
   bool executed_ = false;
   std::unique_ptr<SerialModel> serial_;
   std::unique_ptr<EncoderModel> encoder_;
+  std::unique_ptr<AnalogModel> analog_;
 };
 
 class EmulatedStation {

@@ -21,14 +21,20 @@ struct ParamValue {
   std::string value;     // decoded text
   std::string fallback;  // the factory value, decoded
   std::uint16_t reg_value = 0;
-  bool differs = false;
+  bool differs = false;  // a register set per terminal at the factory (`typical`) never differs
+  // Catalog `requires` that do not hold: "no effect while filter is off" ("" when it has effect).
+  std::string note;
 };
 
 // Reads the registers the parameters live in (each register once) and decodes them.
 std::vector<ParamValue> read_params(RegisterSession& s, const std::vector<const ParamDef*>& params);
-// The registers the parameters live in, each once, in order; and the parameters decoded from the
+// The registers the parameters live in (with a 32-bit value's high word and the registers of the
+// parameters their `requires` name), each once, in order; and the parameters decoded from the
 // values of those registers (read by someone else: the station engine for several terminals).
-std::vector<unsigned> param_registers(const std::vector<const ParamDef*>& params);
+std::vector<unsigned> param_registers(const TerminalType& type, const std::vector<const ParamDef*>& params);
+// "no effect while filter is off" when a `requires` of `param` does not hold in `regs`; "".
+std::string requirement_note(const TerminalType& type, const ParamDef& param,
+                             const std::array<std::uint16_t, proto::kRegisterCount>& regs);
 std::vector<ParamValue> decode_params(const TerminalType& type, const std::vector<const ParamDef*>& params,
                                       const std::vector<std::uint16_t>& values);
 
@@ -41,6 +47,8 @@ struct SetResult {
   std::vector<ParamChange> params;
   std::vector<WriteResult> registers;
   bool changed = false;
+  // Parameters set while a `requires` does not hold: "filter-constant: no effect while filter is off".
+  std::vector<std::string> notes;
 };
 
 // Sets NAME VALUE pairs as one change: every value is validated before anything is written,
@@ -98,6 +106,7 @@ struct DecodedBit {
   unsigned value = 0;
   std::uint16_t mask = 0;
   std::string desc;
+  std::string meaning;  // the field's name for its value (catalog `values`: "above"), "" when none
 };
 struct Decoded {
   std::string kind;

@@ -4,6 +4,7 @@
 #pragma once
 #include <chrono>
 #include <cstdint>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -11,6 +12,8 @@
 
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/link/link.hpp"
+#include "kscfg/session/channel.hpp"
+#include "kscfg/session/engine.hpp"
 #include "kscfg/session/journal.hpp"
 #include "kscfg/station/layout.hpp"
 
@@ -30,9 +33,20 @@ ImageSnapshot read_image(Link& link, const StationLayout& layout);
 // serial in_length/out_length/in_data/out_data (the valid data bytes, numbers), encoder and counter
 // "counter"/"latch", analog "word" (the data word, signed unless the scale is unsigned)/"scaled"/"unit", digital
 // "inputs"/"outputs" (arrays of 0/1); every complex channel also "bytes": {"in": {NAME: value}, "out": {...}}.
+// An analog channel whose type says what its data word means under its settings (catalog
+// `[[value]]`) shows its value as those settings make it: `settings` holds the registers read for
+// it (read_value_settings); a channel without them is taken as delivered ("settings_read": false).
+using ChannelSettings = std::map<std::pair<unsigned, unsigned>, std::array<std::uint16_t, proto::kRegisterCount>>;
 std::vector<nlohmann::json> decode_station(const StationLayout& layout, const ImageSnapshot& image,
-                                           unsigned only_position = 0);
-nlohmann::json decode_channel(const TerminalImage& t, unsigned channel, const ImageSnapshot& image);
+                                           unsigned only_position = 0, const ChannelSettings* settings = nullptr);
+nlohmann::json decode_channel(const TerminalImage& t, unsigned channel, const ImageSnapshot& image,
+                              const std::array<std::uint16_t, proto::kRegisterCount>* settings = nullptr);
+// Reads, for every analog input channel (of the terminal at `only`, 0: of all; an output's data
+// bytes would carry the register requests) whose value follows its settings and that has a register
+// window, the registers its [[value]] entries name (one run of
+// reads, every channel at once). A channel that cannot be read is left out.
+ChannelSettings read_value_settings(Engine& engine, const StationLayout& layout, const SessionOptions& so,
+                                    unsigned only = 0);
 
 // A control or status byte/word as JSON (docs/json.md): {"value": N, "bits": {NAME: 0/1 or a number}}
 // with the names of the type's decode table for `kind` ("control", "status") and image format;

@@ -282,7 +282,7 @@ def rollback_state(msg):
 def parse_backup_toml(text):
     """The station file `kscfg backup` writes, as a dict like tomllib's. Uses tomllib where
     Python has it (3.11+), else a reader of the subset kscfg writes (tables [[terminal]] and
-    [[terminal.channel]], [mapping], key = integer/hex/bool/string, comments)."""
+    [[terminal.channel]], [mapping], key = integer/hex/decimal/bool/string, comments)."""
     try:
         import tomllib  # Python 3.11+
     except ImportError:
@@ -300,6 +300,11 @@ def _subset_value(raw, where):
         return json.loads(raw)
     try:
         return int(raw.replace('_', ''), 0)
+    except ValueError:
+        pass
+    # A signed or fixed-point parameter's value: -20, 1.25 (never hex).
+    try:
+        return float(raw.replace('_', '')) if re.match(r'^-?[0-9_]+\.[0-9_]+$', raw) else int(raw.replace('_', ''), 10)
     except ValueError:
         raise ValueError('%s: cannot read value %r' % (where, raw))
 
