@@ -7,7 +7,9 @@ Targets: `kscfg serve --can` on one end of a socat pseudo-terminal pair (`socat 
 pty,raw,echo=0 pty,raw,echo=0`), the CANopen peer (tests/canopen_peer/canopen_peer.py; the
 manual's K-bus cycle: the first upload after a register's address answers busy) and the peer
 with --busy-uploads 0 (peer0: every value at the first upload, the fewest frames the manual's
-procedure allows). For each:
+procedure allows); and two couplers whose register access takes 2 ms (issue 45: a coupler
+answering within 2 ms, where uploads back to back cost many frames a register): peer2ms, the
+peer with --busy-uploads 0 --kbus-ms 2, and serve2ms, serve --can --can-register-ms 2. For each:
 
   frames    one `kscfg -t 1 dump` (the KL6001's registers the catalog defines, R0..R47: R48..R63
             are shown as not implemented, not read) and one `kscfg -t 1 read R8` through a tap that
@@ -113,7 +115,8 @@ class Target:
         self.kind, self.work = kind, work
         self.env = campaign_common.isolated_env(os.path.join(work, kind))
         self.procs = []
-        if kind == "serve":
+        if kind in ("serve", "serve2ms"):
+            slow = ["--can-register-ms", "2"] if kind == "serve2ms" else []
             state = os.path.join(work, "emu.json")
             subprocess.run([KSCFG, "--port", "emu:" + state, "emu", "reset"], check=True, capture_output=True)
             self.socat = subprocess.Popen(["socat", "-d", "-d", "pty,raw,echo=0", "pty,raw,echo=0"],
@@ -129,7 +132,7 @@ class Target:
             if len(paths) < 2:
                 raise SystemExit("socat did not make a pty pair")
             self.procs.append(self.socat)
-            self.srv = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--can", "slcan:" + paths[0]],
+            self.srv = subprocess.Popen([KSCFG, "--port", "emu:" + state, "serve", "--can", "slcan:" + paths[0]] + slow,
                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
             if first_line(self.srv, 20) is None:
                 raise SystemExit("serve --can did not start")
@@ -138,7 +141,7 @@ class Target:
             # a second pair for the frame count: serve behind the recording relay
             self.relay = Relay()
             self.srv2 = subprocess.Popen([KSCFG, "--port", "emu:" + os.path.join(work, "emu2.json"), "serve",
-                                          "--can", "slcan:" + self.relay.serve_path], stdout=subprocess.PIPE,
+                                          "--can", "slcan:" + self.relay.serve_path] + slow, stdout=subprocess.PIPE,
                                          stderr=subprocess.DEVNULL)
             if first_line(self.srv2, 20) is None:
                 raise SystemExit("serve --can (counted) did not start")
@@ -146,7 +149,8 @@ class Target:
             self.counted = self.relay.client_path
         else:
             from canpeerproc import CanPeer
-            self.peer = CanPeer(["--busy-uploads", "0"] if kind == "peer0" else [])
+            self.peer = CanPeer({"peer0": ["--busy-uploads", "0"],
+                                 "peer2ms": ["--busy-uploads", "0", "--kbus-ms", "2"]}.get(kind, []))
             self.device = self.peer.device
             self.relay = None
             self.counted = None
@@ -156,7 +160,7 @@ class Target:
 
     def count(self, args):
         """The CAN frames of one kscfg command (through the recording relay or tap)."""
-        if self.kind == "serve":
+        if self.kind in ("serve", "serve2ms"):
             relay = self.relay
         else:
             relay = Relay(far_path=self.device)
@@ -186,7 +190,7 @@ class Target:
     def close(self):
         if self.relay:
             self.relay.close()
-        if self.kind != "serve":
+        if self.kind not in ("serve", "serve2ms"):
             self.peer.stop()
         for p in reversed(self.procs):
             if p.poll() is None:
@@ -256,7 +260,7 @@ def main():
     ap.add_argument("--kscfg", default=KSCFG)
     ap.add_argument("-n", type=int, default=20, help="timed runs of each command (default 20)")
     ap.add_argument("--quick", action="store_true", help="5 runs")
-    ap.add_argument("--target", action="append", choices=("serve", "peer", "peer0"))
+    ap.add_argument("--target", action="append", choices=("serve", "peer", "peer0", "peer2ms", "serve2ms"))
     a = ap.parse_args()
     KSCFG = campaign_common.KSCFG = os.path.abspath(a.kscfg)
     n = 5 if a.quick else a.n

@@ -20,10 +20,12 @@ an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads a
 issue 32's spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped during
 such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS);
 issue 37's cankill9, canwriters, canint, candead (CANopen over slcan: serve --can and the CANopen
-peer; kill -9, two writers on one node, SIGINT, a coupler that stops answering mid-apply); and
+peer; kill -9, two writers on one node, SIGINT, a coupler that stops answering mid-apply);
 kill9change (kill -9 of a two-register set or a two-terminal apply over serve, serve --ads, serve
 --can and the pymodbus peer: no change left half done unsaid) and otheruser (another user's alias
-record, lock directory or planted file against root's kscfg; needs root and setpriv).
+record, lock directory or planted file against root's kscfg; needs root and setpriv); canint300
+(300 SIGINTs during an apply over slcan), adsreset (a relay that resets ADS connections after their
+first request), adsstop (an ADS coupler stopped during an apply).
 --quick runs a tenth. Run it under `nice -n 10`. Needs /usr/bin/python3, python3-pymodbus, kscfg.
 """
 import argparse
@@ -432,8 +434,9 @@ ELSEWHERE = {**dict.fromkeys(("meet", "kill9all", "forged", "poison"), "campaign
              **dict.fromkeys(("kill9apply12", "deadlink12", "kill9force"), "campaign_station"),
              **dict.fromkeys(("adsfaults", "adskill9", "adstwo"), "campaign_ads"),
              **dict.fromkeys(("spellings", "twoprotocols"), "campaign_spellings"),
-             **dict.fromkeys(("cankill9", "canwriters", "canint", "candead"), "campaign_can"),
-             **dict.fromkeys(("kill9change", "otheruser"), "campaign_changes")}
+             **dict.fromkeys(("cankill9", "canwriters", "canint", "candead", "canint300"), "campaign_can"),
+             **dict.fromkeys(("kill9change", "otheruser"), "campaign_changes"),
+             **dict.fromkeys(("adsreset", "adsstop"), "campaign_waits")}
 
 
 def main():

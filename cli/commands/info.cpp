@@ -61,6 +61,7 @@ class Info : public Command {
     // Every terminal's R8 is read below (or was read by this run's scan): a layout from the scan
     // cache is checked here rather than by a second read of each R8.
     const StationLayout& L = ctx.layout_unchecked();
+    refuse_contradicted(L);
     std::vector<unsigned> positions;
     if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
     else
@@ -151,6 +152,14 @@ class Info : public Command {
     return 0;
   }
 
+  // The coupler's image lengths contradict the layout (ADS, discovery/ads_image.hpp): the image
+  // ranges info shows would not be the coupler's, so it is refused as process data is (before, it
+  // showed them with exit 0 and nothing said, issue 45). --station with the coupler's settings
+  // lays the station out right.
+  static void refuse_contradicted(const StationLayout& L) {
+    if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);
+  }
+
   // POS TYPE R8 VER IMAGE TITLE: the title last, cut with an ellipsis to the terminal's width on
   // a terminal, whole but wrapped under its column (80 wide) when piped. (The image format is in
   // `info -t POS`, `map` and the JSON.)
@@ -202,7 +211,9 @@ class Info : public Command {
   bool rescanned_ = false;
 
   int one(Context& ctx, unsigned pos) {
-    const TerminalImage& t = ctx.layout_upto(pos).terminal(pos);
+    const StationLayout& L = ctx.layout_upto(pos);
+    refuse_contradicted(L);
+    const TerminalImage& t = L.terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};
     if (t.inferred) {
       j["type"] = nullptr;

@@ -172,8 +172,16 @@ class Map : public Command {
       L = compute_layout(spec, cat);
     } else {
       const StationLayout& current = ctx.layout();
-      // The coupler contradicts the layout (an ADS coupler's image lengths): shown, but said.
-      if (!current.image_refused.empty()) notes.push_back(current.image_refused);
+      // The coupler contradicts the layout (an ADS coupler's image lengths): its offsets are not the
+      // coupler's, so the map is refused as process data is (before, it showed them with exit 0
+      // and nothing said, issue 45), unless the settings are given here; then the map's layout is
+      // checked against the coupler's lengths itself (below).
+      const bool settings_given = !coupler_.empty() || ce || mo || wa;
+      if (!current.image_refused.empty() && !settings_given)
+        throw Error(Exit::refused, current.image_refused,
+                    current.image_refused_hint +
+                        "; or give them here: kscfg map --online --word-alignment on|off "
+                        "--complete-evaluation on|off");
       StationSpec spec;
       if (!station_file.empty()) spec = load_station_arg(station_file, cat);
       else if (const StationSpec* s = ctx.discovery().station()) spec = *s;
@@ -187,6 +195,11 @@ class Map : public Command {
       OnlineMap m = map_online(ctx.engine(), current, spec, cat, s, ctx.session_options());
       L = std::move(m.layout);
       notes = std::move(m.notes);
+      if (settings_given) {
+        // Settings given: the coupler's image lengths judge the map's layout (ADS), as a --station file's.
+        ctx.discovery().check_described(L, spec, "the map");
+        if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);
+      }
       // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
       // they give another layout than the one the coupler uses now, the map shows what is in effect
       // and, after it, what the next start brings (issue 23 item 21).

@@ -16,7 +16,9 @@
 #include "kscfg/base/files.hpp"
 #include "kscfg/discovery/ads_station.hpp"
 #include "kscfg/discovery/can_station.hpp"
+#include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/map.hpp"
 
@@ -109,6 +111,10 @@ class Scan : public Command {
       // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
       AdsScanOptions so;
       if (ce || wa || mo) so.settings = overridden;
+      // kscfg scan asks the coupler's Modbus TCP side even where it did not answer lately, and keeps
+      // what it finds for the commands after it (discovery/ads_image.hpp).
+      so.silent_memo.path = default_cache_dir() + "/scans/" + station_key(a->target()) + ".modbus-silent";
+      so.silent_memo.ask_anyway = true;
       so.origin = fmt::format("scan of {}", link->describe());
       AdsScan s = scan_ads_station(*a, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
       r = std::move(s.result);

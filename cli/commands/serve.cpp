@@ -97,6 +97,8 @@ class Serve : public Command {
            "gets AMS error 0x7. \\fB\\-\\-ads\\-route\\fR \\fINETID\\fR (repeatable) fills the AMS routing table: "
            "when it is not empty, only the NetIds it lists are served, the others get AMS error 0x7. A "
            "connection that carried nothing for 10 s is cut, as the coupler does (\\fB\\-\\-ads\\-idle\\-ms\\fR). "
+           "At most \\fB\\-\\-max\\-connections\\fR ADS clients (default 64) are served at once; one more is "
+           "closed at once, unless a connection idle for 5 s makes room, as over Modbus. "
            "\\fB\\-\\-ads\\-register\\-ms\\fR \\fIMS\\fR makes every terminal register access over port 100 take "
            "\\fIMS\\fR, one at a time, as a coupler busy on its K\\-bus does (for tests of slow accesses; default 0).\n"
            ".IP\n"
@@ -281,10 +283,10 @@ class Serve : public Command {
     }
     if (at && (ctx.options().verbose || at->refused || at->timed_out || at->malformed))
       std::cerr << fmt::format(
-          "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} cut idle, {} slow client(s) "
-          "disconnected, {} malformed; state saved to {}\n",
-          at->requests, at->connections, at->refused, ao->max_connections, at->idle_cut, at->timed_out, at->malformed,
-          where);
+          "kscfg: serve: {} ADS request(s), {} connection(s); {} refused (limit {}), {} closed idle to make room, "
+          "{} cut idle, {} slow client(s) disconnected, {} malformed; state saved to {}\n",
+          at->requests, at->connections, at->refused, ao->max_connections, at->evicted, at->idle_cut, at->timed_out,
+          at->malformed, where);
     if (ct && (ctx.options().verbose || ct->refused || ct->dropped))
       std::cerr << fmt::format(
           "kscfg: serve: {} slcan line(s), {} frame(s) to node {}, {} answered; {} refused (BELL), {} byte(s) the "

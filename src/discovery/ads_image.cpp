@@ -5,9 +5,12 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <chrono>
+#include <filesystem>
 #include <vector>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/files.hpp"
 #include "kscfg/link/modbus_client.hpp"
 
 namespace kscfg {
@@ -34,9 +37,28 @@ std::string settings_of(const MappingSettings& s) {
 
 }  // namespace
 
+namespace {
+
+// When the memo says the Modbus TCP side last did not answer (seconds since the epoch), if it does.
+std::optional<long long> silent_since(const SilentMemo& memo) {
+  if (memo.path.empty()) return std::nullopt;
+  RegularFile f = read_regular_file(memo.path, "memo", 64);
+  if (!f.exists || !f.refused.empty()) return std::nullopt;
+  try {
+    std::size_t used = 0;
+    long long t = std::stoll(f.text, &used);
+    return t;
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
+}  // namespace
+
 CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint16_t> r15,
                                 std::optional<std::uint16_t> r26, unsigned timeout_ms,
-                                const std::function<void(const std::string&)>& trace, const CancelToken* cancel) {
+                                const std::function<void(const std::string&)>& trace, const CancelToken* cancel,
+                                const SilentMemo& memo) {
   CouplerImage c;
   if (!r15 || !r26) {
     c.unknown = "the coupler does not serve table 100 registers 15 and 26 (its Modbus TCP settings)";
@@ -56,6 +78,17 @@ CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint
   m.port = *r26 ? *r26 : 502;
   m.unit = 1;
   c.where = fmt::format("Modbus TCP 0x1010..0x1013 at {}", m.where().substr(0, m.where().rfind(" unit")));
+  const long long now =
+      std::chrono::duration_cast<std::chrono::seconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+  if (auto since = silent_since(memo);
+      since && !memo.ask_anyway && now >= *since && now - *since < kSilentMemoSeconds) {
+    c.silent = true;
+    c.unknown = fmt::format(
+        "its Modbus TCP side (table 100: port {}), where it reports its image lengths, did not answer {} s ago; "
+        "not asked again for {} minutes ('kscfg scan' or --rescan asks)",
+        *r26, now - *since, kSilentMemoSeconds / 60);
+    return c;
+  }
   ModbusOptions mo;
   mo.connect_timeout_ms = std::clamp(timeout_ms, 100u, 1000u);
   mo.response_timeout_ms = std::clamp(timeout_ms, 100u, 1000u);
@@ -63,9 +96,25 @@ CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint
   mo.timeout_retries = 0;
   mo.trace = trace;
   mo.cancel = cancel;
+  const auto began = std::chrono::steady_clock::now();
+  auto keep_memo = [&](bool silent) noexcept {
+    if (memo.path.empty()) return;
+    try {
+      if (silent) {
+        std::filesystem::create_directories(std::filesystem::path(memo.path).parent_path());
+        write_file_atomic(memo.path, std::to_string(now) + "\n", true);
+      } else {
+        std::error_code ec;
+        std::filesystem::remove(memo.path, ec);
+      }
+    } catch (...) {
+      // A memo that cannot be kept costs the next command the wait, nothing more.
+    }
+  };
   try {
     ModbusClient client(m, mo);
     auto v = client.read_optional(mbmap::kImageLengths, 4);
+    keep_memo(false);
     if (!v || v->size() != 4) {
       c.unknown = fmt::format("its Modbus TCP side ({}) refuses the image lengths 0x1010..0x1013", m.where());
       return c;
@@ -76,6 +125,9 @@ CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint
                         (*v)[1], (*v)[2], (*v)[3]));
   } catch (const Error& e) {
     if (e.code() == Exit::interrupted) throw;
+    // No answer within the bound (not a refusal, which costs nothing): kept for the next commands.
+    c.silent = std::chrono::steady_clock::now() - began >= std::chrono::milliseconds(mo.connect_timeout_ms * 9 / 10);
+    keep_memo(c.silent);
     c.unknown = fmt::format(
         "its Modbus TCP side (table 100: port {}), where it reports its image lengths, does not "
         "answer: {}",

@@ -131,7 +131,7 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       if (auto e = access.reply_error(rep[i], t100[i], true)) throw *e;
       (i == 0 ? r15 : r26) = ams::get16(rep[i].data.data());
     }
-    image = read_coupler_image(client.target(), r15, r26, timeout_ms, opt.trace, opt.cancel);
+    image = read_coupler_image(client.target(), r15, r26, timeout_ms, opt.trace, opt.cancel, opt.silent_memo);
   }
   // Each terminal: its table 9 entry (or none, walked by number), its type.
   struct Found {

@@ -33,14 +33,20 @@ namespace {
 class AdsDiscovery : public StationDiscovery {
  public:
   AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace, const CancelToken* cancel)
-      : link_(link), catalog_(catalog), timeout_ms_(timeout_ms), trace_(std::move(trace)), cancel_(cancel) {}
+               std::function<void(const std::string&)> trace, const CancelToken* cancel, SilentMemo memo)
+      : link_(link),
+        catalog_(catalog),
+        timeout_ms_(timeout_ms),
+        trace_(std::move(trace)),
+        cancel_(cancel),
+        memo_(std::move(memo)) {}
 
   const StationLayout* layout_upto(unsigned) override {
     if (!searched_) {
       searched_ = true;
       AdsScanOptions so;
       so.check = false;  // table 9 and the registers that decide an image only
+      so.silent_memo = memo_;
       so.trace = trace_;
       so.cancel = cancel_;
       AdsScan s = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so));
@@ -95,6 +101,7 @@ class AdsDiscovery : public StationDiscovery {
   unsigned timeout_ms_;
   std::function<void(const std::string&)> trace_;
   const CancelToken* cancel_;
+  SilentMemo memo_;
   std::optional<Found> found_;
   bool searched_ = false;
 };
@@ -197,6 +204,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     AdsOptions ao;
     ao.response_timeout_ms = std::clamp(opt.timeout_ms, 100u, 60000u);
     ao.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+    ao.busy_wait_ms = ao.response_timeout_ms;  // a full server is tried again over --timeout (link/busy.hpp)
     ao.trace = opt.trace;
     ao.cancel = opt.cancel;
     AdsTarget target = ads_target(p, uri);
@@ -207,7 +215,10 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     // Channels unlocked over port 100 are noted in the session journal of this coupler, so that the
     // next kscfg relocks what a killed one left (session/ads_access.hpp).
     if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
-    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel);
+    SilentMemo memo;
+    if (!opt.cache_dir.empty()) memo.path = opt.cache_dir + "/scans/" + station_key(target) + ".modbus-silent";
+    memo.ask_anyway = opt.rescan;
+    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel, memo);
     OpenedPort port;
     port.link = std::move(link);
     SessionOptions so = port_session(opt);
@@ -230,6 +241,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.response_timeout_ms = std::clamp(opt.timeout_ms / 3, 50u, 5000u);
   mo.timeout_retries = 2;
   mo.connect_timeout_ms = std::clamp(opt.timeout_ms, 100u, 10000u);
+  mo.busy_wait_ms = std::clamp(opt.timeout_ms, 100u, 60000u);  // busy: tried again over --timeout (link/busy.hpp)
   mo.trace = opt.trace;
   mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);

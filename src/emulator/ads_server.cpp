@@ -2,8 +2,9 @@
 // AdsRequestHandler; the connections, their deadlines and the poll loop are the stream server's
 // (stream_server.hpp), as for serve's Modbus server: a slow client loses only its own connection,
 // a stream that is not AMS/TCP is closed, a client that does not read its replies is dropped. ADS
-// adds its limit (one more is closed at once), replies held back in order, and the cut of every
-// connection idle for the coupler's 10 s, as the coupler does.
+// adds its limit (one more is closed at once, unless a connection idle for 5 s makes room, as in
+// the Modbus server), replies held back in order, and the cut of every connection idle for the
+// coupler's 10 s, as the coupler does.
 #include "kscfg/emulator/ads_server.hpp"
 
 #include <arpa/inet.h>
@@ -123,9 +124,25 @@ AdsServeStats AdsServer::stats() const {
   return s;
 }
 
-bool AdsServer::Impl::admit(Conn& c, Clock::time_point) {
+bool AdsServer::Impl::admit(Conn& c, Clock::time_point now) {
   std::size_t open = 0;
   for (const auto& o : conns) open += !o.dead;
+  if (open >= opt.max_connections) {
+    // Make room by closing the connection idle longest, if it has been idle long enough, as the
+    // Modbus server does (before, a full serve --ads stayed full until its 10 s idle cut).
+    Conn* idle = nullptr;
+    for (auto& o : conns)
+      if (&o != &c && !o.dead && o.in.empty() && o.out.empty() && o.held.empty() &&
+          (!idle || o.last_byte < idle->last_byte))
+        idle = &o;
+    if (idle && now - idle->last_byte >= milliseconds(opt.idle_evict_ms)) {
+      count(&AdsServeStats::evicted);
+      close(*idle,
+            fmt::format("idle for {} ms while {} connections are in use: closed to make room",
+                        std::chrono::duration_cast<milliseconds>(now - idle->last_byte).count(), opt.max_connections));
+      --open;
+    }
+  }
   if (open >= opt.max_connections) {
     count(&AdsServeStats::refused);
     std::size_t n;

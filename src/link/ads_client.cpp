@@ -14,10 +14,11 @@
 
 #include <algorithm>
 #include <cstring>
+#include <deque>
 #include <map>
+#include <optional>
 
 #include "kscfg/base/cancel.hpp"
-#include "kscfg/base/parse.hpp"
 
 namespace kscfg {
 
@@ -38,34 +39,18 @@ void check_interrupt(const AdsOptions& o) {
 
 }  // namespace
 
-std::string AdsTarget::where() const {
-  return host.find(':') != std::string::npos ? fmt::format("[{}]:{}", host, port) : fmt::format("{}:{}", host, port);
-}
-
-AdsTarget ads_target(const PortUri& p, const std::string& uri) {
-  AdsTarget t;
-  t.uri = uri;
-  t.host = p.target;
-  t.port = p.port;
-  for (const char* key : {"netid", "source"}) {
-    auto it = p.query.find(key);
-    if (it == p.query.end()) continue;
-    auto id = ams::parse_netid(it->second);
-    if (!id)
-      throw Error(Exit::usage,
-                  fmt::format("invalid port {}: {} {} is not an AMS NetId (six numbers 0..255: A.B.C.D.E.F)",
-                              quote_input(uri), key, quote_input(it->second)),
-                  "a coupler's NetId is its IP address plus .1.1, e.g. 10.0.3.11.1.1");
-    (std::string(key) == "netid" ? t.netid : t.source) = *id;
-  }
-  return t;
-}
-
-struct AdsClient::Pending {
-  std::size_t index;  // into the batch
-  std::uint32_t invoke;
-  Clock::time_point sent;
-  unsigned timeout_ms;
+struct AdsClient::Batch {
+  explicit Batch(std::size_t n) : first(n), done(n, false), timeouts(n) {}
+  Clock::time_point start = Clock::now();
+  std::vector<std::optional<Clock::time_point>> first;  // when each call first went out
+  std::vector<bool> done;
+  std::vector<milliseconds> timeouts;  // each call's
+  std::size_t finished = 0;
+  std::map<std::uint32_t, std::size_t> pending;  // invoke id -> call, on the connection now open
+  std::deque<std::size_t> todo;                  // calls to send, those to send again first
+  unsigned turned_away = 0;                      // fresh connections closed before any answer (a full server)
+  std::optional<Clock::time_point> busy_since;   // the first of them
+  bool full = false;                             // given up because the server is full: not silent
 };
 
 AdsClient::AdsClient(AdsTarget target, AdsOptions opt) : target_(std::move(target)), opt_(std::move(opt)) {
@@ -91,24 +76,34 @@ ams::NetId AdsClient::source_netid() {
   return source_id_;
 }
 
-// A refused connection is tried again within the busy wait: a server whose connections are all in
+// A refused connection is tried again over the busy wait: a server whose connections are all in
 // use may refuse new ones (a reset on connect) for as long as they are.
-void AdsClient::connect() {
+void AdsClient::connect(Clock::time_point until) {
+  const auto start = Clock::now();
+  const milliseconds wait(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
   for (unsigned attempt = 0;; ++attempt) {
+    auto timeout = milliseconds(opt_.connect_timeout_ms);
+    if (until != Clock::time_point::max())
+      timeout = std::clamp(std::chrono::ceil<milliseconds>(until - Clock::now()), milliseconds(1), timeout);
     try {
-      connect_once();
+      connect_once(timeout);
       return;
     } catch (const Error& e) {
       if (connect_errno_ != ECONNREFUSED) throw;
-      if (attempt >= opt_.busy_retries)
-        throw Error(e.code(), fmt::format("{} ({} attempts)", e.what(), attempt + 1), e.hint());
-      if (opt_.trace) opt_.trace(fmt::format("ads: {}; trying again", e.what()));
-      if (!sleep_for_or_cancelled(busy::kPause, opt_.cancel)) check_interrupt(opt_);
+      auto pause = busy::pause(attempt + 1);
+      auto next = Clock::now() + pause;
+      if (next - start > wait || next >= until)
+        throw Error(
+            e.code(),
+            fmt::format("{} ({} attempt{} in {} ms)", e.what(), attempt + 1, attempt ? "s" : "", ms_since(start)),
+            e.hint());
+      if (opt_.trace) opt_.trace(fmt::format("ads: {}; trying again in {} ms", e.what(), pause.count()));
+      if (!sleep_for_or_cancelled(pause, opt_.cancel)) check_interrupt(opt_);
     }
   }
 }
 
-void AdsClient::connect_once() {
+void AdsClient::connect_once(milliseconds timeout) {
   disconnect();
   connect_errno_ = 0;
   addrinfo hints{}, *res = nullptr;
@@ -120,6 +115,7 @@ void AdsClient::connect_once() {
                 "check the host name or give an IP address");
   int err = ECONNREFUSED;
   bool timed_out = false;
+  const auto began = Clock::now();
   for (addrinfo* ai = res; ai && fd_ < 0; ai = ai->ai_next) {
     int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
     if (fd < 0) {
@@ -139,7 +135,7 @@ void AdsClient::connect_once() {
         freeaddrinfo(res);
         check_interrupt(opt_);
       }
-      long long left = static_cast<long long>(opt_.connect_timeout_ms) - ms_since(start);
+      long long left = timeout.count() - ms_since(start);
       if (left <= 0) {
         timed_out = true;
         err = ETIMEDOUT;
@@ -172,7 +168,7 @@ void AdsClient::connect_once() {
   if (fd_ < 0) {
     connect_errno_ = err;
     if (timed_out)
-      throw Error(Exit::link, fmt::format("no connection to {} within {} ms", target_.where(), opt_.connect_timeout_ms),
+      throw Error(Exit::link, fmt::format("no connection to {} within {} ms", target_.where(), ms_since(began)),
                   "check the address, the cable and that the coupler is powered");
     if (err == ECONNREFUSED)
       throw Error(Exit::link, fmt::format("connection refused by {}", target_.where()),
@@ -215,18 +211,30 @@ void AdsClient::connect_once() {
 
 bool AdsClient::peer_closed() {
   if (fd_ < 0) return true;
-  pollfd p{fd_, POLLIN, 0};
-  if (::poll(&p, 1, 0) <= 0) return false;
-  std::uint8_t b;
-  ssize_t n = ::recv(fd_, &b, 1, MSG_PEEK | MSG_DONTWAIT);
-  if (n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)) return true;
-  if (n > 0) {
-    // Bytes nobody asked for (a reply that came after its request timed out): a fresh
-    // connection leaves them behind.
-    if (opt_.trace) opt_.trace("ads: unexpected bytes on an idle connection: reconnecting");
-    return true;
+  // Bytes nobody asked for (a reply that came after its request was given up, which the connection
+  // was kept for: invoke ids tell it from the answers to come) are read and dropped as strays.
+  for (;;) {
+    pollfd p{fd_, POLLIN, 0};
+    if (::poll(&p, 1, 0) <= 0) return false;
+    std::uint8_t buf[4096];
+    ssize_t n = ::recv(fd_, buf, sizeof buf, MSG_DONTWAIT);
+    if (n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)) return true;
+    if (n < 0) return false;
+    in_.insert(in_.end(), buf, buf + n);
+    for (;;) {
+      auto fc = ams::check_frame(in_);
+      if (fc.status == ams::FrameCheck::need_more) break;
+      if (fc.status == ams::FrameCheck::invalid) {
+        if (opt_.trace) opt_.trace("ads: bytes that are not AMS/TCP on an idle connection: reconnecting");
+        return true;
+      }
+      in_.erase(in_.begin(), in_.begin() + static_cast<std::ptrdiff_t>(fc.length));
+      ++strays_;
+      last_heard_ = Clock::now();
+      silent_ = 0;
+      if (opt_.trace) opt_.trace("ads: a late reply dropped (its request was given up)");
+    }
   }
-  return false;
 }
 
 void AdsClient::send_all(const std::vector<std::uint8_t>& frame) {
@@ -271,13 +279,54 @@ bool AdsClient::receive(int ms) {
 }
 
 std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
-  std::vector<Reply> replies(calls.size());
-  std::vector<bool> done(calls.size(), false);
-  std::size_t next = 0, finished = 0;
-  std::map<std::uint32_t, Pending> pending;  // by invoke id
-  bool repeated = false;                     // one fresh connection per batch for lost replies
-  unsigned turned_away = 0;                  // fresh connections closed before any answer (a full server)
+  if (!dead_.empty()) throw Error(Exit::link, dead_, "check that the coupler is running and reachable");
+  Batch b(calls.size());
+  for (std::size_t i = 0; i < calls.size(); ++i) {
+    b.todo.push_back(i);
+    b.timeouts[i] = milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms);
+  }
+  try {
+    return run_batch(calls, b);
+  } catch (const Error& e) {
+    if (e.code() == Exit::link || e.code() == Exit::timeout || e.code() == Exit::interrupted) gave_up(b);
+    throw;
+  }
+}
 
+void AdsClient::gave_up(const Batch& b) {
+  if (b.full) return;  // the server answers, by turning connections away: it lives
+  // Silent: the coupler said nothing while the batch waited, for a quarter of a second at least
+  // (half the timeout when that is shorter). A batch of pipelined requests is judged by the last
+  // answer of any request, not of its own: a coupler stopped in the middle of one answered the
+  // first requests after the late one went out.
+  milliseconds timeout(opt_.response_timeout_ms);
+  for (const auto& [id, i] : b.pending) timeout = std::max(timeout, b.timeouts[i]);
+  const auto quiet = Clock::now() - std::max(last_heard_, b.start);
+  if (quiet < std::min(milliseconds(250), timeout / 2)) return;
+  if (++silent_ >= 2)
+    dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
+}
+
+std::vector<AdsClient::Reply> AdsClient::run_batch(std::span<const Call> calls, Batch& b) {
+  std::vector<Reply> replies(calls.size());
+  const milliseconds busy_wait(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
+  auto timeout_of = [&](std::size_t i) {
+    return milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms);
+  };
+  auto what_of = [&](std::size_t i) {
+    return calls[i].what.empty() ? ams::command_name(calls[i].command) : calls[i].what;
+  };
+  // The earliest deadline of the calls that went out and wait for an answer (on the connection, or
+  // to be sent again).
+  auto earliest = [&] {
+    auto t = Clock::time_point::max();
+    auto take = [&](std::size_t i) {
+      if (b.first[i]) t = std::min(t, *b.first[i] + timeout_of(i));
+    };
+    for (const auto& [id, i] : b.pending) take(i);
+    for (std::size_t i : b.todo) take(i);
+    return t;
+  };
   auto header_for = [&](const Call& c, std::uint32_t invoke) {
     ams::Header h;
     h.target = target_id_;
@@ -289,71 +338,64 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
     h.invoke = invoke;
     return h;
   };
-  // The connection is gone with replies outstanding: send them again on a fresh one if that is
-  // harmless, once per batch; otherwise the outcome of a write is unknown.
-  // The requests outstanding, in their order, to send again on a fresh connection.
-  auto again = [&] {
-    std::vector<std::size_t> v;
-    for (const auto& [id, p] : pending) v.push_back(p.index);
-    pending.clear();
-    connect();
-    std::sort(v.begin(), v.end());
-    return v;
-  };
-  auto lost = [&](const Error& why, bool timeout = false) {
-    // A connection closed or reset before any answer came on it: the server is full (all its
-    // connections in use; serve --ads closes one more at once), or turns this client away. Tried
-    // again within the busy wait, as a Modbus server that answers busy.
-    if (!timeout && !answered_) {
-      disconnect();
-      const Call& c = calls[pending.empty() ? 0 : pending.begin()->second.index];
-      std::string what = c.what.empty() ? ams::command_name(c.command) : c.what;
-      auto full = [&](const std::string& more) {
-        return Error(Exit::link,
-                     fmt::format("the ADS server at {} is full: it closed the connection before answering, {} "
-                                 "time{} ({}: {}){}",
-                                 target_.where(), turned_away + 1, turned_away ? "s" : "", what, why.what(), more),
-                     "all its connections are in use (other ADS clients of the coupler, or kscfg serve "
-                     "--max-connections); close one or try again later");
-      };
-      for (const auto& [id, p] : pending)
-        if (!calls[p.index].repeatable)
-          throw full(fmt::format("; the outcome of {} is unknown: read the value back",
-                                 calls[p.index].what.empty() ? "a write" : calls[p.index].what));
-      if (turned_away >= opt_.busy_retries) throw full("");
-      ++turned_away;
-      if (opt_.trace)
-        opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again",
-                               target_.where(), why.what()));
-      if (!sleep_for_or_cancelled(busy::kPause, opt_.cancel)) check_interrupt(opt_);
-      return again();
-    }
+  // The connection went away with calls outstanding. Repeatable ones go out again on a fresh
+  // connection, ahead of the calls not sent yet, within their deadlines; a call that is not
+  // repeatable has an unknown outcome. A connection closed or reset before any answer came on it is
+  // a full server (all its connections in use; serve --ads closes one more at once) or one that
+  // turns this client away: tried again over the busy wait, as a Modbus server that answers busy.
+  auto lost = [&](const Error& why) {
     disconnect();
-    for (const auto& [id, p] : pending)
-      if (!calls[p.index].repeatable)
-        throw Error(Exit::link,
-                    fmt::format("{} ({}); the outcome of {} is unknown", why.what(), target_.where(),
-                                calls[p.index].what.empty() ? "a write" : calls[p.index].what),
+    const bool full = !answered_;
+    auto outstanding = [&] {
+      std::vector<std::size_t> v;
+      for (const auto& [id, i] : b.pending) v.push_back(i);
+      std::sort(v.begin(), v.end());
+      return v;
+    };
+    auto v = outstanding();
+    std::string first_what = what_of(v.empty() ? (b.todo.empty() ? 0 : b.todo.front()) : v.front());
+    auto full_error = [&](const std::string& more) {
+      b.full = true;
+      return Error(Exit::link,
+                   fmt::format("the ADS server at {} is full: it closed the connection before answering, {} "
+                               "time{} in {} ms ({}: {}){}",
+                               target_.where(), b.turned_away + 1, b.turned_away ? "s" : "",
+                               b.busy_since ? ms_since(*b.busy_since) : 0, first_what, why.what(), more),
+                   "all its connections are in use (other ADS clients of the coupler, or kscfg serve "
+                   "--max-connections); close one or try again later");
+    };
+    if (full && !b.busy_since) b.busy_since = Clock::now();
+    for (std::size_t i : v)
+      if (!calls[i].repeatable) {
+        std::string w = calls[i].what.empty() ? "a write" : calls[i].what;
+        if (full) throw full_error(fmt::format("; the outcome of {} is unknown: read the value back", w));
+        throw Error(Exit::link, fmt::format("{} ({}); the outcome of {} is unknown", why.what(), target_.where(), w),
                     "read the value back to see whether it was written");
-    if (repeated) throw why;
-    repeated = true;
-    if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), pending.size()));
-    return again();
+      }
+    auto until = earliest();
+    if (full) {
+      auto pause = busy::pause(b.turned_away + 1);
+      auto next = Clock::now() + pause;
+      if (next - *b.busy_since > busy_wait || next >= until) throw full_error("");
+      ++b.turned_away;
+      if (opt_.trace)
+        opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again in {} ms",
+                               target_.where(), why.what(), pause.count()));
+      if (!sleep_for_or_cancelled(pause, opt_.cancel)) check_interrupt(opt_);
+    } else {
+      if (Clock::now() >= until) throw why;
+      if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), v.size()));
+    }
+    b.pending.clear();
+    for (auto it = v.rbegin(); it != v.rend(); ++it) b.todo.push_front(*it);
   };
-  std::vector<std::size_t> resend;
 
-  while (finished < calls.size()) {
+  while (b.finished < calls.size()) {
     check_interrupt(opt_);
     // Fill the window: repeats first, then new calls.
-    while (pending.size() < opt_.window && (!resend.empty() || next < calls.size())) {
-      std::size_t i;
-      if (!resend.empty()) {
-        i = resend.front();
-        resend.erase(resend.begin());
-      } else {
-        i = next++;
-      }
-      if (pending.empty()) {
+    while (b.pending.size() < opt_.window && !b.todo.empty()) {
+      std::size_t i = b.todo.front();
+      if (b.pending.empty()) {
         // A connection idle for longer than the coupler keeps one, or closed by it: open a fresh one.
         bool idle = fd_ >= 0 && ms_since(last_activity_) + 500 >= static_cast<long long>(opt_.idle_cut_ms);
         bool was_open = fd_ >= 0;
@@ -363,42 +405,44 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
                            ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
                                          ms_since(last_activity_), opt_.idle_cut_ms)
                            : std::string("ads: reopening the connection (the coupler closed it)"));
-          connect();
+          connect(earliest());
         }
       }
       std::uint32_t invoke = next_invoke_++;
       if (next_invoke_ == 0) next_invoke_ = 1;
       auto frame = ams::encode(header_for(calls[i], invoke), calls[i].data);
+      b.todo.pop_front();
+      if (!b.first[i]) b.first[i] = Clock::now();
+      b.pending[invoke] = i;
       try {
         send_all(frame);
       } catch (const Error& e) {
         if (e.code() == Exit::interrupted) throw;
-        pending[invoke] = Pending{i, invoke, Clock::now(), 0};
-        resend = lost(e);
+        lost(e);
         continue;
       }
       ++exchanges_;
-      pending[invoke] =
-          Pending{i, invoke, Clock::now(), calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms};
       last_activity_ = Clock::now();
     }
-    // The earliest deadline bounds the wait.
+    // The earliest deadline bounds the wait; a call past it is given up, never sent again.
     long long wait = kSlice;
-    for (const auto& [id, p] : pending) wait = std::min(wait, static_cast<long long>(p.timeout_ms) - ms_since(p.sent));
-    if (wait < 0) {
-      const Pending* late = nullptr;
-      for (const auto& [id, p] : pending)
-        if (static_cast<long long>(p.timeout_ms) - ms_since(p.sent) < 0) late = &p;
-      const Call& c = calls[late->index];
-      Error why(Exit::link,
-                fmt::format("no answer from {} within {} ms ({})", target_.where(), late->timeout_ms,
-                            c.what.empty() ? ams::command_name(c.command) : c.what),
-                "check that the coupler is running and reachable; a register access needs a timeout above 1 s "
-                "(--timeout)");
-      if (c.port == adsport::kRegisters && late->timeout_ms <= 1000)
-        why = Error(Exit::link, why.what(), "the coupler needs more than 1 s for a register access: --timeout 2000");
-      resend = lost(why, true);
-      continue;
+    std::optional<std::size_t> late;
+    for (const auto& [id, i] : b.pending) {
+      long long left = std::chrono::duration_cast<milliseconds>(*b.first[i] + timeout_of(i) - Clock::now()).count();
+      if (left < 0 && !late) late = i;
+      wait = std::min(wait, left);
+    }
+    if (late) {
+      std::size_t i = *late;
+      const Call& c = calls[i];
+      throw Error(
+          Exit::link,
+          fmt::format("no answer from {} within {} ms ({})", target_.where(), ms_since(*b.first[i]), what_of(i)),
+          c.port != adsport::kRegisters ? "check that the coupler is running and reachable"
+          : timeout_of(i).count() <= 1000
+              ? "the coupler needs more than 1 s for a register access: --timeout 2000"
+              : "check that the coupler is running and reachable; a register access needs a timeout above "
+                "1 s (--timeout)");
     }
     try {
       if (!receive(static_cast<int>(wait))) continue;
@@ -407,7 +451,7 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
         disconnect();
         throw;
       }
-      resend = lost(e);
+      lost(e);
       continue;
     }
     last_activity_ = Clock::now();
@@ -415,6 +459,8 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
       auto fc = ams::check_frame(in_);
       if (fc.status == ams::FrameCheck::need_more) break;
       answered_ = true;
+      last_heard_ = Clock::now();
+      silent_ = 0;
       if (fc.status == ams::FrameCheck::invalid) {
         disconnect();
         throw Error(Exit::link, fmt::format("{} does not answer in AMS/TCP: {}", target_.where(), fc.why),
@@ -428,41 +474,40 @@ std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
         throw Error(Exit::link, fmt::format("malformed AMS frame from {}: {}", target_.where(), why));
       }
       const ams::Header& h = frame->header;
-      auto it = pending.find(h.invoke);
-      if (!h.response() || it == pending.end()) {
+      auto it = b.pending.find(h.invoke);
+      if (!h.response() || it == b.pending.end()) {
         ++strays_;
         if (opt_.trace)
           opt_.trace(fmt::format("ads: frame with invoke id {} ({}) ignored: no request of this run waits for it",
                                  h.invoke, h.response() ? "response" : "request"));
         continue;
       }
-      const Call& c = calls[it->second.index];
-      std::size_t index = it->second.index;
-      pending.erase(it);
-      if (h.error != 0 && c.may_be_unserved) {
-        replies[index] = Reply{0, {}, h.error};
-        if (!done[index]) {
-          done[index] = true;
-          ++finished;
+      std::size_t index = it->second;
+      const Call& c = calls[index];
+      b.pending.erase(it);
+      auto finish = [&](Reply r) {
+        replies[index] = std::move(r);
+        if (!b.done[index]) {
+          b.done[index] = true;
+          ++b.finished;
         }
+      };
+      if (h.error != 0 && c.may_be_unserved) {
+        finish(Reply{0, {}, h.error});
         continue;
       }
       if (h.error != 0) {
         disconnect();
-        throw ads_error(h.error, c.port, c.what.empty() ? ams::command_name(c.command) : c.what);
+        throw ads_error(h.error, c.port, what_of(index));
       }
       auto r = ams::parse_response(c.command, frame->data);
       if (h.command != c.command || !r) {
         disconnect();
-        throw Error(Exit::link, fmt::format("{} answered {} with a malformed {} response ({} bytes of data)",
-                                            target_.where(), c.what.empty() ? ams::command_name(c.command) : c.what,
-                                            ams::command_name(h.command), frame->data.size()));
+        throw Error(Exit::link,
+                    fmt::format("{} answered {} with a malformed {} response ({} bytes of data)", target_.where(),
+                                what_of(index), ams::command_name(h.command), frame->data.size()));
       }
-      replies[index] = Reply{r->result, std::move(r->data)};
-      if (!done[index]) {
-        done[index] = true;
-        ++finished;
-      }
+      finish(Reply{r->result, std::move(r->data)});
     }
   }
   return replies;
@@ -499,57 +544,6 @@ AdsClient::DeviceInfo AdsClient::device_info(std::uint16_t port) {
   for (std::size_t i = 4; i < r.data.size() && r.data[i]; ++i)
     d.name += (r.data[i] >= 0x20 && r.data[i] < 0x7F) ? static_cast<char>(r.data[i]) : '?';
   return d;
-}
-
-Error AdsClient::ads_error(std::uint32_t code, std::uint16_t port, const std::string& what) const {
-  std::string msg = fmt::format("{} from {} port {} ({})", ams::error_text(code), target_.where(), port, what);
-  std::string me = ams::format_netid(source_id_), it = ams::format_netid(target_id_);
-  switch (code) {
-    case 0x6:
-      return Error(Exit::link, msg,
-                   fmt::format("the device has no AMS port {}: a BK9000 or BC9000 serves 100 (registers) and 300 "
-                               "(process data)",
-                               port));
-    case 0x7:
-      return Error(Exit::link, msg,
-                   fmt::format("either {} is not the coupler's NetId (its IP address plus .1.1; give "
-                               "?netid=A.B.C.D.E.F), or the coupler's AMS routing table does not list this computer: "
-                               "add NetId {} to the table (KS2000), or leave the table empty",
-                               it, me));
-    case 0x8:
-    case 0xB: return Error(Exit::link, msg, "the coupler does not serve this ADS command (a BK9050 refuses ReadState)");
-    case 0xE:
-    case 0x1C:
-      return Error(Exit::link, msg, "the request is longer than the coupler takes (at most 1900 bytes of user data)");
-    case 0xF:
-      return Error(Exit::link, msg,
-                   fmt::format("the coupler does not take NetId {} or {}: give ?netid= and ?source=", it, me));
-    case 0x701: return Error(Exit::refused, msg, fmt::format("port {} does not serve this command", port));
-    case 0x702:
-      return Error(Exit::link, msg,
-                   port == adsport::kRegisters
-                       ? "no such terminal: index group 1..255 is the terminal number (passive terminals such as "
-                         "power feeds are not counted), 0 the coupler's tables"
-                       : "port 300 serves index groups 0xF020 (inputs) and 0xF030 (outputs)");
-    case 0x703:
-      return Error(Exit::link, msg,
-                   port == adsport::kRegisters
-                       ? "no such channel or register: the offset's high word is the channel (0..3) or table, the low "
-                         "word the register"
-                       : "outside the coupler's process image (offsets 0..511)");
-    case 0x704:
-      return Error(Exit::refused, msg,
-                   port == adsport::kRegisters ? "the coupler refuses this access: its tables are read only over ADS"
-                                               : "the coupler refuses this access");
-    case 0x705:
-      return Error(Exit::link, msg,
-                   port == adsport::kRegisters ? "a register is 2 bytes: the coupler refuses other lengths"
-                                               : "the length does not fit the process image (at most 1900 bytes)");
-    case 0x719:
-    case 0x745:
-      return Error(Exit::timeout, msg, "the terminal did not answer the coupler: check that it is plugged and powered");
-    default: return Error(Exit::link, msg);
-  }
 }
 
 }  // namespace kscfg

@@ -3,6 +3,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 
 #include "kscfg/link/ads_registers.hpp"
@@ -50,6 +51,17 @@ Word decode(std::uint32_t v) {
   return w;
 }
 
+unsigned max_uploads(unsigned timeout_ms) {
+  // The paced ones went at the earliest kMaxUploads x 250 us after the download.
+  double t = 0.25 * (kMaxUploads - 1), end = timeout_ms;
+  unsigned n = kMaxUploads;
+  while (t < end) {
+    t += std::max(0.25, t / 4);
+    ++n;
+  }
+  return n;
+}
+
 Registers::Registers(SdoClient& sdo, unsigned timeout_ms) : sdo_(sdo), timeout_ms_(timeout_ms) {}
 
 namespace {
@@ -67,27 +79,72 @@ auto again_while_active(std::chrono::steady_clock::time_point deadline, F&& acce
   }
 }
 
+constexpr std::chrono::microseconds kShortestPause{200};
+
+// The uploads without a pacing of the session's: the first at once (a coupler table is the
+// coupler's own memory), the next ones every eighth of the time since the download, at least 250 us
+// apart.
+class DefaultPacing final : public UploadPacing {
+ public:
+  std::chrono::microseconds next(unsigned n, std::chrono::microseconds last) override {
+    if (n == 1) return std::chrono::microseconds(0);
+    return last + std::max(std::chrono::microseconds(250), last / 8);
+  }
+  void seen(unsigned, std::chrono::microseconds, std::chrono::microseconds) override {}
+  void early() override {}
+};
+
 // One register request on `index` sub `sub`, bounded overall by `timeout_ms`. `what` names the
 // register in errors ("terminal 5 channel 1 R31"); an abort is rethrown naming it.
 std::uint16_t run(SdoClient& sdo, unsigned timeout_ms, std::uint16_t index, std::uint8_t sub, bool write,
-                  unsigned group, unsigned reg, std::uint16_t value, const std::string& what) {
+                  unsigned group, unsigned reg, std::uint16_t value, const std::string& what, UploadPacing* pacing) {
+  using Clock = std::chrono::steady_clock;
+  using std::chrono::microseconds;
   if (group > 0x7F || reg > 0xFF)
     throw Error(Exit::usage,
                 fmt::format("{}: outside the register word (channel/table 0..127, register 0..255)", what));
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+  if (write && !sdo.stopped_answering().empty())
+    throw Error(Exit::link, fmt::format("{}: not written: {} in this run", what, sdo.stopped_answering()),
+                "check the CAN wiring and the coupler's power, then run the command again");
+  // An answer still owed to a request Ctrl-C cut short is waited for first: the deadline is this
+  // access's own (a rollback's read was declared timed out after one busy answer, issue 45).
+  sdo.settle();
+  auto deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
+  DefaultPacing fallback;
+  UploadPacing& pace = pacing ? *pacing : fallback;
+  auto us_since = [](Clock::time_point t) { return std::chrono::duration_cast<microseconds>(Clock::now() - t); };
   try {
-    again_while_active(deadline, [&] { sdo.download_u32(index, sub, encode(request_word(write, group, reg, value))); });
+    Clock::time_point sent;
+    again_while_active(deadline, [&] {
+      sent = Clock::now();
+      sdo.download_u32(index, sub, encode(request_word(write, group, reg, value)));
+    });
     if (write) return value;
-    for (;;) {
+    microseconds last{0};
+    for (unsigned n = 1;; ++n) {
+      // Paced for kMaxUploads, then every quarter of the time since the download: bounded whatever
+      // the pacing says (at --timeout 1000, at most about 40 uploads a register).
+      Clock::time_point planned =
+          sent + (n <= kMaxUploads ? pace.next(n, last) : last + std::max(microseconds(250), last / 4));
+      if (planned > deadline) planned = deadline;
+      // Before the first upload, a pause shorter than a frame's time on the bus (about 240 us at
+      // 500 kbit/s) is not slept: a sleep costs more than that on a loaded computer, the upload no
+      // more than a frame. The later ones keep their spacing.
+      if (n > 1 || planned - Clock::now() > kShortestPause) sdo.pause_until(planned);
+      const microseconds late =
+          std::max(microseconds(0), std::chrono::duration_cast<microseconds>(Clock::now() - planned));
+      last = us_since(sent);
       Word got = decode(again_while_active(deadline, [&] { return sdo.upload_u32(index, sub); }));
       if (value_available(got)) {
         if (!echoes(got, group, reg))
           throw Error(Exit::link, fmt::format("{}: the coupler at node {} answered the read with channel/table {} "
                                               "register {} (0x{:04X} sub {} reads 0x{:08X})",
                                               what, sdo.node(), got.group, got.reg, index, sub, encode(got)));
+        pace.seen(n, last, late);
         return got.value;
       }
-      if (std::chrono::steady_clock::now() >= deadline)
+      if (n == 1) pace.early();
+      if (Clock::now() >= deadline)
         throw Error(Exit::timeout,
                     fmt::format("{}: the coupler at node {} did not have the value within {} ms (0x{:04X} sub {} "
                                 "reads 0x{:08X}: the access bit stays set)",
@@ -115,19 +172,19 @@ std::uint8_t terminal_sub(unsigned terminal) {
 
 }  // namespace
 
-std::uint16_t Registers::read(unsigned terminal, unsigned channel, unsigned reg) {
+std::uint16_t Registers::read(unsigned terminal, unsigned channel, unsigned reg, UploadPacing* pacing) {
   return run(sdo_, timeout_ms_, kTerminalObject, terminal_sub(terminal), false, channel, reg, 0,
-             terminal_name(terminal, channel, reg));
+             terminal_name(terminal, channel, reg), pacing);
 }
 
 void Registers::write(unsigned terminal, unsigned channel, unsigned reg, std::uint16_t value) {
   run(sdo_, timeout_ms_, kTerminalObject, terminal_sub(terminal), true, channel, reg, value,
-      terminal_name(terminal, channel, reg));
+      terminal_name(terminal, channel, reg), nullptr);
 }
 
 std::uint16_t Registers::read_table(unsigned table, unsigned reg) {
   return run(sdo_, timeout_ms_, kCouplerObject, kCouplerSub, false, table, reg, 0,
-             fmt::format("coupler table {} register {}", table, reg));
+             fmt::format("coupler table {} register {}", table, reg), nullptr);
 }
 
 unsigned Registers::terminal_count() {

@@ -219,8 +219,9 @@ int ModbusClient::wait_reply(Clock::time_point sent, P&& parse) {
 
 template <class F, class P>
 void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused) {
-  unsigned timeouts = 0, others = 0;
+  unsigned timeouts = 0, others = 0, busy_tries = 0;
   bool busy = false;  // an attempt was answered "busy" (exception 6)
+  std::optional<Clock::time_point> busy_since;
   for (;;) {
     if (!dead_.empty())
       throw Error(Exit::link, dead_,
@@ -276,6 +277,43 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     }
     if (!timeout && !transient)
       throw Error(Exit::link, fmt::format("{} failed on {}: {}", what, target_.where(), errtext(e)));
+    // Busy (kscfg serve at its connection limit answers busy, then closes the connection): tried
+    // again over the busy wait, the pauses growing (link/busy.hpp).
+    if (e == EMBXSBUSY || (busy && is_broken(e))) {
+      busy = true;
+      silent_ = 0;
+      auto now = Clock::now();
+      if (!busy_since) busy_since = now;
+      auto pause = busy::pause(busy_tries + 1);
+      auto wait = std::chrono::milliseconds(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
+      if (now + pause - *busy_since <= wait) {
+        ++busy_tries;
+        ++retried_;
+        if (is_broken(e)) {
+          broke_ = errtext(e);
+          disconnect();
+        }
+        if (!sleep_for_or_cancelled(pause, opt_.cancel)) throw Error(Exit::interrupted, "interrupted");
+        if (ctx_) modbus_flush(ctx_);
+        continue;
+      }
+      unsigned n = timeouts + others + busy_tries + 1;
+      auto spent = std::chrono::duration_cast<std::chrono::milliseconds>(now - *busy_since).count();
+      if (target_.tcp)
+        // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
+        // and closes the connection, so the attempts after it end in a reset.
+        throw Error(Exit::link,
+                    e == EMBXSBUSY ? fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(),
+                                                 what, n, spent)
+                                   : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {} attempts in "
+                                                 "{} ms)",
+                                                 target_.where(), errtext(e), what, n, spent),
+                    "another master holds the coupler, or a server's connection limit is reached "
+                    "(kscfg serve --max-connections); try again later");
+      throw Error(Exit::link,
+                  fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(), what, n, spent),
+                  "another master is writing the outputs");
+    }
     if ((timeout && timeouts >= opt_.timeout_retries) || (!timeout && others >= opt_.retries)) {
       std::string attempts = fmt::format("{} attempt{}", timeouts + others + 1, timeouts + others ? "s" : "");
       // No answer at all, attempt after attempt: after the second such request the link is dead.
@@ -287,23 +325,12 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
                                 what, attempts),
                     target_.tcp ? "check that the coupler is running and the unit id (?unit=N)"
                                 : "check the unit id (?unit=N), baud rate, parity and wiring");
-      if (busy && target_.tcp)
-        // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
-        // and closes the connection, so the attempts after it end in a reset.
-        throw Error(Exit::link,
-                    e == EMBXSBUSY ? fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts)
-                                   : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {})",
-                                                 target_.where(), errtext(e), what, attempts),
-                    "another master holds the coupler, or a server's connection limit is reached "
-                    "(kscfg serve --max-connections); try again later");
       throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
-                  e == EMBXSBUSY ? "another master is writing the outputs"
-                  : !target_.tcp ? "check the line and its termination"
+                  !target_.tcp   ? "check the line and its termination"
                   : is_broken(e) ? "the coupler closed the connection: check that it is running and that no other "
                                    "master holds it"
                                  : "the replies are not Modbus TCP: check that the port is the coupler's (502)");
     }
-    if (e == EMBXSBUSY) busy = true;
     (timeout ? timeouts : others)++;
     ++retried_;
     // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and
@@ -318,7 +345,7 @@ void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned cou
     // After a timeout the line is read until the late reply has passed or it stayed silent.
     if (timeout && serial_fd_ >= 0) drain_late_reply();
     // A late or garbled reply may still be on its way: let it arrive, then drop it.
-    std::this_thread::sleep_for(e == EMBXSBUSY ? busy::kPause : std::chrono::milliseconds(2));
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
     modbus_flush(ctx_);
   }
 }

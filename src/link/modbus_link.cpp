@@ -81,10 +81,20 @@ std::vector<std::uint16_t> ModbusLink::merge_words(std::size_t offset, std::span
   return out;
 }
 
+void ModbusLink::forget_outputs(std::size_t first_word, std::size_t words) {
+  for (std::size_t b = 2 * first_word; b < 2 * (first_word + words) && b < out_cache_.size(); ++b) out_cache_[b] = -1;
+}
+
 void ModbusLink::write_outputs(std::size_t offset, std::span<const std::uint8_t> src) {
   auto words = merge_words(offset, src);
   std::size_t w0 = offset / 2;
-  client_.write(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words);
+  try {
+    client_.write(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words);
+  } catch (...) {
+    // Carried out or not, its reply lost: the coupler holds the old bytes or the new ones.
+    forget_outputs(w0, words.size());
+    throw;
+  }
   remember_outputs(w0, words);
   last_written_ = {offset, src.size()};
   count();
@@ -96,8 +106,14 @@ void ModbusLink::write_read(std::size_t out_offset, std::span<const std::uint8_t
   auto words = merge_words(out_offset, src);
   std::size_t w0 = out_offset / 2;
   std::size_t r0 = in_offset / 2, r1 = (in_offset + dst.size() - 1) / 2;
-  auto in = client_.write_read(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words,
-                               static_cast<std::uint16_t>(mbmap::kInputImage + r0), static_cast<unsigned>(r1 - r0 + 1));
+  std::vector<std::uint16_t> in;
+  try {
+    in = client_.write_read(static_cast<std::uint16_t>(mbmap::kOutputImage + w0), words,
+                            static_cast<std::uint16_t>(mbmap::kInputImage + r0), static_cast<unsigned>(r1 - r0 + 1));
+  } catch (...) {
+    forget_outputs(w0, words.size());
+    throw;
+  }
   remember_outputs(w0, words);
   last_written_ = {out_offset, src.size()};
   count();

@@ -142,6 +142,15 @@ void SdoClient::drain() {
   }
 }
 
+void SdoClient::pause_until(std::chrono::steady_clock::time_point t) {
+  const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
+  while (auto f = bus_.receive(t)) {
+    bool ours = !f->extended && !f->rtr && f->id == reply_id;
+    trace("dropped " + format_frame(*f));
+    if (ours) owed_.reset();
+  }
+}
+
 void SdoClient::settle_owed() {
   if (!owed_) return;
   auto deadline = *owed_;
@@ -171,14 +180,24 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
         fmt::format("{} is given up: two SDO requests in a row got no answer (the bus or the node is dead)", where()),
         "check the CAN wiring, the node id (?node=), the bit rate and the coupler's power");
   settle_owed();
-  trace("-> " + format_frame(req));
   const std::uint32_t reply_id = sdo::kReplyBase + opt_.node;
   auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(opt_.response_timeout_ms);
-  // Owed from before the frame goes out until the answer is taken or the wait ends: a send or a wait
-  // cut short by cancellation (the bus looks at the run's token after it wrote the frame) leaves it
-  // owed.
+  // The answer is owed once the frame went out, until it is taken or the wait ends: a wait cut short
+  // by cancellation leaves it owed. A send cut by cancellation wrote nothing (CanBus::send): nothing
+  // is owed then, and the trace does not show the frame (before, it was traced and its answer
+  // waited for, issue 45). A send that failed otherwise may have written it.
+  try {
+    bus_.send(req);
+  } catch (const Error& e) {
+    if (e.code() == Exit::interrupted) {
+      trace("not sent (interrupted): " + format_frame(req));
+      throw;
+    }
+    owed_ = deadline;
+    throw;
+  }
   owed_ = deadline;
-  bus_.send(req);
+  trace("-> " + format_frame(req));
   ++exchanges_;
   for (;;) {
     std::optional<CanFrame> f = bus_.receive(deadline);
@@ -198,6 +217,9 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
   }
   owed_.reset();
   ++silent_;
+  if (stopped_.empty())
+    stopped_ = fmt::format("{} stopped answering (SDO {} {} got no answer within {} ms)", where(), what,
+                           object_name(index, sub), opt_.response_timeout_ms);
   send_abort(index, sub, 0x05040000);
   throw Error(Exit::link,
               fmt::format("{} did not answer SDO {} {} within {} ms", where(), what, object_name(index, sub),

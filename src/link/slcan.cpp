@@ -16,6 +16,7 @@
 #include <chrono>
 #include <cstring>
 #include <deque>
+#include <utility>
 
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
@@ -26,6 +27,7 @@ namespace kscfg {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+using std::chrono::microseconds;
 using std::chrono::milliseconds;
 
 constexpr milliseconds kPollSlice{20};     // the cancel token is looked at this often (at most 50 ms)
@@ -68,7 +70,19 @@ class SlcanBus final : public CanBus {
   // answer to a frame ("z"/"Z" CR, or CR) is not waited for: some adapters send none (I-7530;
   // python-can and slcand never wait for it), so acknowledgements are skipped whenever they come. A
   // BELL, here or in the receive() that follows, refuses the frame sent last.
+  // Cancellation is looked at only before the first byte goes out: once the line is being written
+  // it is finished (bounded by the timeout), and what the adapter says after it is read without
+  // looking at the token, so a frame send() returned from is on its way and one it threw
+  // Error(interrupted) for was never written (issue 45: a frame traced as sent at a Ctrl-C had not
+  // gone out, and its answer was then waited for 1 s, which ate the rollback's read).
   void send(const CanFrame& f) override {
+    if (cancel_ && cancel_->cancelled()) throw Error(Exit::interrupted, "interrupted");
+    const CancelToken* token = std::exchange(cancel_, nullptr);
+    struct Restore {
+      const CancelToken*& slot;
+      const CancelToken* token;
+      ~Restore() { slot = token; }
+    } restore{cancel_, token};
     if (!write_all(slcan::encode(f), Clock::now() + timeout_))
       throw Error(Exit::link,
                   fmt::format("the CAN adapter on {} took no frame for {} ms (frame {})", device_, timeout_.count(),
@@ -117,9 +131,10 @@ class SlcanBus final : public CanBus {
     for (;;) {
       if (auto l = cut_line()) return l;
       if (cancel_ && cancel_->cancelled()) throw Error(Exit::interrupted, "interrupted");
-      // Until the deadline, in slices; past it, one look without waiting (what came in the last slice).
-      auto left = std::max(std::chrono::ceil<milliseconds>(deadline - Clock::now()), milliseconds{0});
-      const short ready = wait_for(POLLIN, std::min(left, kPollSlice));
+      // Until the deadline, in slices; past it, one look without waiting (what came in the last
+      // slice). To the microsecond: the pause before an SDO upload is a fraction of a millisecond.
+      auto left = std::max(std::chrono::ceil<microseconds>(deadline - Clock::now()), microseconds{0});
+      const short ready = wait_for(POLLIN, std::min<microseconds>(left, kPollSlice));
       if (!ready) {
         if (left.count() == 0) return std::nullopt;
         continue;
@@ -160,9 +175,10 @@ class SlcanBus final : public CanBus {
 
   // poll()'s revents when the descriptor is ready for `events` within `wait`, 0 when not.
   // Error(Exit::link) when it hung up or failed with nothing to read.
-  short wait_for(short events, milliseconds wait) {
+  short wait_for(short events, microseconds wait) {
     pollfd p{fd_, events, 0};
-    int r = ::poll(&p, 1, static_cast<int>(wait.count()));
+    timespec ts{static_cast<time_t>(wait.count() / 1000000), static_cast<long>(wait.count() % 1000000) * 1000};
+    int r = ::ppoll(&p, 1, &ts, nullptr);
     if (r < 0) {
       if (errno == EINTR) return 0;
       throw gone(std::strerror(errno));

@@ -101,10 +101,14 @@ class SocketCanBus final : public CanBus {
                     fmt::format("cannot receive on CAN interface {}: {}", iface_,
                                 n >= 0 ? "a short frame" : std::strerror(errno)),
                     up_hint(iface_));
-      auto left = std::max(std::chrono::ceil<milliseconds>(deadline - Clock::now()), milliseconds{0});
+      // To the microsecond: the pause before an SDO upload is a fraction of a millisecond.
+      auto left =
+          std::max(std::chrono::ceil<std::chrono::microseconds>(deadline - Clock::now()), std::chrono::microseconds{0});
       if (left.count() == 0) return std::nullopt;
       pollfd p{fd_, POLLIN, 0};
-      ::poll(&p, 1, static_cast<int>(std::min(left, kCanPollSlice).count()));
+      auto w = std::min<std::chrono::microseconds>(left, kCanPollSlice);
+      timespec ts{static_cast<time_t>(w.count() / 1000000), static_cast<long>(w.count() % 1000000) * 1000};
+      ::ppoll(&p, 1, &ts, nullptr);
     }
   }
 

@@ -97,6 +97,12 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
         cs.registers = regs;
         ts.channels.push_back(std::move(cs));
       }
+    } else if (t.inferred) {
+      // The coupler (ADS, CANopen table 9) gave its bits, not its type: the file says so where it
+      // names one that fits (before, it named the stand-in as if it were known, issue 45).
+      comment =
+          fmt::format("position {}: {} (the coupler gives no type): {} fits, as does {}; name the terminal's type",
+                      t.position, digital_label(t), t.type->type, fits_text(t, 8));
     } else {
       comment = fmt::format("position {}", t.position);
     }

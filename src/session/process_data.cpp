@@ -277,7 +277,7 @@ ChannelSettings read_value_settings(Engine& engine, const StationLayout& layout,
 namespace {
 
 std::string who(const TerminalImage& t, unsigned ch) {
-  std::string s = fmt::format("terminal {} ({})", t.position, t.type->type);
+  std::string s = terminal_label(t);
   if (t.complex && t.type->channels > 1) s += fmt::format(" channel {}", ch + 1);
   return s;
 }
@@ -321,7 +321,7 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
     throw Error(Exit::usage, fmt::format("terminal {} ({}) has {} channel(s); channel {} does not exist", t.position,
                                          t.type->type, t.channels.size(), ch + 1));
   if (!t.complex && !t.bits_out)
-    throw Error(Exit::refused, fmt::format("terminal {} ({}) has no outputs to force", t.position, t.type->type));
+    throw Error(Exit::refused, fmt::format("{} has no outputs to force", terminal_label(t)));
   if (in_register_mode(t, ch, out))
     throw Error(Exit::refused,
                 fmt::format("{} is in register mode (its control byte has REG set: a register session is running); "
@@ -337,8 +337,8 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
     if (!t.complex) {
       unsigned n = static_cast<unsigned>(parse_uint(name, 65535, "output number"));
       if (n < 1 || n > t.bits_out)
-        throw Error(Exit::usage, fmt::format("terminal {} ({}) has outputs 1..{}; '{}' is not one", t.position,
-                                             t.type->type, t.bits_out, name));
+        throw Error(Exit::usage,
+                    fmt::format("{} has outputs 1..{}; '{}' is not one", terminal_label(t), t.bits_out, name));
       bool v = on_off(value, spec);
       std::size_t bit = t.out_bit + n - 1;
       std::uint8_t before = static_cast<std::uint8_t>((out.at(bit / 8) >> (bit % 8)) & 1);

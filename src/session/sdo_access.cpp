@@ -2,18 +2,67 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <optional>
 
 #include "kscfg/protocol/codec.hpp"
 
 namespace kscfg {
 
+namespace {
+
+using std::chrono::microseconds;
+
+// A read's uploads by the terminal's acknowledge plan (ack_latency.hpp), with three choices of its
+// own, where an upload costs two frames on the bus and the coupler may answer by count, not time
+// (the independent peer's K-bus cycle is one busy upload, whenever it comes):
+//  - while learning, the first upload goes at once (a coupler that has the value at once, as the
+//    manual's example shows, costs no wait), then every eighth of the time since the download;
+//  - an upload at the estimate that finds the access bit set is followed by one at once (one round
+//    trip later), then every eighth of the time since the download; no link pace (pace 0: as over
+//    RTU and ADS);
+//  - an answer seen only on a later upload raises the wait to what it took (ack_seen), at most to
+//    twice the wait the terminal learned first in this run (`first`); and a terminal not timed yet
+//    learns its own instead of taking the slowest of the coupler's: where answers come by count, a
+//    raise of a round trip a register, and each terminal's guess from the one before, would
+//    otherwise add up without end (the probes below the wait never find such an answer).
+class AckPacing final : public canreg::UploadPacing {
+ public:
+  AckPacing(AckTiming& t, microseconds& first, std::chrono::milliseconds timeout)
+      : t_(t), first_(first), timeout_(timeout), plan_(ack_plan(t, timeout)) {}
+  microseconds next(unsigned n, microseconds last) override {
+    if (!plan_.known()) return n == 1 ? microseconds(0) : ack_next_poll(plan_, n - 1, last, microseconds(0)).at;
+    const unsigned at_wait = plan_.probe ? 2 : 1;  // the upload at the estimate
+    if (n == at_wait + 1) return last;             // it found nothing: once more at once
+    return ack_next_poll(plan_, n <= at_wait ? n - 1 : n - 2, last, microseconds(0)).at;
+  }
+  void seen(unsigned n, microseconds took, microseconds late) override {
+    // The uploads as the plan counts them: the extra one at once after the estimate is not one.
+    const unsigned at_wait = plan_.probe ? 2 : 1;
+    const unsigned poll = plan_.known() && n > at_wait ? n - 1 : n;
+    ack_seen(t_, plan_, std::max(poll, n > 1 ? 2u : 1u), took, timeout_, late > ack_late_slack(plan_));
+    if (t_.wait.count() <= 0) return;
+    if (first_.count() <= 0) first_ = t_.wait;
+    else t_.wait = std::min(t_.wait, 2 * first_);
+  }
+  void early() override { ack_early(t_, plan_); }
+
+ private:
+  AckTiming& t_;
+  microseconds& first_;
+  std::chrono::milliseconds timeout_;
+  AckPlan plan_;
+};
+
+}  // namespace
+
 SdoAccess::SdoAccess(SdoClient& client, std::function<unsigned(unsigned)> number, const SessionOptions& so)
     : client_(client),
       regs_(client, static_cast<unsigned>(so.timeout.count())),
       number_(std::move(number)),
       cancel_(so.cancel),
-      chans_(so.journal) {
+      chans_(so.journal),
+      timeout_(so.timeout) {
 #ifdef KSCFG_TEST_HOOKS
   after_write_ = so.after_write;
 #endif
@@ -50,8 +99,12 @@ void SdoAccess::run_next(ChannelKey key, Chan& c, std::vector<Program*>& done) {
     // Clean-up runs under a shield: the first signal does not cut its waits short, a second does.
     std::optional<ShieldScope> shield;
     if (p.shielded) shield.emplace(cancel_);
-    if (op.write) regs_.write(c.terminal, key.channel, op.reg, op.value);
-    else value = regs_.read(c.terminal, key.channel, op.reg);
+    if (op.write) {
+      regs_.write(c.terminal, key.channel, op.reg, op.value);
+    } else {
+      AckPacing pacing(timings_[key.position], first_wait_[key.position], timeout_);
+      value = regs_.read(c.terminal, key.channel, op.reg, &pacing);
+    }
   } catch (const Error& e) {
     // The coupler refused the request (an abort): a read changed nothing; the outcome of a write is
     // unknown to the journal (the rules above read it back). No answer, a broken answer or a cut

@@ -31,6 +31,10 @@ std::string digital_label(const TerminalImage& t) {
 
 std::string shown_type(const TerminalImage& t) { return t.inferred ? "digital" : t.type->type; }
 
+std::string terminal_label(const TerminalImage& t) {
+  return fmt::format("terminal {} ({})", t.position, t.inferred ? digital_label(t) : t.type->type);
+}
+
 bool fits_type(const TerminalImage& t, const std::string& type) {
   auto up = [](std::string s) {
     for (auto& c : s) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
@@ -298,16 +302,21 @@ StationSpec expand_partial(const StationSpec& file, const StationLayout& station
   for (const auto& t : file.terminals) named[t.position] = &t;
   for (const auto& [pos, t] : named) {
     const TerminalImage& have = station.terminal(pos);  // Error(usage): no such position
-    if (have.type->type != t->type)
-      throw Error(Exit::refused,
-                  fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line,
-                              pos, t->type, have.type->type),
-                  "nothing was written; 'kscfg info' lists the station's terminals by position");
+    // A digital terminal the coupler knows by its bits (ADS, CANopen table 9): the file names which
+    // of the types that fit it is (before, its stand-in type had to be named: issue 45).
+    if (!fits_type(have, t->type))
+      throw Error(
+          Exit::refused,
+          fmt::format("{}:{}: position {} is a {} in the file, the station has a {} there", origin, t->line, pos,
+                      t->type,
+                      have.inferred ? fmt::format("{} ({})", digital_label(have), fits_text(have)) : have.type->type),
+          "nothing was written; 'kscfg info' lists the station's terminals by position");
   }
   for (const auto& have : station.terminals) {
     TerminalSpec ts;
     ts.type = have.type->type;
     if (auto it = named.find(have.position); it != named.end()) {
+      ts.type = it->second->type;
       ts.channels = it->second->channels;
       ts.line = it->second->line;
     }

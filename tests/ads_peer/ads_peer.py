@@ -128,6 +128,7 @@ class Peer:
         for i in range(10):
             self.table100[4 + i] = name[2 * i] | (name[2 * i + 1] << 8)
         self.mb_sock = None
+        self.modbus_mute = False
         if modbus:
             self.mb_sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self.mb_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -176,6 +177,9 @@ class Peer:
                     pdu, buf = buf[7:6 + length], buf[6 + length:]
                     with self.lock:
                         self.modbus_requests += 1
+                        mute = self.modbus_mute
+                    if mute:  # a Modbus side that takes requests and never answers (its replies dropped)
+                        continue
                     fc = pdu[0]
                     if fc in (3, 4) and len(pdu) == 5:
                         addr, count = struct.unpack_from(">HH", pdu, 1)

@@ -223,6 +223,37 @@ def main():
               f"--station naming an input terminal where table 9 has 4 outputs: refused: rc {r.returncode} "
               f"{r.stderr.strip()[:300]}")
 
+        # A type that fits is accepted everywhere (issue 45): a partial file naming the real KL2404 at
+        # table 9's position 4 (before: "the station has a KL2114 there", exit 5); a backup says the
+        # digital terminals' types are only ones that fit; messages name them by their bits.
+        partial = os.path.join(env["XDG_CACHE_HOME"], "partial.toml")
+        kl6001_r32 = peer.numbered[0].regs[0][32]
+        with open(partial, "w") as f:
+            f.write(f'coupler = "BK9000"\n[[terminal]]\nposition = 4\ntype = "KL2404"\n'
+                    f'[[terminal]]\nposition = 1\ntype = "KL6001"\n[[terminal.channel]]\nchannel = 1\n'
+                    f'R32 = 0x{kl6001_r32:04X}\n')
+        r = run([a.kscfg, "--port", uri, "apply", partial], 120)
+        check(r.returncode == 0, f"apply of a partial file naming the KL2404 at position 4 (a type that fits): rc "
+                                 f"{r.returncode} {r.stderr.strip()[:300]}")
+        r = run([a.kscfg, "--port", uri, "diff", partial], 120)
+        check(r.returncode == 0, f"diff of that partial file: rc {r.returncode} {r.stderr.strip()[:300]}")
+        with open(partial, "w") as f:
+            f.write('coupler = "BK9000"\n[[terminal]]\nposition = 4\ntype = "KL1104"\n')
+        r = run([a.kscfg, "--port", uri, "diff", partial], 120)
+        check(r.returncode == 5 and "digital, 4 outputs (KL2" in r.stderr and "KL2114 there" not in r.stderr,
+              f"a partial file naming an input terminal there: refused, the station's terminal by its bits: rc "
+              f"{r.returncode} {r.stderr.strip()[:300]}")
+        bk = os.path.join(env["XDG_CACHE_HOME"], "backup.toml")
+        r = run([a.kscfg, "--port", uri, "backup", bk, "--force"], 120)
+        text = open(bk).read() if r.returncode == 0 else ""
+        check(r.returncode == 0 and text.count("(the coupler gives no type)") == 2 and "name the terminal's type" in text,
+              f"backup: the digital terminals' types said to be ones that fit: rc {r.returncode} "
+              f"{r.stderr.strip()[:200]} {text[:600]}")
+        r = run([a.kscfg, "--port", uri, "-t", "4", "data", "force", "9=on", "--yes"], 120)
+        check(r.returncode == 2 and "terminal 4 (digital, 4 outputs) has outputs 1..4" in r.stderr,
+              f"data force names the digital terminal by its bits, not a stand-in type: rc {r.returncode} "
+              f"{r.stderr.strip()[:300]}")
+
         # A layout the coupler confirms: its image lengths on its Modbus TCP side (table 100
         # registers 15 and 26). Word alignment off on the coupler: refused, naming the setting,
         # nothing read from port 300; with the setting given, the bytes where the coupler puts them.
@@ -234,6 +265,22 @@ def main():
               f"word alignment off on the coupler: data --once refused, nothing read: rc {r.returncode} "
               f"{r.stderr.strip()[:400]}")
         peer.log = None
+        # map --online and info show image offsets: refused as data is, naming the setting (before,
+        # the word-aligned offsets with exit 0 and nothing said, issue 45).
+        for cmd in (["map", "--online"], ["info"], ["-t", "3", "info"]):
+            r = run([a.kscfg, "--port", uri] + cmd, 120)
+            check(r.returncode == 5 and r.stderr.count("\n") == 1 and "set to word alignment off" in r.stderr
+                  and "word-alignment = false" in r.stderr,
+                  f"word alignment off on the coupler: {' '.join(cmd)} refused: rc {r.returncode} "
+                  f"{r.stdout.strip()[:200]} {r.stderr.strip()[:400]}")
+        r = run([a.kscfg, "--port", uri, "--json", "map", "--online", "--word-alignment", "off"], 120)
+        j = json.loads(r.stdout) if r.returncode == 0 else {}
+        check(r.returncode == 0 and "set to word" not in r.stderr,
+              f"map --online --word-alignment off: the coupler's offsets: rc {r.returncode} {r.stderr.strip()[:300]}")
+        r = run([a.kscfg, "--port", uri, "map", "--online", "--word-alignment", "on"], 120)
+        check(r.returncode == 5 and "set to word alignment off" in r.stderr,
+              f"map --online --word-alignment on: refused by the coupler's lengths: rc {r.returncode} "
+              f"{r.stderr.strip()[:300]}")
         wa = os.path.join(env["XDG_CACHE_HOME"], "wa-off.toml")
         r = run([a.kscfg, "--port", uri, "scan", "--word-alignment", "off", "--write", wa, "--force"], 120)
         check(r.returncode == 0 and "word alignment off" in r.stdout and "set to word" not in r.stderr,
@@ -245,6 +292,9 @@ def main():
         check(got.get((3, 1), {}).get("word") == 16384 and got.get((2, None), {}).get("inputs") == [1, 0, 1, 0],
               f"--station with word-alignment = false: the KL3022 word at byte 7, the inputs at byte 12: rc "
               f"{r.returncode} {r.stdout.strip()[:500]} {r.stderr.strip()[:300]}")
+        r = run([a.kscfg, "--port", uri, "--station", wa, "info"], 120)
+        check(r.returncode == 0 and "set to word" not in r.stderr,
+              f"info --station with word-alignment = false: rc {r.returncode} {r.stderr.strip()[:300]}")
         peer.word_alignment = True
         peer.inputs[0:13] = bytes(13)
         peer.table100[15] = 1  # Modbus TCP disabled: nothing confirms the layout, and kscfg says so
@@ -252,6 +302,30 @@ def main():
         check(r.returncode == 0 and "not confirmed by the coupler" in r.stderr and "Modbus TCP disabled" in r.stderr,
               f"Modbus TCP disabled: the layout not confirmed, said: {r.stderr.strip()[-300:]}")
         peer.table100[15] = 0
+
+        # A Modbus TCP side that does not answer (its port dropped): the first command waits its bound
+        # (1 s), the next ones do not ask for 10 minutes and say why (-v); kscfg scan asks again, and
+        # an answer ends it (before, every command that needed the layout waited 1 s, issue 45).
+        peer.modbus_mute = True
+        times = []
+        for _ in range(3):
+            t0 = time.monotonic()
+            r = run([a.kscfg, "--port", uri, "-v", "info"], 120)
+            times.append(time.monotonic() - t0)
+        check(r.returncode == 0 and times[0] >= 0.9 and max(times[1:]) < 0.6 and "did not answer" in r.stderr
+              and "not asked again" in r.stderr,
+              f"a silent Modbus TCP side is waited for once, then not asked: {[round(x, 2) for x in times]} "
+              f"{r.stderr.strip()[-300:]}")
+        t0 = time.monotonic()
+        r = run([a.kscfg, "--port", uri, "scan"], 120)
+        check(r.returncode == 0 and time.monotonic() - t0 >= 0.9 and "does not answer" in r.stderr,
+              f"scan asks the silent Modbus TCP side all the same: rc {r.returncode} {r.stderr.strip()[-300:]}")
+        peer.modbus_mute = False
+        r = run([a.kscfg, "--port", uri, "scan"], 120)
+        r2 = run([a.kscfg, "--port", uri, "-v", "info"], 120)
+        check(r.returncode == 0 and "not confirmed" not in r.stderr and r2.returncode == 0
+              and "not asked again" not in r2.stderr and "image lengths from" in r2.stderr,
+              f"once it answers again, the layout is confirmed: {r.stderr.strip()[-200:]} {r2.stderr.strip()[-300:]}")
 
         # Replies out of order (a coupler that overlaps requests): matched by invoke id only.
         peer.overlap, peer.latency = True, 0.004

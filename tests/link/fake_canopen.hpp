@@ -36,7 +36,9 @@ class LoopbackBus : public CanBus {
   std::vector<std::pair<std::chrono::steady_clock::time_point, CanFrame>> later;
 
   std::string describe() const override { return "loopback"; }
+  // As every CanBus (link/can_frame.hpp): cancellation only before the frame goes out.
   void send(const CanFrame& f) override {
+    if (cancel && cancel->cancelled()) throw Error(Exit::interrupted, "interrupted");
     sent.push_back(f);
     if (peer)
       for (const auto& a : peer(f)) rx.push_back(a);
@@ -87,6 +89,8 @@ class FakeCanopenCoupler {
 
   // Uploads after a read's download answered "not yet" (the access bit set) before the value.
   unsigned busy_polls = 1;
+  // And the value not there before this long after the download (a K-bus access that takes time).
+  std::chrono::microseconds busy_for{0};
   // The next accesses of 0x4500/0x4501 aborted with 0x06010021 "function still active".
   unsigned still_active = 0;
   // Answers nothing from now on (a dead node, a bus cut).
@@ -109,6 +113,7 @@ class FakeCanopenCoupler {
   std::size_t requests = 0;                                // SDO requests received (aborts not counted)
   std::size_t aborts_received = 0;
   std::size_t downloads_4501 = 0;  // register words downloaded to the terminals
+  std::size_t busy_answers = 0;    // uploads answered with the access bit set
 
   std::vector<CanFrame> operator()(const CanFrame& req) {
     if (req.id != sdo::kRequestBase + node_ || req.len != 8) return {};
@@ -131,6 +136,7 @@ class FakeCanopenCoupler {
     canreg::Word word;   // what an upload shows once the request is carried out
     canreg::Word shown;  // what it shows while it is not
     unsigned busy = 0;
+    std::chrono::steady_clock::time_point ready{};  // and not before this
   };
 
   CanFrame reply(std::uint8_t cs, std::uint16_t index, std::uint8_t sub, std::uint32_t data = 0) const {
@@ -207,14 +213,16 @@ class FakeCanopenCoupler {
     }
     Entry& e = entries_[{index, sub}];
     if (upload) {
-      if (e.busy > 0) {
-        --e.busy;
+      if (e.busy > 0 || std::chrono::steady_clock::now() < e.ready) {
+        if (e.busy > 0) --e.busy;
+        ++busy_answers;
         return reply(0x43, index, sub, canreg::encode(e.shown));
       }
       return reply(0x43, index, sub, canreg::encode(e.word));
     }
     canreg::Word w = canreg::decode(data);
     e.busy = 0;
+    e.ready = {};
     if (index == canreg::kCouplerObject) {
       if (w.access) return abort(index, sub, 0x06010022);  // the tables' write protection
       if (w.group != 9 || no_table9) return abort(index, sub, 0x06020011);
@@ -240,6 +248,7 @@ class FakeCanopenCoupler {
       e.shown = canreg::Word{true, w.group, w.reg, 0};  // "the access bit to 1 until the value is available"
       e.word = canreg::Word{false, w.group, w.reg, ch.read_register(w.reg)};
       e.busy = busy_polls;
+      e.ready = std::chrono::steady_clock::now() + busy_for;
     }
     return reply(0x60, index, sub);
   }

@@ -260,6 +260,30 @@ TEST_CASE("ADS client: a connection the coupler cut idle is reopened transparent
   CHECK(c.connects() == 2);
 }
 
+TEST_CASE("serve --ads full: a connection idle long enough makes room for a new one, as over Modbus") {
+  // Before, a full serve --ads closed every new connection until its 10 s idle cut freed one.
+  AdsServeOptions o;
+  o.max_connections = 1;
+  o.idle_evict_ms = 400;
+  Served s(o);
+  AdsClient holder = s.client();
+  REQUIRE(holder.device_info(100).name == "BK9000");
+  // At once: the holder is not idle long enough, so the newcomer is turned away for the busy wait.
+  {
+    AdsOptions quick;
+    quick.response_timeout_ms = 50;
+    auto m = message([&] { AdsClient(ads_target(parse_port_uri(s.uri), s.uri), quick).device_info(100); });
+    CHECK(m.find("is full") != std::string::npos);
+  }
+  // Once it has been idle for 400 ms, the newcomer (trying over a busy wait of 3 s) takes its place.
+  AdsClient later = s.client();
+  CHECK(later.device_info(100).name == "BK9000");
+  CHECK(s.server->stats().evicted >= 1);
+  // The holder finds its connection closed and opens another: the newcomer, idle by then, goes.
+  CHECK(holder.device_info(100).name == "BK9000");
+  CHECK(s.server->stats().evicted >= 2);
+}
+
 TEST_CASE("ADS client: many requests in flight are matched by invoke id, and a window of 1 gives the same") {
   Served s;
   for (unsigned window : {1u, 4u, 64u}) {

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <atomic>
 #include <catch2/catch.hpp>
+#include <regex>
 #include <thread>
 
 #include "../session/own_access.hpp"
@@ -12,6 +13,7 @@
 #include "kscfg/discovery/open.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
+#include "kscfg/link/busy.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/ack_latency.hpp"
@@ -303,7 +305,14 @@ TEST_CASE("busy and other exceptions are reported by name and code", "[modbus]")
   std::string e = error_of([&] { c.read(mbmap::kIdent, 1); }, &code);
   CHECK(code == Exit::link);
   CHECK_THAT(e, Catch::Contains("Modbus exception 6 (slave device busy)"));
-  CHECK(c.exchanges() == 1 + c.options().retries);  // bounded retries
+  // Bounded, and spread over the busy wait (--timeout, 1000 ms), not 4 tries within 15-21 ms.
+  CHECK(c.exchanges() >= 5);
+  CHECK(c.exchanges() <= busy::attempts_within(1000));
+  std::smatch m;
+  REQUIRE(std::regex_search(e, m, std::regex(R"((\d+) attempts in (\d+) ms)")));
+  CHECK(std::stoul(m[1]) == c.exchanges());
+  CHECK(std::stoul(m[2]) >= 850);
+  CHECK(std::stoul(m[2]) <= 1000);
 }
 
 TEST_CASE("faults are survived: drop, delay, corrupt and busy", "[modbus]") {

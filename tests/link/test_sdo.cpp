@@ -294,3 +294,92 @@ TEST_CASE("SDO client: an owed answer that came before the next request is dropp
   r.client.download_u32(canreg::kTerminalObject, 2, canreg::encode({false, 0, 32, 0}));
   CHECK(std::chrono::steady_clock::now() - t0 < 500ms);  // not the owed answer's 1000 ms deadline
 }
+
+TEST_CASE("SDO client: a frame Ctrl-C kept from going out is neither traced as sent nor waited for", "[link][sdo]") {
+  // Found by the SIGINT campaign against the independent coupler: `-v` showed 603#40014501... sent
+  // at the signal, the coupler never got it, nothing went out for 1.000 s (its answer waited for),
+  // and the rollback's read was declared timed out after one busy answer: a false exit 9. Here the
+  // signal comes once the frames before the request were looked at, before the request goes out
+  // (the bus then writes nothing: CanBus::send).
+  struct SignalAfterDrain : kscfg::test::LoopbackBus {
+    CancelToken* token = nullptr;
+    bool armed = false;
+    std::optional<CanFrame> receive(std::chrono::steady_clock::time_point deadline) override {
+      auto f = LoopbackBus::receive(deadline);
+      if (!f && std::exchange(armed, false)) token->signal(SIGINT);
+      return f;
+    }
+  };
+  EmulatedStation station{can_station(), Catalog::standard()};
+  FakeCanopenCoupler coupler{station, 3};
+  SignalAfterDrain bus;
+  bus.peer = [&](const CanFrame& f) { return coupler(f); };
+  CancelToken cancel;
+  bus.cancel = bus.token = &cancel;
+  std::vector<std::string> traced;
+  SdoClient client(bus, SdoOptions{3, 1000, [&](const std::string& s) { traced.push_back(s); }});
+  canreg::Registers regs(client, 1000);
+  bus.armed = true;
+  Error e = caught([&] { client.upload_u32(canreg::kTerminalObject, 2); });
+  CHECK(e.code() == Exit::interrupted);
+  CHECK(bus.sent.empty());
+  auto shown = [&](const std::string& part) {
+    return std::any_of(traced.begin(), traced.end(), [&](const auto& s) { return s.find(part) != std::string::npos; });
+  };
+  CHECK(!shown("-> 603#40"));
+  CHECK(shown("not sent (interrupted): 603#40"));
+  // The rollback, shielded: its read goes at once and gets its whole timeout.
+  ShieldScope shield(&cancel);
+  auto t0 = std::chrono::steady_clock::now();
+  CHECK(regs.read(2, 0, 8) == 3202);
+  CHECK(std::chrono::steady_clock::now() - t0 < 300ms);
+}
+
+TEST_CASE("Register access: a read's deadline starts after the answer a Ctrl-C left owed", "[link][sdo]") {
+  // The write's answer is owed (it went out, Ctrl-C cut the wait) and comes 150 ms later; the
+  // rollback's read (timeout 200 ms, the value there at the second upload) gets its own 200 ms.
+  Rig r(1000);
+  CancelToken cancel;
+  owe_first_answer(r, cancel, 150ms);
+  canreg::Registers regs(r.client, 200);
+  Error e = caught([&] { regs.write(2, 0, 32, 7); });
+  CHECK(e.code() == Exit::interrupted);
+  ShieldScope shield(&cancel);
+  r.coupler.busy_for = 60ms;
+  CHECK(regs.read(2, 0, 8) == 3202);
+  CHECK(r.traced_with("dropped the late answer 583#60"));
+}
+
+TEST_CASE("Register access: no write goes to a node after it stopped answering in this run", "[link][sdo]") {
+  // Found by attacks against the independent coupler: after the node stopped answering, an apply
+  // still sent a write to another terminal, which took effect when the node came back.
+  Rig r(60);
+  canreg::Registers regs(r.client, 200);
+  r.coupler.silent = true;
+  CHECK(caught([&] { regs.read(2, 0, 32); }).code() == Exit::link);
+  r.coupler.silent = false;  // it answers again: reads are harmless, writes are not sent
+  CHECK(regs.read(2, 0, 8) == 3202);
+  std::size_t downloads = r.coupler.downloads_4501;
+  std::size_t sent = r.bus.frames_sent();
+  Error e = caught([&] { regs.write(3, 0, 33, 5); });
+  CHECK(e.code() == Exit::link);
+  CHECK_THAT(e.what(), Catch::Contains("terminal 3 (0x4501 sub-index 3) channel 1 R33: not written: node 3 on "
+                                       "loopback stopped answering (SDO download 0x4501 sub 2"));
+  CHECK(r.coupler.downloads_4501 == downloads);
+  CHECK(r.bus.frames_sent() == sent);
+  CHECK(!r.client.stopped_answering().empty());
+}
+
+TEST_CASE("Register access: the uploads of a read are bounded, whatever the coupler does", "[link][sdo]") {
+  // A terminal whose value never comes (the access bit stays set): at most kMaxUploads paced
+  // uploads, then a quarter of the time since the download apart, not back to back until the
+  // timeout.
+  Rig r(1000);
+  canreg::Registers regs(r.client, 300);
+  r.coupler.busy_polls = 100000;
+  Error e = caught([&] { regs.read(2, 0, 8); });
+  CHECK(e.code() == Exit::timeout);
+  CHECK(r.coupler.busy_answers <= canreg::max_uploads(300));
+  CHECK(canreg::max_uploads(300) < 40);
+  CHECK(canreg::max_uploads(1000) < 45);
+}

@@ -7,6 +7,7 @@
 #include <termios.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <chrono>
@@ -401,4 +402,32 @@ TEST_CASE("slcan bus: a cancelled token ends a wait within the polling slice", "
   CHECK(e.code() == Exit::interrupted);
   CHECK(since(t0) < milliseconds(2000));
   CHECK(token.signalled());
+}
+
+TEST_CASE("slcan bus: a frame is sent whole or not at all, cancellation looked at only before it", "[link][can]") {
+  // Before, a signal that came while the adapter acknowledged the frame made send() throw
+  // Error(interrupted) after the frame had gone out, and a signal before it was taken for a frame
+  // sent by the SDO client's trace and wait (issue 45).
+  CancelToken token;
+  Adapter a;
+  auto bus = open_slcan(a.path, 500000, 1000, &token);
+  auto frames = [&] {
+    auto c = a.commands();
+    return std::count_if(c.begin(), c.end(), [](const std::string& s) { return !s.empty() && s[0] == 't'; });
+  };
+  token.signal(SIGINT);
+  CHECK(error_of([&] { bus->send(kGolden); }).code() == Exit::interrupted);
+  token.reset();
+  // The signal comes as the adapter takes the frame: send() has put it on its way and returns.
+  a.script([&](const std::string& cmd) {
+    if (cmd[0] == 't') token.signal(SIGINT);
+    return Adapter::lawicel(cmd);
+  });
+  // The frames that reach the adapter are these, in order: the one cancelled before never went.
+  for (int i = 0; i < 5; ++i) {
+    token.reset();
+    bus->send(kGolden);
+    REQUIRE(test::wait_for([&] { return frames() == i + 1; }, 10));
+    CHECK(token.signalled());
+  }
 }

@@ -27,6 +27,18 @@ struct CouplerImage {
   std::optional<std::array<unsigned, 4>> bits;  // 0x1010..0x1013: complex out, complex in, digital out, digital in
   std::string where;                            // "Modbus TCP 0x1010..0x1013 at 10.0.3.11:502"
   std::string unknown;  // why there are none: "the coupler has Modbus TCP disabled (table 100 register 15)"
+  bool silent = false;  // its Modbus TCP side did not answer within the bound (not refused: no answer)
+};
+
+// Where a coupler's Modbus TCP side did not answer (its port dropped by a firewall, say), each
+// command that needs the layout waited the whole bound (1 s) for it (issue 45). The first that does
+// keeps the time in a memo ($XDG_CACHE_HOME/kscfg/scans/KEY.modbus-silent, KEY station_key()); the
+// commands of the next kSilentMemoSeconds do not ask, and say the layout is unconfirmed because of
+// it (-v). `kscfg scan` and --rescan ask all the same; an answer removes the memo.
+constexpr long kSilentMemoSeconds = 600;
+struct SilentMemo {
+  std::string path;         // empty: no memo kept
+  bool ask_anyway = false;  // kscfg scan, --rescan
 };
 
 // The coupler's image lengths from its Modbus TCP side, as table 100 registers 15 and 26 (read
@@ -35,7 +47,8 @@ struct CouplerImage {
 // asked gives `unknown`.
 CouplerImage read_coupler_image(const AdsTarget& target, std::optional<std::uint16_t> table100_r15,
                                 std::optional<std::uint16_t> table100_r26, unsigned timeout_ms,
-                                const std::function<void(const std::string&)>& trace, const CancelToken* cancel);
+                                const std::function<void(const std::string&)>& trace, const CancelToken* cancel,
+                                const SilentMemo& memo = {});
 
 // Marks `L` (laid out from `spec` with `regs`) with what the coupler's lengths say of it: nothing
 // when they agree; image_refused naming the setting (complete evaluation, word alignment) with

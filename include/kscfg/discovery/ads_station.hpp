@@ -43,6 +43,7 @@ struct AdsScanOptions {
   // Check the layout against the image lengths the coupler reports on its Modbus TCP side
   // (discovery/ads_image.hpp): result.layout.image_refused / image_unconfirmed, with a note.
   bool check_image = true;
+  SilentMemo silent_memo;  // the coupler's Modbus TCP side that did not answer (ads_image.hpp)
   std::function<void(const std::string&)> trace;
   const CancelToken* cancel = nullptr;
 };

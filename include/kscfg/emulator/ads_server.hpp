@@ -32,7 +32,8 @@ struct AdsServeOptions {
   // 26, register 15 bit 0 clear); empty: Modbus TCP is not served (register 15 bit 0 set), so an
   // ADS client does not look for the image lengths there (discovery/ads_image.hpp).
   std::optional<unsigned> modbus_port;
-  unsigned max_connections = 64;                       // one more is closed at once
+  unsigned max_connections = 64;                       // one more is closed at once, unless...
+  unsigned idle_evict_ms = 5000;                       // ...one idle this long makes room (as Modbus)
   unsigned frame_timeout_ms = 2000;                    // a frame must arrive whole within this time from its first byte
   std::function<void(const std::string&)> save_state;  // as ServeOptions::save_state
   unsigned save_delay_ms = 5;
@@ -42,7 +43,7 @@ struct AdsServeOptions {
 
 struct AdsServeStats {
   std::size_t requests = 0, connections = 0, refused = 0, idle_cut = 0, timed_out = 0, malformed = 0,
-              watchdog_expired = 0, saves = 0;
+              watchdog_expired = 0, saves = 0, evicted = 0;
 };
 
 class AdsServer {

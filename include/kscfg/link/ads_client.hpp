@@ -48,8 +48,9 @@ struct AdsOptions {
   unsigned window = 16;          // requests in flight on the connection at most
   unsigned idle_cut_ms = 10000;  // the coupler closes a connection idle this long
   // A server whose connections are all in use closes (or resets, or refuses) a new one before it
-  // answers anything: tried again this many times, busy::kPause apart, as a busy Modbus server is.
-  unsigned busy_retries = busy::kRetries;
+  // answers anything: tried again for this long (0: response_timeout_ms), busy::pause() apart, as a
+  // busy Modbus server is (link/busy.hpp).
+  unsigned busy_wait_ms = 0;
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): every wait looks at it at least every 50 ms and ends
   // with Error(Exit::interrupted) once it is cancelled. Null: never cancelled.
@@ -90,6 +91,14 @@ class AdsClient {
   // failure, an AMS error in a reply's header or a reply that does not parse throws
   // Error(Exit::link) naming the cause; cancellation (AdsOptions::cancel) throws Error(Exit::interrupted) within
   // 50 ms. An ADS result other than 0 is returned in Reply::result: what it means depends on the call.
+  //
+  // Every wait is bounded in this one place (docs/design.md 4.9, "Waits over ADS"): a call has its
+  // timeout from when it first went out, sent again or not. A connection that goes away with calls
+  // outstanding: the repeatable ones go out again on a fresh connection within that deadline, the
+  // others fail (their outcome is unknown); a call past its deadline is given up, never sent again,
+  // and the message states the time it waited. A server that closes connections before answering
+  // (full) is tried again over the busy wait, within the same deadlines. So a batch ends at the
+  // latest when its last call's timeout has passed since that call first went out.
   std::vector<Reply> transact(std::span<const Call> calls);
   Reply call(const Call& c);
 
@@ -118,11 +127,24 @@ class AdsClient {
   // Replies dropped because no request of the batch waits for their invoke id (a reply that came
   // after its request timed out, a duplicate, a coupler's mistake): counted, never fatal.
   std::size_t strays() const { return strays_; }
+  // The dead-link rule, as the Modbus client's (ModbusClient::dead()): two batches in a row given up
+  // (a timeout, a connection that could not be made again, a wait cut by cancellation) while the
+  // coupler said nothing for a quarter of a second at least, and the link is taken for dead; from
+  // then on every call fails at once with this reason, so that a rollback over a stopped coupler
+  // ends within two timeouts instead of waiting a timeout per register, and a Ctrl-C during such a
+  // stall within one. Empty while the link lives; any answer ends a run of silent batches.
+  const std::string& dead() const { return dead_; }
 
  private:
   struct Pending;
-  void connect();
-  void connect_once();
+  struct Batch;
+  // Connects, trying a refused connection again over the busy wait, each attempt bounded by the
+  // connect timeout and by `until` (a call's deadline; default: none).
+  void connect(std::chrono::steady_clock::time_point until = std::chrono::steady_clock::time_point::max());
+  void connect_once(std::chrono::milliseconds timeout);
+  std::vector<Reply> run_batch(std::span<const Call> calls, Batch& b);
+  // A batch given up: counts towards the dead-link rule when nothing was heard while it waited.
+  void gave_up(const Batch& b);
   void disconnect();
   bool peer_closed();  // the coupler has closed the connection (an idle cut) while nothing was pending
   void send_all(const std::vector<std::uint8_t>& frame);
@@ -138,6 +160,9 @@ class AdsClient {
   int connect_errno_ = 0;  // why the last connect_once() failed
   bool answered_ = false;  // a frame came on this connection (a full server closes one before any)
   std::chrono::steady_clock::time_point last_activity_{};
+  std::chrono::steady_clock::time_point last_heard_{};  // the last frame from the coupler
+  unsigned silent_ = 0;                                 // batches in a row given up without an answer
+  std::string dead_;                                    // why the link is taken for dead ("" while it lives)
   std::size_t exchanges_ = 0, connects_ = 0, strays_ = 0;
 };
 

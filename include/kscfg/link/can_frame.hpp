@@ -34,7 +34,10 @@ class CanBus {
   // "slcan:/dev/ttyACM0 at 500000 bit/s", "socketcan:can0".
   virtual std::string describe() const = 0;
   // Puts one frame on the bus. Error(Exit::link) when the adapter or interface refuses it or is
-  // gone (an slcan adapter that answers BELL, a socket error). Bounded.
+  // gone (an slcan adapter that answers BELL, a socket error). Bounded. Cancellation (the token
+  // given at construction) is looked at only before the frame goes out: Error(Exit::interrupted)
+  // means nothing of it was written; a frame send() returned from is on its way (the SDO client
+  // waits for its answer only then: link/sdo.hpp).
   virtual void send(const CanFrame& f) = 0;
   // The next frame received before `deadline`; nullopt when none came by then. Every wait looks at
   // the cancel token given at construction at least every 50 ms and ends with

@@ -16,6 +16,7 @@
 // again until the timeout. 0x4500 is addressed at sub-index 0. (The procedure is in one place:
 // src/link/can_registers.cpp.)
 #pragma once
+#include <chrono>
 #include <cstdint>
 #include <string>
 
@@ -45,13 +46,44 @@ Word decode(std::uint32_t v);
 // Error(usage) for a position outside the station.
 unsigned terminal_number(const StationLayout& layout, unsigned position);
 
+// When the uploads of a register read go out after its download, and what the answer teaches: the
+// session's acknowledge plan (session/ack_latency.hpp, per terminal: SdoAccess), as over Modbus.
+// The link only moves frames; it knows nothing of how fast a terminal answers.
+class UploadPacing {
+ public:
+  virtual ~UploadPacing() = default;
+  // When upload `n` (1, 2, ...) goes out, counted from when the download went out; `last`: when
+  // upload n-1 went (0 for the first).
+  virtual std::chrono::microseconds next(unsigned n, std::chrono::microseconds last) = 0;
+  // The value was there at upload `n`, which went out `took` after the download, `late` after it
+  // was planned (this process not scheduled in time: the load's, not the terminal's).
+  virtual void seen(unsigned n, std::chrono::microseconds took, std::chrono::microseconds late) = 0;
+  // The first upload found the access bit still set.
+  virtual void early() = 0;
+};
+
+// At most this many uploads of a register read are spaced by the pacing; past them, each next one
+// goes a quarter of the time since the download later, the last at the deadline: a bus citizen,
+// whatever the coupler does and the pacing says (at --timeout 1000 at most about 40 uploads a
+// register; before, uploads went back to back, 18-35 per register over a pty, 4-5 on a real bus).
+constexpr unsigned kMaxUploads = 16;
+// The most uploads a read can make within `timeout_ms` (each at least 250 us after the one before):
+// kMaxUploads, then a quarter of the time since the download apart.
+unsigned max_uploads(unsigned timeout_ms);
+
 // The client calls for register communication over an SdoClient (the safety rules are above the
-// register-access seam, session/access.hpp). Every wait is bounded by `timeout_ms` overall.
+// register-access seam, session/access.hpp). Every wait is bounded by `timeout_ms` overall,
+// counted from when the access begins (after an answer owed from a request cut by Ctrl-C:
+// SdoClient::settle).
 class Registers {
  public:
   Registers(SdoClient& sdo, unsigned timeout_ms);
-  // Register `reg` of channel `channel` (0-based) of the terminal with sub-index `terminal`.
-  std::uint16_t read(unsigned terminal, unsigned channel, unsigned reg);
+  // Register `reg` of channel `channel` (0-based) of the terminal with sub-index `terminal`. The
+  // uploads go as `pacing` says; without one, the first at once and the next ones every eighth of
+  // the time since the download (at least 250 us apart).
+  std::uint16_t read(unsigned terminal, unsigned channel, unsigned reg, UploadPacing* pacing = nullptr);
+  // Refused (Error(Exit::link), nothing sent) once the node stopped answering in this run
+  // (SdoClient::stopped_answering).
   void write(unsigned terminal, unsigned channel, unsigned reg, std::uint16_t value);
   // A coupler register (0x4500): table 0..127, register 0..255.
   std::uint16_t read_table(unsigned table, unsigned reg);

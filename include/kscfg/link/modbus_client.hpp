@@ -77,9 +77,12 @@ int open_serial(const std::string& device, unsigned baud, char parity, unsigned 
 struct ModbusOptions {
   unsigned response_timeout_ms = 500;  // one request/response
   unsigned connect_timeout_ms = 1000;
-  unsigned retries = busy::kRetries;  // extra attempts after busy, CRC or garbled replies
-  unsigned timeout_retries = 1;       // extra attempts after a timeout
-  unsigned poll_us = 500;             // between two polls of the input image (ModbusLink::poll_gap())
+  unsigned retries = 3;  // extra attempts after CRC errors or garbled replies
+  // A coupler that answers busy (exception 6) is tried again for this long (0: response_timeout_ms),
+  // busy::pause() apart (link/busy.hpp); a connection closed after a busy answer counts as busy.
+  unsigned busy_wait_ms = 0;
+  unsigned timeout_retries = 1;  // extra attempts after a timeout
+  unsigned poll_us = 500;        // between two polls of the input image (ModbusLink::poll_gap())
   std::function<void(const std::string&)> trace;
   // The run's cancellation (base/cancel.hpp): a request or the wait for its reply ends with
   // Error(Exit::interrupted) once it is cancelled. Null: never cancelled.

@@ -51,6 +51,9 @@ class ModbusLink : public Link {
   void write_read(std::size_t out_offset, std::span<const std::uint8_t> src, std::size_t in_offset,
                   std::span<std::uint8_t> dst);
   void remember_outputs(std::size_t first_word, std::span<const std::uint16_t> words);
+  // After a write whose outcome is unknown (no reply): its words' bytes are read again before the
+  // next merge, never taken from what the link meant to write or held before.
+  void forget_outputs(std::size_t first_word, std::size_t words);
   void count() { exchanges_ = client_.exchanges(); }
 
   OwnerLock lock_;  // taken before the client connects, released after it has closed

@@ -84,6 +84,18 @@ class SdoClient {
   // Two requests in a row got no answer: every later request fails with Error(Exit::link) before
   // anything is sent (a dead bus is given up within two timeouts, issue 37).
   bool proven_dead() const { return silent_ >= 2; }
+  // A request of this run got no answer: why ("node 3 on ... stopped answering (SDO ...)"), "" while
+  // every request was answered. No register is written to the node after that in this run
+  // (canreg::Registers::write): a write sent meanwhile took effect when the node came back, after
+  // the change it belonged to had been given up (issue 45).
+  const std::string& stopped_answering() const { return stopped_; }
+  // Before a register access begins: the answer still owed to a request whose wait was cut short
+  // (Ctrl-C while the node worked on it) is waited for until that request's deadline and dropped,
+  // so that the access's own deadline starts after it (a rollback gets its own deadline).
+  void settle() { settle_owed(); }
+  // Waits until `t` (bounded, cancellable through the bus), the frames that come meanwhile dropped
+  // as before a request: the pause between two uploads of a register read (link/can_registers.hpp).
+  void pause_until(std::chrono::steady_clock::time_point t);
 
  private:
   std::string where() const;  // "node 3 on slcan:/dev/ttyACM0 at 500000 bit/s"
@@ -105,6 +117,7 @@ class SdoClient {
   std::optional<std::chrono::steady_clock::time_point> owed_;  // the deadline of an answer still owed
   std::size_t exchanges_ = 0;
   unsigned silent_ = 0;
+  std::string stopped_;  // stopped_answering()
 };
 
 }  // namespace kscfg

@@ -61,6 +61,9 @@ std::string shown_type(const TerminalImage& t);
 bool fits_type(const TerminalImage& t, const std::string& type);
 // "KL2114, KL2134, KL2404 or 6 others": the types that fit an inferred terminal, at most `max` named.
 std::string fits_text(const TerminalImage& t, std::size_t max = 4);
+// "terminal 3 (KL6001)", "terminal 4 (digital, 4 outputs)": a terminal in a message, never by the
+// stand-in type of an inferred one (the coupler gave no type; any of `fits` may be plugged).
+std::string terminal_label(const TerminalImage& t);
 
 struct StationLayout {
   std::string coupler;
