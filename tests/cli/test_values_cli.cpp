@@ -42,7 +42,7 @@ const std::vector<InputRow> kInputs = {
     {"KL3202", {"element", "PT1000"}, 32, 0x2106, "21.5C", "21.5 °C"},
     {"KL3202", {"element", "ohm-1200"}, 32, 0xF106, "108.4ohm", "108.4 Ω"},
     {"KL3204", {"manufacturer-scaling", "off"}, 32, 0x0104, "21.5C", "21.50 °C"},
-    // {"KL3312", {"tc-type", "J"}, 32, ..., "..."}: once the thermocouple family is in the catalog.
+    {"KL3312", {"element", "J"}, 32, 0x2006, "500C", "500.0 °C"},
 };
 
 // An analog output's switch-on value: set by name, the register after it, the word the emulated
