@@ -56,7 +56,10 @@ struct OutputRow {
 };
 
 const std::vector<OutputRow> kOutputs = {
-    // {"KL4002", {"switch-on-value", "...", ...}, 35, 0x..., 0x...}: once the analog output families are in.
+    {"KL4424", {"switch-on-value", "user", "user-switch-on-value", "16383"}, 35, 0x3FFF, 0x3FFF},
+    {"KL4002", {"switch-on-value", "user", "user-switch-on-value", "8192"}, 35, 0x2000, 0x2000},
+    // R35 set while R32.8 selects the manufacturer's switch-on value (R21, 0): that one is driven.
+    {"KL4424", {"user-switch-on-value", "8192"}, 35, 0x2000, 0x0000},
 };
 
 // The terminal under test at position 1 (complete evaluation: its register window is mapped).
