@@ -60,7 +60,15 @@ bool on(const TerminalType& type, const std::string& name,
 
 int decimals_for(const Scale& s) {
   double step = std::fabs((s.value1 - s.value0) / static_cast<double>(s.raw1 - s.raw0));
-  if (step >= 1 || step <= 0) return 0;
+  if (step <= 0) return 0;
+  if (step >= 1) {
+    // A step of whole units shows none; 6.4 µV a digit shows one decimal (up to three).
+    for (int d = 0; d < 3; ++d) {
+      double scaled = step * std::pow(10.0, d);
+      if (std::fabs(scaled - std::round(scaled)) < 1e-6 * scaled) return d;
+    }
+    return 3;
+  }
   return static_cast<int>(std::ceil(-std::log10(step) - 1e-9));
 }
 

@@ -56,9 +56,9 @@ AnalogReading AnalogModel::read(const Regs& regs) const {
   r.over = x > rg.max;
   r.under = x < rg.min;
   r.error = no_sensor || r.over || r.under;
-  // Over-range protection holds the value at the range's end; without it the converter goes on to
-  // its own limit (the word's).
-  if (is_on(*type_, k.protect, regs) || no_sensor) x = std::clamp(x, rg.min, rg.max);
+  // Over-range protection holds the value at the range's end; without it (or a family without the
+  // setting: the thermocouples) the converter goes on to its own limit (the word's).
+  if ((!k.protect.empty() && is_on(*type_, k.protect, regs)) || no_sensor) x = std::clamp(x, rg.min, rg.max);
   double y = x * rg.digits + rg.offset;
   if (k.vendor) {
     // The terminal's own calibration values are taken as exact at their typical values: a changed
