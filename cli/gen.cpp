@@ -51,12 +51,33 @@ std::vector<std::string> names_of(const CLI::Option* o) {
   return v;
 }
 
+// A character beyond ASCII as groff's \[uXXXX] (groff reads its input as Latin-1: the bytes of
+// UTF-8 text such as "×" or "°" from the catalog would be other characters or invalid ones).
+std::size_t utf8_escape(const std::string& s, std::size_t i, std::string& out) {
+  auto b = static_cast<unsigned char>(s[i]);
+  std::size_t n = b >= 0xF0 ? 4 : b >= 0xE0 ? 3 : b >= 0xC0 ? 2 : 1;
+  if (n == 1 || i + n > s.size()) {
+    out += '?';
+    return 1;
+  }
+  std::uint32_t cp = b & (0x7F >> n);
+  for (std::size_t k = 1; k < n; ++k) cp = (cp << 6) | (static_cast<unsigned char>(s[i + k]) & 0x3F);
+  out += fmt::format("\\[u{:04X}]", cp);
+  return n;
+}
+
 std::string roff(std::string s) {
   std::string out;
-  for (char c : s) {
+  for (std::size_t i = 0; i < s.size();) {
+    char c = s[i];
+    if (static_cast<unsigned char>(c) >= 0x80) {
+      i += utf8_escape(s, i, out);
+      continue;
+    }
     if (c == '\\') out += "\\e";
     else if (c == '-') out += "\\-";
     else out += c;
+    ++i;
   }
   if (!out.empty() && (out[0] == '.' || out[0] == '\'')) out = "\\&" + out;
   return out;

@@ -23,12 +23,12 @@ using namespace kscfg;
 namespace {
 
 // Accepts every connection; the first `turn_away` of them, and every one that comes within
-// `full_ms` of the start, are reset when their first request has come (SO_LINGER 0: an RST, as a
+// `full_ms` of the first one, are reset when their first request has come (SO_LINGER 0: an RST, as a
 // full coupler's stack might send), the later ones get ReadDeviceInfo answered. Every wait is
 // bounded (5 s).
 struct Turnaway {
   explicit Turnaway(unsigned turn_away, unsigned full_ms = 0)
-      : turn_away_(turn_away), full_until_(std::chrono::steady_clock::now() + std::chrono::milliseconds(full_ms)) {
+      : turn_away_(turn_away), full_for_(std::chrono::milliseconds(full_ms)) {
     fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
     sockaddr_in a{};
     a.sin_family = AF_INET;
@@ -54,6 +54,7 @@ struct Turnaway {
       if (c < 0) continue;
       ++accepted;
       auto accepted_at = std::chrono::steady_clock::now();
+      if (accepted == 1) full_until_ = accepted_at + full_for_;
       std::vector<std::uint8_t> in;
       while (!stop_ && std::chrono::steady_clock::now() < deadline) {
         pollfd q{c, POLLIN, 0};
@@ -87,6 +88,7 @@ struct Turnaway {
 
  private:
   unsigned turn_away_;
+  std::chrono::milliseconds full_for_;
   std::chrono::steady_clock::time_point full_until_;
   int fd_ = -1;
   std::atomic<bool> stop_{false};
@@ -129,11 +131,12 @@ TEST_CASE("ADS client: a server that resets new connections while full is tried 
         m, sm,
         std::regex(R"(is full: it closed the connection before answering, (\d+) times in (\d+) ms \(ReadDeviceInfo)")));
     CHECK(std::stoul(sm[1]) == t.accepted);
-    // The busy wait is the response timeout (1000 ms): tried until its end, not for 15-21 ms.
+    // The busy wait is the response timeout (1000 ms): tried until its end, not for 15-21 ms (the
+    // upper bounds leave a loaded machine's late wake-ups room; the wait itself is bounded).
     CHECK(std::stoul(sm[2]) >= 850);
-    CHECK(std::stoul(sm[2]) <= 1000);
+    CHECK(std::stoul(sm[2]) <= 1500);
     CHECK(took >= std::chrono::milliseconds(850));
-    CHECK(took < std::chrono::milliseconds(2000));
+    CHECK(took < std::chrono::milliseconds(3000));
     CHECK(t.accepted >= 5);
     CHECK(t.accepted <= busy::attempts_within(1000));
     CHECK(m.find("all its connections are in use") != std::string::npos);
@@ -142,7 +145,7 @@ TEST_CASE("ADS client: a server that resets new connections while full is tried 
     Turnaway t(0, 60);
     AdsClient c = client_of(t.uri);
     CHECK(c.device_info(100).name == "BK9000");
-    CHECK(t.accepted >= 3);
+    CHECK(t.accepted >= 2);
   }
   SECTION("a write that is not repeatable: named full, and its outcome unknown") {
     Turnaway t(1000);
