@@ -60,7 +60,8 @@ struct Coupler {
     for (fs::directory_iterator it(sessions(), ec); !ec && it != fs::directory_iterator(); it.increment(ec)) ++n;
     return n;
   }
-  // The state file once serve has saved (unchanged for 300 ms; serve saves a few ms after a change).
+  // The state file once serve has saved (unchanged for 1 s; serve saves a few ms after a change, but
+  // on a loaded machine 300 ms of quiet once came before its save and a stale state was judged).
   nlohmann::json saved() const {
     std::string last;
     auto same_since = std::chrono::steady_clock::now();
@@ -72,7 +73,7 @@ struct Coupler {
             same_since = std::chrono::steady_clock::now();
             return false;
           }
-          return std::chrono::steady_clock::now() - same_since > std::chrono::milliseconds(300);
+          return std::chrono::steady_clock::now() - same_since > std::chrono::milliseconds(1000);
         },
         10));
     return nlohmann::json::parse(last);
