@@ -1,4 +1,4 @@
-# Installation and the Debian package (README, "Debian package"; CI: .ci/steps/30-deb.sh).
+# Installation and the Debian package (docs/guide.md, "Install"; CI: .ci/steps/30-deb.sh).
 #   cmake -S . -B build-deb -DCMAKE_INSTALL_PREFIX=/usr && cmake --build build-deb -j2
 #   cd build-deb && cpack -G DEB         # kscfg_VERSION_ARCH.deb
 # Man pages and the changelog are installed compressed (gzip -9n, as Debian policy asks), the
@@ -41,15 +41,16 @@ endforeach()
 install(FILES ${GEN}/kscfg.bash DESTINATION ${CMAKE_INSTALL_DATADIR}/bash-completion/completions RENAME kscfg)
 install(FILES ${GEN}/_kscfg DESTINATION ${KSCFG_ZSH_COMPLETION_DIR})
 install(FILES ${GEN}/kscfg.fish DESTINATION ${CMAKE_INSTALL_DATADIR}/fish/vendor_completions.d)
-# The Ansible collection kscfg.bus: ANSIBLE_COLLECTIONS_PATH=/usr/share/kscfg/ansible (README, Fleets).
+# The Ansible collection kscfg.bus: ANSIBLE_COLLECTIONS_PATH=/usr/share/kscfg/ansible (docs/guide.md, Fleets).
 install(DIRECTORY ${CMAKE_SOURCE_DIR}/contrib/ansible/ansible_collections
         DESTINATION ${CMAKE_INSTALL_DATADIR}/kscfg/ansible
         PATTERN "__pycache__" EXCLUDE PATTERN "*.pyc" EXCLUDE)
 # Documentation: /usr/share/doc/kscfg (copyright in Debian's machine-readable format).
 install(FILES ${CMAKE_SOURCE_DIR}/packaging/copyright DESTINATION ${KSCFG_DOCDIR})
 install(FILES ${GEN}/gz/changelog.gz DESTINATION ${KSCFG_DOCDIR})
-install(FILES ${CMAKE_SOURCE_DIR}/README.md ${CMAKE_SOURCE_DIR}/docs/json.md ${CMAKE_SOURCE_DIR}/docs/design.md
-              ${CMAKE_SOURCE_DIR}/catalog/FORMAT.md
+install(FILES ${CMAKE_SOURCE_DIR}/README.md ${CMAKE_SOURCE_DIR}/NEWS.md ${CMAKE_SOURCE_DIR}/docs/guide.md
+              ${CMAKE_SOURCE_DIR}/docs/performance.md ${CMAKE_SOURCE_DIR}/docs/reliability.md
+              ${CMAKE_SOURCE_DIR}/docs/json.md ${CMAKE_SOURCE_DIR}/docs/design.md ${CMAKE_SOURCE_DIR}/catalog/FORMAT.md
         DESTINATION ${KSCFG_DOCDIR})
 install(DIRECTORY ${CMAKE_SOURCE_DIR}/examples/ DESTINATION ${KSCFG_DOCDIR}/examples)
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The Debian package (README, "Debian package"): build it with Debian's hardening flags
-# (dpkg-buildflags), check it with lintian (no error; a warning fails the step unless the README
-# lists it under "Lintian warnings kept"), install it with apt-get, run `kscfg info` and
+# The Debian package (docs/guide.md, "Install"): build it with Debian's hardening flags
+# (dpkg-buildflags), check it with lintian (no error; a warning fails the step unless the user
+# guide, docs/guide.md, lists it under "lintian tag kept"), install it with apt-get, run `kscfg info` and
 # `man -w kscfg` from the installed package, check where the files went, and purge it.
 # Time: the build is most of it, 9 min of CPU from a cold ccache (about 5 min on 2 idle cores;
 # 26 min measured on the shared, loaded machine); with a warm ccache the whole step takes 25 s
@@ -30,19 +30,19 @@ deb=$(ls "$build"/kscfg_*.deb)
 echo "30-deb: built $deb"
 dpkg-deb --field "$deb"
 
-# lintian: errors always fail; warnings, info and pedantic tags fail unless kept in the README's
-# table (with a reason): the README says only those are left (issue 23 item 17: an info tag,
+# lintian: errors always fail; warnings, info and pedantic tags fail unless kept in the table of
+# docs/guide.md (with a reason): the guide says only those are left (issue 23 item 17: an info tag,
 # spelling-error-in-binary, showed although the table did not name it).
 kept=$(awk '/<!-- lintian-kept -->/{f=1; next} f && /^\| *`/{gsub(/[` ]/, "", $2); print $2; next} f && !/^\|/{exit}' \
-  FS='|' README.md | paste -sd, -)
-echo "30-deb: lintian warnings kept (README): ${kept:-none}"
+  FS='|' docs/guide.md | paste -sd, -)
+echo "30-deb: lintian warnings kept (docs/guide.md): ${kept:-none}"
 lintian --fail-on error,warning,info,pedantic ${kept:+--suppress-tags "$kept"} --info --pedantic "$deb"
 
 # The package's contents: stripped binary, compressed man pages, completions where the shells look.
 contents=$(dpkg-deb --contents "$deb" | awk '{print $6}')
 for f in ./usr/bin/kscfg ./usr/share/man/man1/kscfg.1.gz ./usr/share/man/man5/kscfg-station.5.gz \
          ./usr/share/man/man5/kscfg-catalog.5.gz ./usr/share/doc/kscfg/copyright ./usr/share/doc/kscfg/changelog.gz \
-         ./usr/share/doc/kscfg/README.md ./usr/share/doc/kscfg/examples/serial-line.toml \
+         ./usr/share/doc/kscfg/README.md ./usr/share/doc/kscfg/guide.md ./usr/share/doc/kscfg/examples/serial-line.toml \
          ./usr/share/bash-completion/completions/kscfg ./usr/share/zsh/vendor-completions/_kscfg \
          ./usr/share/fish/vendor_completions.d/kscfg.fish \
          ./usr/share/kscfg/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py; do

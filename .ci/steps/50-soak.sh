@@ -3,7 +3,7 @@
 # stress-ng on every CPU, and leaves nothing running (bounded stress-ng, process groups killed on
 # exit). CI runs 1 round on the README build on 2 cores (a loaded round of 587 tests takes about
 # 190 s; with the sanitizer, fuzz and package builds a second round no longer fit CI's 45 minutes,
-# the whole run having reached 56). `tests/soak.sh 20` is the full soak (README, Reliability).
+# the whole run having reached 56). `tests/soak.sh 20` is the full soak (docs/reliability.md).
 set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
 pkgs=(stress-ng)

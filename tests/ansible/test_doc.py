@@ -1,10 +1,10 @@
 #!/usr/bin/python3
 """The kscfg.bus modules' documentation: ansible-doc renders it, it documents exactly the options
 the modules take (name, type, default, choices), EXAMPLES are YAML that uses only documented
-options, and the README carries `ansible-doc kscfg_station` as it prints today.
+options, and the collection's README carries `ansible-doc kscfg_station` as it prints today.
 
     /usr/bin/python3 tests/ansible/test_doc.py            # check (exit 77: no ansible-doc)
-    /usr/bin/python3 tests/ansible/test_doc.py --update   # rewrite the README's copy
+    /usr/bin/python3 tests/ansible/test_doc.py --update   # rewrite the collection README's copy
 """
 
 import ast
@@ -19,7 +19,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 COLLECTIONS = os.path.join(ROOT, 'contrib', 'ansible')
 MODULES = os.path.join(COLLECTIONS, 'ansible_collections', 'kscfg', 'bus', 'plugins', 'modules')
 INSTALLED = '/usr/share/kscfg/ansible/ansible_collections/kscfg/bus/plugins/modules'
-README = os.path.join(ROOT, 'README.md')
+README = os.path.join(COLLECTIONS, 'ansible_collections', 'kscfg', 'bus', 'README.md')
 BEGIN = '<!-- ansible-doc kscfg_station: tests/ansible/test_doc.py --update -->'
 END = '<!-- end ansible-doc -->'
 SKIP = 77
@@ -87,12 +87,12 @@ def update():
         text = f.read()
     i, j, _ = readme_block(text)
     if i is None:
-        print('README.md has no %s ... %s block' % (BEGIN, END))
+        print('%s has no %s ... %s block' % (README, BEGIN, END))
         return 1
     text = text[:i] + '\n\n```\n' + doc + '```\n\n' + text[j:]
     with open(README, 'w') as f:
         f.write(text)
-    print('README.md: ansible-doc kscfg_station refreshed')
+    print('%s: ansible-doc kscfg_station refreshed' % README)
     return 0
 
 
@@ -149,8 +149,8 @@ def main():
     with open(README) as f:
         _, _, block = readme_block(f.read())
     doc = rendered_station_doc()
-    check(block is not None, 'README.md has the ansible-doc kscfg_station block')
-    check(block == doc, 'README.md carries ansible-doc kscfg_station as it prints now '
+    check(block is not None, 'the collection README.md has the ansible-doc kscfg_station block')
+    check(block == doc, 'the collection README.md carries ansible-doc kscfg_station as it prints now '
           '(refresh: /usr/bin/python3 tests/ansible/test_doc.py --update)')
     print('%d failure(s)' % len(failures))
     return 1 if failures else 0

@@ -2,6 +2,7 @@
 // and the committed copies equal what the current CLI generates.
 #include <catch2/catch.hpp>
 #include <functional>
+#include <regex>
 #include <set>
 #include <sstream>
 
@@ -98,12 +99,12 @@ TEST_CASE("flags are documented without a value, options with one", "[docs]") {
   walk(&app->cli);
 }
 
-TEST_CASE("the README's exit status table and the man page list exactly the Exit codes", "[docs]") {
+TEST_CASE("the user guide's exit status table and the man page list exactly the Exit codes", "[docs]") {
   std::set<int> codes;  // every value of the Exit enum: exit_name() knows it
   for (int i = 0; i < 256; ++i)
     if (std::string(kscfg::exit_name(static_cast<kscfg::Exit>(i))) != "?") codes.insert(i);
   REQUIRE(codes.count(70));
-  std::string readme = kscfg::test::read_text(std::string(KSCFG_SOURCE_DIR) + "/README.md");
+  std::string readme = kscfg::test::read_text(std::string(KSCFG_SOURCE_DIR) + "/docs/guide.md");
   auto at = readme.find("<!-- exit-codes");
   REQUIRE(at != std::string::npos);
   std::set<int> table;
@@ -136,4 +137,81 @@ TEST_CASE("the packaged examples are valid station files", "[docs]") {
   auto m = emu({"map", "--station", dir + "profibus-layout.toml"});
   CHECK(m.rc == 0);
   CHECK_THAT(m.out, Catch::Contains("BK3120"));
+}
+
+namespace {
+
+// The commands of an indented block (lines "    kscfg ..." or "    ./build/kscfg ...") in the section of a
+// Markdown file that starts with the heading `section`, each with the exit status its comment names
+// ("exit N"), else 0.
+std::vector<std::pair<std::vector<std::string>, int>> doc_commands(const std::string& file,
+                                                                   const std::string& section) {
+  std::string text = kscfg::test::read_text(std::string(KSCFG_SOURCE_DIR) + "/" + file);
+  auto at = text.find("\n" + section + "\n");
+  REQUIRE(at != std::string::npos);
+  std::string body = text.substr(at + section.size() + 2);
+  body = body.substr(0, body.find("\n## "));
+  std::vector<std::pair<std::vector<std::string>, int>> out;
+  std::istringstream in(body);
+  std::string line;
+  const std::regex command(R"(^    (\./build/)?kscfg (.*)$)"), exit_status(R"(exit (\d+))");
+  std::smatch m;
+  bool started = false;
+  while (std::getline(in, line)) {
+    if (!std::regex_match(line, m, command)) {
+      if (started) break;  // the first block only
+      continue;
+    }
+    started = true;
+    std::string args = m[2].str(), comment;
+    if (auto hash = args.find(" # "); hash != std::string::npos) {
+      comment = args.substr(hash);
+      args = args.substr(0, hash);
+    }
+    INFO(line);
+    REQUIRE(args.find_first_of("'\"$|&;<>") == std::string::npos);  // plain words, no shell
+    std::vector<std::string> words;
+    std::istringstream w(args);
+    for (std::string word; w >> word;) words.push_back(word);
+    std::smatch e;
+    out.emplace_back(words, std::regex_search(comment, e, exit_status) ? std::stoi(e[1].str()) : 0);
+  }
+  return out;
+}
+
+void run_doc_commands(const std::vector<std::pair<std::vector<std::string>, int>>& commands) {
+  kscfg::test::Emu emu;
+  for (auto [args, want] : commands) {
+    for (auto& a : args)
+      if (a.rfind("examples/", 0) == 0) a = std::string(KSCFG_SOURCE_DIR) + "/" + a;    // the project's examples
+      else if (a.size() > 5 && a.substr(a.size() - 5) == ".toml") a = emu.dir.file(a);  // files in a scratch folder
+    auto r = emu(args);
+    std::string line;
+    for (const auto& a : args) line += " " + a;
+    INFO("kscfg" << line << "\n" << r.err);
+    CHECK(r.rc == want);
+  }
+}
+
+}  // namespace
+
+TEST_CASE("the README's quick start runs on the emulator as it says", "[docs]") {
+  auto commands = doc_commands("README.md", "## Quick start");
+  CHECK(commands.size() == 5);
+  run_doc_commands(commands);
+}
+
+TEST_CASE("the README's analog and PWM example runs on the emulator as it says", "[docs]") {
+  auto commands = doc_commands("README.md", "## Analog and PWM terminals");
+  CHECK(commands.size() == 6);
+  run_doc_commands(commands);
+}
+
+TEST_CASE("the guide's register and named-parameter commands run on the emulator as they say", "[docs]") {
+  auto registers = doc_commands("docs/guide.md", "## Registers: read, write, dump");
+  auto named = doc_commands("docs/guide.md", "## Named parameters");
+  CHECK(registers.size() >= 10);
+  CHECK(named.size() >= 10);
+  run_doc_commands(registers);
+  run_doc_commands(named);
 }

@@ -172,7 +172,7 @@ TEST_CASE("issue 36 item 8: info, info -t and scan write image ranges in one not
   CHECK(scan.out.find("..") == std::string::npos);
 }
 
-TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (README and man page)", "[issue36][docs]") {
+TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (user guide and man page)", "[issue36][docs]") {
   Emu emu;
   // The refusals the documentation did not name, each exit 5.
   Run force = emu({"-t", "6", "data", "force", "1=on"});
@@ -183,7 +183,7 @@ TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (README and man
   write_text(d.file("other.toml"), "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL5101\"\n");
   Run mismatch = emu({"apply", d.file("other.toml")});
   CHECK(mismatch.rc == 5);
-  std::string readme = read_text(std::string(KSCFG_SOURCE_DIR) + "/README.md");
+  std::string readme = read_text(std::string(KSCFG_SOURCE_DIR) + "/docs/guide.md");
   auto row = readme.substr(readme.find("\n| 5 | "), 600);
   row = row.substr(0, row.find('\n', 1));
   Run man = run_kscfg({"manpage"});
@@ -216,7 +216,8 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
   CHECK(std::regex_search(path, shape));
   std::string src = std::string(KSCFG_SOURCE_DIR);
   for (const std::string& f :
-       {src + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py", src + "/README.md"}) {
+       {src + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py",
+        src + "/contrib/ansible/ansible_collections/kscfg/bus/README.md"}) {
     std::string text = read_text(f);
     auto at = text.find("sample: /root/.local/state/kscfg/backups/");
     INFO(f);

@@ -11,9 +11,9 @@ from mbclient import TcpClient
 INIT_TYPES = ["KL6001", "KL1104", "KL5101", "KL9100", "KL3022", "KL2134", "KL9010"]
 
 
-@case("fleet-apply-station-init", "README fleet example: 'kscfg --port tcp://HOST --json apply "
-      "line3.toml' on a file written by 'kscfg station init', without --station. A scan sees "
-      "the complex terminals by R8 in plug order and the digital ones as bit totals "
+@case("fleet-apply-station-init", "the guide's fleet example (docs/guide.md, Fleets): "
+      "'kscfg --port tcp://HOST --json apply line3.toml' on a file written by 'kscfg station init', "
+      "without --station. A scan sees the complex terminals by R8 in plug order and the digital ones as bit totals "
       "(docs/design.md section 4): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
       passes=("tcp",), types={"tcp": INIT_TYPES})
 def c_fleet(ctx):
