@@ -217,7 +217,7 @@ TEST_CASE("data --once --json: every terminal of the default station over the em
   REQUIRE(text.rc == 0);
   CHECK(text.out.find("KL5101") != std::string::npos);
   CHECK(text.out.find("counter 40") != std::string::npos);
-  CHECK(text.out.find("= 4.0000 mA") != std::string::npos);  // KL3022: 1/2048 mA a digit, four decimals
+  CHECK(text.out.find("= 4.0000 mA") != std::string::npos);                  // KL3022: 1/2048 mA a digit, four decimals
   CHECK(text.out.find("TA=0 RR=0 IA=0 BUF_F=0 IL=0") != std::string::npos);  // the catalog's order
   // Issue 23 item 13: lines fit 80 columns (or COLUMNS, which watch sets), under a header.
   CHECK(kscfg::test::widest_line(text.out) <= 80);

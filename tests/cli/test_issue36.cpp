@@ -215,9 +215,8 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
   const std::regex shape(R"(/kscfg/backups/[A-Za-z0-9._-]+/apply-\d{8}-\d{6}\.\d{6}Z-\d+\.toml)");
   CHECK(std::regex_search(path, shape));
   std::string src = std::string(KSCFG_SOURCE_DIR);
-  for (const std::string& f :
-       {src + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py",
-        src + "/contrib/ansible/ansible_collections/kscfg/bus/README.md"}) {
+  for (const std::string& f : {src + "/contrib/ansible/ansible_collections/kscfg/bus/plugins/modules/kscfg_station.py",
+                               src + "/contrib/ansible/ansible_collections/kscfg/bus/README.md"}) {
     std::string text = read_text(f);
     auto at = text.find("sample: /root/.local/state/kscfg/backups/");
     INFO(f);
