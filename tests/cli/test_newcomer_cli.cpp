@@ -1,0 +1,46 @@
+// What a new user of kscfg runs into first, through the built binary on a private emulator: output
+// that pipes, a state path with a typo, suggestions, set --dry-run, partial reads, help.
+#include <catch2/catch.hpp>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "support.hpp"
+
+using kscfg::test::Emu;
+using kscfg::test::one_line_error;
+using kscfg::test::read_text;
+using kscfg::test::Run;
+using kscfg::test::run_kscfg;
+using kscfg::test::TempDir;
+
+namespace {
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> v;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);) v.push_back(l);
+  return v;
+}
+
+}  // namespace
+
+TEST_CASE("info piped: one line a terminal with its whole title, for awk and grep", "[cli][newcomer]") {
+  Emu emu;
+  Run r = emu({"info"});
+  REQUIRE(r.rc == 0);
+  auto lines = lines_of(r.out);
+  // The coupler, the header and the seven terminals of the default station, nothing wrapped.
+  REQUIRE(lines.size() == 9);
+  CHECK(lines[1].rfind("POS TYPE", 0) == 0);
+  for (unsigned i = 2; i < lines.size(); ++i) CHECK(lines[i].rfind(std::to_string(i - 1) + "   KL", 0) == 0);
+  std::string title = "Incremental encoder interface, 5 V (RS422), 16-bit counter and latch, 1 channel";
+  CHECK(lines[3].size() > title.size());
+  CHECK(lines[3].compare(lines[3].size() - title.size(), title.size(), title) == 0);
+  // One terminal: the type line whole as well.
+  Run one = emu({"info", "-t", "2"});
+  REQUIRE(one.rc == 0);
+  CHECK_THAT(one.out, Catch::Contains("\ntype     KL5101  " + title + "\n"));
+}
