@@ -211,7 +211,9 @@ std::string generate_manpage(const App& a) {
   m << ".SH PORTS\n"
        ".TP\n\\fBemu\\fR\nThe embedded emulator; its state is kept in \\fI$XDG_STATE_HOME/kscfg/emulator.json\\fR "
        "(default \\fI~/.local/state/kscfg/emulator.json\\fR).\n"
-       ".TP\n\\fBemu:\\fR\\fIPATH\\fR\nThe emulator with its state in \\fIPATH\\fR.\n"
+       ".TP\n\\fBemu:\\fR\\fIPATH\\fR\nThe emulator with its state in \\fIPATH\\fR. A missing file starts from the "
+       "factory state; a directory that does not exist is an error (exit status 7): only the default location "
+       "is made.\n"
        ".TP\n\\fBemu:mem\\fR\nThe emulator without a state file (factory state, nothing kept).\n"
        ".TP\n\\fBtcp://\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?unit=\\fR\\fIN\\fR]\nA Modbus TCP coupler "
        "(BK9000 family), port 502 by default.\n"
@@ -298,7 +300,9 @@ std::string generate_manpage(const App& a) {
          "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
          "\\fB\\-\\-yes\\fR."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
-        {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
+        {Exit::file,
+         "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog), or the directory "
+         "of \\fB\\-\\-port emu:\\fR\\fIPATH\\fR does not exist."},
         {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
         {Exit::unverified,
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "

@@ -44,3 +44,24 @@ TEST_CASE("info piped: one line a terminal with its whole title, for awk and gre
   REQUIRE(one.rc == 0);
   CHECK_THAT(one.out, Catch::Contains("\ntype     KL5101  " + title + "\n"));
 }
+
+TEST_CASE("emu:PATH in a directory that does not exist is an error, only the default location is made",
+          "[cli][newcomer]") {
+  TempDir d;
+  std::string state = d.file("no/such/dir/x.json");
+  for (const std::vector<std::string>& cmd :
+       {std::vector<std::string>{"set", "baud", "19200"}, {"info"}, {"emu", "reset"}, {"emu", "restart"}}) {
+    std::vector<std::string> args{"-p", "emu:" + state};
+    args.insert(args.end(), cmd.begin(), cmd.end());
+    Run r = run_kscfg(args);
+    INFO(cmd.front() << ": " << r.err);
+    CHECK(r.rc == 7);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("the directory of the emulator state file '" + state + "' does not exist"));
+  }
+  CHECK_FALSE(std::filesystem::exists(d.file("no")));
+  // The default state (XDG_STATE_HOME/kscfg/emulator.json) is made where it is missing.
+  Run fresh = run_kscfg({"-p", "emu", "set", "baud", "19200"}, {{"XDG_STATE_HOME", d.file("xdg")}});
+  CHECK(fresh.rc == 0);
+  CHECK(std::filesystem::exists(d.file("xdg/kscfg/emulator.json")));
+}
