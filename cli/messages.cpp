@@ -110,7 +110,13 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
     if (k.kind != Token::Kind::positional || k.option) continue;
     auto names = command_names(k.app);
     if (!names.empty()) {
-      std::string dym = did_you_mean(k.word, names);
+      // A command of a command typed alone ("restart" for "emu restart"): that one, rather than a
+      // name near it of another command (restore, which writes).
+      std::vector<std::string> nested;
+      for (const CLI::App* s : k.app->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); }))
+        for (const CLI::App* c : s->get_subcommands([](const CLI::App* c) { return !c->get_group().empty(); }))
+          if (c->get_name() == k.word) nested.push_back("'" + command_path(c) + "'");
+      std::string dym = nested.empty() ? did_you_mean(k.word, names) : "did you mean " + join_or(nested) + "?";
       std::string where = k.app->get_parent() ? fmt::format(" for '{}'", command_path(k.app)) : "";
       return Problem{fmt::format("unknown command '{}'{}", k.word, where),
                      dym.empty() ? (k.app->get_parent() ? fmt::format("the commands are {}", join_or(names))

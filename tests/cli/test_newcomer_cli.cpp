@@ -65,3 +65,20 @@ TEST_CASE("emu:PATH in a directory that does not exist is an error, only the def
   CHECK(fresh.rc == 0);
   CHECK(std::filesystem::exists(d.file("xdg/kscfg/emulator.json")));
 }
+
+TEST_CASE("suggestions: a command of emu typed alone, a type number near others of its family", "[cli][newcomer]") {
+  Emu emu;
+  Run r = emu({"restart"});
+  CHECK(r.rc == 2);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("unknown command 'restart'"));
+  CHECK_THAT(r.err, Catch::Contains("did you mean 'kscfg emu restart'?"));
+  CHECK_THAT(r.err, !Catch::Contains("restore"));
+  Run c = emu({"catalog", "KL6012"});
+  CHECK(c.rc == 2);
+  CHECK(one_line_error(c));
+  CHECK_THAT(c.err, Catch::Contains("unknown terminal type 'KL6012'; did you mean KL6001, KL6011 or KL6021?"));
+  // A spelling mistake still gets the name it probably meant.
+  CHECK_THAT(emu({"restor", "x.toml"}).err, Catch::Contains("did you mean restore?"));
+  CHECK_THAT(emu({"catalog", "KL60001"}).err, Catch::Contains("KL6001"));
+}
