@@ -288,7 +288,9 @@ std::string generate_manpage(const App& a) {
         Exit::interrupted, Exit::unverified, Exit::changed, Exit::busy, Exit::other_master, Exit::internal}) {
     static const std::map<Exit, const char*> text = {
         {Exit::ok, "Success."},
-        {Exit::differences, "diff: the station differs from the file."},
+        {Exit::differences,
+         "diff: the station differs from the file; \\fBapply \\-\\-dry\\-run\\fR, \\fBrestore \\-\\-dry\\-run\\fR "
+         "and \\fBset \\-\\-dry\\-run\\fR: there is something to write."},
         {Exit::usage, "Bad arguments: unknown command, option, register, value, parameter, terminal or channel."},
         {Exit::link, "The link failed: the port could not be opened, the connection broke, a Modbus exception."},
         {Exit::timeout, "A terminal did not acknowledge a register request within the timeout."},

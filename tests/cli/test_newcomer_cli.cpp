@@ -82,3 +82,35 @@ TEST_CASE("suggestions: a command of emu typed alone, a type number near others 
   CHECK_THAT(emu({"restor", "x.toml"}).err, Catch::Contains("did you mean restore?"));
   CHECK_THAT(emu({"catalog", "KL60001"}).err, Catch::Contains("KL6001"));
 }
+
+TEST_CASE("set --dry-run prints the registers it would write and writes nothing, a divisor rate says its error",
+          "[cli][newcomer][baud]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  Run d = emu({"set", "baud", "19200", "--dry-run"});
+  CHECK(d.rc == 1);  // like diff: there is something to write
+  CHECK(d.out == "baud 9600 -> 19200\n  R32 0x0006 -> 0x0007 would be written\n");
+  CHECK(d.err.empty());  // no backup: nothing is written
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
+  Run same = emu({"set", "baud", "9600", "--dry-run"});
+  CHECK(same.rc == 0);
+  CHECK(same.out == "baud 9600 unchanged\n");
+  Run j = emu({"--json", "set", "baud", "19200", "--dry-run"});
+  CHECK(j.rc == 1);
+  auto doc = nlohmann::json::parse(j.out);
+  CHECK(doc["dry_run"] == true);
+  CHECK(doc["changed"] == true);
+  CHECK(doc["backup"].is_null());
+  CHECK(doc["registers"][0]["after"] == 7);
+  // The divisor form: the rate reached and how far off it is, before anything is written.
+  std::string note = "kscfg: note: baud 14400 by the divisor form is 14706 baud (divisor 16), 2.1 % off\n";
+  Run dv = emu({"set", "baud", "14400", "--divisor", "--dry-run"});
+  CHECK(dv.rc == 1);
+  CHECK(dv.err == note);
+  CHECK(dv.out == "baud 9600 -> 14706\n  R32 0x0006 -> 0x10FF would be written\n");
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");  // nothing was written
+  Run w = emu({"set", "baud", "14400", "--divisor"});
+  CHECK(w.rc == 0);
+  CHECK(w.err.rfind(note, 0) == 0);  // first, before the backup's lines
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x10FF\n");
+}
