@@ -114,3 +114,13 @@ TEST_CASE("set --dry-run prints the registers it would write and writes nothing,
   CHECK(w.err.rfind(note, 0) == 0);  // first, before the backup's lines
   CHECK(emu({"read", "--raw", "R32"}).out == "0x10FF\n");
 }
+
+TEST_CASE("a command without its arguments names them as the help does", "[cli][newcomer]") {
+  Emu emu;
+  Run r = emu({"set"});
+  CHECK(r.rc == 2);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("'kscfg set' needs NAME VALUE...: NAME VALUE pairs"));
+  // A description that starts with an ordinary word still reads on after the colon.
+  CHECK_THAT(emu({"read"}).err, Catch::Contains("'kscfg read' needs REG...: register(s) or range(s) to read"));
+}
