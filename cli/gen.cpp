@@ -300,7 +300,8 @@ std::string generate_manpage(const App& a) {
          "(\\fBwrite\\fR, \\fBapply\\fR; \\fB\\-\\-force\\fR writes it), a change that would lock kscfg "
          "out or leave settings that go together apart; a station or station file that does not match the one "
          "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
-         "\\fB\\-\\-yes\\fR."},
+         "\\fB\\-\\-yes\\fR; \\fBread\\fR of registers of the extended area R48..R63 (the others named are "
+         "read and printed first: a partial read)."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file,
          "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog), or the directory "

@@ -124,3 +124,28 @@ TEST_CASE("a command without its arguments names them as the help does", "[cli][
   // A description that starts with an ordinary word still reads on after the colon.
   CHECK_THAT(emu({"read"}).err, Catch::Contains("'kscfg read' needs REG...: register(s) or range(s) to read"));
 }
+
+TEST_CASE("read of a range into the extended area prints the registers that exist, then names the others",
+          "[cli][newcomer]") {
+  Emu emu;
+  Run r = emu({"read", "R0-R63"});
+  CHECK(r.rc == 5);
+  auto lines = lines_of(r.out);
+  REQUIRE(lines.size() == 48);
+  CHECK(lines.front().rfind("R0 ", 0) == 0);
+  CHECK(lines.back().rfind("R47 ", 0) == 0);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("R48..R63 not read: the extended area, which KL6001 does not implement"));
+  Run raw = emu({"read", "--raw", "R46-R49", "R8"});
+  CHECK(raw.rc == 5);
+  CHECK(lines_of(raw.out).size() == 3);
+  CHECK_THAT(raw.err, Catch::Contains("R48..R49 not read"));
+  Run list = emu({"read", "R50", "R8", "R52"});
+  CHECK(list.rc == 5);
+  CHECK(lines_of(list.out).size() == 1);
+  CHECK_THAT(list.err, Catch::Contains("R50, R52 not read"));
+  Run none = emu({"read", "R60"});
+  CHECK(none.rc == 5);
+  CHECK(none.out.empty());
+  CHECK_THAT(none.err, Catch::Contains("R60 not read"));
+}
