@@ -149,3 +149,16 @@ TEST_CASE("read of a range into the extended area prints the registers that exis
   CHECK(none.out.empty());
   CHECK_THAT(none.err, Catch::Contains("R60 not read"));
 }
+
+TEST_CASE("emu fault --mute and --ignore-write take the default terminal as every command does", "[cli][newcomer]") {
+  Emu emu;
+  Run m = emu({"emu", "fault", "--mute"});
+  CHECK(m.rc == 0);
+  CHECK(m.out == "emulator faults updated: terminal 1 (KL6001) channel 1 muted\n");
+  CHECK(emu({"--timeout", "100", "-t", "1", "read", "R8"}).rc == 4);  // the first with registers: muted
+  CHECK(emu({"-t", "2", "read", "R8"}).rc == 0);
+  REQUIRE(emu({"emu", "fault", "--clear"}).rc == 0);
+  Run i = emu({"emu", "fault", "--ignore-write", "R33"});
+  CHECK(i.rc == 0);
+  CHECK(emu({"write", "R33", "5"}).rc == 6);  // on terminal 1: the read-back catches it
+}
