@@ -95,7 +95,7 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
                          : std::string(
                                "kscfg configures Bus Terminals (KL6001, KL5101, KL6031, ...) "
                                "through their register interface, over the embedded "
-                               "emulator, Modbus TCP, Modbus RTU or ADS.");
+                               "emulator, Modbus TCP, Modbus RTU, ADS or CANopen.");
   out += wrap(what, width, 0, 0);
 
   auto subs = node->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); });

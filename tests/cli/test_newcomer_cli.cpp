@@ -162,3 +162,19 @@ TEST_CASE("emu fault --mute and --ignore-write take the default terminal as ever
   CHECK(i.rc == 0);
   CHECK(emu({"write", "R33", "5"}).rc == 6);  // on terminal 1: the read-back catches it
 }
+
+TEST_CASE("--help and the man page name every link, CANopen too, and -t by its selections", "[cli][newcomer][docs]") {
+  Run h = run_kscfg({"--help"});
+  REQUIRE(h.rc == 0);
+  CHECK_THAT(h.out, Catch::Contains("CANopen"));
+  std::string man = read_text(KSCFG_SOURCE_DIR "/man/kscfg.1");
+  auto desc = man.substr(man.find(".SH DESCRIPTION"), man.find(".SH GLOBAL OPTIONS") - man.find(".SH DESCRIPTION"));
+  CHECK_THAT(desc, Catch::Contains("CANopen"));
+  for (const char* cmd : {".SS \"kscfg info\"", ".SS \"kscfg map"}) {
+    auto sec = man.substr(man.find(cmd));
+    sec = sec.substr(0, sec.find(".SS", 3));
+    INFO(sec);
+    CHECK_THAT(sec, !Catch::Contains("\\fB\\-t\\fR \\fIPOS\\fR"));
+    CHECK_THAT(sec, Catch::Contains("a type the station has once"));
+  }
+}
