@@ -178,3 +178,18 @@ TEST_CASE("--help and the man page name every link, CANopen too, and -t by its s
     CHECK_THAT(sec, Catch::Contains("a type the station has once"));
   }
 }
+
+TEST_CASE("a command's help shows its own options and leaves the global ones to kscfg --help",
+          "[cli][newcomer][docs]") {
+  for (const char* how : {"help", "--help"}) {
+    Run r = how == std::string("help") ? run_kscfg({"help", "read"}) : run_kscfg({"read", "--help"});
+    INFO(how);
+    REQUIRE(r.rc == 0);
+    CHECK_THAT(r.out, Catch::Contains("--raw"));
+    CHECK_THAT(r.out, !Catch::Contains("--lock-wait"));
+    CHECK_THAT(r.out, Catch::Contains("Global options (-p, -t, -c, --json, ...): kscfg --help"));
+    CHECK(lines_of(r.out).size() <= 20);
+  }
+  // The tool's own help lists them.
+  CHECK_THAT(run_kscfg({"--help"}).out, Catch::Contains("--lock-wait"));
+}
