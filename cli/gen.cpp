@@ -221,7 +221,9 @@ std::string generate_manpage(const App& a) {
        "kscfg reads and writes the 64 registers of intelligent Bus Terminals through the register mode of "
        "their control/status byte (bit 7 REG, bit 6 W/NR, bits 5..0 address), the way the KS2000 software "
        "does, over a link to the coupler's process image: the embedded emulator (default), Modbus TCP, "
-       "Modbus RTU or ADS. Every write is verified by reading it back; protected registers are unlocked with the "
+       "Modbus RTU or ADS; on a CANopen coupler through its register objects (SDO 0x4500 and 0x4501), over an "
+       "slcan adapter or SocketCAN. Every write is verified by reading it back; protected registers are unlocked "
+       "with the "
        "code word 0x1235 in R31 and locked again; the terminal's process-data bytes are restored when the "
        "command ends, also after an error or Ctrl\\-C.\n"
        ".PP\nResults go to stdout, diagnostics to stderr. Registers are written \\fBR32\\fR, \\fB32\\fR or "
@@ -232,7 +234,9 @@ std::string generate_manpage(const App& a) {
   m << ".SH PORTS\n"
        ".TP\n\\fBemu\\fR\nThe embedded emulator; its state is kept in \\fI$XDG_STATE_HOME/kscfg/emulator.json\\fR "
        "(default \\fI~/.local/state/kscfg/emulator.json\\fR).\n"
-       ".TP\n\\fBemu:\\fR\\fIPATH\\fR\nThe emulator with its state in \\fIPATH\\fR.\n"
+       ".TP\n\\fBemu:\\fR\\fIPATH\\fR\nThe emulator with its state in \\fIPATH\\fR. A missing file starts from the "
+       "factory state; a directory that does not exist is an error (exit status 7): only the default location "
+       "is made.\n"
        ".TP\n\\fBemu:mem\\fR\nThe emulator without a state file (factory state, nothing kept).\n"
        ".TP\n\\fBtcp://\\fR\\fIHOST\\fR[\\fB:\\fR\\fIPORT\\fR][\\fB?unit=\\fR\\fIN\\fR]\nA Modbus TCP coupler "
        "(BK9000 family), port 502 by default.\n"
@@ -307,7 +311,9 @@ std::string generate_manpage(const App& a) {
         Exit::interrupted, Exit::unverified, Exit::changed, Exit::busy, Exit::other_master, Exit::internal}) {
     static const std::map<Exit, const char*> text = {
         {Exit::ok, "Success."},
-        {Exit::differences, "diff: the station differs from the file."},
+        {Exit::differences,
+         "diff: the station differs from the file; \\fBapply \\-\\-dry\\-run\\fR, \\fBrestore \\-\\-dry\\-run\\fR "
+         "and \\fBset \\-\\-dry\\-run\\fR: there is something to write."},
         {Exit::usage, "Bad arguments: unknown command, option, register, value, parameter, terminal or channel."},
         {Exit::link, "The link failed: the port could not be opened, the connection broke, a Modbus exception."},
         {Exit::timeout, "A terminal did not acknowledge a register request within the timeout."},
@@ -317,9 +323,12 @@ std::string generate_manpage(const App& a) {
          "(\\fBwrite\\fR, \\fBapply\\fR; \\fB\\-\\-force\\fR writes it), a change that would lock kscfg "
          "out or leave settings that go together apart; a station or station file that does not match the one "
          "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
-         "\\fB\\-\\-yes\\fR."},
+         "\\fB\\-\\-yes\\fR; \\fBread\\fR of registers of the extended area R48..R63 (the others named are "
+         "read and printed first: a partial read)."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
-        {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
+        {Exit::file,
+         "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog), or the directory "
+         "of \\fB\\-\\-port emu:\\fR\\fIPATH\\fR does not exist."},
         {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},
         {Exit::unverified,
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "

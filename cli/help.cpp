@@ -95,7 +95,7 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
                          : std::string(
                                "kscfg configures Bus Terminals (KL6001, KL5101, KL6031, ...) "
                                "through their register interface, over the embedded "
-                               "emulator, Modbus TCP, Modbus RTU or ADS.");
+                               "emulator, Modbus TCP, Modbus RTU, ADS or CANopen.");
   out += wrap(what, width, 0, 0);
 
   auto subs = node->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); });
@@ -124,8 +124,12 @@ std::string help_text(const App& a, const CLI::App* node, std::size_t width) {
       columns(out, rows, width);
     }
   }
-  out += node->get_parent() ? "\nGlobal options (before or after the command):\n" : "\nGlobal options:\n";
-  {
+  // A command's help is its own (as git's and ip's): the global options, the same for every
+  // command, are one line pointing to the tool's help, which lists them.
+  if (node->get_parent()) {
+    out += "\nGlobal options (-p, -t, -c, --json, ...): kscfg --help\n";
+  } else {
+    out += "\nGlobal options:\n";
     std::vector<std::pair<std::string, std::string>> rows;
     for (const auto* o : a.cli.get_options([](const CLI::Option* o) { return o->nonpositional(); }))
       rows.emplace_back(option_names(o), o->get_description());

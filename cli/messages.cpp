@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <cctype>
 #include <map>
 
 #include "argv.hpp"
@@ -25,6 +26,14 @@ std::string help_hint(const CLI::App* node, bool options = false) {
 std::string join_or(const std::vector<std::string>& v) {
   std::string s;
   for (std::size_t i = 0; i < v.size(); ++i) s += (i == 0 ? "" : i + 1 == v.size() ? " or " : ", ") + v[i];
+  return s;
+}
+
+// A sentence's first letter in lower case, to follow a colon: "Register(s) to read" reads on as
+// "register(s) to read"; a first word in capitals (NAME, R32, CLI11's "NAME VALUE") stays as it is.
+std::string lower_first(std::string s) {
+  if (s.size() > 1 && std::isupper(static_cast<unsigned char>(s[0])) && std::islower(static_cast<unsigned char>(s[1])))
+    s[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(s[0])));
   return s;
 }
 
@@ -110,7 +119,13 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
     if (k.kind != Token::Kind::positional || k.option) continue;
     auto names = command_names(k.app);
     if (!names.empty()) {
-      std::string dym = did_you_mean(k.word, names);
+      // A command of a command typed alone ("restart" for "emu restart"): that one, rather than a
+      // name near it of another command (restore, which writes).
+      std::vector<std::string> nested;
+      for (const CLI::App* s : k.app->get_subcommands([](const CLI::App* s) { return !s->get_group().empty(); }))
+        for (const CLI::App* c : s->get_subcommands([](const CLI::App* c) { return !c->get_group().empty(); }))
+          if (c->get_name() == k.word) nested.push_back("'" + command_path(c) + "'");
+      std::string dym = nested.empty() ? did_you_mean(k.word, names) : "did you mean " + join_or(nested) + "?";
       std::string where = k.app->get_parent() ? fmt::format(" for '{}'", command_path(k.app)) : "";
       return Problem{fmt::format("unknown command '{}'{}", k.word, where),
                      dym.empty() ? (k.app->get_parent() ? fmt::format("the commands are {}", join_or(names))
@@ -136,16 +151,14 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
       given_count -= static_cast<std::size_t>(min);
       continue;
     }
-    std::string d = p->get_description();
-    if (!d.empty()) d[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(d[0])));
+    std::string d = lower_first(p->get_description());
     return Problem{fmt::format("'{}' needs {}: {}", command_path(w.node), positional_text(p), d), help_hint(w.node)};
   }
   return std::nullopt;
 }
 
 Problem parse_error_text(const CLI::ParseError& e) {
-  std::string m = e.what();
-  if (!m.empty()) m[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(m[0])));
+  std::string m = lower_first(e.what());
   return Problem{m, "'kscfg help' lists the commands"};
 }
 

@@ -1,5 +1,6 @@
 // kscfg emu reset|restart|fault|encoder|path: the embedded emulator's state (emu input: emu_input.cpp).
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <cstdlib>
 #include <iostream>
@@ -142,10 +143,12 @@ class EmuFault : public Command {
            "to \\fIREG\\fR but does not store them (the read-back catches it); \\fB\\-\\-mute\\fR stops "
            "answering register requests and the serial handshake (requests time out); \\fB\\-\\-delay\\fR \\fIN\\fR "
            "makes every "
-           "terminal answer N K-bus cycles after a request (default 1).";
+           "terminal answer N K-bus cycles after a request (default 1). A fault goes to the terminal and channel "
+           "selected with \\fB\\-t\\fR and \\fB\\-c\\fR (default: the first terminal with registers, as for every "
+           "command); \\fB\\-\\-clear\\fR without \\fB\\-t\\fR clears every terminal's.";
   }
   std::vector<std::string> examples() const override {
-    return {"emu fault -t 1 --ignore-write R33", "emu fault -t 1 --mute", "emu fault --clear"};
+    return {"emu fault --mute", "emu fault -t 3 --ignore-write R33", "emu fault --clear"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("--ignore-write", ignore_, "Acknowledge but drop writes to this register")->option_text("REG");
@@ -159,27 +162,40 @@ class EmuFault : public Command {
     if (!emu) throw Error(Exit::usage, "'kscfg emu fault' works on the emulator");
     EmulatedStation& st = *emu;
     if (!delay_.empty()) st.response_delay = static_cast<unsigned>(parse_uint(delay_, 1000, "delay"));
-    unsigned selected = ctx.terminal_given() ? ctx.terminal_position() : 0;
-    auto channels = [&]() {
+    // --clear without -t clears every terminal; a fault goes to the terminal selected as for every
+    // other command (default: the first with registers).
+    bool inject = !ignore_.empty() || mute_;
+    unsigned selected = ctx.terminal_given() || inject ? ctx.terminal_position() : 0;
+    unsigned chan = ctx.options().channel - 1;
+    auto channels_of = [&](unsigned only) {
       std::vector<ChannelModel*> v;
       const auto& L = st.layout();
       for (const auto& t : L.terminals) {
-        if (selected && t.position != selected) continue;
+        if (only && t.position != only) continue;
         for (unsigned c = 0; c < t.type->channels; ++c)
-          if (st.has_channel(t.position, c) && (!selected || c == ctx.options().channel - 1))
-            v.push_back(&st.channel(t.position, c));
+          if (st.has_channel(t.position, c) && (!only || c == chan)) v.push_back(&st.channel(t.position, c));
       }
-      if (selected && v.empty()) throw Error(Exit::usage, fmt::format("terminal {} has no registers", selected));
+      if (only && v.empty()) throw Error(Exit::usage, fmt::format("terminal {} has no registers", only));
       return v;
-    }();
+    };
+    auto channels = channels_of(ctx.terminal_given() ? selected : 0);
     if (clear_)
       for (auto* c : channels) c->faults = {};
-    if ((!ignore_.empty() || mute_) && !selected)
-      throw Error(Exit::usage, "give the terminal with -t for --ignore-write or --mute");
-    if (!ignore_.empty()) channels.front()->faults.ignore_writes.insert(parse_register(ignore_));
-    if (mute_) channels.front()->faults.mute = true;
-    if (!ctx.json()) std::cout << "emulator faults updated\n";
-    else print_json({{"changed", true}});
+    std::vector<std::string> done;
+    if (!ignore_.empty()) {
+      unsigned reg = parse_register(ignore_);
+      channels_of(selected).front()->faults.ignore_writes.insert(reg);
+      done.push_back(fmt::format("ignores writes to R{}", reg));
+    }
+    if (mute_) {
+      channels_of(selected).front()->faults.mute = true;
+      done.push_back("muted");
+    }
+    if (ctx.json()) print_json({{"changed", true}});
+    else if (done.empty()) std::cout << "emulator faults updated\n";
+    else
+      std::cout << fmt::format("emulator faults updated: terminal {} ({}) channel {} {}\n", selected,
+                               st.layout().terminal(selected).type->type, chan + 1, fmt::join(done, ", "));
     return 0;
   }
 

@@ -21,8 +21,9 @@ class Help : public Command {
   std::string brief() const override { return "Show the help of kscfg or of a command"; }
   std::string man() const override {
     return "Prints what \\fBkscfg\\fR \\fICOMMAND\\fR \\fB\\-\\-help\\fR prints: the usage, the command's arguments "
-           "and options, the global options and two examples, wrapped to the terminal's width (80 columns when "
-           "stdout is not a terminal). Without \\fICOMMAND\\fR, the list of commands.";
+           "and options, two examples, and a line that points to \\fBkscfg \\-\\-help\\fR for the global options "
+           "(the same for every command), wrapped to the terminal's width (80 columns when stdout is not a "
+           "terminal). Without \\fICOMMAND\\fR, the list of commands and the global options.";
   }
   std::vector<std::string> examples() const override { return {"help", "help read", "help emu reset"}; }
   void add_cli(CLI::App& sub) override {

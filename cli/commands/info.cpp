@@ -2,7 +2,6 @@
 #include <fmt/format.h>
 #include <unistd.h>
 
-#include <cstdlib>
 #include <iostream>
 #include <map>
 
@@ -49,9 +48,13 @@ class Info : public Command {
   std::string man() const override {
     return "Without \\fB\\-t\\fR, lists every terminal of the station in plug order with its type, its "
            "title, the type number (R8) and software version (R9) read from the terminal, and where its "
-           "process image lies. With \\fB\\-t\\fR \\fIPOS\\fR, shows that terminal's type registers R8..R13 "
-           "decoded and its hardware version (R16). A terminal whose R8 differs from the station's "
-           "description is reported on stderr.";
+           "process image lies; with \\fB\\-t\\fR selecting several (\\fB\\-t 1,3\\fR, \\fB\\-t 2\\-4\\fR, "
+           "\\fB\\-t all\\fR, a type the station has more than once), those. Piped, each terminal is one line "
+           "with its whole title (for \\fBawk\\fR and \\fBgrep\\fR); on a terminal the title is wrapped under "
+           "its column to the terminal's width. With \\fB\\-t\\fR selecting one terminal (a plug position, or "
+           "a type the station has once: \\fB\\-t 2\\fR, \\fB\\-t KL5101\\fR), shows that terminal's type "
+           "registers R8..R13 decoded and its hardware version (R16). A terminal whose R8 differs from the "
+           "station's description is reported on stderr.";
   }
   std::vector<std::string> examples() const override { return {"info", "info -t 2", "--json info"}; }
   void add_cli(CLI::App&) override {}
@@ -160,9 +163,9 @@ class Info : public Command {
     if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);
   }
 
-  // POS TYPE R8 VER IMAGE TITLE: the title last, cut with an ellipsis to the terminal's width on
-  // a terminal, whole but wrapped under its column (80 wide) when piped. (The image format is in
-  // `info -t POS`, `map` and the JSON.)
+  // POS TYPE R8 VER IMAGE TITLE: the title last. On a terminal it is wrapped under its column to
+  // the terminal's width; piped, each terminal is one line with its whole title, so that awk, cut
+  // and grep see one row a terminal. (The image format is in `info -t POS`, `map` and the JSON.)
   static void print_table(std::vector<std::vector<std::string>>& rows) {
     constexpr std::size_t n = 5;  // columns before the title
     rows.insert(rows.begin(), {"POS", "TYPE", "R8", "VER", "IMAGE", "TITLE"});
@@ -171,41 +174,27 @@ class Info : public Command {
       for (std::size_t c = 0; c < n; ++c) w[c] = std::max(w[c], r[c].size());
     std::size_t title_col = 0;
     for (auto x : w) title_col += x + 1;
-    std::size_t width = output_width();
-    bool tty = isatty(STDOUT_FILENO) != 0;
-    std::size_t room = width > title_col + 10 ? width - title_col : 10;
     for (const auto& r : rows) {
       std::string line;
       for (std::size_t c = 0; c < n; ++c) line += fmt::format("{:<{}} ", r[c], w[c]);
-      std::string title = r[n];
-      if (tty) {
-        std::string e = ellipsis();
-        std::size_t ew = e == "..." ? 3 : 1;  // "\u2026" is one column
-        if (title.size() > room) title = title.substr(0, room - ew) + e;
-        std::cout << line << title << '\n';
-      } else {
-        std::cout << line << wrap(title, title_col + room, title_col, title_col);
-      }
+      std::cout << line << on_screen(r[n], title_col);
     }
   }
 
-  static std::string ellipsis() {
-    for (const char* v : {"LC_ALL", "LC_CTYPE", "LANG"}) {
-      const char* e = std::getenv(v);
-      if (!e || !*e) continue;
-      std::string s = e;
-      return s.find("UTF-8") != std::string::npos || s.find("utf8") != std::string::npos ? "\u2026" : "...";
-    }
-    return "...";
+  // `text` (with its newline) after `head` columns: wrapped under itself to the width of the
+  // terminal stdout is (at least 20 columns of it), whole on one line when stdout is no terminal.
+  static std::string on_screen(const std::string& text, std::size_t head) {
+    if (isatty(STDOUT_FILENO) == 0) return text + '\n';
+    return wrap(text, std::max<std::size_t>(output_width(), head + 20), head, head);
   }
 
-  // "type     KL5101  Incremental encoder ...", the title wrapped under itself to the output width.
+  // "type     KL5101  Incremental encoder ...", the title wrapped under itself on a terminal.
   static std::string type_line(const TerminalImage& t) {
     std::string head = fmt::format("type     {}  ", shown_type(t));
     std::string title = t.inferred
                             ? fmt::format("{} (the coupler gives no type): {}", digital_label(t), fits_text(t, 16))
                             : t.type->title;
-    return head + wrap(title, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
+    return head + on_screen(title, head.size());
   }
 
   bool rescanned_ = false;
@@ -256,9 +245,7 @@ class Info : public Command {
       std::string head = fmt::format("R{:<3} {:<16} {:<12} ", r, label, format_value(v));
       std::string meaning = r == 16 ? "" : register_meaning(*t.type, r, v);
       if (meaning.empty()) std::cout << head << '\n';
-      else
-        std::cout << head
-                  << wrap(meaning, std::max<std::size_t>(output_width(), head.size() + 20), head.size(), head.size());
+      else std::cout << head << on_screen(meaning, head.size());
     }
     std::cout << fmt::format("image    {}\n", image_text(t));
     return 0;

@@ -108,7 +108,8 @@ class Map : public Command {
            "the "
            "coupler's settings (a BK2000 always maps the control/status byte with word alignment).\n"
            ".PP\n"
-           "With \\fB\\-t\\fR \\fIPOS\\fR one terminal is shown like the annex tables of the terminal manuals: I/O "
+           "With \\fB\\-t\\fR selecting one terminal (a plug position, or a type the station has once: "
+           "\\fB\\-t 3\\fR, \\fB\\-t KL6031\\fR) it is shown like the annex tables of the terminal manuals: I/O "
            "offset (16-bit words from the terminal's first byte), high byte, low byte. On a terminal screen a byte "
            "grid follows the table, one colour per terminal (\\fB\\-\\-grid\\fR forces it; \\fB\\-\\-color\\fR "
            "\\fBnever\\fR or NO_COLOR gives plain text). An image larger than the coupler takes is an error.";

@@ -27,8 +27,10 @@ class Read : public Command {
     return "Reads each register named (or each register of a range \\fBR32\\-R35\\fR) from the selected terminal "
            "and prints one line per register: the register, its value as hex and decimal, its name and the "
            "parameters it holds, decoded. With \\fB\\-\\-raw\\fR only the values are printed, one per line, as "
-           "four-digit hex, so that \\fB$(kscfg read \\-\\-raw R32)\\fR works in scripts. Registers of the "
-           "extended area (R48..R63) are refused: the terminals do not implement them.";
+           "four-digit hex, so that \\fB$(kscfg read \\-\\-raw R32)\\fR works in scripts. The terminals do not "
+           "implement the extended area (R48..R63): its registers are not read. A range or list that reaches into "
+           "it (\\fBread R0\\-R63\\fR) is a partial read: the registers that exist are printed, then one line on "
+           "stderr names the others, and the exit status is 5 (also when none of the registers named exists).";
   }
   std::vector<std::string> examples() const override {
     return {"read R8", "read R32-R35", "read --raw R32", "-t 2 read R32", "--json read 32 0x21"};
@@ -39,15 +41,37 @@ class Read : public Command {
     sub.add_flag("--raw", raw_, "Print bare values (0x0006), one per line");
   }
   int run(Context& ctx) override {
-    std::vector<unsigned> regs;
+    // The registers of the extended area (R48..R63) are not read: the terminals do not implement
+    // them. The others are, and then the error names what was left out (a partial read: status 5).
+    std::vector<unsigned> regs, missing;
     for (const auto& r : regs_)
-      for (unsigned x : parse_register_list(r)) regs.push_back(x);
+      for (unsigned x : parse_register_list(r)) (proto::is_implemented(x) ? regs : missing).push_back(x);
     auto positions = ctx.terminal_positions();
-    for (unsigned r : regs)
-      if (!proto::is_implemented(r))
-        throw Error(Exit::refused,
-                    fmt::format("R{} is in the extended area (R48..R63), which {} does not implement", r,
-                                ctx.layout_upto(positions.front()).terminal(positions.front()).type->type));
+    if (!regs.empty()) read_all(ctx, positions, regs);
+    if (!missing.empty())
+      throw Error(
+          Exit::refused,
+          fmt::format("{} not read: the extended area, which {} does not implement", register_runs(missing),
+                      positions.size() == 1 ? ctx.layout_upto(positions.front()).terminal(positions.front()).type->type
+                                            : std::string("Bus Terminals")),
+          regs.empty() ? std::string("registers R0..R47 can be read") : std::string());
+    return 0;
+  }
+
+ private:
+  // "R48..R63", "R50, R52": registers, runs of them as ranges.
+  static std::string register_runs(const std::vector<unsigned>& regs) {
+    std::string s;
+    for (std::size_t i = 0; i < regs.size();) {
+      std::size_t j = i;
+      while (j + 1 < regs.size() && regs[j + 1] == regs[j] + 1) ++j;
+      s += (s.empty() ? "" : ", ") + (j == i ? fmt::format("R{}", regs[i]) : fmt::format("R{}..R{}", regs[i], regs[j]));
+      i = j + 1;
+    }
+    return s;
+  }
+
+  void read_all(Context& ctx, const std::vector<unsigned>& positions, const std::vector<unsigned>& regs) {
     std::vector<nlohmann::json> docs;
     // Every terminal's handshake at once (the station engine); one terminal goes on from the check
     // of its type.
@@ -56,10 +80,8 @@ class Read : public Command {
     for (unsigned pos : positions)
       docs.push_back(read_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), regs, values.at(pos)));
     if (ctx.json()) print_json_terminals(ctx, docs);
-    return 0;
   }
 
- private:
   nlohmann::json read_one(Context& ctx, const TerminalImage& term, const std::vector<unsigned>& regs,
                           const std::vector<std::uint16_t>& vals) {
     const TerminalType& type = *term.type;

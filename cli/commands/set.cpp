@@ -1,6 +1,7 @@
 // kscfg set NAME VALUE [NAME VALUE ...]: all changes succeed or all are rolled back.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <iostream>
 
 #include "../command.hpp"
@@ -44,11 +45,16 @@ class Set : public Command {
            "status 5 before anything is written; so is a change that leaves apart settings that go together: "
            "\\fBset image\\-size 3\\fR on a KL6031 also sets \\fBextended\\-image off\\fR, and "
            "\\fBset image\\-size 3 extended\\-image on\\fR is refused (status 5, the message \\fBapply\\fR "
-           "gives for it). \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR).";
+           "gives for it). \\fB\\-\\-force\\fR sets it anyway (see \\fBwrite\\fR). A rate set by the divisor form is "
+           "said on stderr before it is written: the rate the terminal will run at and how far it is from the "
+           "rate asked for (\\fBset baud 14400 \\-\\-divisor\\fR: 14706 baud, 2.1 % off). "
+           "\\fB\\-\\-dry\\-run\\fR reads the registers and prints what would be written, each register "
+           "old \\-> new, with the same checks and refusals, and writes nothing (no backup); it "
+           "exits like \\fBdiff\\fR: 1 when a register would change, 0 when none would.";
   }
   std::vector<std::string> examples() const override {
-    return {"set baud 19200", "set frame 8E1 baud 4800", "set baud 12500 --divisor", "set rts-cts off",
-            "-t 2 set fold 2 counter-mode on"};
+    return {"set baud 19200",           "set frame 8E1 baud 4800", "set baud 19200 --dry-run",
+            "set baud 12500 --divisor", "set rts-cts off",         "-t 2 set fold 2 counter-mode on"};
   }
   std::vector<std::string> completions() const override {
     auto v = param_name_completions();
@@ -61,6 +67,9 @@ class Set : public Command {
     sub.add_flag("--force", force_, "Write even if a terminal would lose its register window");
     sub.add_flag("--divisor", divisor_,
                  "Allow a baud rate outside the terminal's list (divisor form, up to its documented maximum)");
+    sub.add_flag("--dry-run", dry_run_,
+                 "Print the registers it would write (old -> new) and write nothing; exit 1 when there is "
+                 "something to write");
   }
   int run(Context& ctx) override {
     if (words_.size() % 2)
@@ -80,11 +89,18 @@ class Set : public Command {
     auto s = ctx.session();
     Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(),
                                 planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
+    SetPlan plan = plan_set(*s, pairs, ctx.catalog(), divisor_);
+    // A rate by the divisor form is not the rate asked for: how far off it is, before it is written.
+    for (const auto& n : plan.divisor_notes) std::cerr << "kscfg: note: " << n << '\n';
+    if (dry_run_) {
+      s->close();
+      return dry_run(ctx, *s, plan, v);
+    }
     // Before the first write: the registers it changes, as found, in an undo file `restore` puts
     // back (as apply's backup).
     UndoSaver undo(ctx, "set");
     s->work().save_undo_with([&undo](const SessionJournal::Change& c) { return undo(c); });
-    SetResult r = set_params(*s, pairs, ctx.catalog(), divisor_);
+    SetResult r = set_params(*s, plan);
     s->close();
     undo.say();
     // A parameter set while what it needs is off (filter-constant with the filter off): written, said.
@@ -115,9 +131,38 @@ class Set : public Command {
   }
 
  private:
+  // --dry-run: what would be written, as the change would print it; nothing written, no backup.
+  // Exit status as diff's: 1 when a register would change, 0 when none would.
+  int dry_run(Context& ctx, RegisterSession& s, const SetPlan& plan, const Verdict& v) {
+    bool changes = std::any_of(plan.registers.begin(), plan.registers.end(), [](const auto& w) { return w.changed; });
+    for (const auto& n : plan.notes) std::cerr << "kscfg: note: " << n << '\n';
+    if (changes)
+      if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
+    int rc = changes ? static_cast<int>(Exit::differences) : 0;
+    if (ctx.json()) {
+      nlohmann::json ps = nlohmann::json::array(), rs = nlohmann::json::array();
+      for (const auto& p : plan.params)
+        ps.push_back({{"name", p.param->name}, {"before", param_json(p.from)}, {"after", param_json(p.to)}});
+      for (const auto& w : plan.registers)
+        rs.push_back({{"register", w.reg}, {"before", w.before}, {"after", w.after}, {"changed", w.changed}});
+      nlohmann::json j = terminal_json(s.terminal(), s.channel());
+      j.update({{"changed", changes}, {"dry_run", true}, {"params", ps}, {"registers", rs}, {"backup", nullptr}});
+      print_json(j);
+      return rc;
+    }
+    for (const auto& p : plan.params)
+      std::cout << (p.from == p.to ? fmt::format("{} {} unchanged\n", p.param->name, p.to)
+                                   : fmt::format("{} {} -> {}\n", p.param->name, p.from, p.to));
+    for (const auto& w : plan.registers)
+      if (w.changed)
+        std::cout << fmt::format("  R{} {} -> {} would be written\n", w.reg, hex4(w.before), hex4(w.after));
+    return rc;
+  }
+
   std::vector<std::string> words_;
   bool force_ = false;
   bool divisor_ = false;
+  bool dry_run_ = false;
 };
 
 }  // namespace

@@ -6,8 +6,11 @@
 #include <cctype>
 #include <charconv>
 #include <cmath>
+#include <optional>
+#include <tuple>
 
 #include "kscfg/base/error.hpp"
+#include "kscfg/base/suggest.hpp"
 
 namespace kscfg {
 
@@ -149,8 +152,9 @@ std::vector<std::string> closest(std::string_view name, const std::vector<std::s
   return out;
 }
 
-std::string did_you_mean(std::string_view name, const std::vector<std::string>& candidates) {
-  auto c = closest(name, candidates);
+namespace {
+
+std::string did_you_mean_text(const std::vector<std::string>& c) {
   if (c.empty()) return {};
   std::string s = "did you mean ";
   for (std::size_t i = 0; i < c.size(); ++i) {
@@ -158,6 +162,66 @@ std::string did_you_mean(std::string_view name, const std::vector<std::string>& 
     s += c[i];
   }
   return s + "?";
+}
+
+// "KL6012" -> {"KL", 6012, ""}; "KL6021-0023" -> {"KL", 6021, "-0023"}; nullopt for other names.
+struct OrderNumber {
+  std::string letters;
+  unsigned number = 0;
+  std::string rest;
+};
+std::optional<OrderNumber> order_number(std::string_view name) {
+  std::size_t i = 0;
+  while (i < name.size() && std::isalpha(static_cast<unsigned char>(name[i]))) ++i;
+  if (i == 0 || i + 4 > name.size()) return std::nullopt;
+  OrderNumber o;
+  for (std::size_t k = 0; k < i; ++k) o.letters += static_cast<char>(std::toupper(static_cast<unsigned char>(name[k])));
+  for (std::size_t k = i; k < i + 4; ++k) {
+    if (!std::isdigit(static_cast<unsigned char>(name[k]))) return std::nullopt;
+    o.number = o.number * 10 + static_cast<unsigned>(name[k] - '0');
+  }
+  if (i + 4 < name.size() && std::isdigit(static_cast<unsigned char>(name[i + 4]))) return std::nullopt;
+  o.rest = std::string(name.substr(i + 4));
+  return o;
+}
+
+}  // namespace
+
+std::string did_you_mean(std::string_view name, const std::vector<std::string>& candidates) {
+  return did_you_mean_text(closest(name, candidates));
+}
+
+std::vector<std::string> closest_order_numbers(std::string_view name, const std::vector<std::string>& candidates,
+                                               std::size_t n) {
+  auto want = order_number(name);
+  if (!want) return {};
+  struct Near {
+    unsigned distance;
+    bool variant;  // a type with more after its number (KL6021-0023): after the plain ones
+    unsigned number;
+    std::string name;
+  };
+  std::vector<Near> near;
+  for (const auto& c : candidates) {
+    auto o = order_number(c);
+    if (!o || o->letters != want->letters || o->number / 100 != want->number / 100) continue;
+    if (std::any_of(near.begin(), near.end(), [&](const auto& x) { return x.name == c; })) continue;
+    unsigned d = o->number > want->number ? o->number - want->number : want->number - o->number;
+    near.push_back({d, !o->rest.empty(), o->number, c});
+  }
+  std::stable_sort(near.begin(), near.end(), [](const Near& a, const Near& b) {
+    return std::tie(a.distance, a.variant, a.number) < std::tie(b.distance, b.variant, b.number);
+  });
+  if (near.size() > n) near.resize(n);
+  std::stable_sort(near.begin(), near.end(), [](const Near& a, const Near& b) { return a.number < b.number; });
+  std::vector<std::string> out;
+  for (const auto& x : near) out.push_back(x.name);
+  return out;
+}
+
+std::string did_you_mean_type(std::string_view name, const std::vector<std::string>& candidates) {
+  auto c = closest_order_numbers(name, candidates);
+  return c.empty() ? did_you_mean(name, candidates) : did_you_mean_text(c);
 }
 
 }  // namespace kscfg

@@ -13,6 +13,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/base/suggest.hpp"
 
 namespace kscfg {
 
@@ -143,7 +144,7 @@ const TerminalType* Catalog::find(std::string_view type) const {
 
 const TerminalType& Catalog::get(std::string_view type) const {
   if (const auto* t = find(type)) return *t;
-  auto hint = did_you_mean(type, names());
+  auto hint = did_you_mean_type(type, names());
   throw Error(Exit::usage,
               fmt::format("unknown terminal type {}{}", quote_input(type), hint.empty() ? "" : "; " + hint),
               "kscfg catalog lists the known types");

@@ -316,6 +316,27 @@ namespace {
 // (the end of its links, as the lock), written after the lock is taken and removed before it goes.
 std::string serve_record_path(const std::string& state) { return resolve_link(state) + ".serve"; }
 
+// The directory a state file goes in. The default location's is made (the first run of kscfg on
+// this computer); one given with emu:PATH must exist: a typo in it would otherwise make directories
+// and a fresh station there, and every command would go on as if it were the station meant.
+void check_state_directory(const std::string& path) {
+  auto dir = std::filesystem::path(path).parent_path();
+  if (dir.empty()) return;
+  std::error_code ec;
+  if (path == EmulatorStore::default_path()) {
+    std::filesystem::create_directories(dir, ec);
+    if (ec)
+      throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+    return;
+  }
+  if (std::filesystem::is_directory(dir, ec)) return;
+  bool missing = !std::filesystem::exists(std::filesystem::symlink_status(dir, ec));
+  throw Error(Exit::file,
+              fmt::format("the directory of the emulator state file '{}' {}", path,
+                          missing ? "does not exist" : "is not a directory"),
+              "check the path, or make the directory first: kscfg makes only the default state's (--port emu)");
+}
+
 // The state file's lock, taken as the store and `emu reset` take it. A file held by a running serve
 // is refused at once, naming the serve and the URI that reaches the same station through it: the
 // serve holds the file as long as it runs, so waiting for it is waiting for an operator.
@@ -376,11 +397,7 @@ EmulatorStore::EmulatorStore(std::string path, const Catalog& catalog, const Loc
     station_ = std::make_unique<EmulatedStation>(default_station(), catalog);
     return;
   }
-  auto dir = std::filesystem::path(path_).parent_path();
-  std::error_code ec;
-  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  if (ec)
-    throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+  check_state_directory(path_);
   // Beside the file a symbolic link points to, so that every name of it takes the same lock.
   lock_ = lock_state_file(path_, wait);
   remove_stale_temporaries(path_);  // what a killed kscfg left, also when this run only reads
@@ -499,11 +516,7 @@ void reset_emulator_state(const std::string& path, const StationSpec& spec, cons
   // The coupler's limits, as `map` applies them (a Modbus coupler's register map holds 512 bytes).
   check_image_limits(fresh.layout(), coupler_profile(spec.coupler));
   if (path.empty() || path == "mem") return;
-  auto dir = std::filesystem::path(path).parent_path();
-  std::error_code ec;
-  if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  if (ec)
-    throw Error(Exit::file, fmt::format("cannot create the state directory '{}': {}", dir.string(), ec.message()));
+  check_state_directory(path);
   OwnerLock lock = lock_state_file(path, wait);
   write_file_atomic(path, fresh.to_json().dump(1) + "\n");
 }

@@ -3,7 +3,9 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
+#include <cmath>
 #include <map>
 
 #include "kscfg/base/cancel.hpp"
@@ -112,13 +114,41 @@ void check_params(const TerminalType& type, const std::vector<std::pair<std::str
                 "only baud rates of terminals such as the KL6001 do");
 }
 
-SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
-                     const Catalog& catalog, bool divisor) {
+namespace {
+
+// "baud 14400 by the divisor form is 14706 baud (divisor 16), 2.1 % off" when `text` is no preset
+// of `p` and `reg` holds the divisor form; "" otherwise.
+std::string divisor_note(const ParamDef& p, const std::string& text, std::uint16_t reg) {
+  if (!p.divisor || p.kind != ParamDef::Kind::enumeration) return {};
+  auto same = [&](const std::string& name) {
+    return name.size() == text.size() && std::equal(name.begin(), name.end(), text.begin(), [](char a, char b) {
+             return std::tolower(static_cast<unsigned char>(a)) == std::tolower(static_cast<unsigned char>(b));
+           });
+  };
+  for (const auto& e : p.values)
+    if (same(e.name)) return {};
+  double reached = divisor_rate(*p.divisor, reg);
+  std::uint64_t asked = 0;
+  try {
+    asked = parse_uint(text, 10'000'000, p.name);
+  } catch (const Error&) {
+    return {};
+  }
+  if (reached <= 0 || asked == 0) return {};
+  double off = std::fabs(reached - static_cast<double>(asked)) / static_cast<double>(asked) * 100.0;
+  return fmt::format("{} {} by the divisor form is {:.0f} {} (divisor {}), {:.1f} % off", p.name, text, reached,
+                     p.unit.empty() ? "baud" : p.unit, reg >> 8, off);
+}
+
+}  // namespace
+
+SetPlan plan_set(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
+                 const Catalog& catalog, bool divisor) {
   const TerminalType& type = *s.terminal().type;
   check_params(type, pairs, catalog, s.channel(), divisor);  // nothing is read or written with a bad value
   std::vector<unsigned> order;
   std::map<unsigned, std::uint16_t> cur, next;
-  SetResult r;
+  SetPlan r;
   auto touch = [&](unsigned reg) {
     if (cur.count(reg)) return;
     cur[reg] = s.read(reg);
@@ -135,6 +165,7 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
     next[p.reg] = encode_param(p, v, next[p.reg], divisor);
     if (p.reg_hi) next[*p.reg_hi] = encode_param_hi(p, v);
     r.params.push_back({&p, from, decode_param(p, next[p.reg], hi())});
+    if (std::string n = divisor_note(p, v, next[p.reg]); !n.empty()) r.divisor_notes.push_back(n);
     set.push_back(&p);
   }
   // What the change leaves of the settings the parameters need (`requires`): said, not refused.
@@ -145,11 +176,24 @@ SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string
   for (const auto& [reg, v] : next) after[reg] = v;
   for (const auto* p : set)
     if (auto note = requirement_note(type, *p, after); !note.empty()) r.notes.push_back(p->name + ": " + note);
+  for (unsigned reg : order) r.registers.push_back({reg, cur[reg], next[reg], cur[reg] != next[reg]});
+  return r;
+}
+
+SetResult set_params(RegisterSession& s, const SetPlan& plan) {
+  SetResult r;
+  r.params = plan.params;
+  r.notes = plan.notes;
   std::vector<std::pair<unsigned, std::uint16_t>> changes;
-  for (unsigned reg : order) changes.emplace_back(reg, next[reg]);
+  for (const auto& w : plan.registers) changes.emplace_back(w.reg, w.after);
   r.registers = s.write_all(changes);
   r.changed = std::any_of(r.registers.begin(), r.registers.end(), [](const auto& w) { return w.changed; });
   return r;
+}
+
+SetResult set_params(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
+                     const Catalog& catalog, bool divisor) {
+  return set_params(s, plan_set(s, pairs, catalog, divisor));
 }
 
 std::vector<std::pair<std::string, std::string>> with_settings(

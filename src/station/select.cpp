@@ -8,6 +8,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/base/suggest.hpp"
 
 namespace kscfg {
 
@@ -107,7 +108,7 @@ std::vector<unsigned> select_terminals(const TerminalSelection& sel, const Stati
                                 "reports {} of such terminals, which cannot be identified over Modbus",
                                 type, known->type, digital),
                     "give --station FILE with the terminals in plug order, then -t KL.. or -t POS selects them");
-      std::string dym = did_you_mean(type, present);
+      std::string dym = did_you_mean_type(type, present);
       throw Error(Exit::usage, fmt::format("the station has no {}", type),
                   dym.empty() ? std::string("'kscfg info' lists the station") : dym);
     }

@@ -129,6 +129,7 @@ def main():
     run(['-t', '1-3', 'show'], 'show')
     run(['get', 'baud', 'frame'], 'get')
     run(['set', 'baud', '9600'], 'set')
+    run(['set', 'baud', '19200', '--dry-run'], 'set', rc=(1,))
     run(['-t', '3', 'reset', '-y'], 'reset')
     run(['unlock'], 'lock')
     run(['lock'], 'lock')

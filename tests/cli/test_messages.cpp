@@ -93,9 +93,7 @@ TEST_CASE("version (-V), help CMD, and per-command help with the global options 
     INFO("kscfg" << name << " --help\n" << h.out);
     CHECK(h.rc == 0);
     CHECK_THAT(h.out, Catch::StartsWith("Usage: kscfg [GLOBAL OPTIONS]" + name));
-    CHECK_THAT(h.out, Catch::Contains("Global options"));
-    CHECK_THAT(h.out, Catch::Contains("-p, --port URI"));
-    CHECK_THAT(h.out, Catch::Contains("--json"));
+    CHECK_THAT(h.out, Catch::Contains("Global options (-p, -t, -c, --json, ...): kscfg --help\n"));
     auto ex = h.out.find("Examples:\n");
     REQUIRE(ex != std::string::npos);
     std::string examples = h.out.substr(ex);

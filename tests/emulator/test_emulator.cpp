@@ -91,6 +91,7 @@ TEST_CASE("default station has the terminals the README promises", "[emulator]")
 TEST_CASE("state file: round trip, atomic write, corrupt file", "[emulator]") {
   test::TempDir dir;
   std::string path = dir.file("state/emu.json");
+  std::filesystem::create_directory(dir.file("state"));  // only the default location's is made
   {
     EmulatorStore store(path, Catalog::standard());
     EmulatorLink link(store);

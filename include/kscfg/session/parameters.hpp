@@ -51,6 +51,23 @@ struct SetResult {
   std::vector<std::string> notes;
 };
 
+// What setting NAME VALUE pairs will do, found by reading the registers (nothing is written):
+// the parameters before and after, every register touched with its value now and the value it
+// gets (`changed` where they differ), in the order set_params writes them, and notes.
+struct SetPlan {
+  std::vector<ParamChange> params;
+  std::vector<WriteResult> registers;
+  // Parameters set while a `requires` does not hold: "filter-constant: no effect while filter is off".
+  std::vector<std::string> notes;
+  // A rate reached by the divisor form, and how far it is from the rate asked for: "baud 14400 by
+  // the divisor form is 14706 baud (divisor 16), 2.1 % off".
+  std::vector<std::string> divisor_notes;
+};
+SetPlan plan_set(RegisterSession& s, const std::vector<std::pair<std::string, std::string>>& pairs,
+                 const Catalog& catalog, bool divisor = false);
+// Writes a plan_set() as one change (RegisterSession::write_all: rolled back on a failure).
+SetResult set_params(RegisterSession& s, const SetPlan& plan);
+
 // Sets NAME VALUE pairs as one change: every value is validated before anything is written,
 // parameters sharing a register are combined, unchanged registers are not rewritten, and a
 // failure rolls back every register already written (RegisterSession::write_all). `divisor`: a
