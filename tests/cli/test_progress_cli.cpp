@@ -1,11 +1,13 @@
 // What kscfg draws on a terminal's stderr while it works: the status of a slow first contact,
 // -v traces printed above the progress bar, and the estimate of the time left (cli/progress.hpp).
-// The slow links are `kscfg serve` with every Modbus reply late (--fault delay) or every ADS
-// register access slow (--ads-register-ms); every wait is on kscfg's exit, none a fixed sleep.
+// The slow links are `kscfg serve` with every Modbus reply late (--fault delay) or every terminal
+// register access slow (--ads-register-ms, --can-register-ms); every wait is on kscfg's exit or a
+// condition, none a fixed sleep.
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <regex>
 
+#include "pty_pair.hpp"
 #include "support.hpp"
 #include "tty_run.hpp"
 
@@ -62,6 +64,20 @@ TEST_CASE("an ADS coupler read slowly at the first contact is said on a terminal
   REQUIRE(scan.rc == 0);
   CHECK_THAT(scan.err, Catch::Contains("scanning coupler at " + s.uri + ": "));
   CHECK(scan.err.find('\x1b') == std::string::npos);
+}
+
+TEST_CASE("a CANopen coupler read slowly at the first contact is said on a terminal while it lasts",
+          "[cli][progress][can]") {
+  kscfg::test::PtyPair pair;  // the two ends of an slcan adapter
+  if (!kscfg::test::usable(pair)) return;
+  TempDir d;
+  // Every terminal register access 300 ms: the registers that decide the terminals' images take seconds.
+  Server s(d.file("emu.json"), {"--can", "slcan:" + pair.a, "--can-register-ms", "300"}, d.file("serve.err"));
+  Run r = kscfg::test::run_kscfg_tty({"--port", "slcan:" + pair.b, "--timeout", "3000", "info"});
+  INFO(r.err);
+  REQUIRE(r.rc == 0);
+  CHECK_THAT(r.err, Catch::Contains("reading CANopen coupler at node 1 on slcan:" + pair.b));
+  CHECK(screen_of(r.err).empty());
 }
 
 TEST_CASE("verbose traces (-v) are printed above the progress bar and never into it", "[cli][progress]") {
