@@ -227,7 +227,7 @@ void Activity::say(const std::string& text) {
 }
 
 // Draws the status once it has lasted kStatusQuiet, then again when it changes and each second
-// ("scanning coupler at URI: terminal 3 (input byte 8 of 48), 2 s"), until the Activity ends.
+// ("scanning coupler at URI: terminal 3 (input byte 8/48), 2 s"), until the Activity ends.
 void Activity::loop() {
   std::unique_lock<std::mutex> lock(m_);
   while (!stop_) {

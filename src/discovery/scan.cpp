@@ -529,7 +529,7 @@ class ScanDiscovery : public StationDiscovery {
       ScanProgress progress;
       if (opt_.status)
         progress = [&status](unsigned done, unsigned total, const std::string& what) {
-          status->detail(fmt::format("{} (input byte {} of {})", what, done, total));
+          status->detail(fmt::format("{} (input byte {}/{})", what, done, total));
         };
       walk(*r_, engine_, link_, catalog_, so_, upto, progress);
       if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;

@@ -25,7 +25,7 @@ TEST_CASE("a slow first contact says on a terminal what it is doing and clears i
   INFO(r.err);
   REQUIRE(r.rc == 0);
   CHECK_THAT(r.err, Catch::Contains("scanning coupler at " + slow.uri + ": terminal "));
-  CHECK(std::regex_search(r.err, std::regex("\\(input byte [0-9]+ of [0-9]+\\), [0-9]+ s")));  // and how long
+  CHECK(std::regex_search(r.err, std::regex("\\(input byte [0-9]+/[0-9]+\\), [0-9]+ s")));  // and how long
   CHECK(r.err.find('\x1b') == std::string::npos);
   // Cleared when done: nothing of it stays on the screen.
   CHECK(screen_of(r.err).empty());

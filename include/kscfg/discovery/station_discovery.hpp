@@ -18,7 +18,7 @@ struct ScanResult;  // discovery/scan_result.hpp
 
 // What discovery is doing while it talks to the coupler, said as it goes for a status line on a
 // terminal (the first contact over a slow link can take seconds): a few words, e.g. "scanning
-// coupler at tcp://10.0.0.5: terminal 3 (input byte 4 of 12)"; "" when it is over. Never output,
+// coupler at tcp://10.0.0.5: terminal 3 (input byte 4/12)"; "" when it is over. Never output,
 // never a diagnostic: a caller that shows nothing leaves it empty.
 using DiscoveryStatus = std::function<void(const std::string&)>;
 
