@@ -18,6 +18,7 @@
 #include "kscfg/session/session.hpp"
 #include "messages.hpp"
 #include "output.hpp"
+#include "progress.hpp"
 
 namespace kscfg::cli {
 
@@ -265,6 +266,8 @@ static int run_command(int argc, char** argv) {
 
 int run(int argc, char** argv) {
   CheckedStdout out;
+  // One owner of stderr's last line: a progress bar or a status there, every message above it.
+  StderrLine line;
   int rc = run_command(argc, argv);
   // Results that did not reach stdout are a failure (exit 7), unless the command failed already
   // and said why; a reader that went away (EPIPE) ends kscfg the way SIGPIPE ends other tools.

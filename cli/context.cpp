@@ -20,6 +20,7 @@
 #include "kscfg/provision/provision.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
+#include "progress.hpp"
 
 namespace kscfg::cli {
 
@@ -39,6 +40,12 @@ StationResolver& Context::resolver() {
     lo.lock_wait = lock_wait();
     lo.session = session_options();
     lo.cancel = opt_.cancel;
+    // A slow first contact (a Modbus coupler's scan, an ADS or CANopen coupler's table 9) says
+    // what it is doing on a terminal, once it has taken a moment.
+    if (ProgressBar::enabled(*this)) {
+      activity_ = std::make_unique<Activity>(true);
+      lo.status = [a = activity_.get()](const std::string& s) { a->say(s); };
+    }
     ResolverOptions ro;
     ro.station_file = opt_.station;
     ro.load_station = [this] { return load_station_arg(opt_.station, catalog()); };

@@ -20,6 +20,7 @@
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/select.hpp"
 #include "kscfg/station/station.hpp"
+#include "progress.hpp"
 
 namespace kscfg::cli {
 
@@ -136,7 +137,9 @@ class Context {
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   bool release_forced_ = false;                       // release_forced()
   std::function<void(const DeadForce&)> dead_force_;  // release_forced()
-  std::unique_ptr<StationResolver> resolver_;         // the port, opened on first use
+  // What discovery is doing at the first contact, on a terminal (progress.hpp; null: not there).
+  std::unique_ptr<Activity> activity_;
+  std::unique_ptr<StationResolver> resolver_;  // the port, opened on first use
 };
 
 // A station file named on the command line ("-": stdin); read errors carry the OS reason.

@@ -226,7 +226,11 @@ std::string generate_manpage(const App& a) {
        "with the "
        "code word 0x1235 in R31 and locked again; the terminal's process-data bytes are restored when the "
        "command ends, also after an error or Ctrl\\-C.\n"
-       ".PP\nResults go to stdout, diagnostics to stderr. Registers are written \\fBR32\\fR, \\fB32\\fR or "
+       ".PP\nResults go to stdout, diagnostics to stderr. When stderr is a terminal (and without "
+       "\\fB\\-\\-json\\fR), long work shows a progress line there, and a slow first contact with a "
+       "coupler (its scan, its table 9) says what it is doing after half a second; both are cleared when "
+       "done, and other messages (\\fB\\-v\\fR traces, notes) are printed above them. "
+       "Registers are written \\fBR32\\fR, \\fB32\\fR or "
        "\\fB0x20\\fR (R0..R63); values \\fB0x0006\\fR, \\fB6\\fR or \\fB0b110\\fR (0..0xFFFF). Parsing is "
        "strict: \\fB12abc\\fR is an error.\n";
   m << ".SH GLOBAL OPTIONS\n";

@@ -107,6 +107,12 @@ class Scan : public Command {
     bool ads = false;                              // ADS, or CANopen (can): the terminals from the coupler's table 9
     bool can = false;
     Link* link = &ctx.link();
+    // ADS and CANopen: what the scan is doing, on a terminal once it has taken a moment (Modbus: a
+    // progress bar by input bytes).
+    Activity activity(ProgressBar::enabled(ctx));
+    auto status = [&](const std::string& what) {
+      activity.say(what.empty() ? "" : fmt::format("scanning coupler at {}: {}", link->describe(), what));
+    };
     if (AdsClient* a = link->ads_connection()) {
       // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
       AdsScanOptions so;
@@ -116,7 +122,9 @@ class Scan : public Command {
       so.silent_memo.path = default_cache_dir() + "/scans/" + station_key(a->target()) + ".modbus-silent";
       so.silent_memo.ask_anyway = true;
       so.origin = fmt::format("scan of {}", link->describe());
+      so.status = status;
       AdsScan s = scan_ads_station(*a, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
+      activity.say("");
       r = std::move(s.result);
       r9 = std::move(s.r9);
       ads = true;
@@ -126,7 +134,9 @@ class Scan : public Command {
       CanScanOptions so;
       if (ce || wa || mo) so.settings = overridden;
       so.origin = fmt::format("scan of {}", link->describe());
+      so.status = status;
       CanScan s = scan_can_station(*c, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
+      activity.say("");
       r = std::move(s.result);
       r9 = std::move(s.r9);
       ads = can = true;

@@ -117,11 +117,16 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
     }
   }
 
+  auto step = [&](const std::string& what) {
+    if (opt.status) opt.status(what);
+  };
+  step("table 9 (its terminal list)");
   auto t9 = read_table9(client, timeout_ms);
   // Table 100 registers 15 and 26: whether the coupler serves Modbus TCP, and on which port; there
   // it reports its image lengths, which confirm or contradict the layout (discovery/ads_image.hpp).
   CouplerImage image;
   if (opt.check_image) {
+    step("the image lengths");
     std::vector<AdsClient::Call> t100{table_call(adsreg::kTable100, 15, timeout_ms),
                                       table_call(adsreg::kTable100, 26, timeout_ms)};
     auto rep = client.transact(t100);
@@ -283,6 +288,7 @@ AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned tim
       }
   }
   if (opt.check) calls.push_back(table_call(adsreg::kTable100, 14, timeout_ms));
+  if (!calls.empty()) step(fmt::format("{} terminal register(s)", calls.size()));
   auto replies = calls.empty() ? std::vector<AdsClient::Reply>{} : client.transact(calls);
   if (opt.check && !not_served(replies.back().result)) {
     if (auto e = access.reply_error(replies.back(), calls.back(), true)) throw *e;

@@ -68,6 +68,9 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
   auto trace = [&](const std::string& s) {
     if (opt.trace) opt.trace("canopen: " + s);
   };
+  auto step = [&](const std::string& what) {
+    if (opt.status) opt.status(what);
+  };
 
   // Identification. The name and versions are visible strings whose contents no manual gives: the
   // product code names the coupler first.
@@ -103,6 +106,7 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
   for (unsigned k = 1; k <= canreg::kMaxTerminals; ++k) {
     // Past the last terminal: 0, or (not documented either way) an abort, which ends the list too.
     std::uint16_t v = 0;
+    step(fmt::format("table 9 (its terminal list) entry {}", k));
     try {
       v = regs.read_table(kTable9, k);
     } catch (const SdoAbort& a) {
@@ -164,6 +168,7 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
     std::vector<std::map<unsigned, std::uint16_t>> per;
     std::uint16_t r8 = t.r8;
     if (t.has_registers) {
+      step(fmt::format("registers of terminal {} of {}", i + 1, found.size()));
       std::set<unsigned> want;
       for (const auto& f : t.images)
         if (f.when) want.insert(f.when->reg);
@@ -214,8 +219,13 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
 }
 
 CanDiscovery::CanDiscovery(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms,
-                           std::function<void(const std::string&)> trace)
-    : sdo_(sdo), catalog_(catalog), timeout_ms_(timeout_ms), trace_(std::move(trace)) {}
+                           std::function<void(const std::string&)> trace, DiscoveryStatus status, std::string where)
+    : sdo_(sdo),
+      catalog_(catalog),
+      timeout_ms_(timeout_ms),
+      trace_(std::move(trace)),
+      status_(std::move(status)),
+      where_(std::move(where)) {}
 
 const StationLayout* CanDiscovery::layout_upto(unsigned) {
   if (!searched_) {
@@ -223,6 +233,8 @@ const StationLayout* CanDiscovery::layout_upto(unsigned) {
     CanScanOptions so;
     so.check = false;
     so.trace = trace_;
+    StatusScope status(status_, "reading CANopen coupler" + (where_.empty() ? std::string() : " at " + where_));
+    so.status = [&status](const std::string& d) { status.detail(d); };
     CanScan s = scan_can_station(sdo_, catalog_, timeout_ms_, std::move(so));
     if (trace_)
       for (const auto& n : s.result.notes) trace_("canopen: " + n);

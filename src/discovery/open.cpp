@@ -33,13 +33,15 @@ namespace {
 class AdsDiscovery : public StationDiscovery {
  public:
   AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace, const CancelToken* cancel, SilentMemo memo)
+               std::function<void(const std::string&)> trace, const CancelToken* cancel, SilentMemo memo,
+               DiscoveryStatus status)
       : link_(link),
         catalog_(catalog),
         timeout_ms_(timeout_ms),
         trace_(std::move(trace)),
         cancel_(cancel),
-        memo_(std::move(memo)) {}
+        memo_(std::move(memo)),
+        status_(std::move(status)) {}
 
   const StationLayout* layout_upto(unsigned) override {
     if (!searched_) {
@@ -49,6 +51,8 @@ class AdsDiscovery : public StationDiscovery {
       so.silent_memo = memo_;
       so.trace = trace_;
       so.cancel = cancel_;
+      StatusScope status(status_, fmt::format("reading coupler at {}", link_.client().target().where()));
+      so.status = [&status](const std::string& d) { status.detail(d); };
       AdsScan s = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so));
       ScanResult& r = s.result;
       if (trace_)
@@ -102,6 +106,7 @@ class AdsDiscovery : public StationDiscovery {
   std::function<void(const std::string&)> trace_;
   const CancelToken* cancel_;
   SilentMemo memo_;
+  DiscoveryStatus status_;
   std::optional<Found> found_;
   bool searched_ = false;
 };
@@ -167,7 +172,8 @@ OpenedPort open_can_port(const PortUri& p, const std::string& uri, const Catalog
   // Channels unlocked over SDO are noted in the session journal of this node, so that the next
   // kscfg relocks what a killed one left (session/sdo_access.hpp).
   if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
-  auto discovery = std::make_unique<CanDiscovery>(*link->sdo_connection(), catalog, opt.timeout_ms, opt.trace);
+  auto discovery = std::make_unique<CanDiscovery>(*link->sdo_connection(), catalog, opt.timeout_ms, opt.trace,
+                                                  opt.status, target.where());
   OpenedPort port;
   port.link = std::move(link);
   std::function<const StationLayout&()> layout = opt.layout;
@@ -218,7 +224,8 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     SilentMemo memo;
     if (!opt.cache_dir.empty()) memo.path = opt.cache_dir + "/scans/" + station_key(target) + ".modbus-silent";
     memo.ask_anyway = opt.rescan;
-    auto discovery = std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel, memo);
+    auto discovery =
+        std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel, memo, opt.status);
     OpenedPort port;
     port.link = std::move(link);
     SessionOptions so = port_session(opt);
@@ -252,6 +259,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   DiscoveryOptions d;
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
+  d.status = opt.status;
   // Journals per coupler (docs/design.md 6.2): a BK9000 is one coupler whatever unit a request names,
   // so over TCP the journals every unit of it wrote are this run's to finish (a kill -9 on ?unit=3
   // left a terminal in register mode that a unit-1 run never looked at); on an RTU line each unit

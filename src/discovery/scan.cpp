@@ -520,10 +520,18 @@ class ScanDiscovery : public StationDiscovery {
 
   // Terminals 1..upto at least (0: all of them): what is known so far.
   const ScanResult* find(unsigned upto) {
+    bool walks = !r_ || (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto));
+    std::optional<StatusScope> status;
+    if (walks) status.emplace(opt_.status, fmt::format("scanning coupler at {}", link_.describe()));
     if (!r_) start();
     if (r_->walked && !r_->complete && (upto == 0 || r_->spec.terminals.size() < upto)) {
       std::size_t before = r_->spec.terminals.size();
-      walk(*r_, engine_, link_, catalog_, so_, upto);
+      ScanProgress progress;
+      if (opt_.status)
+        progress = [&status](unsigned done, unsigned total, const std::string& what) {
+          status->detail(fmt::format("{} (input byte {}/{})", what, done, total));
+        };
+      walk(*r_, engine_, link_, catalog_, so_, upto, progress);
       if (r_->spec.terminals.size() != before || r_->complete) dirty_ = true;
       save();
     }

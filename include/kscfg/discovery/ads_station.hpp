@@ -46,6 +46,8 @@ struct AdsScanOptions {
   SilentMemo silent_memo;  // the coupler's Modbus TCP side that did not answer (ads_image.hpp)
   std::function<void(const std::string&)> trace;
   const CancelToken* cancel = nullptr;
+  // The step under way, for a status line (station_discovery.hpp): "table 9 (its terminal list)", ...
+  std::function<void(const std::string&)> status;
 };
 struct AdsScan {
   ScanResult result;

@@ -29,6 +29,8 @@ struct CanScanOptions {
   std::function<MappingSettings(MappingSettings)> settings;
   std::string origin;  // the station file's origin
   std::function<void(const std::string&)> trace;
+  // The step under way, for a status line (station_discovery.hpp): "table 9 (its terminal list) entry 3", ...
+  std::function<void(const std::string&)> status;
 };
 struct CanScan {
   ScanResult result;                             // layout.registers_direct set
@@ -47,8 +49,10 @@ std::string can_coupler_name(std::optional<std::uint32_t> product_code, std::opt
 // The port's StationDiscovery over CANopen: scan_can_station (check off), once, on first use.
 class CanDiscovery : public StationDiscovery {
  public:
+  // `status`: what it is doing while it reads the coupler (station_discovery.hpp), the coupler
+  // named `where` there ("node 3 on slcan:/dev/ttyACM0").
   CanDiscovery(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace = {});
+               std::function<void(const std::string&)> trace = {}, DiscoveryStatus status = {}, std::string where = {});
   const StationLayout* layout_upto(unsigned upto) override;
   const StationSpec* station() override;
   // The file's terminals with a 0x4501 sub-index against table 9, in order (a complex one by its
@@ -63,6 +67,8 @@ class CanDiscovery : public StationDiscovery {
   const Catalog& catalog_;
   unsigned timeout_ms_;
   std::function<void(const std::string&)> trace_;
+  DiscoveryStatus status_;
+  std::string where_;
   std::optional<ScanResult> found_;
   bool searched_ = false;
 };

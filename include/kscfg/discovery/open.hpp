@@ -48,6 +48,9 @@ struct LinkOptions {
   // The run's cancellation (base/cancel.hpp), given to the link's client (every wait on the
   // coupler) and to the scan's sessions. Null: never cancelled.
   CancelToken* cancel = nullptr;
+  // What the discovery of the station behind the port is doing while it talks to the coupler (a
+  // Modbus scan terminal by terminal, an ADS or CANopen coupler's table 9): station_discovery.hpp.
+  DiscoveryStatus status;
 };
 
 // A port opened: its link, its one register access and engine, and how the station behind it is

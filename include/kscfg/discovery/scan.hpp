@@ -67,7 +67,8 @@ ScanResult scan_station(ModbusRegisters& client, Engine& engine, Link& link, con
 struct DiscoveryOptions {
   // Where scans are kept between runs (scan_cache.hpp); empty: nowhere, every run scans.
   std::string cache_dir;
-  bool rescan = false;  // ignore what the cache holds (it is replaced by the new scan)
+  bool rescan = false;     // ignore what the cache holds (it is replaced by the new scan)
+  DiscoveryStatus status;  // the scan as it goes (station_discovery.hpp)
 };
 
 // Discovers the station behind `link` with a scan on first use of layout(), only as far as the

@@ -4,7 +4,10 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <optional>
+#include <string>
+#include <utility>
 
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
@@ -12,6 +15,33 @@
 namespace kscfg {
 
 struct ScanResult;  // discovery/scan_result.hpp
+
+// What discovery is doing while it talks to the coupler, said as it goes for a status line on a
+// terminal (the first contact over a slow link can take seconds): a few words, e.g. "scanning
+// coupler at tcp://10.0.0.5: terminal 3 (input byte 4/12)"; "" when it is over. Never output,
+// never a diagnostic: a caller that shows nothing leaves it empty.
+using DiscoveryStatus = std::function<void(const std::string&)>;
+
+// Says `what` through `status` at once, and "" when it goes out of scope (also on an error).
+class StatusScope {
+ public:
+  StatusScope(const DiscoveryStatus& status, std::string what) : status_(status), what_(std::move(what)) { say(what_); }
+  ~StatusScope() { say(""); }
+  StatusScope(const StatusScope&) = delete;
+  StatusScope& operator=(const StatusScope&) = delete;
+  // The scope's text with a detail: "WHAT: DETAIL".
+  void detail(const std::string& d) { say(what_ + ": " + d); }
+
+ private:
+  void say(const std::string& s) noexcept {
+    if (!status_) return;
+    try {
+      status_(s);
+    } catch (...) {}
+  }
+  const DiscoveryStatus& status_;
+  std::string what_;
+};
 
 class StationDiscovery {
  public:

@@ -1,0 +1,116 @@
+// kscfg with its stderr on a pseudo-terminal (isatty() true, as for a user at a terminal), and what
+// a terminal shows of what it wrote: for the tests of what kscfg draws there (progress, status).
+#pragma once
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdlib.h>
+#include <sys/wait.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "support.hpp"
+
+namespace kscfg::test {
+
+// As run_kscfg() (its cache, state and lock directories; `env` added), with stderr on a
+// pseudo-terminal in raw mode (the bytes as written: no \n made \r\n), stdout a pipe, stdin
+// /dev/null. `err` holds what reached the terminal. Bounded by `timeout_s` (killed: rc -9).
+inline Run run_kscfg_tty(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
+                         double timeout_s = 60) {
+  int master = posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
+  if (master < 0 || grantpt(master) != 0 || unlockpt(master) != 0) throw std::runtime_error("posix_openpt");
+  std::string slave_name = ptsname(master);
+  int slave = open(slave_name.c_str(), O_RDWR | O_NOCTTY | O_CLOEXEC);
+  if (slave < 0) throw std::runtime_error("open " + slave_name);
+  termios t{};
+  tcgetattr(slave, &t);
+  cfmakeraw(&t);
+  tcsetattr(slave, TCSANOW, &t);
+  int out[2];
+  if (pipe2(out, O_CLOEXEC)) throw std::runtime_error("pipe");
+  std::map<std::string, std::string> all{{"XDG_CACHE_HOME", kscfg_cache_dir()},
+                                         {"XDG_STATE_HOME", kscfg_cache_dir() + "/state"},
+                                         {"KSCFG_LOCK_DIR", kscfg_lock_dir()}};
+  for (const auto& [k, v] : env) all[k] = v;
+  pid_t pid = fork();
+  if (pid == 0) {
+    int null = open("/dev/null", O_RDONLY);
+    dup2(null, 0);
+    dup2(out[1], 1);
+    dup2(slave, 2);
+    for (const auto& [k, v] : all) setenv(k.c_str(), v.c_str(), 1);
+    std::vector<std::string> words{KSCFG_BIN};
+    words.insert(words.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (auto& w : words) argv.push_back(w.data());
+    argv.push_back(nullptr);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  close(out[1]);
+  close(slave);
+  Run r;
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  pollfd fds[2] = {{out[0], POLLIN, 0}, {master, POLLIN, 0}};
+  int open_fds = 2;
+  char buf[4096];
+  // Until both ends are read out: a pty master whose slave side every process closed reads EIO.
+  while (open_fds > 0) {
+    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) {
+      kill(pid, SIGKILL);
+      break;
+    }
+    if (poll(fds, 2, static_cast<int>(left.count())) <= 0) continue;
+    for (auto& f : fds) {
+      if (f.fd < 0 || !(f.revents & (POLLIN | POLLHUP | POLLERR))) continue;
+      ssize_t k = read(f.fd, buf, sizeof buf);
+      if (k <= 0) {
+        close(f.fd);
+        f.fd = -1;
+        --open_fds;
+      } else {
+        (f.fd == out[0] ? r.out : r.err).append(buf, static_cast<std::size_t>(k));
+      }
+    }
+  }
+  for (auto& f : fds)
+    if (f.fd >= 0) close(f.fd);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+  return r;
+}
+
+// What a terminal shows after `text`: \r goes back to the start of the line, \n to a new line,
+// every other character is written over what is there. Its lines without trailing blanks; blank
+// lines at the end left out.
+inline std::vector<std::string> screen_of(const std::string& text) {
+  std::vector<std::string> lines(1);
+  std::size_t col = 0;
+  for (char c : text) {
+    if (c == '\r') {
+      col = 0;
+    } else if (c == '\n') {
+      lines.emplace_back();
+      col = 0;
+    } else {
+      std::string& l = lines.back();
+      if (l.size() <= col) l.resize(col + 1, ' ');
+      l[col++] = c;
+    }
+  }
+  for (auto& l : lines) l.erase(l.find_last_not_of(' ') + 1);
+  while (!lines.empty() && lines.back().empty()) lines.pop_back();
+  return lines;
+}
+
+}  // namespace kscfg::test
