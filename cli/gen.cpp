@@ -304,7 +304,9 @@ std::string generate_manpage(const App& a) {
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
          "that went down): the message names the registers that may hold the new value; read them with "
          "\\fBkscfg dump\\fR."},
-        {Exit::changed, "apply: the station was changed (success)."},
+        {Exit::changed,
+         "\\fBapply\\fR, \\fBrestore\\fR with \\fB\\-\\-detailed\\-exitcode\\fR: the station was changed "
+         "(success; without it, 0)."},
         {Exit::busy,
          "Gave up waiting for the coupler (port and unit) or the emulator state file that another kscfg on this "
          "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process. An emulator state "

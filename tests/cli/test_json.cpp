@@ -190,12 +190,12 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   CHECK(diff["backup"].is_null());
   CHECK(diff["terminals"][0]["params"][0]["before"] == 9600);
   CHECK(diff["terminals"][0]["params"][0]["after"] == 2400);
-  json apply = J("apply", {"apply", "--backup", d.file("undo.toml"), want}, 10);
+  json apply = J("apply", {"apply", "--backup", d.file("undo.toml"), want});
   CHECK(apply["changed"] == true);
   CHECK(apply["dry_run"] == false);
   CHECK(apply["backup"] == d.file("undo.toml"));
   CHECK(apply["port"] == "emu:" + emu.state);
-  CHECK(J("restore", {"restore", "--backup", d.file("undo2.toml"), bk}, 10)["changed"] == true);
+  CHECK(J("restore", {"restore", "--backup", d.file("undo2.toml"), bk})["changed"] == true);
 
   J("map", {"map"});
   CHECK(J("map", {"map", "--list-couplers"})["couplers"].size() >= 10);

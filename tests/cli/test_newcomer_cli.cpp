@@ -1,0 +1,56 @@
+// What a new user meets first: a successful change that exits 0, a one-terminal station file that
+// says which position it would be, a backup whose raw register contradicts its named parameter, a
+// value quoted as the file writes it, a declined question that exits with a status of the table.
+// Through the CLI against a private emulator.
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <catch2/catch.hpp>
+#include <cstdlib>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include "support.hpp"
+
+using kscfg::test::Child;
+using kscfg::test::Emu;
+using kscfg::test::one_line_error;
+using kscfg::test::read_text;
+using kscfg::test::Run;
+using kscfg::test::write_text;
+
+namespace {
+
+const char* kOthers =
+    "[[terminal]]\ntype = \"KL5101\"\n[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n"
+    "[[terminal]]\ntype = \"KL1104\"\n[[terminal]]\ntype = \"KL2134\"\n[[terminal]]\ntype = \"KL9010\"\n";
+
+}  // namespace
+
+TEST_CASE("apply and restore exit 0 when they changed the station, --detailed-exitcode gives 10", "[cli][apply]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  std::string want = emu.dir.file("want.toml"), back = emu.dir.file("back.toml");
+  write_text(want, "[[terminal]]\nposition = 1\ntype = \"KL6001\"\nbaud = 19200\n");
+  // `kscfg apply want.toml && echo ok`: a change that worked is a success.
+  Run a = emu({"apply", "--backup", back, want});
+  CHECK(a.rc == 0);
+  CHECK_THAT(a.out, Catch::Contains("baud                 9600 -> 19200"));
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0007\n");
+  Run again = emu({"--json", "apply", want});
+  CHECK(again.rc == 0);
+  CHECK_THAT(again.out, Catch::Contains("\"changed\": false"));
+  Run r = emu({"--json", "restore", back});
+  CHECK(r.rc == 0);
+  CHECK_THAT(r.out, Catch::Contains("\"changed\": true"));
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0006\n");
+  // Asked for: 10 changed, 0 nothing to change (Terraform's -detailed-exitcode, kscfg's 10).
+  CHECK(emu({"apply", "--detailed-exitcode", "--backup", back, want}).rc == 10);
+  CHECK(emu({"apply", "--detailed-exitcode", want}).rc == 0);
+  CHECK(emu({"restore", "--detailed-exitcode", back}).rc == 10);
+  CHECK(emu({"restore", "--detailed-exitcode", back}).rc == 0);
+  // --dry-run exits like diff, with the option or without.
+  CHECK(emu({"apply", "--dry-run", "--detailed-exitcode", want}).rc == 1);
+  CHECK(emu({"apply", "--dry-run", want}).rc == 1);
+}
