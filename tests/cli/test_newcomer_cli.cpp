@@ -54,3 +54,28 @@ TEST_CASE("apply and restore exit 0 when they changed the station, --detailed-ex
   CHECK(emu({"apply", "--dry-run", "--detailed-exitcode", want}).rc == 1);
   CHECK(emu({"apply", "--dry-run", want}).rc == 1);
 }
+
+TEST_CASE("a station file with one terminal and no position says which position it is and what is missing",
+          "[cli][apply]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  std::string before = read_text(emu.state);
+  std::string f = emu.dir.file("one.toml");
+  write_text(f, "[[terminal]]\ntype = \"KL6001\"\nbaud = 19200\n");
+  for (const char* cmd : {"apply", "diff"}) {
+    Run r = emu({cmd, f});
+    INFO(cmd << ": " << r.err);
+    CHECK(r.rc == 5);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("describes 1 terminal, the station has 7"));
+    CHECK_THAT(r.err, Catch::Contains("the station's KL6001 is at position 1"));
+    CHECK_THAT(r.err, Catch::Contains("position = 1"));
+  }
+  CHECK(read_text(emu.state) == before);
+  // A type the station has twice (or not at all) cannot say where: the rule, without a position.
+  write_text(f, "[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL6001\"\n");
+  Run two = emu({"apply", f});
+  CHECK(two.rc == 5);
+  CHECK_THAT(two.err, Catch::Contains("describes 2 terminals, the station has 7"));
+  CHECK_THAT(two.err, Catch::Contains("position = N"));
+}
