@@ -181,6 +181,9 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
                                                                 : "read-only"));
       }
   }
+  // A raw register the file also sets by a named parameter: both must say the same (an edited
+  // backup), or the parameter would win without a word.
+  check_settings_agree(desired, catalog);
   // 3. Read what the file configures, every channel at once, and compare.
   struct Want {
     std::size_t terminal;

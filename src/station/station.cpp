@@ -404,6 +404,37 @@ static std::string toml_value(const std::string& v) {
   return toml_string(v);
 }
 
+void check_settings_agree(const StationSpec& spec, const Catalog& catalog) {
+  std::string origin = spec.origin.empty() ? "the station file" : spec.origin;
+  for (const auto& ts : spec.terminals) {
+    const TerminalType& type = catalog.get(ts.type);
+    for (const auto& ch : ts.channels)
+      for (const auto& p : ch.params) {
+        const ParamDef* pd = type.param(p.name);
+        if (!pd) continue;
+        auto disagree = [&](unsigned reg, std::uint16_t says) {
+          std::uint16_t raw = ch.registers.at(reg);
+          int line = ch.register_lines.count(reg) ? ch.register_lines.at(reg) : 0;
+          throw Error(Exit::refused,
+                      fmt::format("{}:{}: {} = {} and R{} = {}{} say different things: {} = {} makes R{} {}", origin,
+                                  p.line, p.name, toml_value(p.value), reg, hex4(raw),
+                                  line ? fmt::format(" (line {})", line) : std::string(), p.name, toml_value(p.value),
+                                  reg, hex4(says)),
+                      "edit or remove one of them; nothing was written");
+        };
+        if (auto it = ch.registers.find(pd->reg); it != ch.registers.end()) {
+          std::uint16_t says = encode_param(*pd, p.value, it->second);
+          if (says != it->second) disagree(pd->reg, says);
+        }
+        if (pd->reg_hi)
+          if (auto it = ch.registers.find(*pd->reg_hi); it != ch.registers.end()) {
+            std::uint16_t says = encode_param_hi(*pd, p.value);
+            if (says != it->second) disagree(*pd->reg_hi, says);
+          }
+      }
+  }
+}
+
 static void channel_toml(std::string& out, const ChannelSpec& ch) {
   for (const auto& s : ch.params) out += fmt::format("{} = {}\n", toml_key(s.name), toml_value(s.value));
   for (const auto& [r, v] : ch.registers) out += fmt::format("R{} = 0x{:04X}\n", r, v);

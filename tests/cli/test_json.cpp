@@ -184,7 +184,9 @@ TEST_CASE("every command's JSON uses the shared names", "[json][cli]") {
   std::string bk = d.file("b.toml"), want = d.file("want.toml");
   CHECK(J("backup", {"backup", bk})["terminal_count"] == 7);
   std::string text = read_text(bk);
-  kscfg::test::write_text(want, text.replace(text.find("baud = 9600"), 11, "baud = 2400"));
+  // The backup writes baud and the raw R32 it lives in: an edit changes both (they must agree).
+  text.replace(text.find("baud = 9600"), 11, "baud = 2400");
+  kscfg::test::write_text(want, text.replace(text.find("R32 = 0x0006"), 12, "R32 = 0x0004"));
   json diff = J("diff", {"diff", want}, 1);
   CHECK(diff["dry_run"] == true);
   CHECK(diff["backup"].is_null());

@@ -79,3 +79,35 @@ TEST_CASE("a station file with one terminal and no position says which position 
   CHECK_THAT(two.err, Catch::Contains("describes 2 terminals, the station has 7"));
   CHECK_THAT(two.err, Catch::Contains("position = N"));
 }
+
+TEST_CASE("a raw register that contradicts a named parameter of the same terminal is refused naming both",
+          "[cli][apply]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  std::string back = emu.dir.file("b.toml");
+  REQUIRE(emu({"backup", back}).rc == 0);
+  std::string text = read_text(back);
+  REQUIRE(text.find("baud = 9600\n") != std::string::npos);
+  REQUIRE(text.find("R32 = 0x0006\n") != std::string::npos);
+  std::string before = read_text(emu.state);
+  // The user edits the named parameter and leaves the raw register the backup also wrote.
+  std::string edited =
+      std::regex_replace(text, std::regex("baud = 9600\n"), "baud = 4800\n", std::regex_constants::format_first_only);
+  write_text(back, edited);
+  for (const char* cmd : {"restore", "diff"}) {
+    Run r = emu({cmd, back});
+    INFO(cmd << ": " << r.err);
+    CHECK(r.rc == 5);
+    CHECK(one_line_error(r));
+    CHECK_THAT(r.err, Catch::Contains("baud = 4800"));
+    CHECK_THAT(r.err, Catch::Contains("R32 = 0x0006"));
+  }
+  CHECK(read_text(emu.state) == before);
+  // Both say the same: accepted.
+  edited = std::regex_replace(edited, std::regex("R32 = 0x0006\n"), "R32 = 0x0005\n",
+                              std::regex_constants::format_first_only);
+  write_text(back, edited);
+  Run ok = emu({"restore", back});
+  CHECK(ok.rc == 0);
+  CHECK(emu({"read", "--raw", "R32"}).out == "0x0005\n");
+}
