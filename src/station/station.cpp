@@ -123,6 +123,13 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
       std::uint16_t val = 0;
       try {
         reg = parse_register(key);
+        // A register holds a number; true/false is quoted as the file writes it, never as "on".
+        if (auto b = v.value_exact<bool>()) {
+          std::string written = quote_input(*b ? "true" : "false");
+          throw Error(
+              Exit::usage,
+              fmt::format("invalid value {} for {}: a register value is a number (0x0006, 6 or 0b110)", written, key));
+        }
         val = parse_value(value_text(origin, key, v));
       } catch (const Error& e) {
         fail_at(origin, &v, Exit::usage, e.what());
@@ -143,6 +150,12 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
     try {
       (void)encode_param(*p, s.value, 0);
     } catch (const Error& e) {
+      // true/false is read as on/off; a parameter that takes neither says the value as written.
+      if (auto b = v.value_exact<bool>()) {
+        std::string msg = e.what(), was = quote_input(s.value), written = quote_input(*b ? "true" : "false");
+        if (auto at = msg.find(was); at != std::string::npos) msg.replace(at, was.size(), written);
+        fail_at(origin, &v, Exit::usage, msg);
+      }
       fail_at(origin, &v, Exit::usage, e.what());
     }
     ch.params.push_back(std::move(s));

@@ -111,3 +111,21 @@ TEST_CASE("a raw register that contradicts a named parameter of the same termina
   CHECK(ok.rc == 0);
   CHECK(emu({"read", "--raw", "R32"}).out == "0x0005\n");
 }
+
+TEST_CASE("a true or false in a station file is quoted as the file writes it", "[cli][apply]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  std::string f = emu.dir.file("t.toml");
+  write_text(f, std::string("[[terminal]]\ntype = \"KL6001\"\nbaud = true\n") + kOthers);
+  Run r = emu({"apply", f});
+  CHECK(r.rc == 2);
+  CHECK(one_line_error(r));
+  CHECK_THAT(r.err, Catch::Contains("invalid value 'true' for baud"));
+  CHECK_THAT(r.err, !Catch::Contains("'on'"));
+  write_text(f, std::string("[[terminal]]\ntype = \"KL6001\"\nR32 = false\n") + kOthers);
+  Run reg = emu({"apply", f});
+  CHECK(reg.rc == 2);
+  CHECK(one_line_error(reg));
+  CHECK_THAT(reg.err, Catch::Contains("invalid value 'false' for R32"));
+  CHECK_THAT(reg.err, !Catch::Contains("'off'"));
+}
