@@ -296,7 +296,7 @@ std::string generate_manpage(const App& a) {
          "(\\fBwrite\\fR, \\fBapply\\fR; \\fB\\-\\-force\\fR writes it), a change that would lock kscfg "
          "out or leave settings that go together apart; a station or station file that does not match the one "
          "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
-         "\\fB\\-\\-yes\\fR."},
+         "\\fB\\-\\-yes\\fR; a question answered no (\\fBreset\\fR)."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file, "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog)."},
         {Exit::interrupted, "Interrupted by SIGINT, SIGTERM or SIGHUP; the terminal was restored."},

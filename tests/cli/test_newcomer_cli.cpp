@@ -129,3 +129,31 @@ TEST_CASE("a true or false in a station file is quoted as the file writes it", "
   CHECK_THAT(reg.err, Catch::Contains("invalid value 'false' for R32"));
   CHECK_THAT(reg.err, !Catch::Contains("'off'"));
 }
+
+TEST_CASE("reset: a declined question exits 5 (refused, nothing written), a status of the table", "[cli][reset]") {
+  Emu emu;
+  REQUIRE(emu({"emu", "reset"}).rc == 0);
+  REQUIRE(emu({"set", "baud", "19200"}).rc == 0);
+  std::string before = read_text(emu.state);
+  int master = posix_openpt(O_RDWR | O_NOCTTY);
+  REQUIRE(master >= 0);
+  REQUIRE(grantpt(master) == 0);
+  REQUIRE(unlockpt(master) == 0);
+  int slave = open(ptsname(master), O_RDWR | O_NOCTTY);
+  REQUIRE(slave >= 0);
+  REQUIRE(write(master, "n\n", 2) == 2);  // the answer, waiting in the line
+  int rc = 0;
+  std::string err;
+  {
+    Child c({"-t", "1", "reset"}, emu.env, slave);
+    rc = c.wait(60);
+    err = c.err();
+  }
+  close(slave);
+  close(master);
+  INFO(err);
+  CHECK(rc == 5);
+  CHECK_THAT(err, Catch::Contains("[y/N]"));
+  CHECK_THAT(err, Catch::Contains("nothing"));
+  CHECK(read_text(emu.state) == before);
+}
