@@ -68,11 +68,12 @@ std::unique_ptr<Relay> relay_for(const Options& o, const Server& sv, const Child
   return std::make_unique<PtyRelay>(line.substr(4, line.find('?') - 4), o.baud);
 }
 
-// apply A, apply B, apply A, ...: every run changes the baud rate of every terminal (exit 10).
+// apply A, apply B, apply A, ...: every run changes the baud rate of every terminal (exit 10 with
+// --detailed-exitcode).
 Stats apply_turns(const Options& o, Relay& relay, const std::string& station, const std::string& a,
                   const std::string& b, const std::string& tag) {
   fs::path cache = o.tmp / ("cache-" + tag);
-  std::vector<std::string> base{"--port", relay.endpoint(), "--station", station, "apply"};
+  std::vector<std::string> base{"--port", relay.endpoint(), "--station", station, "apply", "--detailed-exitcode"};
   auto args = [&](const std::string& f) {
     auto v = base;
     v.push_back(f);

@@ -327,8 +327,8 @@ std::string generate_manpage(const App& a) {
          "(\\fBwrite\\fR, \\fBapply\\fR; \\fB\\-\\-force\\fR writes it), a change that would lock kscfg "
          "out or leave settings that go together apart; a station or station file that does not match the one "
          "found (types, positions, image lengths, R8 not as the kept scan says); \\fBdata force\\fR without "
-         "\\fB\\-\\-yes\\fR; \\fBread\\fR of registers of the extended area R48..R63 (the others named are "
-         "read and printed first: a partial read)."},
+         "\\fB\\-\\-yes\\fR; a question answered no (\\fBreset\\fR); \\fBread\\fR of registers of the extended "
+         "area R48..R63 (the others named are read and printed first: a partial read)."},
         {Exit::verify, "A written register reads back a different value (the write did not take)."},
         {Exit::file,
          "A file is unreadable, corrupt or unwritable (emulator state, station file, catalog), or the directory "
@@ -338,7 +338,9 @@ std::string generate_manpage(const App& a) {
          "A change failed and its rollback could not verify every register it touched (a lost reply, a link "
          "that went down): the message names the registers that may hold the new value; read them with "
          "\\fBkscfg dump\\fR."},
-        {Exit::changed, "apply: the station was changed (success)."},
+        {Exit::changed,
+         "\\fBapply\\fR, \\fBrestore\\fR with \\fB\\-\\-detailed\\-exitcode\\fR: the station was changed "
+         "(success; without it, 0)."},
         {Exit::busy,
          "Gave up waiting for the coupler (port and unit) or the emulator state file that another kscfg on this "
          "computer holds (\\fB\\-\\-lock\\-wait\\fR); the message names that process. An emulator state "

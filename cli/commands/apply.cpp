@@ -78,7 +78,7 @@ void UndoSaver::say() const {
 }
 
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
-              const std::string& what, std::optional<unsigned> keep) {
+              const std::string& what, std::optional<unsigned> keep, bool detailed) {
   if (backup == "-")
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
@@ -129,7 +129,9 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   } else {
     std::cout << plan_text(plan);
   }
-  return static_cast<int>(Exit::changed);
+  // A change that worked is a success (`kscfg apply f.toml && ...`, `set -e`); the output says it
+  // changed, and --detailed-exitcode tells it by the status as well.
+  return detailed ? static_cast<int>(Exit::changed) : 0;
 }
 
 namespace {
@@ -137,7 +139,7 @@ namespace {
 class Apply : public ApplyCommand {
  public:
   std::string name() const override { return "apply"; }
-  std::string brief() const override { return "Make the station match a station file (exit 10 if changed)"; }
+  std::string brief() const override { return "Make the station match a station file"; }
   std::string man() const override {
     return "Makes the station match \\fIFILE\\fR. First it checks that every terminal type and position "
            "matches and refuses, naming the mismatch, before anything is written. Then it reads what the "
@@ -151,8 +153,10 @@ class Apply : public ApplyCommand {
            "(\\fB\\-\\-keep\\-backups\\fR \\fIN\\fR or \\fBKSCFG_BACKUP_KEEP\\fR; 0 keeps all). If any write fails, "
            "every "
            "register this run wrote is restored and the exit status says why. Running apply twice changes "
-           "nothing the second time. Exit status: 0 no change needed, 10 changed, other: failure (nothing "
-           "left half-written). \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "
+           "nothing the second time. Exit status: 0 success (the output says whether anything changed: "
+           "\\fBno change needed\\fR, or the changes; \\fBchanged\\fR in \\fB\\-\\-json\\fR), other: failure "
+           "(nothing left half-written); with \\fB\\-\\-detailed\\-exitcode\\fR (as Terraform's), 0 nothing "
+           "to change, 10 changed. \\fB\\-\\-dry\\-run\\fR prints the plan and exits like \\fBdiff\\fR. "
            "A plan with a value the catalog does not document for its register (a raw \\fBR32 = 0x00FF\\fR on "
            "a KL6001), with settings that go together left apart (KL6031 \\fBimage\\-size\\fR and "
            "\\fBextended\\-image\\fR) or that would leave a terminal without its register window at the "
@@ -163,7 +167,8 @@ class Apply : public ApplyCommand {
            "shows the plan).";
   }
   std::vector<std::string> examples() const override {
-    return {"apply line3.toml", "apply --dry-run line3.toml", "--port tcp://10.0.0.5 --json apply line3.toml"};
+    return {"apply line3.toml", "apply --dry-run line3.toml", "--port tcp://10.0.0.5 --json apply line3.toml",
+            "apply --detailed-exitcode line3.toml"};
   }
 };
 

@@ -13,11 +13,12 @@ nlohmann::json plan_json(const Plan& plan);
 // The JSON of diff, apply and restore (docs/json.md): the plan with dry_run, port, unit, backup.
 nlohmann::json provision_json(Context& ctx, const Plan& plan, bool dry_run, const std::string& backup);
 std::string plan_text(const Plan& plan);
-// apply and restore: plan, back up, write, roll back on failure. Returns the exit code.
+// apply and restore: plan, back up, write, roll back on failure. Returns the exit code: 0 done
+// (changed or not: the output says which), or with `detailed` (--detailed-exitcode) 10 changed.
 // `what` ("apply", "restore") names the progress line on a terminal.
 // `keep`: --keep-backups (automatic backups of the port to keep).
 int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::string& backup, bool force,
-              const std::string& what = "apply", std::optional<unsigned> keep = std::nullopt);
+              const std::string& what = "apply", std::optional<unsigned> keep = std::nullopt, bool detailed = false);
 
 // How many automatic backups of a port to keep: `keep` (--keep-backups), else KSCFG_BACKUP_KEEP,
 // else 20.
@@ -65,18 +66,20 @@ class ApplyCommand : public Command {
            },
            "Automatic backups of this port to keep (default 20; 0: all)")
         ->option_text("N");
+    sub.add_flag("--detailed-exitcode", detailed_,
+                 "Exit 10 when the station was changed, 0 when nothing needed a change (as Terraform's)");
   }
   int run(Context& ctx) override {
     // Strict like every number kscfg parses (" 3" and "3x" are errors; CLI11 would trim them).
     std::optional<unsigned> keep;
     if (keep_given_) keep = static_cast<unsigned>(parse_uint(keep_, 1'000'000, "--keep-backups value"));
-    return run_apply(ctx, file_, dry_, backup_, force_, name(), keep);
+    return run_apply(ctx, file_, dry_, backup_, force_, name(), keep, detailed_);
   }
 
  private:
   std::string keep_;
   bool keep_given_ = false;
   std::string file_, backup_;
-  bool dry_ = false, force_ = false;
+  bool dry_ = false, force_ = false, detailed_ = false;
 };
 }  // namespace kscfg::cli

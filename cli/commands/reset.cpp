@@ -28,8 +28,9 @@ class Reset : public Command {
            "(never the hardware version R16 or undescribed manufacturer registers), as one change that is "
            "rolled back on failure, saved first to an undo file as \\fBset\\fR does. It first states exactly what it "
            "will do and asks for confirmation on "
-           "the terminal; \\fB\\-y\\fR skips the question. Without a terminal on stdin it refuses unless "
-           "\\fB\\-y\\fR is given. Factory values that would leave a terminal without its register window "
+           "the terminal; \\fB\\-y\\fR skips the question; an answer other than \\fBy\\fR writes nothing "
+           "and exits with status 5. Without a terminal on stdin it refuses unless \\fB\\-y\\fR is given. "
+           "Factory values that would leave a terminal without its register window "
            "(e.g. a KL6001's alternative format on a coupler without complete evaluation) are refused with "
            "status 5 before the question; \\fB\\-\\-force\\fR resets anyway (see \\fBwrite\\fR).";
   }
@@ -66,8 +67,9 @@ class Reset : public Command {
       std::string answer;
       std::getline(std::cin, answer);
       if (answer != "y" && answer != "Y" && answer != "yes") {
+        // Declined: refused, nothing written (the table's 5, as data force without --yes).
         std::cerr << "kscfg: nothing done\n";
-        return static_cast<int>(Exit::usage);
+        return static_cast<int>(Exit::refused);
       }
     }
     auto s = ctx.session();

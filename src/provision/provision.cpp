@@ -113,15 +113,46 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
   return spec;
 }
 
+namespace {
+
+// Why a file without positions that names fewer terminals than the station has is refused, and
+// what it lacks: each type it names that the station has once is at a known position, so say it
+// and that a file configuring only some terminals names them (position = N; docs/design.md 6.8).
+// It is never taken as such a file: a file without positions describes the whole station.
+std::string count_hint(const StationSpec& desired, const StationLayout& layout) {
+  std::string nothing = "nothing was written";
+  if (desired.terminals.size() >= layout.terminals.size()) return "kscfg info lists the station; " + nothing;
+  std::vector<std::string> said;
+  std::set<std::string> named;
+  for (const auto& want : desired.terminals) {
+    std::vector<unsigned> at;
+    for (const auto& have : layout.terminals)
+      if (fits_type(have, want.type)) at.push_back(have.position);
+    if (at.size() != 1 || !named.insert(want.type).second) {
+      said.clear();
+      break;
+    }
+    said.push_back(fmt::format("the station's {} is at position {}: add position = {} to its [[terminal]]{}", want.type,
+                               at[0], at[0], want.line ? fmt::format(" (line {})", want.line) : std::string()));
+  }
+  std::string rule = "a file that configures only some terminals names each one's position";
+  if (said.empty()) return rule + " (position = N; kscfg info lists the station); " + nothing;
+  std::string out;
+  for (const auto& s : said) out += s + "; ";
+  return out + rule + "; " + nothing;
+}
+
+}  // namespace
+
 Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
                const SessionOptions& so, const Progress& progress) {
   auto where = [&](int line) { return line ? fmt::format("{}:{}: ", desired.origin, line) : desired.origin + ": "; };
   // 1. Composition: same types at the same positions, before anything else.
   if (desired.terminals.size() != layout.terminals.size()) {
     throw Error(Exit::refused,
-                fmt::format("{}describes {} terminals, the station has {}", where(0), desired.terminals.size(),
-                            layout.terminals.size()),
-                "kscfg info lists the station; nothing was written");
+                fmt::format("{}describes {} terminal{}, the station has {}", where(0), desired.terminals.size(),
+                            desired.terminals.size() == 1 ? "" : "s", layout.terminals.size()),
+                count_hint(desired, layout));
   }
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
@@ -150,6 +181,9 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
                                                                 : "read-only"));
       }
   }
+  // A raw register the file also sets by a named parameter: both must say the same (an edited
+  // backup), or the parameter would win without a word.
+  check_settings_agree(desired, catalog);
   // 3. Read what the file configures, every channel at once, and compare.
   struct Want {
     std::size_t terminal;

@@ -123,6 +123,13 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
       std::uint16_t val = 0;
       try {
         reg = parse_register(key);
+        // A register holds a number; true/false is quoted as the file writes it, never as "on".
+        if (auto b = v.value_exact<bool>()) {
+          std::string written = quote_input(*b ? "true" : "false");
+          throw Error(
+              Exit::usage,
+              fmt::format("invalid value {} for {}: a register value is a number (0x0006, 6 or 0b110)", written, key));
+        }
         val = parse_value(value_text(origin, key, v));
       } catch (const Error& e) {
         fail_at(origin, &v, Exit::usage, e.what());
@@ -143,6 +150,12 @@ void parse_channel(std::string_view origin, const toml::table& t, const Terminal
     try {
       (void)encode_param(*p, s.value, 0);
     } catch (const Error& e) {
+      // true/false is read as on/off; a parameter that takes neither says the value as written.
+      if (auto b = v.value_exact<bool>()) {
+        std::string msg = e.what(), was = quote_input(s.value), written = quote_input(*b ? "true" : "false");
+        if (auto at = msg.find(was); at != std::string::npos) msg.replace(at, was.size(), written);
+        fail_at(origin, &v, Exit::usage, msg);
+      }
       fail_at(origin, &v, Exit::usage, e.what());
     }
     ch.params.push_back(std::move(s));
@@ -402,6 +415,37 @@ static std::string toml_value(const std::string& v) {
   if (v == "on") return "true";
   if (v == "off") return "false";
   return toml_string(v);
+}
+
+void check_settings_agree(const StationSpec& spec, const Catalog& catalog) {
+  std::string origin = spec.origin.empty() ? "the station file" : spec.origin;
+  for (const auto& ts : spec.terminals) {
+    const TerminalType& type = catalog.get(ts.type);
+    for (const auto& ch : ts.channels)
+      for (const auto& p : ch.params) {
+        const ParamDef* pd = type.param(p.name);
+        if (!pd) continue;
+        auto disagree = [&](unsigned reg, std::uint16_t says) {
+          std::uint16_t raw = ch.registers.at(reg);
+          int line = ch.register_lines.count(reg) ? ch.register_lines.at(reg) : 0;
+          throw Error(Exit::refused,
+                      fmt::format("{}:{}: {} = {} and R{} = {}{} say different things: {} = {} makes R{} {}", origin,
+                                  p.line, p.name, toml_value(p.value), reg, hex4(raw),
+                                  line ? fmt::format(" (line {})", line) : std::string(), p.name, toml_value(p.value),
+                                  reg, hex4(says)),
+                      "edit or remove one of them; nothing was written");
+        };
+        if (auto it = ch.registers.find(pd->reg); it != ch.registers.end()) {
+          std::uint16_t says = encode_param(*pd, p.value, it->second);
+          if (says != it->second) disagree(pd->reg, says);
+        }
+        if (pd->reg_hi)
+          if (auto it = ch.registers.find(*pd->reg_hi); it != ch.registers.end()) {
+            std::uint16_t says = encode_param_hi(*pd, p.value);
+            if (says != it->second) disagree(*pd->reg_hi, says);
+          }
+      }
+  }
 }
 
 static void channel_toml(std::string& out, const ChannelSpec& ch) {

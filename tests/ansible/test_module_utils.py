@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import unittest
+import unittest.mock
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
@@ -172,8 +173,8 @@ class PlanTest(Tmp):
         terms[0]['baud'] = 19200
         path = self.write('s.toml', ku.station_toml(terms))
         env = dict(os.environ, XDG_STATE_HOME=self.path('state'))
-        r = subprocess.run([KSCFG, '--port', state, '--json', 'apply', path], capture_output=True, text=True,
-                           env=env, timeout=120)
+        r = subprocess.run([KSCFG, '--port', state, '--json', 'apply', '--detailed-exitcode', path],
+                           capture_output=True, text=True, env=env, timeout=120)
         self.assertEqual(r.returncode, ku.EXIT_CHANGED, r.stderr)
         plan = ku.normalize_plan(json.loads(r.stdout), port=state)
         self.assertTrue(plan['changed'])
@@ -429,6 +430,22 @@ class CheckModeTest(Tmp):
         self.assertFalse(failed, result.get('msg'))
         self.assertTrue(result['changed'])
         self.assertTrue(result['dry_run'])
+
+    def test_a_real_run_says_changed_by_kscfgs_exit_status(self):
+        # kscfg apply exits 0 after a change unless asked (--detailed-exitcode): the module asks.
+        station = self.write('s.toml', 'coupler = "BK9000"\n[[terminal]]\nposition = 1\ntype = "KL6001"\n'
+                             'baud = 19200\n')
+        params = {'port': self.port, 'station': station, 'kscfg': KSCFG,
+                  'backup_file': self.path('backup.toml')}
+        own = {'XDG_STATE_HOME': self.path('state'), 'XDG_CACHE_HOME': self.path('cache')}
+        with unittest.mock.patch.dict(os.environ, own):
+            failed, result = run_station_module(params, False)
+            self.assertFalse(failed, result.get('msg'))
+            self.assertIn('--detailed-exitcode', result['cmd'])
+            self.assertEqual((result['changed'], result['rc']), (True, ku.EXIT_CHANGED))
+            failed, result = run_station_module(params, False)
+            self.assertFalse(failed, result.get('msg'))
+            self.assertEqual((result['changed'], result['rc']), (False, ku.EXIT_OK))
 
     def test_a_change_kscfg_refuses_fails_in_check_mode(self):
         cases = {

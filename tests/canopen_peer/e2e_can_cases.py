@@ -199,7 +199,7 @@ def c_restore(ctx):
     ctx.expect_rc(0, "-t", "4", "-c", "2", "write", "R33", "0x1234")
     check(ctx.registers() != before, "setup: nothing changed")
     ctx.expect_rc(1, "diff", f, fact="diff must report the changes")
-    ctx.expect_rc(10, "restore", f)
+    ctx.expect_rc(10, "restore", "--detailed-exitcode", f)
     after = ctx.state()
     diffs = ["%d.%d.R%d 0x%04X -> 0x%04X" % (p + 1, c + 1, r, before[p][c][r], ch[r])
              for p, t in enumerate(ctx.registers(after)) for c, ch in enumerate(t)
@@ -213,7 +213,7 @@ def c_restore(ctx):
       "R32 = 0x0007; a second apply writes nothing")
 def c_apply(ctx):
     want = ctx.write_station(DEFAULT_TYPES, {1: {"baud": "19200"}, 3: {"baud": "38400"}}, name="want.toml")
-    ctx.expect_rc(10, "apply", want)
+    ctx.expect_rc(10, "apply", "--detailed-exitcode", want)
     st = ctx.state()
     check(ctx.reg(1, 32, state=st) == 7, "peer KL6001 R32 = 0x%04X" % ctx.reg(1, 32, state=st))
     check(ctx.reg(3, 32, state=st) == 8, "peer KL6031 R32 = 0x%04X" % ctx.reg(3, 32, state=st))
@@ -303,7 +303,7 @@ def dead_bus_run(ctx, n, want):
 def c_dead_bus(ctx):
     want = ctx.write_station(DEFAULT_TYPES, {1: {"baud": "19200"}, 3: {"baud": "38400"}}, name="want.toml")
     before = ctx.registers()
-    ctx.expect_rc(10, "apply", want)
+    ctx.expect_rc(10, "apply", "--detailed-exitcode", want)
     total = ctx.state()["sdo_requests"]
     check(total >= 8, "a whole apply took only %d SDO requests" % total)
     left_unlocked = 0

@@ -48,7 +48,7 @@ void provisioning_flow(const Station& st) {
   CHECK_THAT(d.out, Catch::Contains("baud                 19200 -> 9600"));
   CHECK_THAT(d.out, Catch::Contains("terminal 3 (KL6031)"));
   Run a = st({"restore", st.file("backup.toml")});
-  CHECK(a.rc == 10);
+  CHECK(a.rc == 0);
   CHECK_THAT(a.err, Catch::Contains("backup of the touched registers"));
   Run clean = st({"diff", st.file("backup.toml")});
   CHECK(clean.rc == 0);
@@ -105,13 +105,13 @@ type = "KL9010"
   CHECK(j["terminals"][0]["params"].size() == 1);         // data-bytes is already 3
   CHECK(st({"read", "--raw", "R32"}).out == "0x0006\n");  // dry run wrote nothing
   Run a = st({"--json", "apply", "--backup", st.file("undo.toml"), st.file("want.toml")});
-  CHECK(a.rc == 10);
+  CHECK(a.rc == 0);
   auto aj = nlohmann::json::parse(a.out);
   CHECK(aj["backup"] == st.file("undo.toml"));
   CHECK(st({"-t", "3", "read", "--raw", "R18"}).out == "0x0200\n");
   // The saved undo file puts the touched registers back.
   CHECK_THAT(read_text(st.file("undo.toml")), Catch::Contains("R32 = 0x0006"));
-  CHECK(st({"restore", st.file("undo.toml")}).rc == 10);
+  CHECK(st({"restore", st.file("undo.toml")}).rc == 0);
   CHECK(st({"read", "--raw", "R32"}).out == "0x0006\n");
   CHECK(st({"-t", "3", "read", "--raw", "R18"}).out == "0x0400\n");
 }
@@ -219,7 +219,7 @@ TEST_CASE("a 2-channel terminal keeps each channel's settings through backup, di
   REQUIRE(st({"-t", "4", "-c", "2", "write", "R32", "0x0000"}).rc == 0);
   REQUIRE(st({"-t", "4", "-c", "1", "write", "R32", "0x0003"}).rc == 0);
   Run r = st({"restore", st.file("b.toml")});
-  CHECK(r.rc == 10);
+  CHECK(r.rc == 0);
   CHECK(st({"-t", "4", "-c", "2", "read", "--raw", "R32"}).out == "0x0005\n");
   CHECK(st({"-t", "4", "-c", "1", "read", "--raw", "R32"}).out == "0x0106\n");  // the KL3022's delivered R32
 }

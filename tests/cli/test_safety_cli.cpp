@@ -273,7 +273,7 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
     CHECK(st.snapshot() == before);
   }
   Run f = st({"apply", "--force", st.dir.file("lock.toml")});
-  CHECK(f.rc == 10);
+  CHECK(f.rc == 0);
   CHECK_THAT(f.err, Catch::Contains("warning: --force"));
 }
 
@@ -515,7 +515,7 @@ TEST_CASE("apply's backup records the run, its undo line works as printed, backu
   write_text(st.dir.file("want.toml"), seven_terminals("baud = 19200\n"));
   write_text(st.dir.file("back.toml"), seven_terminals("baud = 9600\n"));
   Run a = st({"--json", "apply", st.dir.file("want.toml")});
-  REQUIRE(a.rc == 10);
+  REQUIRE(a.rc == 0);
   auto j = nlohmann::json::parse(a.out);
   std::string path = j["backup"], undo = j["undo"];
   INFO(a.err);
@@ -533,7 +533,7 @@ TEST_CASE("apply's backup records the run, its undo line works as printed, backu
   CHECK_THAT(text, Catch::Contains("# Undo with:\n#   " + undo + "\n"));
   // As printed, without KSCFG_PORT: back on the same port.
   Run u = run_as_printed(undo, {{"XDG_STATE_HOME", st.dir.file("xdg")}});
-  CHECK(u.rc == 10);
+  CHECK(u.rc == 0);
   CHECK(st.snapshot() == before);
 
   // Rotation: KSCFG_BACKUP_KEEP=2 keeps this port's two newest.
@@ -542,7 +542,7 @@ TEST_CASE("apply's backup records the run, its undo line works as printed, backu
   std::string last;
   for (int i = 0; i < 4; ++i) {
     Run r = run_kscfg({"--json", "apply", st.dir.file(i % 2 ? "back.toml" : "want.toml")}, env);
-    REQUIRE(r.rc == 10);
+    REQUIRE(r.rc == 0);
     last = nlohmann::json::parse(r.out)["backup"];
   }
   auto kept = files_in(folder);
@@ -550,12 +550,12 @@ TEST_CASE("apply's backup records the run, its undo line works as printed, backu
   REQUIRE(kept.size() == 2);
   CHECK(kept.back() == std::filesystem::path(last).filename().string());
   // --keep-backups 0 keeps all; a path given with --backup is never rotated.
-  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("want.toml")}, env).rc == 10);
-  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("back.toml")}, env).rc == 10);
+  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("want.toml")}, env).rc == 0);
+  REQUIRE(run_kscfg({"apply", "--keep-backups", "0", st.dir.file("back.toml")}, env).rc == 0);
   CHECK(files_in(folder).size() == 4);
   REQUIRE(
       run_kscfg({"apply", "--keep-backups", "1", "--backup", st.dir.file("mine.toml"), st.dir.file("want.toml")}, env)
-          .rc == 10);
+          .rc == 0);
   CHECK(files_in(folder).size() == 4);
 }
 
@@ -570,7 +570,7 @@ TEST_CASE("kscfg serve: apply's backup names the Modbus port, unit and coupler, 
   const std::string desc = st.dir.file("station.toml");
   write_text(desc, seven_terminals(""));
   Run a = run_kscfg({"--port", srv.uri, "--station", desc, "--json", "apply", st.dir.file("want.toml")}, env);
-  REQUIRE(a.rc == 10);
+  REQUIRE(a.rc == 0);
   auto j = nlohmann::json::parse(a.out);
   std::string path = j["backup"], undo = j["undo"];
   INFO(a.err << read_text(path));
@@ -584,7 +584,7 @@ TEST_CASE("kscfg serve: apply's backup names the Modbus port, unit and coupler, 
   // The emulator behind KSCFG_PORT must not be the one restored: give it a different port.
   env["KSCFG_PORT"] = "emu:" + st.dir.file("other.json");
   Run u = run_as_printed(undo, env);
-  CHECK(u.rc == 10);
+  CHECK(u.rc == 0);
   CHECK(run_kscfg({"--port", srv.uri, "--station", desc, "read", "--raw", "-t", "1", "R32"}, env).out == "0x0006\n");
   CHECK(srv.stop() == 0);
 }

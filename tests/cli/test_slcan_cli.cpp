@@ -92,7 +92,7 @@ TEST_CASE("kscfg over slcan against serve --can: every register command, backup/
 
   r = run_kscfg({"--port", port, "restore", d.file("before.toml")});
   INFO(r.err);
-  CHECK(r.rc == 10);
+  CHECK(r.rc == 0);
   r = run_kscfg({"--port", port, "diff", d.file("before.toml")});
   CHECK(r.rc == 0);
   r = run_kscfg({"--port", port, "backup", d.file("after.toml")});

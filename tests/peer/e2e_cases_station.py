@@ -22,7 +22,8 @@ def c_fleet(ctx):
     with open(f, "rb") as fh:
         types = [t["type"] for t in tomllib.load(fh)["terminal"]]
     check(types == INIT_TYPES, "station init wrote %r; the peer was started with %r" % (types, INIT_TYPES))
-    ctx.expect_rc(10, "--json", "apply", f, fact="the file asks for the standard format with 5 data bytes")
+    ctx.expect_rc(10, "--json", "apply", "--detailed-exitcode", f,
+                  fact="the file asks for the standard format with 5 data bytes")
     st = ctx.state()
     check(ctx.reg(1, 35, state=st) == 5, "peer R35 = %d" % ctx.reg(1, 35, state=st))
     check(ctx.reg(1, 34, state=st) & 0x0002 == 0, "peer R34 = 0x%04X (alternative format)" % ctx.reg(1, 34, state=st))
@@ -82,7 +83,7 @@ def c_backup_restore(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0007", station=True)
     check(ctx.reg(1, 32) == 7, "setup: write did not take")
     ctx.expect_rc(1, "diff", f, station=True, fact="diff must report R32/baud changed")
-    ctx.expect_rc(10, "restore", f, station=True)
+    ctx.expect_rc(10, "restore", "--detailed-exitcode", f, station=True)
     check(ctx.reg(1, 32) == 6, "peer R32 = 0x%04X after restore" % ctx.reg(1, 32))
     ctx.expect_rc(0, "diff", f, station=True)
     check(not ctx.unlocked(1), "terminal left unlocked")
@@ -93,7 +94,7 @@ def c_backup_restore(ctx):
 def c_apply(ctx):
     want = ctx.write_station(ctx.cfg["coupler"], DEFAULT_TYPES,
                              {1: dict(ctx.cfg["kl6001"], baud="19200")}, name="want.toml")
-    ctx.expect_rc(10, "apply", want, station=True)
+    ctx.expect_rc(10, "apply", "--detailed-exitcode", want, station=True)
     st = ctx.state()
     check(ctx.reg(1, 32, state=st) == 7, "peer R32 = 0x%04X" % ctx.reg(1, 32, state=st))
     writes = dict(st["eeprom_writes"])

@@ -106,6 +106,11 @@ std::string toml_comment(std::string_view text);
 // The default station of the emulator: BK9000 with KL6001, KL5101, KL6031, digital terminals, KL9010.
 StationSpec default_station();
 
+// A raw register and a named parameter of the same channel that set its bits differently (a
+// backup writes both; an edit of one alone would be overridden without a word): Error(refused)
+// naming both and their lines. Agreeing ones are accepted.
+void check_settings_agree(const StationSpec& spec, const Catalog& catalog);
+
 // Register values of one channel: the type's defaults, then the spec's params and registers.
 std::array<std::uint16_t, proto::kRegisterCount> channel_registers(const TerminalType& type, const TerminalSpec* spec,
                                                                    unsigned channel);

@@ -332,7 +332,8 @@ def main():
 
     if p['layout']:
         args = args[:-1] + ['--station', station, '--json']
-    cmd = args + ['apply']
+    # --detailed-exitcode: 10 when kscfg changed the station (without it, a change exits 0 too).
+    cmd = args + ['apply', '--detailed-exitcode']
     if module.check_mode:
         cmd.append('--dry-run')
     elif p['backup_file']:
@@ -377,7 +378,7 @@ def main():
     if module._diff and result['changed']:
         result['diff'] = plan_diff(plan, plan['port'] or 'station')
     # Ansible takes a result with a non-zero rc for a failure unless it says otherwise; for
-    # kscfg apply, 10 (changed) and, in check mode, 1 (differences) are successes.
+    # kscfg apply --detailed-exitcode, 10 (changed) and, in check mode, 1 (differences) are successes.
     module.exit_json(failed=False, **result)
 
 
