@@ -1,7 +1,7 @@
-// What a new user meets first when changing a station: a successful change that exits 0, a one-terminal station file that
-// says which position it would be, a backup whose raw register contradicts its named parameter, a
-// value quoted as the file writes it, a declined question that exits with a status of the table.
-// Through the CLI against a private emulator.
+// What a new user meets first when changing a station: a successful change that exits 0, a one-terminal station file
+// that says which position it would be, a backup whose raw register contradicts its named parameter, a value quoted as
+// the file writes it, a declined question that exits with a status of the table. Through the CLI against a private
+// emulator.
 #include <fcntl.h>
 #include <unistd.h>
 
