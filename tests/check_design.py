@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """The design of record cites only what exists (issue 33 item 5).
 
-Reads the design of record (docs/design.md, and src/README.md, its picture of the layers) and fails,
-naming each, when a code identifier it cites in backticks does not exist in the source tree, or when
-a comment in the C++ sources names a file that does not exist. What counts as a citation, for an inline code
-span outside fenced blocks (the span's text is S):
+Reads the design of record (docs/design.md, src/README.md, its picture of the layers, and
+docs/architecture.md, the newcomer's tour of the code as it is) and fails, naming each, when a code
+identifier one of them cites in backticks does not exist in the source tree, or when a comment in the
+C++ sources names a file that does not exist. What counts as a citation, for an inline code span
+outside fenced blocks (the span's text is S):
 
 * A path: S starts with a folder of the tree (src/ include/ tests/ bench/ cli/ cmake/ data/ catalog/
   docs/ man/ fuzz/ completions/ contrib/ packaging/ examples/ .ci/), or with a library layer
@@ -12,6 +13,8 @@ span outside fenced blocks (the span's text is S):
   source extension (.hpp .cpp .py .toml .cmake .sh .md: found anywhere in the tree). It must exist;
   `*` is a wildcard and <name> a placeholder for one path component (both must match something);
   a path without an extension may name a program built from a source (bench/bench_modbus).
+* A path with a line: PATH:N or PATH:N-M (cli/context.cpp:165): PATH as above, a file of at least
+  N (M) lines.
 * A qualified name A::b (also A::b() or A::b(args)): A must be declared (a class, struct, enum or
   namespace), and b declared inside A's body, defined as A::b, or (A a namespace) used in a file
   that opens namespace A.
@@ -139,6 +142,15 @@ class Tree:
             return bool(glob.glob(os.path.join(self.root, pattern)))
         return pattern in self.files or pattern in self.dirs
 
+    def has_line(self, kind, path, line):
+        """`path` (a path from the root, or a layer path) names a file of at least `line` lines."""
+        paths = [path] if kind == "path" else ["include/kscfg/" + path, "src/" + path]
+        for p in paths:
+            if p in self.files:
+                with open(os.path.join(self.root, p), encoding="utf-8", errors="replace") as f:
+                    return line >= 1 and sum(1 for _ in f) >= line
+        return False
+
     def word(self, name, text=None):
         if text is None:
             return name in self.words
@@ -203,6 +215,12 @@ def classify(span):
         return ("word", m.group(1))
     if re.fullmatch(r"(%s::)+%s" % (IDENT, IDENT), s):
         return ("qualified", s)
+    m = re.fullmatch(r"([^:]+\.\w+):(\d+)(?:-(\d+))?", s)  # cli/context.cpp:165, a line of a file
+    if m:
+        c = classify(m.group(1))
+        if c and c[0] in ("path", "layer path"):
+            return ("path line", (c[0], m.group(1), int(m.group(3) or m.group(2))))
+        return None
     if "/" in s or re.search(r"\.\w+$", s):
         if s.startswith(("$", "~", "/", ".") ) and not s.startswith(".ci/"):
             return None
@@ -251,6 +269,8 @@ def check(tree, doc_text):
                 ok = tree.exists("include/kscfg/" + key) or tree.exists("src/" + key)
             elif kind == "file":
                 ok = key in tree.basenames
+            elif kind == "path line":
+                ok = tree.has_line(*key)
             elif kind == "type":
                 ok = tree.type_declared(key)
             elif kind == "word":
@@ -303,10 +323,10 @@ def check_comments(tree):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--root", required=True)
-    ap.add_argument("--doc", action="append", help="default: docs/design.md and src/README.md")
+    ap.add_argument("--doc", action="append", help="default: docs/design.md, src/README.md and docs/architecture.md")
     a = ap.parse_args()
     tree = Tree(a.root)
-    docs = a.doc or [os.path.join(tree.root, d) for d in ("docs/design.md", "src/README.md")
+    docs = a.doc or [os.path.join(tree.root, d) for d in ("docs/design.md", "src/README.md", "docs/architecture.md")
                      if os.path.exists(os.path.join(tree.root, d))]
     problems = []
     for doc in docs:
