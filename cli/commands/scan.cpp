@@ -54,7 +54,10 @@ class Scan : public Command {
            "The mapping settings are the coupler family's defaults unless \\fB\\-\\-complete\\-evaluation\\fR, "
            "\\fB\\-\\-word\\-alignment\\fR or \\fB\\-\\-motorola\\fR say otherwise. \\fB\\-\\-write\\fR "
            "\\fIFILE\\fR saves what was found as a station file (see kscfg-station(5)); an existing file is "
-           "replaced only with \\fB\\-\\-force\\fR. Without \\fB\\-\\-station\\fR, other commands on a Modbus "
+           "replaced only with \\fB\\-\\-force\\fR. The embedded emulator is no coupler to discover: "
+           "\\fBscan\\fR on it is refused with exit status 2, \\fBkscfg info\\fR shows its terminals and "
+           "\\fBkscfg station init \\-\\-from\\-port\\fR \\fIFILE\\fR writes them as a station file (on every "
+           "port). Without \\fB\\-\\-station\\fR, other commands on a Modbus "
            "port find the terminals the same way, walking only as far as they need (\\fB\\-t 2\\fR: terminals "
            "1 and 2). What a scan found is kept per port and unit in "
            "\\fI$XDG_CACHE_HOME/kscfg/scans/\\fR with the terminals' acknowledge latencies; a later command uses "
@@ -142,6 +145,14 @@ class Scan : public Command {
       ads = can = true;
     } else {
       ModbusRegisters* regs = link->modbus_registers();
+      // The embedded emulator is no coupler on a bus: nothing to discover, kscfg holds its station.
+      if (!regs && link->emulator())
+        throw Error(Exit::usage,
+                    fmt::format("'kscfg scan' discovers a Modbus, ADS or CANopen coupler; the port '{}' is the "
+                                "emulator, whose station needs no scan",
+                                ctx.options().port),
+                    "'kscfg info' shows its terminals; 'kscfg station init --from-port FILE' writes them as a "
+                    "station file");
       if (!regs)
         throw Error(
             Exit::usage,

@@ -10,6 +10,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
 #include "kscfg/session/verdict.hpp"
+#include "kscfg/station/layout.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
@@ -72,22 +73,37 @@ namespace {
 class StationInit : public Command {
  public:
   std::string name() const override { return "init"; }
-  std::string brief() const override { return "Write a commented example station file"; }
+  std::string brief() const override {
+    return "Write a commented example station file, or the connected station's (--from-port)";
+  }
   std::string man() const override {
     return "Writes a commented example station file to \\fIFILE\\fR (on stdout without \\fIFILE\\fR): a coupler, "
            "its mapping settings as comments, and terminals with named settings. The file is written atomically; an "
            "existing file is kept unless \\fB\\-\\-force\\fR is given. \\fB\\-\\-coupler\\fR chooses the coupler "
-           "(default BK9000). The format is described in \\fBkscfg-station\\fR(5).";
+           "(default BK9000). With \\fB\\-\\-from\\-port\\fR the file is the station on the port instead (the "
+           "emulator by default, or any \\fB\\-\\-port\\fR): its coupler and every terminal's type in plug order, "
+           "each with a comment naming its position, and the mapping settings only where they differ from the "
+           "coupler's defaults; no register and no parameter, so \\fBstation check\\fR, \\fBdiff\\fR and "
+           "\\fBapply\\fR take it as it is and settings can be added under each terminal. The terminals are found as "
+           "every command finds them (over Modbus a scan: digital terminals are not listed and a comment gives their "
+           "bits; over ADS and CANopen the coupler's table 9, a digital terminal by a type that fits its bits, "
+           "flagged in a comment). An existing \\fIFILE\\fR is refused with exit status 7 before the port is "
+           "opened. The format is described in \\fBkscfg-station\\fR(5).";
   }
   std::vector<std::string> examples() const override {
-    return {"station init line3.toml", "station init --coupler BK3120 profibus.toml", "station init > example.toml"};
+    return {"station init line3.toml", "station init --coupler BK3120 profibus.toml", "station init > example.toml",
+            "station init --from-port line3.toml", "--port tcp://10.0.3.11 station init --from-port coupler-11.toml"};
   }
   void add_cli(CLI::App& sub) override {
     sub.add_option("FILE", file_, "File to write (default or -: stdout)")->option_text("FILE");
-    sub.add_option("--coupler", coupler_, "Coupler of the example (default BK9000)")->option_text("NAME");
+    auto* coupler =
+        sub.add_option("--coupler", coupler_, "Coupler of the example (default BK9000)")->option_text("NAME");
+    sub.add_flag("--from-port", from_port_, "Write the station on the port (types in plug order, no settings)")
+        ->excludes(coupler);
     sub.add_flag("--force", force_, "Overwrite an existing file");
   }
   int run(Context& ctx) override {
+    if (from_port_) return from_port(ctx);
     std::string text = example_station(coupler_);
     (void)parse_station(text, "example", ctx.catalog());  // never hand out a file kscfg itself refuses
     if (file_.empty() || file_ == "-") {
@@ -102,8 +118,44 @@ class StationInit : public Command {
   }
 
  private:
+  // The station on the port as a station file: types and positions, nothing else.
+  int from_port(Context& ctx) {
+    const TerminalSelection& sel = ctx.options().selection;
+    if (ctx.terminal_given() && !(sel.all && sel.ranges.empty() && sel.types.empty()))
+      throw Error(
+          Exit::usage,
+          fmt::format("'kscfg station init --from-port' writes the whole station; -t {} selects terminals", sel.text),
+          "drop -t; a partial file names its terminals with 'position = N' (man 5 kscfg-station)");
+    refuse_to_replace(file_, force_);  // before the port is opened: nothing is lost, no time wasted
+    const StationLayout& L = ctx.layout();
+    StationSpec spec = station_of_layout(L);
+    std::string text =
+        toml_comment(fmt::format("Station on {}, written by 'kscfg station init --from-port'", ctx.link().describe())) +
+        toml_comment("The terminals' types in plug order; add settings under each terminal (man 5 kscfg-station)");
+    if (std::string d = L.unidentified_digital(); !d.empty())
+      text += toml_comment(fmt::format("Digital terminals not listed (the coupler gives only their bits): {}", d));
+    text += station_to_toml(spec);
+    (void)parse_station(text, "station", ctx.catalog());  // never hand out a file kscfg itself refuses
+    bool to_stdout = file_.empty() || file_ == "-";
+    if (to_stdout && ctx.json()) {
+      print_json(
+          {{"file", nullptr}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}, {"station", text}});
+      return 0;
+    }
+    if (to_stdout) {
+      write_output("-", text);
+      return 0;
+    }
+    write_file_atomic(file_, text);
+    if (ctx.json()) print_json({{"file", file_}, {"coupler", spec.coupler}, {"terminal_count", spec.terminals.size()}});
+    else
+      std::cerr << fmt::format("kscfg: wrote {} ({} with {} terminal{})\n", file_, spec.coupler, spec.terminals.size(),
+                               spec.terminals.size() == 1 ? "" : "s");
+    return 0;
+  }
+
   std::string file_, coupler_ = "BK9000";
-  bool force_ = false;
+  bool force_ = false, from_port_ = false;
 };
 
 class StationCheck : public Command {
@@ -178,7 +230,7 @@ class StationCheck : public Command {
 class Station : public Command {
  public:
   std::string name() const override { return "station"; }
-  std::string brief() const override { return "Station files: write an example, check one"; }
+  std::string brief() const override { return "Station files: write an example or the connected station, check one"; }
   std::string man() const override {
     return "Station files (TOML) describe a coupler and its terminals in plug order with their settings; "
            "\\fBkscfg map\\fR, \\fB\\-\\-station\\fR and \\fBkscfg emu reset \\-\\-station\\fR read them. The "

@@ -325,4 +325,32 @@ StationSpec expand_partial(const StationSpec& file, const StationLayout& station
   return full;
 }
 
+StationSpec station_of_layout(const StationLayout& layout) {
+  StationSpec spec;
+  spec.coupler = layout.coupler;
+  MappingSettings defaults;
+  bool known = true;
+  try {
+    defaults = coupler_profile(layout.coupler).defaults;
+  } catch (const Error&) {
+    known = false;  // no profile: every setting is written
+  }
+  if (!known || layout.settings.complete_evaluation != defaults.complete_evaluation)
+    spec.complete_evaluation = layout.settings.complete_evaluation;
+  if (!known || layout.settings.motorola != defaults.motorola) spec.motorola = layout.settings.motorola;
+  if (!known || layout.settings.word_alignment != defaults.word_alignment)
+    spec.word_alignment = layout.settings.word_alignment;
+  for (const auto& t : layout.terminals) {
+    TerminalSpec ts;
+    ts.type = t.type->type;
+    ts.inferred = t.inferred;
+    spec.terminals.push_back(std::move(ts));
+    spec.comments.push_back(t.inferred ? fmt::format("position {}: {} (the coupler gives no type): {} fits, as does "
+                                                     "{}; name the terminal's type",
+                                                     t.position, digital_label(t), t.type->type, fits_text(t, 8))
+                                       : fmt::format("position {}", t.position));
+  }
+  return spec;
+}
+
 }  // namespace kscfg

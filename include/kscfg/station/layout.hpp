@@ -116,4 +116,11 @@ StationLayout compute_layout(const StationSpec& spec, const Catalog& catalog);
 // A full file is returned as it is.
 StationSpec expand_partial(const StationSpec& file, const StationLayout& station);
 
+// The station a layout describes, as a station file holds it (kscfg station init --from-port): the
+// coupler, every terminal's type in plug order, each with a comment naming its plug position, and
+// the mapping settings only where they differ from the coupler's defaults; no register and no
+// parameter. A digital terminal known only by its bits (inferred) keeps its stand-in type, flagged,
+// and its comment names the types that fit.
+StationSpec station_of_layout(const StationLayout& layout);
+
 }  // namespace kscfg
