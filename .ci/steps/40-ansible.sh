@@ -7,7 +7,7 @@ set -euo pipefail
 export DEBIAN_FRONTEND=noninteractive
 pkgs=(ansible-core)
 apt-get install -y --no-install-recommends "${pkgs[@]}" || { apt-get update && apt-get install -y --no-install-recommends "${pkgs[@]}"; }
-ansible-playbook --version | head -1
+ansible-playbook --version | sed -n 1p  # sed reads it all: head -1 could close the pipe while ansible still writes (EPIPE, a traceback, the step failed)
 
 stage=$(mktemp -d)
 trap 'rm -rf "$stage"' EXIT
