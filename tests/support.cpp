@@ -54,6 +54,41 @@ void child_env(const std::string& cache, const std::map<std::string, std::string
 
 }  // namespace
 
+Run collect_child(pid_t pid, int out_fd, int err_fd, double timeout_s) {
+  Run r;
+  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  pollfd fds[2] = {{out_fd, POLLIN, 0}, {err_fd, POLLIN, 0}};
+  int open_fds = 2;
+  char buf[4096];
+  // Until both ends are read out (end of file; a pty master whose slave side every process closed
+  // reads EIO), or the deadline: then the child is killed.
+  while (open_fds > 0) {
+    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) {
+      kill(pid, SIGKILL);
+      break;
+    }
+    if (poll(fds, 2, static_cast<int>(left.count())) <= 0) continue;
+    for (auto& f : fds) {
+      if (f.fd < 0 || !(f.revents & (POLLIN | POLLHUP | POLLERR))) continue;
+      ssize_t k = read(f.fd, buf, sizeof buf);
+      if (k <= 0) {
+        close(f.fd);
+        f.fd = -1;
+        --open_fds;
+      } else {
+        (f.fd == out_fd ? r.out : r.err).append(buf, static_cast<std::size_t>(k));
+      }
+    }
+  }
+  for (auto& f : fds)
+    if (f.fd >= 0) close(f.fd);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+  return r;
+}
+
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env, double timeout_s,
               const std::string& input) {
   int out[2], err[2], in[2];
@@ -78,37 +113,7 @@ Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, 
     (void)n;
   }
   close(in[1]);
-  Run r;
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  pollfd fds[2] = {{out[0], POLLIN, 0}, {err[0], POLLIN, 0}};
-  int open_fds = 2;
-  char buf[4096];
-  while (open_fds > 0) {
-    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
-    if (left.count() <= 0) {
-      kill(pid, SIGKILL);
-      break;
-    }
-    int n = poll(fds, 2, static_cast<int>(left.count()));
-    if (n <= 0) continue;
-    for (auto& f : fds) {
-      if (f.fd < 0 || !(f.revents & (POLLIN | POLLHUP))) continue;
-      ssize_t k = read(f.fd, buf, sizeof buf);
-      if (k <= 0) {
-        close(f.fd);
-        f.fd = -1;
-        --open_fds;
-      } else {
-        (f.fd == out[0] ? r.out : r.err).append(buf, static_cast<std::size_t>(k));
-      }
-    }
-  }
-  for (auto& f : fds)
-    if (f.fd >= 0) close(f.fd);
-  int status = 0;
-  waitpid(pid, &status, 0);
-  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
-  return r;
+  return collect_child(pid, out[0], err[0], timeout_s);
 }
 
 std::string kscfg_cache_dir() { return test_cache_dir(); }

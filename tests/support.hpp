@@ -1,5 +1,7 @@
 // Test helpers: run the kscfg binary, temporary directories, in-process stations.
 #pragma once
+#include <sys/types.h>
+
 #include <functional>
 #include <map>
 #include <string>
@@ -39,6 +41,9 @@ int run_as_other_user(const std::string& shell_command);
 
 // Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
+// Reads a child's stdout and stderr (out_fd, err_fd: the parent's ends, closed here) until both
+// end, waits for it and returns what it said and its status; past `timeout_s` it is killed.
+Run collect_child(pid_t pid, int out_fd, int err_fd, double timeout_s);
 Run run_kscfg(const std::vector<std::string>& args, const std::map<std::string, std::string>& env = {},
               double timeout_s = 60, const std::string& input = "");
 

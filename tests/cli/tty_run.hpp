@@ -57,37 +57,7 @@ inline Run run_kscfg_tty(const std::vector<std::string>& args, const std::map<st
   }
   close(out[1]);
   close(slave);
-  Run r;
-  auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  pollfd fds[2] = {{out[0], POLLIN, 0}, {master, POLLIN, 0}};
-  int open_fds = 2;
-  char buf[4096];
-  // Until both ends are read out: a pty master whose slave side every process closed reads EIO.
-  while (open_fds > 0) {
-    auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
-    if (left.count() <= 0) {
-      kill(pid, SIGKILL);
-      break;
-    }
-    if (poll(fds, 2, static_cast<int>(left.count())) <= 0) continue;
-    for (auto& f : fds) {
-      if (f.fd < 0 || !(f.revents & (POLLIN | POLLHUP | POLLERR))) continue;
-      ssize_t k = read(f.fd, buf, sizeof buf);
-      if (k <= 0) {
-        close(f.fd);
-        f.fd = -1;
-        --open_fds;
-      } else {
-        (f.fd == out[0] ? r.out : r.err).append(buf, static_cast<std::size_t>(k));
-      }
-    }
-  }
-  for (auto& f : fds)
-    if (f.fd >= 0) close(f.fd);
-  int status = 0;
-  waitpid(pid, &status, 0);
-  r.rc = WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
-  return r;
+  return collect_child(pid, out[0], master, timeout_s);
 }
 
 // What a terminal shows after `text`: \r goes back to the start of the line, \n to a new line,
