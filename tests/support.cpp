@@ -54,6 +54,11 @@ void child_env(const std::string& cache, const std::map<std::string, std::string
 
 }  // namespace
 
+void exec_kscfg_child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env) {
+  child_env(test_cache_dir(), env);
+  exec_kscfg(args, env);
+}
+
 Run collect_child(pid_t pid, int out_fd, int err_fd, double timeout_s) {
   Run r;
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);

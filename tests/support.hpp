@@ -41,6 +41,10 @@ int run_as_other_user(const std::string& shell_command);
 
 // Runs the built kscfg with `args`; `env` entries are added to (or override) the environment.
 // Bounded: the process is killed after `timeout_s` seconds (rc = -9).
+// In a forked child: kscfg with `args` in run_kscfg()'s environment (this test process's cache,
+// state and lock directories, then `env`); never returns. The parent calls kscfg_cache_dir() first
+// (the directory is made and later removed by the test process, not the child).
+[[noreturn]] void exec_kscfg_child(const std::vector<std::string>& args, const std::map<std::string, std::string>& env);
 // Reads a child's stdout and stderr (out_fd, err_fd: the parent's ends, closed here) until both
 // end, waits for it and returns what it said and its status; past `timeout_s` it is killed.
 Run collect_child(pid_t pid, int out_fd, int err_fd, double timeout_s);

@@ -36,24 +36,14 @@ inline Run run_kscfg_tty(const std::vector<std::string>& args, const std::map<st
   tcsetattr(slave, TCSANOW, &t);
   int out[2];
   if (pipe2(out, O_CLOEXEC)) throw std::runtime_error("pipe");
-  std::map<std::string, std::string> all{{"XDG_CACHE_HOME", kscfg_cache_dir()},
-                                         {"XDG_STATE_HOME", kscfg_cache_dir() + "/state"},
-                                         {"KSCFG_LOCK_DIR", kscfg_lock_dir()}};
-  for (const auto& [k, v] : env) all[k] = v;
+  kscfg_cache_dir();  // made in the parent
   pid_t pid = fork();
   if (pid == 0) {
     int null = open("/dev/null", O_RDONLY);
     dup2(null, 0);
     dup2(out[1], 1);
     dup2(slave, 2);
-    for (const auto& [k, v] : all) setenv(k.c_str(), v.c_str(), 1);
-    std::vector<std::string> words{KSCFG_BIN};
-    words.insert(words.end(), args.begin(), args.end());
-    std::vector<char*> argv;
-    for (auto& w : words) argv.push_back(w.data());
-    argv.push_back(nullptr);
-    execv(argv[0], argv.data());
-    _exit(127);
+    exec_kscfg_child(args, env);
   }
   close(out[1]);
   close(slave);
