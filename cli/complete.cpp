@@ -11,7 +11,7 @@
 #include "argv.hpp"
 #include "help.hpp"
 #include "kscfg/catalog/params.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/link/serial_ports.hpp"
 #include "kscfg/station/select.hpp"
