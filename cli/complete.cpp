@@ -13,7 +13,7 @@
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/discovery/port.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "kscfg/link/serial_ports.hpp"
+#include "kscfg/discovery/serial_ports.hpp"
 #include "kscfg/station/select.hpp"
 #include "output.hpp"
 #include "serial_map.hpp"
