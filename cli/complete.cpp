@@ -12,7 +12,6 @@
 #include "help.hpp"
 #include "kscfg/catalog/params.hpp"
 #include "kscfg/discovery/port.hpp"
-#include "kscfg/link/port_uri.hpp"
 #include "kscfg/discovery/serial_ports.hpp"
 #include "kscfg/station/select.hpp"
 #include "output.hpp"
@@ -60,13 +59,13 @@ Scene scene_of(const ArgvWalk& w, const Catalog& cat) {
     std::string station = get("--station");
     if (!station.empty() && station != "-") {
       s.layout = compute_layout(load_station_arg(station, cat), cat);
-    } else if (parse_port_uri(port).scheme == "emu") {
-      // The emulator's state is a local file: reading it touches no hardware. Never waits for it
-      // (a serve holding it): completion goes on from the catalog alone.
+    } else if (transport_facts(port).local) {
+      // A local port (the emulator's state file): reading it touches no hardware. Never waits for
+      // it (a serve holding it): completion goes on from the catalog alone.
       LinkOptions lo;
       lo.lock_wait.limit = std::chrono::milliseconds(0);
-      OpenedPort opened = open_port_uri(port, cat, lo);
-      if (const StationLayout* l = opened.discovery->layout()) s.layout = *l;
+      std::unique_ptr<Port> opened = open_port(port, cat, lo);
+      if (const StationLayout* l = opened->discovery().layout()) s.layout = *l;
     }
   } catch (const std::exception&) {
     // an unreadable station: complete from the catalog alone

@@ -16,7 +16,6 @@
 #include "kscfg/discovery/port.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/provision/provision.hpp"
 #include "kscfg/session/station_work.hpp"
 #include "output.hpp"
@@ -53,7 +52,7 @@ StationResolver& Context::resolver() {
     ro.session_options = [this] { return session_options(); };
     if (opt_.verbose) ro.trace = [this](const std::string& s) { trace(s); };
     resolver_ = std::make_unique<StationResolver>(opt_.port, catalog(), std::move(lo), std::move(ro));
-    if (opt_.verbose) trace(fmt::format("link {}", resolver_->link().describe()));
+    if (opt_.verbose) trace(fmt::format("link {}", resolver_->port().describe()));
   }
   return *resolver_;
 }
@@ -61,7 +60,7 @@ StationResolver& Context::resolver() {
 unsigned Context::select_position() {
   if (terminal_given()) {
     // A plug position needs terminals 1..position; a type, list or range the whole station.
-    const auto& L = opt_.terminal ? layout_upto(opt_.terminal) : layout();
+    const auto& L = opt_.terminal ? resolver().layout_upto(opt_.terminal) : resolver().layout();
     auto v = select_terminals(opt_.selection, L, false);
     if (v.size() != 1) {
       std::string list;
@@ -75,7 +74,7 @@ unsigned Context::select_position() {
   }
   // The first terminal with registers: walk on terminal by terminal until there is one.
   for (unsigned n = 1;; ++n) {
-    const auto& L = layout_upto(n);
+    const auto& L = resolver().layout_upto(n);
     for (const auto& t : L.terminals)
       if (t.type->has_registers) return t.position;
     if (resolver().layout_complete() || L.terminals.size() < n) break;
@@ -91,7 +90,7 @@ unsigned Context::terminal_position() {
 
 std::vector<unsigned> Context::terminal_positions(bool registers_only) {
   if (!terminal_given() || opt_.terminal) return {terminal_position()};  // one: walk no further
-  auto v = select_terminals(opt_.selection, layout(), registers_only);
+  auto v = select_terminals(opt_.selection, resolver().layout(), registers_only);
   if (v.empty())
     throw Error(
         Exit::usage,
@@ -102,7 +101,7 @@ std::vector<unsigned> Context::terminal_positions(bool registers_only) {
 
 bool Context::several_terminals() {
   if (!terminal_given() || opt_.terminal) return false;  // a plug position is one terminal
-  return opt_.selection.plural() || select_terminals(opt_.selection, layout(), false).size() > 1;
+  return opt_.selection.plural() || select_terminals(opt_.selection, resolver().layout(), false).size() > 1;
 }
 
 SessionOptions Context::session_options() const {
@@ -160,10 +159,9 @@ std::map<unsigned, std::vector<std::uint16_t>> Context::read_terminals(
 }
 
 nlohmann::json Context::link_json() {
-  Link& l = link();
-  nlohmann::json unit = nullptr;
-  if (auto* m = l.modbus_registers()) unit = m->target().unit;
-  return {{"port", l.describe()}, {"unit", unit}};
+  Port& p = port();
+  std::optional<unsigned> unit = p.unit();
+  return {{"port", p.describe()}, {"unit", unit ? nlohmann::json(*unit) : nlohmann::json(nullptr)}};
 }
 
 void Context::finish() {

@@ -13,9 +13,9 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/discovery/resolver.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
-#include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/select.hpp"
@@ -53,30 +53,19 @@ class Context {
   bool json() const { return opt_.json; }
   const Catalog& catalog() const;
 
-  // The link named by --port (opened on first use).
-  Link& link() { return resolver().link(); }
-  // The station engine over the port's one register access (open_port_uri: whole-station work,
-  // every session(), the scan, the online map and journal recovery run on it), for a library call
-  // that may open sessions on any terminal: the session kept from checking the selected terminal's
-  // R8 is closed here (StationResolver::library_engine()).
-  Engine& engine() { return resolver().library_engine(); }
+  // The port named by --port (opened on first use): everything that differs by transport.
+  Port& port() { return resolver().port(); }
   bool link_open() const { return resolver_ != nullptr; }
-  // How the station behind the port is found (a Modbus coupler's scan, an ADS coupler's table 9,
-  // the emulated station; opens the link).
-  StationDiscovery& discovery() { return resolver().discovery(); }
-  // The station this run works on (StationResolver: the port opened on first use, --station).
+  // The station this run works on (StationResolver: the port opened on first use, --station, the
+  // layout, sessions; its library_engine() for a library call that may open sessions on any
+  // terminal closes the session kept from checking the selected terminal's R8).
   StationResolver& resolver();
-  // The resolver's (terminal_position() and session() need no more than the terminal they select;
-  // info reads every R8 itself with layout_unchecked()).
-  const StationLayout& layout() { return resolver().layout(); }
-  const StationLayout& layout_upto(unsigned position) { return resolver().layout_upto(position); }
-  const StationLayout& layout_unchecked() { return resolver().layout_unchecked(); }
+  // Whether the layout comes from an earlier run's scan, and the R8s this run read: without
+  // opening the port when it is not open.
   bool layout_from_cache() const { return resolver_ && resolver_->layout_from_cache(); }
   std::optional<std::uint16_t> known_r8(unsigned position) const {
     return resolver_ ? resolver_->known_r8(position) : std::nullopt;
   }
-  void forget_layout() { resolver().forget_layout(); }
-  const StationLayout& layout_for(const StationSpec& file) { return resolver().layout_for(file); }
   // -t was given.
   bool terminal_given() const { return !opt_.selection.empty(); }
   // The one terminal -t selects: a position, or a type the station has once (several are an
@@ -88,8 +77,8 @@ class Context {
   // The selection means several terminals (a list, a range, all, or a type several have): output
   // then names the terminal of each line, and JSON is {"terminals": [...]}.
   bool several_terminals();
-  // The options of every session of this run (no side effect: engine() closes the session kept
-  // from checking the selected terminal's R8 before a library call opens sessions).
+  // The options of every session of this run (no side effect: resolver().library_engine() closes
+  // the session kept from checking the selected terminal's R8 before a library call opens sessions).
   SessionOptions session_options() const;
   // The outputs a dead `kscfg data force` left forced, found with what dead processes left when the
   // layout is first known: put back (`release`: data force and data release with --yes) or named
@@ -122,7 +111,7 @@ class Context {
 
   void trace(const std::string& line) const;
 
-  // {"port": URI, "unit": Modbus unit id or null} of the link (opened if needed).
+  // {"port": URI, "unit": Modbus unit id or null} of the port (opened if needed).
   nlohmann::json link_json();
 
  private:
@@ -131,7 +120,7 @@ class Context {
   GlobalOptions opt_;
   // Before link_: sessions left open note it at exit. It exists from the start, so that every
   // SessionOptions handed out carries it, also those taken before the link opened it: C++ leaves
-  // the order of a call's arguments open, and f(ctx.link(), ctx.session_options()) took the options
+  // the order of a call's arguments open, and f(ctx.port(), ctx.session_options()) took the options
   // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
   // (issue 21 item 2). It is opened with the link, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();

@@ -45,17 +45,40 @@ foreach(f IN LISTS libfiles)
   endforeach()
 endforeach()
 
-# Nothing downcasts a link (docs/design.md section 1.1): a caller asks the Link for a capability
-# (modbus_registers(), ads_connection(), emulator()) instead of casting to a concrete link or to
-# what one holds.
+# Nothing downcasts a link or asks it what it is (docs/architecture.md, "Ports"): what differs by
+# transport is the Port's (discovery/port.hpp), chosen once from the scheme table.
 file(GLOB_RECURSE castfiles ${ROOT}/src/*.cpp ${ROOT}/src/*.hpp ${ROOT}/include/*.hpp ${ROOT}/cli/*.cpp
      ${ROOT}/cli/*.hpp)
 foreach(f IN LISTS castfiles)
-  file(STRINGS ${f} lines REGEX "dynamic_cast[ \t]*<[^>]*(Link|ModbusClient|ModbusRegisters|AdsClient|EmulatedStation)[ \t]*[&*]")
+  file(STRINGS ${f} lines REGEX "dynamic_cast[ \t]*<[^>]*(Link|ModbusClient|ModbusRegisters|AdsClient|EmulatedStation|Port)[ \t]*[&*]")
   foreach(line IN LISTS lines)
     file(RELATIVE_PATH rel ${ROOT} ${f})
     string(STRIP "${line}" line)
-    list(APPEND violations "${rel}: a downcast of a link (ask the Link for a capability instead): ${line}")
+    list(APPEND violations "${rel}: a downcast of a link or port (the Port answers for its transport): ${line}")
+  endforeach()
+  file(STRINGS ${f} lines REGEX "(modbus_registers|ads_connection|sdo_connection)[ \t]*\\(|(\\.|->)emulator[ \t]*\\(\\)")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    string(STRIP "${line}" line)
+    list(APPEND violations "${rel}: a link asked for a transport's capability (the Port answers for its transport): ${line}")
+  endforeach()
+endforeach()
+
+# The CLI never asks which transport a port is: it includes no link header and compares no URI
+# scheme; what differs by transport is the Port's, and what is known of a URI without opening it is
+# transport_facts() (discovery/port.hpp).
+file(GLOB_RECURSE clifiles ${ROOT}/cli/*.cpp ${ROOT}/cli/*.hpp)
+foreach(f IN LISTS clifiles)
+  file(STRINGS ${f} lines REGEX "^[ \t]*#[ \t]*include[ \t]*[\"<]kscfg/link/")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    list(APPEND violations "${rel}: the CLI includes a link header (ask the Port): ${line}")
+  endforeach()
+  file(STRINGS ${f} lines REGEX "parse_port_uri|PortUri|[.>]scheme[^_A-Za-z0-9]|\"(emu|tcp|rtu|ads|slcan|socketcan)\"[ \t]*[!=]=|[!=]=[ \t]*\"(emu|tcp|rtu|ads|slcan|socketcan)\"|rfind\\(\"(emu|tcp|rtu|ads|slcan|socketcan)")
+  foreach(line IN LISTS lines)
+    file(RELATIVE_PATH rel ${ROOT} ${f})
+    string(STRIP "${line}" line)
+    list(APPEND violations "${rel}: the CLI branches on a port's transport (ask the Port): ${line}")
   endforeach()
 endforeach()
 

@@ -11,29 +11,12 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/catalog/params.hpp"
-#include "kscfg/link/modbus_client.hpp"
-#include "kscfg/link/modbus_link.hpp"
 #include "kscfg/session/verdict.hpp"
 #include "provision_util.hpp"
 
 namespace kscfg::cli {
 
-namespace {
-
-// The coupler's identification registers (0x1000..), when the link is a Modbus coupler that
-// answers them; "" otherwise (a backup records it, it never fails for it).
-std::string coupler_identification(Context& ctx) {
-  auto* m = ctx.link().modbus_registers();
-  if (!m) return {};
-  try {
-    auto regs = m->read(mbmap::kIdent, mbmap::kIdentRegisters);
-    return mbmap::decode_ident(std::span<const std::uint16_t>(regs.data(), mbmap::kIdentRegisters));
-  } catch (const Error&) {
-    return {};
-  }
-}
-
-}  // namespace
+namespace {}  // namespace
 
 // How many automatic backups of a port to keep: --keep-backups, else KSCFG_BACKUP_KEEP, else 20.
 unsigned backup_keep(std::optional<unsigned> keep) {
@@ -45,11 +28,11 @@ unsigned backup_keep(std::optional<unsigned> keep) {
 
 BackupInfo backup_info(Context& ctx) {
   BackupInfo info;
-  info.coupler = ctx.layout().coupler;
+  info.coupler = ctx.resolver().layout().coupler;
   nlohmann::json lj = ctx.link_json();
   info.port = lj["port"].get<std::string>();
   if (!lj["unit"].is_null()) info.unit = lj["unit"].get<unsigned>();
-  info.identification = coupler_identification(ctx);
+  info.identification = ctx.port().identification();
   std::error_code ec;
   if (!ctx.options().station.empty()) info.station = std::filesystem::absolute(ctx.options().station, ec).string();
   info.version = KSCFG_VERSION;
@@ -57,7 +40,7 @@ BackupInfo backup_info(Context& ctx) {
 }
 
 UndoSaver::UndoSaver(Context& ctx, std::string kind)
-    : ctx_(ctx), kind_(std::move(kind)), info_(backup_info(ctx)), layout_(ctx.layout()) {
+    : ctx_(ctx), kind_(std::move(kind)), info_(backup_info(ctx)), layout_(ctx.resolver().layout()) {
   info_.automatic = true;
   info_.keep = backup_keep(std::nullopt);
 }
@@ -83,19 +66,20 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
     throw Error(Exit::usage, "--backup - would mix the backup with the plan on stdout", "give --backup a file name");
   StationSpec want = load_station_arg(file, ctx.catalog());
   // A partial file (position = N): the station's other terminals are left alone.
-  if (want.partial()) want = expand_partial(want, ctx.layout());
-  const StationLayout& layout = ctx.layout_for(want);
+  if (want.partial()) want = expand_partial(want, ctx.resolver().layout());
+  const StationLayout& layout = ctx.resolver().layout_for(want);
   Plan plan;
   {
     ProgressBar bar(ctx, what + ": reading", 0);  // on a terminal only (progress.hpp)
-    plan = make_plan(ctx.engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
+    plan =
+        make_plan(ctx.resolver().library_engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
   }
   // The one verdict on this change (session/verdict.hpp), the same for --dry-run (and so for the
   // Ansible module's check mode), diff and station check: refused with status 5 before anything is
   // written, unless --force.
   Verdict verdict;
   if (plan.changes())
-    verdict = enforce_verdict(&ctx.engine(), layout, ctx.catalog(), ctx.session_options(),
+    verdict = enforce_verdict(&ctx.resolver().library_engine(), layout, ctx.catalog(), ctx.session_options(),
                               planned_writes(plan, &want, &ctx.catalog()), force);
   if (dry_run || !plan.changes()) {
     if (ctx.json()) {
@@ -115,7 +99,8 @@ int run_apply(Context& ctx, const std::string& file, bool dry_run, const std::st
   ApplyResult r;
   {
     ProgressBar bar(ctx, what + ": writing", 0);
-    r = apply_plan(ctx.engine(), layout, plan, ctx.session_options(), layout.coupler, path, bar.callback(), info);
+    r = apply_plan(ctx.resolver().library_engine(), layout, plan, ctx.session_options(), layout.coupler, path,
+                   bar.callback(), info);
   }
   std::cerr << "kscfg: backup of the touched registers: " << r.backup_path << '\n';
   std::cerr << "kscfg: undo with: " << r.undo << '\n';

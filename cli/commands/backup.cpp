@@ -50,9 +50,10 @@ class Backup : public Command {
     StationSpec spec;
     {
       ProgressBar bar(ctx, "backup", 0);  // on a terminal only (progress.hpp)
-      spec = backup_station(ctx.engine(), ctx.layout(), ctx.session_options(), bar.callback());
+      spec = backup_station(ctx.resolver().library_engine(), ctx.resolver().layout(), ctx.session_options(),
+                            bar.callback());
     }
-    std::string text = toml_comment("kscfg backup of " + ctx.link().describe()) + station_to_toml(spec);
+    std::string text = toml_comment("kscfg backup of " + ctx.port().describe()) + station_to_toml(spec);
     if ((file_.empty() || file_ == "-") && ctx.json())
       print_json({{"file", nullptr}, {"terminal_count", spec.terminals.size()}, {"station", text}});
     else if (file_.empty() || file_ == "-") write_output("-", text);

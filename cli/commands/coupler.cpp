@@ -41,7 +41,7 @@ class Coupler : public Command {
   void add_cli(CLI::App&) override {}
 
   int run(Context& ctx) override {
-    CouplerSettings s = read_coupler_settings(ctx.link(), ctx.options().timeout_ms);
+    CouplerSettings s = ctx.port().coupler_settings(ctx.options().timeout_ms);
     if (ctx.json()) {
       nlohmann::json list = nlohmann::json::array();
       for (const auto& x : s.settings)
@@ -50,7 +50,7 @@ class Coupler : public Command {
                         {"register_value", x.raw ? nlohmann::json(*x.raw) : nlohmann::json(nullptr)},
                         {"address", x.where},
                         {"source", x.source}});
-      print_json({{"port", ctx.link().describe()}, {"protocol", s.protocol}, {"settings", list}});
+      print_json({{"port", ctx.port().describe()}, {"protocol", s.protocol}, {"settings", list}});
       return 0;
     }
     std::size_t w = 0, v = 0;

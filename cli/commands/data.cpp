@@ -18,9 +18,7 @@
 #include "kscfg/base/cancel.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "kscfg/emulator/emulator.hpp"
-#include "kscfg/link/ads_link.hpp"
-#include "kscfg/link/port_uri.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/session/process_data.hpp"
 
 namespace kscfg::cli {
@@ -276,20 +274,20 @@ class Data : public Command {
                                          : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
     auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
-    // ADS port 300: "If no further telegram arrives within 1000 ms the outputs will be switched to
-    // the safe state" (link/ads_link.hpp). Held values are written every interval: keep it shorter.
-    if (force && interval >= std::chrono::milliseconds(adsimage::kWatchdogMs) &&
-        parse_port_uri(ctx.options().port).scheme == "ads")
+    // A coupler that switches its outputs off after a time without a telegram (ADS port 300):
+    // held values are written every interval, so it must be shorter.
+    const TransportFacts facts = transport_facts(ctx.options().port);
+    if (force && facts.output_watchdog_ms && interval >= std::chrono::milliseconds(facts.output_watchdog_ms))
       throw Error(Exit::usage,
-                  fmt::format("--interval {} ms: over ADS the coupler switches the outputs off after {} ms without a "
+                  fmt::format("--interval {} ms: over {} the coupler switches the outputs off after {} ms without a "
                               "telegram, so forced values would drop between two writes",
-                              interval.count(), adsimage::kWatchdogMs),
-                  "give --interval below 1000 (default 500)");
+                              interval.count(), facts.name, facts.output_watchdog_ms),
+                  fmt::format("give --interval below {} (default 500)", facts.output_watchdog_ms));
     if (interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
     std::optional<std::chrono::milliseconds> hold;
     if (!hold_.empty()) hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));
 
-    const StationLayout& L = ctx.layout();
+    const StationLayout& L = ctx.resolver().layout();
     unsigned only = ctx.options().terminal;
     if (only) (void)L.terminal(only);  // an error for a position that does not exist
     // -t TYPE, a list or a range: the terminals it selects (one of them: as -t POS).
@@ -298,7 +296,7 @@ class Data : public Command {
       shown = ctx.terminal_positions(false);
       if (shown.size() == 1) only = shown.front(), shown.clear();
     }
-    Link& link = ctx.link();
+    Link& link = ctx.port().image();
     std::size_t din = 0, dout = 0;
     for (const auto& t : L.terminals)
       if (!t.complex) din += t.bits_in, dout += t.bits_out;
@@ -435,7 +433,7 @@ class Data : public Command {
       throw Error(Exit::usage, "data release takes --yes only");
     std::vector<DeadForce> found;
     ctx.release_forced(yes_, [&](const DeadForce& f) { found.push_back(f); });
-    ctx.layout();  // what dead processes left is found and dealt with here
+    ctx.resolver().layout();  // what dead processes left is found and dealt with here
     std::size_t still = 0, failed = 0;
     std::optional<Error> first;
     nlohmann::json outs = nlohmann::json::array();
@@ -486,7 +484,6 @@ class Data : public Command {
   int loop(Context& ctx, Link& link, const StationLayout& L, unsigned only, const std::vector<unsigned>& shown,
            std::size_t count, std::chrono::milliseconds interval, std::optional<std::chrono::milliseconds> hold,
            const ForcePlan* plan) {
-    EmulatedStation* emu = link.emulator();
     const bool tty = !ctx.json() && isatty(1) && count == 0;
     // The settings an analog value follows (catalog [[value]]: a KL3202's element), read once; the
     // engine only where there is one to read.
@@ -494,7 +491,7 @@ class Data : public Command {
     if (std::any_of(L.terminals.begin(), L.terminals.end(), [&](const TerminalImage& t) {
           return (!only || t.position == only) && t.complex && !t.type->values.empty();
         }))
-      settings = read_value_settings(ctx.engine(), L, ctx.session_options(), only);
+      settings = read_value_settings(ctx.resolver().library_engine(), L, ctx.session_options(), only);
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
     for (std::size_t n = 1;; ++n) {
@@ -540,11 +537,7 @@ class Data : public Command {
         std::this_thread::sleep_for(std::chrono::milliseconds(10));
       }
       auto now = std::chrono::steady_clock::now();
-      if (emu) {
-        auto us = std::chrono::duration_cast<std::chrono::microseconds>(now - last).count();
-        auto cycles = std::min<long long>(us / std::max(1u, emu->kbus_cycle_us), 100000);
-        for (long long i = 0; i < cycles; ++i) emu->cycle();
-      }
+      ctx.port().let_time_pass(std::chrono::duration_cast<std::chrono::microseconds>(now - last));
       last = now;
     }
     ctx.cancel()->reset();  // Ctrl-C is how the live view ends: exit status 0

@@ -51,7 +51,7 @@ class Decode : public Command {
         if (f) image = f->name;
       }
     } else {
-      const TerminalImage& t = ctx.layout().terminal(ctx.terminal_position());
+      const TerminalImage& t = ctx.resolver().layout().terminal(ctx.terminal_position());
       type = t.type;
       if (image.empty()) image = t.format;
     }

@@ -73,16 +73,17 @@ class Diff : public Command {
   }
   int run(Context& ctx) override {
     StationSpec want = load_station_arg(file_, ctx.catalog());
-    if (want.partial()) want = expand_partial(want, ctx.layout());  // position = N: only those
+    if (want.partial()) want = expand_partial(want, ctx.resolver().layout());  // position = N: only those
     Plan plan;
-    const StationLayout& layout = ctx.layout_for(want);
+    const StationLayout& layout = ctx.resolver().layout_for(want);
     {
       ProgressBar bar(ctx, "diff: reading", 0);  // on a terminal only (progress.hpp)
-      plan = make_plan(ctx.engine(), layout, want, ctx.catalog(), ctx.session_options(), bar.callback());
+      plan = make_plan(ctx.resolver().library_engine(), layout, want, ctx.catalog(), ctx.session_options(),
+                       bar.callback());
     }
     // A difference that apply would refuse is refused here too, with the same text (status 5).
     if (plan.changes())
-      enforce_verdict(&ctx.engine(), layout, ctx.catalog(), ctx.session_options(),
+      enforce_verdict(&ctx.resolver().library_engine(), layout, ctx.catalog(), ctx.session_options(),
                       planned_writes(plan, &want, &ctx.catalog()), false);
     if (ctx.json()) print_json(provision_json(ctx, plan, true, ""));
     else if (plan.changes()) std::cout << plan_text(plan);

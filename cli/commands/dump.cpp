@@ -44,7 +44,7 @@ class Dump : public Command {
     bar.finish();
     unsigned ch = ctx.options().channel - 1;
     for (unsigned pos : positions)
-      docs.push_back(dump_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), values.at(pos)));
+      docs.push_back(dump_one(ctx, register_terminal(ctx.resolver().layout_upto(pos), pos, ch), values.at(pos)));
     if (ctx.json()) print_json_terminals(ctx, docs);
     return 0;
   }

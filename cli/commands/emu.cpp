@@ -9,8 +9,8 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/emulator/emulator.hpp"
-#include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/process_data.hpp"
 
 namespace kscfg::cli {
@@ -18,11 +18,11 @@ namespace kscfg::cli {
 namespace {
 
 std::string state_path(const Context& ctx) {
-  PortUri p = parse_port_uri(ctx.options().port);
-  if (p.scheme != "emu")
+  std::optional<std::string> path = emulator_state_path(ctx.options().port);
+  if (!path)
     throw Error(Exit::usage, fmt::format("'kscfg emu' works on the emulator; the port is '{}'", ctx.options().port),
                 "use --port emu or emu:PATH");
-  return p.target.empty() ? EmulatorStore::default_path() : p.target;
+  return *path;
 }
 
 class EmuReset : public Command {
@@ -158,7 +158,7 @@ class EmuFault : public Command {
   }
   int run(Context& ctx) override {
     (void)state_path(ctx);
-    EmulatedStation* emu = ctx.link().emulator();
+    EmulatedStation* emu = ctx.port().emulated();
     if (!emu) throw Error(Exit::usage, "'kscfg emu fault' works on the emulator");
     EmulatedStation& st = *emu;
     if (!delay_.empty()) st.response_delay = static_cast<unsigned>(parse_uint(delay_, 1000, "delay"));
@@ -247,7 +247,7 @@ class EmuEncoder : public Command {
   }
   int run(Context& ctx) override {
     (void)state_path(ctx);
-    EmulatedStation* emu = ctx.link().emulator();
+    EmulatedStation* emu = ctx.port().emulated();
     if (!emu) throw Error(Exit::usage, "'kscfg emu encoder' works on the emulator");
     EmulatedStation& st = *emu;
     unsigned pos = ctx.options().terminal;

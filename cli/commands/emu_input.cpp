@@ -53,7 +53,7 @@ class EmuInput : public Command {
     sub.add_flag("--connect", connect_, "Mend the wire (the value stays)");
   }
   int run(Context& ctx) override {
-    EmulatedStation* emu = ctx.link().emulator();
+    EmulatedStation* emu = ctx.port().emulated();
     if (!emu) throw Error(Exit::usage, "'kscfg emu input' works on the emulator", "use --port emu or emu:PATH");
     if (open_ && connect_) throw Error(Exit::usage, "--open and --connect: give one");
     EmulatedStation& st = *emu;

@@ -37,7 +37,7 @@ class Get : public Command {
     std::vector<std::pair<unsigned, std::vector<const ParamDef*>>> work;
     bool several = ctx.several_terminals();
     for (unsigned pos : ctx.terminal_positions()) {
-      const TerminalType& type = *ctx.layout().terminal(pos).type;
+      const TerminalType& type = *ctx.resolver().layout().terminal(pos).type;
       if (several && std::none_of(names_.begin(), names_.end(), [&](const std::string& n) {
             const ParamDef* p = type.param(n);
             return p && (!p->channel || *p->channel == ch);
@@ -57,15 +57,16 @@ class Get : public Command {
     std::map<unsigned, std::vector<unsigned>> regs;
     for (const auto& [pos, params] : work) {
       positions.push_back(pos);
-      regs[pos] = param_registers(*ctx.layout().terminal(pos).type, params);
+      regs[pos] = param_registers(*ctx.resolver().layout().terminal(pos).type, params);
     }
     auto read = ctx.read_terminals(positions, [&](const TerminalImage& t) { return regs.at(t.position); });
     for (const auto& [pos, params] : work) {
-      std::vector<ParamValue> vals = decode_params(*ctx.layout_upto(pos).terminal(pos).type, params, read.at(pos));
+      std::vector<ParamValue> vals =
+          decode_params(*ctx.resolver().layout_upto(pos).terminal(pos).type, params, read.at(pos));
       if (ctx.json()) {
         nlohmann::json values = nlohmann::json::object();
         for (const auto& v : vals) values[v.param->name] = param_json(v.value);
-        nlohmann::json j = terminal_json(register_terminal(ctx.layout_upto(pos), pos, ch), ch);
+        nlohmann::json j = terminal_json(register_terminal(ctx.resolver().layout_upto(pos), pos, ch), ch);
         j["values"] = values;
         docs.push_back(j);
         continue;

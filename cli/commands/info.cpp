@@ -63,7 +63,7 @@ class Info : public Command {
     if (ctx.terminal_given() && !ctx.several_terminals()) return one(ctx, ctx.terminal_position());
     // Every terminal's R8 is read below (or was read by this run's scan): a layout from the scan
     // cache is checked here rather than by a second read of each R8.
-    const StationLayout& L = ctx.layout_unchecked();
+    const StationLayout& L = ctx.resolver().layout_unchecked();
     refuse_contradicted(L);
     std::vector<unsigned> positions;
     if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
@@ -82,7 +82,7 @@ class Info : public Command {
       job_of[pos] = jobs.size();
       jobs.push_back(std::move(j));
     }
-    if (!jobs.empty()) read_channels(ctx.engine(), L, jobs, ctx.session_options());
+    if (!jobs.empty()) read_channels(ctx.resolver().library_engine(), L, jobs, ctx.session_options());
     for (const auto& j : jobs)
       if (j.error) std::rethrow_exception(j.error);  // the first in plug order, as one after the other
     auto r8_of = [&](const ChannelReads& j) { return j.regs.size() == 2 ? j.values[0] : *ctx.known_r8(j.position); };
@@ -91,7 +91,7 @@ class Info : public Command {
         if (r8_of(j) != L.terminal(j.position).type->r8) {
           // The station changed since the scan kept in the cache: scan it again, start over.
           rescanned_ = true;
-          ctx.forget_layout();
+          ctx.resolver().forget_layout();
           return run(ctx);
         }
     nlohmann::json arr = nlohmann::json::array();
@@ -125,7 +125,8 @@ class Info : public Command {
     }
     // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
     // Modbus the digital terminals, seen only as bit totals.
-    bool discovered = !ctx.discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
+    bool discovered =
+        !ctx.resolver().discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
     std::string digital = L.unidentified_digital();
     if (discovered)
       rows.push_back(
@@ -145,7 +146,7 @@ class Info : public Command {
       print_json(j);
       return 0;
     }
-    std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.link().describe());
+    std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.port().describe());
     print_table(rows);
     if (!digital.empty())
       std::cout << fmt::format(
@@ -200,7 +201,7 @@ class Info : public Command {
   bool rescanned_ = false;
 
   int one(Context& ctx, unsigned pos) {
-    const StationLayout& L = ctx.layout_upto(pos);
+    const StationLayout& L = ctx.resolver().layout_upto(pos);
     refuse_contradicted(L);
     const TerminalImage& t = L.terminal(pos);
     nlohmann::json j{{"position", pos}, {"type", t.type->type}, {"title", t.type->title}, {"image", image_json(t)}};

@@ -12,8 +12,8 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/online_map.hpp"
-#include "kscfg/link/ads_registers.hpp"
-#include "kscfg/link/port_uri.hpp"
+#include "kscfg/discovery/port.hpp"
+#include "kscfg/discovery/register_addresses.hpp"
 
 namespace kscfg::cli {
 
@@ -21,39 +21,35 @@ namespace {
 
 // Port 100 of an ADS coupler: a terminal's registers at index group = its terminal number (passive
 // terminals have none), index offset = channel (high word, from 0) and register (low word)
-// (link/ads_registers.hpp).
-std::vector<std::pair<const TerminalImage*, unsigned>> ads_numbered(const StationLayout& L, unsigned only) {
-  std::vector<std::pair<const TerminalImage*, unsigned>> v;
-  for (const auto& t : L.terminals) {
-    if (!t.type->has_registers || (only && t.position != only)) continue;
-    v.emplace_back(&t, adsreg::terminal_number(L, t.position));
-  }
-  return v;
-}
-
+// (discovery/register_addresses.hpp).
 std::string ads_registers_text(const StationLayout& L, unsigned only) {
-  auto v = ads_numbered(L, only);
+  auto v = ads_register_addresses(L, only);
   if (v.empty()) return {};
   std::string out =
       "\nRegisters: ADS port 100, index group = terminal number, index offset = channel << 16 | "
       "register (2 bytes):\n";
-  for (const auto& [t, n] : v)
-    out += fmt::format("  {:<3} {:<7} index group {:<3} offsets 0x{:08X}-0x{:08X}{}\n", t->position, t->type->type, n,
-                       adsreg::terminal_offset(0, 0), adsreg::terminal_offset(t->type->channels - 1, 63),
+  for (const auto& a : v) {
+    const TerminalImage* t = a.terminal;
+    out += fmt::format("  {:<3} {:<7} index group {:<3} offsets 0x{:08X}-0x{:08X}{}\n", t->position, t->type->type,
+                       a.index_group, a.channel_offsets.front().first, a.channel_offsets.back().second,
                        t->type->channels > 1 ? fmt::format(" (channel 1..{})", t->type->channels) : "");
+  }
   return out;
 }
 
 nlohmann::json ads_registers_json(const StationLayout& L, unsigned only) {
   nlohmann::json a = nlohmann::json::array();
-  for (const auto& [t, n] : ads_numbered(L, only)) {
+  for (const auto& r : ads_register_addresses(L, only)) {
     nlohmann::json ch = nlohmann::json::array();
-    for (unsigned c = 0; c < t->type->channels; ++c)
+    for (std::size_t c = 0; c < r.channel_offsets.size(); ++c)
       ch.push_back({{"channel", c + 1},
-                    {"first_offset", adsreg::terminal_offset(c, 0)},
-                    {"last_offset", adsreg::terminal_offset(c, 63)}});
-    a.push_back(
-        {{"position", t->position}, {"type", t->type->type}, {"ads_port", 100}, {"index_group", n}, {"channels", ch}});
+                    {"first_offset", r.channel_offsets[c].first},
+                    {"last_offset", r.channel_offsets[c].second}});
+    a.push_back({{"position", r.terminal->position},
+                 {"type", r.terminal->type->type},
+                 {"ads_port", 100},
+                 {"index_group", r.index_group},
+                 {"channels", ch}});
   }
   return a;
 }
@@ -172,7 +168,7 @@ class Map : public Command {
       if (wa) spec.word_alignment = wa;
       L = compute_layout(spec, cat);
     } else {
-      const StationLayout& current = ctx.layout();
+      const StationLayout& current = ctx.resolver().layout();
       // The coupler contradicts the layout (an ADS coupler's image lengths): its offsets are not the
       // coupler's, so the map is refused as process data is (before, it showed them with exit 0
       // and nothing said, issue 45), unless the settings are given here; then the map's layout is
@@ -185,7 +181,7 @@ class Map : public Command {
                         "--complete-evaluation on|off");
       StationSpec spec;
       if (!station_file.empty()) spec = load_station_arg(station_file, cat);
-      else if (const StationSpec* s = ctx.discovery().station()) spec = *s;
+      else if (const StationSpec* s = ctx.resolver().discovery().station()) spec = *s;
       else
         throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),
                     "give --station FILE --online, or terminal types for an offline map");
@@ -193,12 +189,12 @@ class Map : public Command {
       CouplerProfile base = coupler_profile(spec.coupler);
       if (coupler_.empty()) base.defaults = current.settings;  // what the coupler uses now
       MappingSettings s = resolve_settings(base, ce, mo, wa);
-      OnlineMap m = map_online(ctx.engine(), current, spec, cat, s, ctx.session_options());
+      OnlineMap m = map_online(ctx.resolver().library_engine(), current, spec, cat, s, ctx.session_options());
       L = std::move(m.layout);
       notes = std::move(m.notes);
       if (settings_given) {
         // Settings given: the coupler's image lengths judge the map's layout (ADS), as a --station file's.
-        ctx.discovery().check_described(L, spec, "the map");
+        ctx.resolver().discovery().check_described(L, spec, "the map");
         if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);
       }
       // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
@@ -207,22 +203,21 @@ class Map : public Command {
       if (coupler_.empty() && !ce && !mo && !wa && !same_layout(L, current)) {
         next = std::move(L);
         L = current;
-        notes.push_back(
-            fmt::format("the terminals' mapping registers give another process image at the coupler's "
-                        "next start ({} input and {} output bytes instead of {} and {}): restart the "
-                        "coupler ({}) to apply them; the map shows both",
-                        next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes,
-                        ctx.link().emulator() ? "'kscfg emu restart'" : "power off and on"));
+        notes.push_back(fmt::format(
+            "the terminals' mapping registers give another process image at the coupler's "
+            "next start ({} input and {} output bytes instead of {} and {}): restart the "
+            "coupler ({}) to apply them; the map shows both",
+            next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes, ctx.port().restart_hint()));
       }
       for (const auto& r : m.readings)
         readings.push_back(
             {{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg}, {"value", r.value}});
-      source = ctx.link().describe();
+      source = ctx.port().describe();
     }
     CouplerProfile p = coupler_profile(L.coupler);
     // Over ADS the image is port 300's and the registers port 100's: the map says so in those terms
     // (index group and offset a TwinCAT PLC program uses), not in Modbus registers.
-    bool ads = parse_port_uri(ctx.options().port).scheme == "ads";
+    bool ads = transport_facts(ctx.options().port).ads_addressing;
     if (ads) {
       p.ads = true;
       p.modbus = false;

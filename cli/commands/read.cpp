@@ -49,12 +49,12 @@ class Read : public Command {
     auto positions = ctx.terminal_positions();
     if (!regs.empty()) read_all(ctx, positions, regs);
     if (!missing.empty())
-      throw Error(
-          Exit::refused,
-          fmt::format("{} not read: the extended area, which {} does not implement", register_runs(missing),
-                      positions.size() == 1 ? ctx.layout_upto(positions.front()).terminal(positions.front()).type->type
-                                            : std::string("Bus Terminals")),
-          regs.empty() ? std::string("registers R0..R47 can be read") : std::string());
+      throw Error(Exit::refused,
+                  fmt::format("{} not read: the extended area, which {} does not implement", register_runs(missing),
+                              positions.size() == 1
+                                  ? ctx.resolver().layout_upto(positions.front()).terminal(positions.front()).type->type
+                                  : std::string("Bus Terminals")),
+                  regs.empty() ? std::string("registers R0..R47 can be read") : std::string());
     return 0;
   }
 
@@ -78,7 +78,7 @@ class Read : public Command {
     auto values = ctx.read_terminals(positions, [&](const TerminalImage&) { return regs; });
     unsigned ch = ctx.options().channel - 1;
     for (unsigned pos : positions)
-      docs.push_back(read_one(ctx, register_terminal(ctx.layout_upto(pos), pos, ch), regs, values.at(pos)));
+      docs.push_back(read_one(ctx, register_terminal(ctx.resolver().layout_upto(pos), pos, ch), regs, values.at(pos)));
     if (ctx.json()) print_json_terminals(ctx, docs);
   }
 

@@ -41,7 +41,7 @@ class Reset : public Command {
   }
   int run(Context& ctx) override {
     unsigned pos = ctx.terminal_position();
-    const TerminalType& type = *ctx.layout().terminal(pos).type;
+    const TerminalType& type = *ctx.resolver().layout().terminal(pos).type;
     ResetPlan plan = reset_plan(type);
     std::string what;
     if (plan.r7) what = "write R7 = 0x7000 (factory settings command)";
@@ -54,11 +54,12 @@ class Reset : public Command {
     // Factory values can lock kscfg out too (a KL6001's alternative format on a coupler without
     // complete evaluation): check before asking.
     unsigned chan = ctx.options().channel - 1;
-    (void)register_terminal(ctx.layout(), pos, chan);
+    (void)register_terminal(ctx.resolver().layout(), pos, chan);
     std::vector<PlannedWrite> planned;
     for (const auto& [r, v] : plan.values) planned.push_back({pos, chan, r, v, 0xFFFF, std::nullopt, {}});
     // Its reads end before the question: no terminal waits in register mode for an answer.
-    enforce_verdict(&ctx.engine(), ctx.layout(), ctx.catalog(), ctx.session_options(), planned, force_);
+    enforce_verdict(&ctx.resolver().library_engine(), ctx.resolver().layout(), ctx.catalog(), ctx.session_options(),
+                    planned, force_);
     if (!yes_) {
       if (!isatty(STDIN_FILENO))
         throw Error(Exit::usage, fmt::format("reset of terminal {} ({}) needs confirmation", pos, type.type),

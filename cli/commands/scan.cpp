@@ -14,12 +14,7 @@
 #include "../progress.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/files.hpp"
-#include "kscfg/discovery/ads_station.hpp"
-#include "kscfg/discovery/can_station.hpp"
-#include "kscfg/discovery/scan_cache.hpp"
-#include "kscfg/link/ads_link.hpp"
-#include "kscfg/link/coupler_key.hpp"
-#include "kscfg/link/modbus_link.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/station/map.hpp"
 
 namespace kscfg::cli {
@@ -105,81 +100,29 @@ class Scan : public Command {
       if (mo) s.motorola = *mo;
       return s;
     };
-    ScanResult r;
-    std::vector<std::optional<std::uint16_t>> r9;  // ADS only: each terminal's R9
-    bool ads = false;                              // ADS, or CANopen (can): the terminals from the coupler's table 9
-    bool can = false;
-    Link* link = &ctx.link();
-    // ADS and CANopen: what the scan is doing, on a terminal once it has taken a moment (Modbus: a
-    // progress bar by input bytes).
+    Port& port = ctx.port();
+    // What the scan is doing: a table-9 coupler's step on a terminal once it has taken a moment; a
+    // Modbus coupler's walk as a progress bar by input bytes.
     Activity activity(ProgressBar::enabled(ctx));
-    auto status = [&](const std::string& what) {
-      activity.say(what.empty() ? "" : fmt::format("scanning coupler at {}: {}", link->describe(), what));
+    ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
+    PortScanRequest req;
+    if (ce || wa || mo) req.settings = overridden;
+    req.status = [&](const std::string& what) {
+      activity.say(what.empty() ? "" : fmt::format("scanning coupler at {}: {}", port.describe(), what));
     };
-    if (AdsClient* a = link->ads_connection()) {
-      // ADS port 100: table 9, each terminal's R8/R9 and mapping registers (discovery/ads_station.hpp).
-      AdsScanOptions so;
-      if (ce || wa || mo) so.settings = overridden;
-      // kscfg scan asks the coupler's Modbus TCP side even where it did not answer lately, and keeps
-      // what it finds for the commands after it (discovery/ads_image.hpp).
-      so.silent_memo.path = default_cache_dir() + "/scans/" + station_key(a->target()) + ".modbus-silent";
-      so.silent_memo.ask_anyway = true;
-      so.origin = fmt::format("scan of {}", link->describe());
-      so.status = status;
-      AdsScan s = scan_ads_station(*a, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
-      activity.say("");
-      r = std::move(s.result);
-      r9 = std::move(s.r9);
-      ads = true;
-    } else if (SdoClient* c = link->sdo_connection()) {
-      // CANopen SDO: identification, table 9 through 0x4500, each terminal's registers over 0x4501
-      // (discovery/can_station.hpp).
-      CanScanOptions so;
-      if (ce || wa || mo) so.settings = overridden;
-      so.origin = fmt::format("scan of {}", link->describe());
-      so.status = status;
-      CanScan s = scan_can_station(*c, ctx.catalog(), ctx.options().timeout_ms, std::move(so));
-      activity.say("");
-      r = std::move(s.result);
-      r9 = std::move(s.r9);
-      ads = can = true;
-    } else {
-      ModbusRegisters* regs = link->modbus_registers();
-      // The embedded emulator is no coupler on a bus: nothing to discover, kscfg holds its station.
-      if (!regs && link->emulator())
-        throw Error(Exit::usage,
-                    fmt::format("'kscfg scan' discovers a Modbus, ADS or CANopen coupler; the port '{}' is the "
-                                "emulator, whose station needs no scan",
-                                ctx.options().port),
-                    "'kscfg info' shows its terminals; 'kscfg station init --from-port FILE' writes them as a "
-                    "station file");
-      if (!regs)
-        throw Error(
-            Exit::usage,
-            fmt::format("'kscfg scan' reads a Modbus, ADS or CANopen coupler; the port is '{}'", ctx.options().port),
-            "use --port tcp://HOST, rtu:DEVICE, ads://HOST or slcan:DEVICE; 'kscfg info' shows the "
-            "emulator's station");
-      std::optional<MappingSettings> settings;
-      // Defaults of the coupler family, overridden: ask the coupler who it is first.
-      if (ce || wa || mo) settings = overridden(begin_scan(read_scan_head(*regs), "", std::nullopt).settings);
-      {
-        ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-        r = scan_station(*regs, ctx.engine(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
-      }
-      // Later commands on this port use it (the scan cache) while the coupler reports the same image
-      // lengths, each terminal's type (R8) checked once a run (docs/design.md 4.6).
-      ctx.discovery().adopt(r);
-      // Now that the station is known: what kscfg processes that died on this port left in
-      // register mode (their journals) is finished, as by any other command (issue 21 item 2).
-      if (r.walked) (void)ctx.layout();
-    }
+    req.progress = bar.callback();
+    PortScan s = ctx.resolver().scan(req);
+    activity.say("");
+    bar.finish();
+    const ScanResult& r = s.result;
+    const auto& r9 = s.r9;
     if (!write_.empty()) {
       if (!r.walked)
         throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
                     r.notes.empty() ? "" : r.notes.back());
       std::string text =
-          fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", link->describe(), r.ident);
-      if (!ads && (r.digital_in_bits || r.digital_out_bits))
+          fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", port.describe(), r.ident);
+      if (!s.table9 && (r.digital_in_bits || r.digital_out_bits))
         text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                             r.digital_out_bits);
       StationSpec file = r.spec;
@@ -209,10 +152,10 @@ class Scan : public Command {
           term["digital"] = digital_label(t);
           term["fits"] = t.fits;
         }
-        if (ads) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
+        if (s.table9) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
         terms.push_back(std::move(term));
       }
-      print_json({{"port", link->describe()},
+      print_json({{"port", port.describe()},
                   {"identification", r.ident},
                   {"coupler", r.coupler},
                   {"coupler_known", r.known_coupler},
@@ -244,8 +187,9 @@ class Scan : public Command {
           r.ident_read ? fmt::format("identification \"{}\"", r.ident) : std::string("no identification"), r.coupler);
     std::cout << fmt::format("image     complex {} byte(s) out, {} in; digital {} bit(s) out, {} in\n",
                              r.complex_out_bits / 8, r.complex_in_bits / 8, r.digital_out_bits, r.digital_in_bits);
-    if (can) std::cout << "watchdog  the bus master's (CANopen node guarding or heartbeat; not read)\n";
-    else if (ads)
+    if (s.watchdog == PortScan::Watchdog::bus_master)
+      std::cout << "watchdog  the bus master's (CANopen node guarding or heartbeat; not read)\n";
+    else if (s.watchdog == PortScan::Watchdog::ads_table100)
       std::cout << (r.watchdog_preset
                         ? fmt::format("watchdog  {} ms (ADS watchdog, table 100 register 14)\n", *r.watchdog_preset)
                         : std::string("watchdog  unknown (the coupler does not serve table 100)\n"));

@@ -32,7 +32,7 @@ namespace kscfg::cli {
 
 // The serial terminal selected by -t (default: the first serial terminal of the station).
 unsigned serial_position(Context& ctx) {
-  const auto& L = ctx.layout();
+  const auto& L = ctx.resolver().layout();
   if (ctx.terminal_given()) return ctx.terminal_position();
   for (const auto& t : L.terminals)
     if (t.type->is_serial()) return t.position;
@@ -45,7 +45,7 @@ std::unique_ptr<SerialPort> open_port(Context& ctx) {
   if (ctx.options().verbose) so.trace = [&ctx](const std::string& s) { ctx.trace(s); };
   so.cancel = ctx.cancel();
   unsigned pos = serial_position(ctx);
-  return std::make_unique<SerialPort>(ctx.link(), ctx.layout(), pos, ctx.options().channel - 1, so);
+  return std::make_unique<SerialPort>(ctx.port().image(), ctx.resolver().layout(), pos, ctx.options().channel - 1, so);
 }
 
 std::string diag_text(std::uint16_t r6) {
@@ -86,7 +86,7 @@ Diagnostics read_diagnostics(Context& ctx, const SerialPort& port) {
   const TerminalImage& t = port.terminal();
   unsigned ch = ctx.options().channel - 1;
   if (ch >= t.channels.size() || !t.channels[ch].window) return d;
-  RegisterSession s(ctx.engine(), t, ch, ctx.session_options());
+  RegisterSession s(ctx.resolver().library_engine(), t, ch, ctx.session_options());
   auto v = s.read_many({0, 1, 6});
   d.r0 = v[0];
   d.r1 = v[1];

@@ -60,7 +60,7 @@ class SerialLine : public Command {
         ->option_text("DATA");
   }
   int run(Context& ctx) override {
-    EmulatedStation* emu = ctx.link().emulator();
+    EmulatedStation* emu = ctx.port().emulated();
     if (!emu)
       throw Error(Exit::usage,
                   fmt::format("'kscfg serial line' works on the emulator; the port is '{}'", ctx.options().port),
@@ -69,7 +69,7 @@ class SerialLine : public Command {
       throw Error(Exit::usage, "give either --match or --baud/--frame, not both");
     unsigned pos = serial_position(ctx);
     unsigned ch = ctx.options().channel - 1;
-    const TerminalImage& t = serial_terminal(ctx.layout(), pos, ch);
+    const TerminalImage& t = serial_terminal(ctx.resolver().layout(), pos, ch);
     ChannelModel& m = emu->channel(pos, ch);
     SerialModel* ser = m.serial();
     if (!ser) throw Error(Exit::internal, "emulated serial terminal without a serial model");

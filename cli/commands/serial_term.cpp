@@ -18,7 +18,6 @@
 #include "../serial_map.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/catalog/params.hpp"
-#include "kscfg/emulator/emulator.hpp"
 #include "kscfg/session/serial_port.hpp"
 #include "kscfg/session/session.hpp"
 #include "serial_util.hpp"
@@ -58,7 +57,7 @@ std::string line_text(Context& ctx, const TerminalImage& t, unsigned ch) {
       if (p.name == name && (!p.channel || *p.channel == ch)) return &p;
     return nullptr;
   };
-  RegisterSession s(ctx.engine(), t, ch, ctx.session_options());
+  RegisterSession s(ctx.resolver().library_engine(), t, ch, ctx.session_options());
   std::map<unsigned, std::uint16_t> regs;
   auto value = [&](const char* name) -> std::string {
     const ParamDef* p = param(name);
@@ -127,17 +126,12 @@ class SerialTerm : public Command {
     }
     unsigned pos = serial_position(ctx);
     unsigned ch = ctx.options().channel - 1;
-    std::string line = line_text(ctx, serial_terminal(ctx.layout(), pos, ch), ch);
+    std::string line = line_text(ctx, serial_terminal(ctx.resolver().layout(), pos, ch), ch);
     auto port = open_port(ctx);
-    std::string far;
-    if (EmulatedStation* emu = ctx.link().emulator()) {
-      auto& st = *emu;
-      if (st.has_channel(port->terminal().position, ch))
-        if (auto* ser = st.channel(port->terminal().position, ch).serial()) far = ser->far_end_description();
-    }
+    std::string far = ctx.port().far_end(port->terminal().position, ch);
     bool echo = echo_;
     auto banner = [&] {
-      std::string b = fmt::format("kscfg: {} on {}\r\n", port->who(), ctx.link().describe());
+      std::string b = fmt::format("kscfg: {} on {}\r\n", port->who(), ctx.port().describe());
       b += fmt::format("kscfg: {}; {} format, {} data bytes\r\n", line, port->image().format,
                        port->image().out_data.size());
       if (!far.empty()) b += fmt::format("kscfg: far end of the emulated line: {}\r\n", far);

@@ -77,17 +77,17 @@ class Set : public Command {
     std::vector<std::pair<std::string, std::string>> pairs;
     for (std::size_t i = 0; i < words_.size(); i += 2) pairs.emplace_back(words_[i], words_[i + 1]);
     unsigned pos = ctx.terminal_position();
-    const TerminalType& type = *ctx.layout().terminal(pos).type;
+    const TerminalType& type = *ctx.resolver().layout().terminal(pos).type;
     unsigned chan = ctx.options().channel - 1;
     pairs = with_settings(type, pairs, ctx.catalog(), chan);  // KL6031 image-size with extended-image
     check_params(type, pairs, ctx.catalog(), chan, divisor_);
-    (void)register_terminal(ctx.layout(), pos, chan);
+    (void)register_terminal(ctx.resolver().layout(), pos, chan);
     // The guard reads the mapping registers on the command's engine, where the terminal's channel is
     // the session's own: a second session of its own on the channel would take this one's register
     // request for a dead session's and zero the channel's bytes when it closed (issue 23 item 20).
-    const StationLayout& L = ctx.layout();
+    const StationLayout& L = ctx.resolver().layout();
     auto s = ctx.session();
-    Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(),
+    Verdict v = enforce_verdict(&ctx.resolver().library_engine(), L, ctx.catalog(), ctx.session_options(),
                                 planned_params(type, pos, chan, pairs, ctx.catalog(), divisor_), force_);
     SetPlan plan = plan_set(*s, pairs, ctx.catalog(), divisor_);
     // A rate by the divisor form is not the rate asked for: how far off it is, before it is written.

@@ -61,7 +61,7 @@ class Show : public Command {
     auto values = ctx.read_terminals(
         positions, [&](const TerminalImage& t) { return param_registers(*t.type, params_of(t, ch)); });
     for (unsigned pos : positions) {
-      const TerminalImage& t = register_terminal(ctx.layout_upto(pos), pos, ch);
+      const TerminalImage& t = register_terminal(ctx.resolver().layout_upto(pos), pos, ch);
       auto params = params_of(t, ch);
       docs.push_back(show_one(ctx, t, ch, decode_params(*t.type, params, values.at(pos)), rows));
     }

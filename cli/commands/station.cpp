@@ -127,10 +127,10 @@ class StationInit : public Command {
           fmt::format("'kscfg station init --from-port' writes the whole station; -t {} selects terminals", sel.text),
           "drop -t; a partial file names its terminals with 'position = N' (man 5 kscfg-station)");
     refuse_to_replace(file_, force_);  // before the port is opened: nothing is lost, no time wasted
-    const StationLayout& L = ctx.layout();
+    const StationLayout& L = ctx.resolver().layout();
     StationSpec spec = station_of_layout(L);
     std::string text =
-        toml_comment(fmt::format("Station on {}, written by 'kscfg station init --from-port'", ctx.link().describe())) +
+        toml_comment(fmt::format("Station on {}, written by 'kscfg station init --from-port'", ctx.port().describe())) +
         toml_comment("The terminals' types in plug order; add settings under each terminal (man 5 kscfg-station)");
     if (std::string d = L.unidentified_digital(); !d.empty())
       text += toml_comment(fmt::format("Digital terminals not listed (the coupler gives only their bits): {}", d));

@@ -66,7 +66,7 @@ class Write : public Command {
     // Before anything is written: the layout this write gives the station at the coupler's next
     // start must leave every terminal its register window (docs/design.md section 6).
     unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
-    const TerminalType& ttype = *register_terminal(ctx.layout(), pos, chan).type;
+    const TerminalType& ttype = *register_terminal(ctx.resolver().layout(), pos, chan).type;
     std::vector<PlannedWrite> planned;
     if (ttype.regs[reg].command) {
       if (auto eff = command_effect(ttype, reg, value))
@@ -75,12 +75,13 @@ class Write : public Command {
       planned.push_back({pos, chan, reg, value, mask, std::nullopt, {}});
     }
     // On the command's engine, where the channel is the session's own (see set).
-    const StationLayout& L = ctx.layout();
+    const StationLayout& L = ctx.resolver().layout();
     auto s = ctx.session();
     // The one verdict on the change (session/verdict.hpp): a value the catalog does not document (a
     // baud code the terminal does not have, a divisor rate above its maximum, a count outside its
     // range), settings left apart, a lost register window: refused as by set and apply.
-    Verdict v = enforce_verdict(&ctx.engine(), L, ctx.catalog(), ctx.session_options(), planned, force_);
+    Verdict v =
+        enforce_verdict(&ctx.resolver().library_engine(), L, ctx.catalog(), ctx.session_options(), planned, force_);
     const TerminalType& type = *s->terminal().type;
     if (type.regs[reg].command) {
       if (!mask_.empty())

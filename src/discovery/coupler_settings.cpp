@@ -20,6 +20,8 @@ constexpr const char* kTable100Page = "https://infosys.beckhoff.com/content/1033
 // Beckhoff coupler tables, "Table 9".
 constexpr const char* kTable9Page = "https://infosys.beckhoff.com/content/1033/bk11x0_bk1250/2180705419.html";
 
+}  // namespace
+
 CouplerSettings modbus_settings(ModbusRegisters& c) {
   CouplerSettings s{"modbus", {}};
   auto reg = [&](std::uint16_t addr, const char* name, auto describe) {
@@ -132,17 +134,6 @@ CouplerSettings canopen_settings(SdoClient& sdo, unsigned timeout_ms) {
   table100("fixed-node-id", 9, [](unsigned v) { return v ? std::to_string(v) : std::string("0 (the switches)"); });
   table100("fixed-bitrate", 10, [](unsigned v) { return fmt::format("index {}", v); });
   return s;
-}
-
-}  // namespace
-
-CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms) {
-  if (auto* m = link.modbus_registers()) return modbus_settings(*m);
-  if (auto* a = link.ads_connection()) return ads_settings(*a, timeout_ms);
-  if (auto* c = link.sdo_connection()) return canopen_settings(*c, timeout_ms);
-  throw Error(
-      Exit::usage, fmt::format("'kscfg coupler' reads a coupler's settings; '{}' is the emulator", link.describe()),
-      "serve it and read those: kscfg serve --tcp 127.0.0.1:5020 (or --ads), then --port tcp://... or ads://...");
 }
 
 }  // namespace kscfg

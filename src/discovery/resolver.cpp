@@ -7,7 +7,6 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/station_work.hpp"
 
 namespace kscfg {
@@ -16,7 +15,7 @@ StationResolver::StationResolver(const std::string& uri, const Catalog& catalog,
     : uri_(uri), catalog_(catalog), ro_(std::move(ro)), journal_(lo.journal) {
   // ADS: terminals are numbered on port 100 from the station this command uses (--station too).
   lo.layout = [this]() -> const StationLayout& { return layout(); };
-  port_ = open_port_uri(uri, catalog, lo);
+  port_ = open_port(uri, catalog, lo);
 }
 
 StationResolver::~StationResolver() = default;
@@ -26,7 +25,7 @@ void StationResolver::set_layout(StationLayout L, bool complete) {
   if (layout_) retired_.push_back(std::move(layout_));
   // Over ADS port 100 and CANopen SDO the coupler reaches the registers itself: no channel needs a
   // register window.
-  if (direct_access()) L.registers_direct = true;
+  if (port_->registers_direct()) L.registers_direct = true;
   layout_ = std::make_unique<StationLayout>(std::move(L));
   layout_complete_ = complete;
 }
@@ -40,13 +39,12 @@ const StationLayout& StationResolver::layout_upto(unsigned position) {
   if (layout_ && (layout_complete_ || (position && layout_->terminals.size() >= position))) return *layout_;
   // The emulator knows how its coupler laid out the image; a Modbus coupler is described by
   // --station (checked against the image lengths it reports) or discovered by a scan.
-  StationDiscovery& d = *port_.discovery;
+  StationDiscovery& d = port_->discovery();
   const bool given = !ro_.station_file.empty();
   if (given && !d.lays_out_itself()) {
     StationSpec spec = ro_.load_station();
     StationLayout L = compute_layout(spec, catalog_);
-    if (auto* mb = link().modbus_registers()) check_image_lengths(L, read_image_lengths(*mb), ro_.station_file);
-    else d.check_described(L, spec, ro_.station_name);
+    d.check_described(L, spec, ro_.station_name);
     set_layout(std::move(L), true);
     recover_dead_sessions_once();
     return *layout_;
@@ -80,7 +78,7 @@ void StationResolver::recover_dead_sessions_once() {
   close_kept_session();  // recovery opens sessions on any terminal
   // The layout of the whole station may be needed (an entry beyond what this command walked): a
   // nested layout_upto() scans on, and does not come back here.
-  kscfg::recover_dead_sessions(engine(), link(), catalog_, session_options(),
+  port_->recover_dead_sessions(catalog_, session_options(),
                                [this](unsigned upto) -> const StationLayout& { return layout_upto(upto); });
 }
 
@@ -97,18 +95,18 @@ const StationLayout& StationResolver::layout_unchecked() {
 }
 
 bool StationResolver::layout_from_cache() const {
-  return layout_ && ro_.station_file.empty() && port_.discovery->kept();
+  return layout_ && ro_.station_file.empty() && port_->discovery().kept();
 }
 
 std::optional<std::uint16_t> StationResolver::known_r8(unsigned position) const {
   if (auto it = checked_r8_.find(position); it != checked_r8_.end()) return it->second;
   if (!ro_.station_file.empty()) return std::nullopt;
-  return port_.discovery->r8(position);
+  return port_->discovery().r8(position);
 }
 
 void StationResolver::forget_layout() {
   kept_.reset();
-  port_.discovery->forget();
+  port_->discovery().forget();
   if (layout_) retired_.push_back(std::move(layout_));
   matched_.reset();
   layout_complete_ = false;
@@ -197,12 +195,12 @@ const StationLayout& StationResolver::layout_for(const StationSpec& file) {
   if (!ro_.station_file.empty()) return layout_upto(0);
   if (!matched_) {
     layout_upto(0);
-    matched_ = port_.discovery->match(file);
+    matched_ = port_->discovery().match(file);
     if (!matched_) return *layout_;
     // Direct register access (ADS port 100, CANopen SDO) numbers the terminals from the station the
     // command works on (layout()): from here on, the file's, whose positions count the passive
     // terminals table 9 leaves out.
-    if (direct_access()) {
+    if (port_->registers_direct()) {
       matched_->registers_direct = true;
       set_layout(*matched_, true);
     }
@@ -287,10 +285,17 @@ std::map<unsigned, std::vector<std::uint16_t>> StationResolver::read_terminals(
   return out;
 }
 
+PortScan StationResolver::scan(const PortScanRequest& req) {
+  close_kept_session();
+  PortScan s = port_->scan(catalog_, session_options(), req);
+  if (s.adopted && s.result.walked) (void)layout();
+  return s;
+}
+
 void StationResolver::finish() {
-  kept_.reset();            // a session kept from the check of a cached layout ends here (process data restored)
-  port_.discovery->save();  // the scan cache, with the latencies learned
-  port_.commit();           // the emulator's state file
+  kept_.reset();              // a session kept from the check of a cached layout ends here (process data restored)
+  port_->discovery().save();  // the scan cache, with the latencies learned
+  port_->commit();            // the emulator's state file
 }
 
 }  // namespace kscfg

@@ -447,6 +447,11 @@ class ScanDiscovery : public StationDiscovery {
     dirty_ = true;
   }
 
+  // A station file given for this coupler: its layout against the image lengths the coupler reports.
+  void check_described(StationLayout& L, const StationSpec&, const std::string& origin) override {
+    check_image_lengths(L, read_image_lengths(link_.client()), origin);
+  }
+
   void adopt(const ScanResult& r) override {
     r_ = r;
     r_->from_cache = false;

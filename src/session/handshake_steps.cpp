@@ -5,7 +5,6 @@
 
 #include <algorithm>
 
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/protocol/codec.hpp"
 #include "kscfg/session/handshake.hpp"
 
@@ -113,11 +112,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
 
 std::size_t HandshakeAccess::next_op(const Chan& c) { return c.prog->values.size() + (c.stash ? 2 : 1); }
 
-bool HandshakeAccess::paced_probes() const {
-  // A link that is Modbus TCP: a poll costs a round trip, not line time (ADS keeps its plan).
-  const ModbusRegisters* m = link_.modbus_registers();
-  return m && m->target().tcp;
-}
+bool HandshakeAccess::paced_probes() const { return link_.poll_is_round_trip(); }
 
 void HandshakeAccess::align_first_polls(Clock::time_point sent) {
   // Terminals of one coupler share its K-bus cycle, so their answers come after about the same

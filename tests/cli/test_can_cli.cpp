@@ -183,9 +183,9 @@ TEST_CASE("kscfg coupler over CANopen: a silent node is a link error naming it, 
   // Before: "'kscfg coupler' reads a coupler's settings; 'slcan:/dev/pts/7?node=3' is the emulator".
   // What a coupler answers is read (test_slcan_cli.cpp); a node that says nothing is named.
   CanTarget t = can("slcan:/dev/loopback?node=2");
-  CanLink link(t, std::make_unique<test::LoopbackBus>(), SdoOptions{2, 100, {}});
+  CanConnection link(t, std::make_unique<test::LoopbackBus>(), SdoOptions{2, 100, {}});
   try {
-    read_coupler_settings(link, 100);
+    canopen_settings(link.sdo(), 100);
     FAIL("read");
   } catch (const Error& e) {
     CHECK(e.code() == Exit::link);

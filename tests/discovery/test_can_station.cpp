@@ -1,5 +1,5 @@
-// The station over CANopen (discovery/can_station.hpp) and the port's register access over a
-// CanLink (discovery/port.hpp open_register_access, recover_dead_sessions), against a coupler in
+// The station over CANopen (discovery/can_station.hpp) and the register access a CANopen port
+// uses (SdoAccess numbering terminals from the station, finish_dead_direct_sessions), against a coupler in
 // this process on a loopback bus (tests/link/fake_canopen.hpp).
 #include <catch2/catch.hpp>
 
@@ -8,6 +8,8 @@
 #include "kscfg/discovery/port.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/can_link.hpp"
+#include "kscfg/link/can_registers.hpp"
+#include "kscfg/session/sdo_access.hpp"
 #include "kscfg/session/session.hpp"
 
 using namespace kscfg;
@@ -25,11 +27,11 @@ StationSpec station_of(std::initializer_list<const char*> types) {
   return s;
 }
 
-// A CanLink to node 2 whose bus is a loopback to the coupler.
+// A CANopen connection to node 2 whose bus is a loopback to the coupler.
 struct CanRig {
   EmulatedStation station;
   test::FakeCanopenCoupler coupler;
-  std::unique_ptr<CanLink> link;
+  std::unique_ptr<CanConnection> link;
   explicit CanRig(const StationSpec& spec) : station(spec, Catalog::standard()), coupler(station, 2) {
     auto bus = std::make_unique<test::LoopbackBus>();
     bus->peer = [this](const CanFrame& f) { return coupler(f); };
@@ -38,9 +40,9 @@ struct CanRig {
     t.device = "/dev/loopback";
     t.node = 2;
     t.uri = "slcan:/dev/loopback?node=2";
-    link = std::make_unique<CanLink>(t, std::move(bus), SdoOptions{2, 200, {}});
+    link = std::make_unique<CanConnection>(t, std::move(bus), SdoOptions{2, 200, {}});
   }
-  SdoClient& sdo() { return *link->sdo_connection(); }
+  SdoClient& sdo() { return link->sdo(); }
 };
 
 }  // namespace
@@ -104,7 +106,8 @@ TEST_CASE("CANopen port: the discovery's layout, SDO register access and a stati
 
   SessionOptions so;
   so.timeout = std::chrono::milliseconds(300);
-  auto access = open_register_access(*rig.link, so, [&]() -> const StationLayout& { return *L; });
+  auto access = std::make_unique<SdoAccess>(
+      rig.sdo(), [&](unsigned position) { return canreg::terminal_number(*L, position); }, so);
   CHECK_THAT(access->describe(), Catch::Contains("CANopen node 2"));
   Engine engine(*access);
   {
@@ -113,8 +116,9 @@ TEST_CASE("CANopen port: the discovery's layout, SDO register access and a stati
     s.close();
   }
   // The journal recovery takes the direct path (nothing to finish: no journal).
-  recover_dead_sessions(engine, *rig.link, Catalog::standard(), so,
-                        [&](unsigned) -> const StationLayout& { return *L; });
+  finish_dead_direct_sessions(engine, so, [&](unsigned position) -> const TerminalImage* {
+    return position >= 1 && position <= L->terminals.size() ? &L->terminal(position) : nullptr;
+  });
 
   // A station file: its terminals with a sub-index must be table 9's, in order.
   StationSpec right = station_of({"KL3202", "KL9010", "KL1104", "KL6001"});
@@ -131,6 +135,10 @@ TEST_CASE("CANopen port: the discovery's layout, SDO register access and a stati
     CHECK_THAT(e.what(), Catch::Contains("wrong.toml: position 2 is KL6001"));
   }
   // The image is the bus master's: no byte of it is read or written.
-  std::uint8_t b[1];
-  CHECK_THROWS_AS(rig.link->read_inputs(0, b), Error);
+  try {
+    rig.link->refuse_image();
+  } catch (const Error& e) {
+    CHECK(e.code() == Exit::usage);
+    CHECK_THAT(e.what(), Catch::Contains("PDOs owned by the bus master"));
+  }
 }

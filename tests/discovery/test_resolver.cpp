@@ -47,7 +47,7 @@ struct Served {
 
 std::uint8_t control_byte(StationResolver& r, const TerminalImage& t) {
   std::uint8_t b = 0;
-  r.link().read_outputs(t.channels.at(0).window->ctrl, std::span<std::uint8_t>(&b, 1));
+  r.port().image().read_outputs(t.channels.at(0).window->ctrl, std::span<std::uint8_t>(&b, 1));
   return b;
 }
 
@@ -64,7 +64,7 @@ TEST_CASE("resolver: the emulator's station comes from its discovery, a station 
     CHECK(r.discovery().lays_out_itself());
     const StationLayout& L = r.layout();
     CHECK(L.terminals.size() == default_station().terminals.size());
-    CHECK(L.terminal(1).type->type == r.link().emulator()->layout().terminal(1).type->type);
+    CHECK(L.terminal(1).type->type == r.port().emulated()->layout().terminal(1).type->type);
     CHECK(r.layout_complete());
     CHECK_FALSE(r.layout_from_cache());
   }

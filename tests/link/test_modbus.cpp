@@ -41,14 +41,15 @@ struct Served {
     stop = true;
     th.join();
   }
-  std::unique_ptr<Link> link(const std::string& query = "", unsigned timeout_ms = 1000) {
+  // The image link of a port opened on the server, which it keeps open.
+  std::shared_ptr<Link> link(const std::string& query = "", unsigned timeout_ms = 1000) {
     LinkOptions lo;
     lo.timeout_ms = timeout_ms;
-    // A coupler's link outlives the rest of its port (an emulator's would not: its store is the port's).
-    return std::move(open_port_uri(server->endpoint() + query, Catalog::standard(), lo).link);
+    std::shared_ptr<Port> port = open_port(server->endpoint() + query, Catalog::standard(), lo);
+    return std::shared_ptr<Link>(port, &port->image());
   }
-  // The link with the scan that finds the station behind it.
-  OpenedPort port() { return open_port_uri(server->endpoint(), Catalog::standard(), LinkOptions{}); }
+  // The port, with the scan that finds the station behind it.
+  std::unique_ptr<Port> port() { return open_port(server->endpoint(), Catalog::standard(), LinkOptions{}); }
 };
 
 std::string error_of(const std::function<void()>& f, Exit* code = nullptr) {
@@ -190,8 +191,8 @@ TEST_CASE("register reads over Modbus: single reads, and runs pipelined with FC2
   // are generous so a loaded machine does not fail them; bench/bench_modbus measures the figures.
   Served s;
   auto port = s.port();
-  auto& link = port.link;
-  const StationLayout& L = *port.discovery->layout();  // scanned
+  Link* link = &port->image();
+  const StationLayout& L = *port->discovery().layout();  // scanned
   REQUIRE(L.terminals.size() == 4);
   CHECK(L.terminals[0].type->type == "KL6001");
   CHECK(L.terminals[2].type->type == "KL6031");
@@ -240,8 +241,8 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
           "[modbus]") {
   Served s;
   auto port = s.port();
-  auto& link = port.link;
-  const StationLayout& L = *port.discovery->layout();
+  Link* link = &port->image();
+  const StationLayout& L = *port->discovery().layout();
   std::size_t ctrl = L.terminals[0].channels[0].window->ctrl;
   auto control_byte = [&] {
     std::uint8_t ct[1];
@@ -283,8 +284,8 @@ TEST_CASE("read_then_close puts the control byte back with the last poll, or ask
 TEST_CASE("writes through the Modbus link are verified and relocked", "[modbus]") {
   Served s;
   auto port = s.port();
-  auto& link = port.link;
-  const StationLayout& L = *port.discovery->layout();
+  Link* link = &port->image();
+  const StationLayout& L = *port->discovery().layout();
   {
     ImageSession ses(*link, register_terminal(L, 2, 0), 0);
     auto w = ses.write(32, 0x0021);
@@ -338,8 +339,8 @@ TEST_CASE("RTU over a pseudo-terminal pair", "[modbus]") {
   CHECK_THAT(s.server->endpoint(), Catch::StartsWith("rtu:/dev/pts/"));
   {
     auto port = s.port();
-    auto& link = port.link;
-    const StationLayout& L = *port.discovery->layout();
+    Link* link = &port->image();
+    const StationLayout& L = *port->discovery().layout();
     ImageSession ses(*link, register_terminal(L, 3, 0), 0);
     CHECK(ses.read(8) == 6031);
     CHECK(ses.read(9) == s.station.channel(3, 0).read_register(9));

@@ -7,9 +7,11 @@
 #include <string>
 #include <vector>
 
-#include "kscfg/link/link.hpp"
-
 namespace kscfg {
+
+class ModbusRegisters;  // link/modbus_client.hpp
+class AdsClient;        // link/ads_client.hpp
+class SdoClient;        // link/sdo.hpp
 
 struct CouplerSetting {
   std::string name;             // "watchdog"
@@ -24,7 +26,10 @@ struct CouplerSettings {
   std::vector<CouplerSetting> settings;
 };
 
-// Error(usage) for a link that is no coupler (the emulator: serve it first).
-CouplerSettings read_coupler_settings(Link& link, unsigned timeout_ms);
+// Each transport's coupler (Port::coupler_settings): a Modbus coupler's watchdog registers, an ADS
+// coupler's tables 9 and 100 on port 100, a CANopen coupler's identification and table 100.
+CouplerSettings modbus_settings(ModbusRegisters& registers);
+CouplerSettings ads_settings(AdsClient& client, unsigned timeout_ms);
+CouplerSettings canopen_settings(SdoClient& sdo, unsigned timeout_ms);
 
 }  // namespace kscfg

@@ -1,20 +1,23 @@
-// Opening a port URI: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:), an
-// ADS coupler (ads://) or a CANopen coupler (slcan:, socketcan://; its registers over SDO: an SDO
-// link's register access is SdoAccess), with the port's one register access and engine, and the
-// discovery that finds the station behind a coupler (a Modbus scan, an ADS or CANopen coupler's
-// table 9).
+// Ports: the emulator (emu, emu:PATH, emu:mem), a Modbus coupler (tcp://, rtu:), an ADS coupler
+// (ads://) or a CANopen coupler (slcan:, socketcan://), each opened from its row of one scheme
+// table, with the port's one register access and engine, the discovery that finds the station
+// behind it, and everything else that differs by transport.
 #pragma once
+#include <chrono>
+#include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/catalog/catalog.hpp"
+#include "kscfg/discovery/coupler_settings.hpp"
+#include "kscfg/discovery/scan.hpp"
+#include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
-#include "kscfg/emulator/emulator.hpp"
-#include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/link.hpp"
-#include "kscfg/link/modbus_client.hpp"
 #include "kscfg/session/access.hpp"
 #include "kscfg/session/channel.hpp"
 #include "kscfg/session/engine.hpp"
@@ -22,6 +25,10 @@
 #include "kscfg/session/session.hpp"
 
 namespace kscfg {
+
+class EmulatedStation;  // emulator/emulator.hpp
+struct ModbusTarget;    // link/modbus_client.hpp
+struct AdsTarget;       // link/ads_client.hpp
 
 struct LinkOptions {
   unsigned timeout_ms = 1000;
@@ -53,33 +60,126 @@ struct LinkOptions {
   DiscoveryStatus status;
 };
 
-// A port opened: its link, its one register access and engine, and how the station behind it is
-// found. Every register operation on the port (commands, the scan,
-// the online map, journal recovery, the lock-out guard) runs on `engine`: one access per port, so a
-// channel's bytes are saved and put back once however many users it has, and over ADS no register
-// request ever goes through the process image (docs/design.md 1.2).
-struct OpenedPort {
-  // The emulator's state file and station (emu URIs; nullptr for a coupler), which `link` moves
-  // the image of: declared first, so that it outlives the link.
-  std::unique_ptr<EmulatorStore> emulator;
-  std::unique_ptr<Link> link;
-  std::unique_ptr<RegisterAccess> access;  // open_register_access(); refers to `link`
-  std::unique_ptr<Engine> engine;          // over `access`
-  // A Modbus coupler's scan, an ADS coupler's table 9, the emulated station's own layout (never
-  // nullptr). Refers to `link` and `engine`, and is destroyed before them.
-  std::unique_ptr<StationDiscovery> discovery;
-
-  // Makes the station's state durable at the end of a run: the emulator saves its state file (a
-  // run that only read writes nothing); a coupler keeps its own. Error(file) when it cannot.
-  void commit();
+// What `kscfg scan` asks of a port.
+struct PortScanRequest {
+  // The mapping settings given on the command line over the coupler family's defaults; null: the
+  // coupler's own.
+  std::function<MappingSettings(MappingSettings)> settings;
+  // What the scan is doing, for a status line: a table-9 coupler's step ("table 9 entry 3").
+  std::function<void(const std::string&)> status;
+  // Input bytes walked so far of a Modbus coupler's complex area.
+  ScanProgress progress;
 };
-OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
 
-// The register access of the port behind `link` (session/access.hpp): direct access over ADS port
-// 100 for an ads:// port, its terminals numbered on port 100 from `layout()` (the station the
-// command uses); the process-image handshake otherwise. open_port_uri() makes the port's one.
-std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOptions& so,
-                                                     std::function<const StationLayout&()> layout);
+// What `kscfg scan` found on a port, with what tells how the coupler reported it.
+struct PortScan {
+  ScanResult result;
+  // Each terminal's R9 where the coupler's table 9 was read (ADS, CANopen); empty otherwise.
+  std::vector<std::optional<std::uint16_t>> r9;
+  // The terminals come from the coupler's table 9 (digital ones by their bits, R9 read).
+  bool table9 = false;
+  // Where the watchdog in `result` comes from: a Modbus coupler's 0x1120/0x1122, an ADS coupler's
+  // table 100, or the CAN bus master's (not read).
+  enum class Watchdog { modbus_registers, ads_table100, bus_master } watchdog = Watchdog::modbus_registers;
+  // The port's discovery keeps what was found (a Modbus scan: later commands use it, and the
+  // station is known from here on).
+  bool adopted = false;
+};
+
+// A port: the way to one station over one transport (Modbus TCP or RTU, ADS, CANopen, the
+// emulator), opened by open_port() from one row of its scheme table (port.cpp). It holds the
+// link (the process image, where kscfg may move it), the port's one register access and engine,
+// and the discovery that finds the station behind it, and it answers everything else that
+// differs by transport. No caller asks which transport it is (docs/architecture.md, "Ports").
+class Port {
+ public:
+  virtual ~Port();
+  Port(const Port&) = delete;
+  Port& operator=(const Port&) = delete;
+
+  // The port as the user named it ("tcp://10.0.0.5", the emulator's state file).
+  virtual std::string describe() const = 0;
+  // The coupler's process image (a Modbus or ADS coupler, the emulator). Error(usage) naming why
+  // where kscfg does not move it (a CANopen coupler's image travels in its master's PDOs).
+  virtual Link& image() = 0;
+  // Every register operation on the port runs on this one access and its engine: a channel's bytes
+  // are saved and put back once however many users it has (docs/design.md 1.2).
+  RegisterAccess& access() { return *access_; }
+  Engine& engine() { return *engine_; }
+  // How the station behind the port is found: a Modbus scan, a coupler's table 9, the emulated
+  // station's own layout.
+  StationDiscovery& discovery() { return *discovery_; }
+  // Link exchanges so far (requests and answers on a coupler; image accesses on the emulator).
+  virtual std::size_t exchanges() const = 0;
+  // The coupler reaches a terminal's registers itself (ADS port 100, CANopen SDO): no channel needs
+  // a register window, and the access numbers the terminals from the station the command uses.
+  virtual bool registers_direct() const { return false; }
+
+  // The Modbus unit a request names, for a backup's header and JSON; none on other transports.
+  virtual std::optional<unsigned> unit() const { return std::nullopt; }
+  // The coupler's identification for a backup's header, "" where it has none or does not answer
+  // (a backup never fails for it).
+  virtual std::string identification() { return {}; }
+  // The coupler's documented settings, read only (kscfg coupler). Error(usage) for the emulator.
+  virtual CouplerSettings coupler_settings(unsigned timeout_ms) = 0;
+  // Discovers the whole station (kscfg scan); a Modbus scan is kept by the port's discovery.
+  // Error(usage) for the emulator, whose station needs no scan. Runs on the port's engine.
+  virtual PortScan scan(const Catalog& catalog, const SessionOptions& so, const PortScanRequest& req) = 0;
+  // Finishes what kscfg processes that died on this port left in register mode (their journals),
+  // each entry checked against the station `layout_upto(n)` gives (terminals 1..n at least). Runs on
+  // the port's engine. Never throws but Error(interrupted).
+  virtual void recover_dead_sessions(const Catalog& catalog, const SessionOptions& so,
+                                     const std::function<const StationLayout&(unsigned upto)>& layout_upto) = 0;
+  // Makes the station's state durable at the end of a run (the emulator saves its state file; a
+  // run that only read writes nothing; a coupler keeps its own). Error(file) when it cannot.
+  virtual void commit() {}
+
+  // Time passes on the station between two samples of `kscfg data` (the emulator runs its K-bus
+  // cycles for it; a coupler runs its own).
+  virtual void let_time_pass(std::chrono::microseconds t) { (void)t; }
+  // What is at the far end of a terminal's serial line where the port knows ("": a real cable).
+  virtual std::string far_end(unsigned position, unsigned channel) {
+    (void)position, (void)channel;
+    return {};
+  }
+  // How the coupler is restarted so that changed mapping registers take effect.
+  virtual std::string restart_hint() const { return "power off and on"; }
+  // The emulated station's own controls (its faults, inputs and far ends: the `emu` commands);
+  // nullptr on a coupler.
+  virtual EmulatedStation* emulated() { return nullptr; }
+
+ protected:
+  Port() = default;
+  // Set by each transport's opener, in this order (each refers to what is before it); destroyed
+  // in the reverse order, the discovery first.
+  std::unique_ptr<RegisterAccess> access_;
+  std::unique_ptr<Engine> engine_;
+  std::unique_ptr<StationDiscovery> discovery_;
+};
+
+// Opens the port `uri` names with the transport its scheme chooses (port.cpp's scheme table).
+// Error(usage) for a URI no transport takes.
+std::unique_ptr<Port> open_port(const std::string& uri, const Catalog& catalog, const LinkOptions& opt);
+
+// What a port URI's transport is, known without opening it (its row of the scheme table).
+struct TransportFacts {
+  const char* name = "";  // "Modbus", "ADS", "CANopen", "the emulator"
+  // Opening it touches no hardware and waits for nothing on a bus (the emulator's state file).
+  bool local = false;
+  // A coupler whose map names the image and registers in ADS terms (index group and offset), not
+  // in Modbus registers.
+  bool ads_addressing = false;
+  // The coupler switches its outputs off when no telegram came for this long (ms; 0: no such
+  // watchdog kscfg must keep alive between the writes of `data --force`).
+  unsigned output_watchdog_ms = 0;
+};
+// Error(usage) for a URI no transport takes.
+TransportFacts transport_facts(const std::string& uri);
+
+// The emulator state file a port URI names ("emu", "emu:PATH", "emu:mem"), for the commands that
+// work on the emulator's state itself (`kscfg emu`, `kscfg serve`); nullopt when the port is a
+// coupler. Error(usage) for a URI no transport takes.
+std::optional<std::string> emulator_state_path(const std::string& uri);
 
 // The lock file of a coupler on this computer (lock_dir()), one per coupler identity
 // (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
@@ -91,14 +191,5 @@ std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);
 struct CanTarget;  // link/can_link.hpp
 std::string coupler_lock_path(const CanTarget& target);
-
-// Finishes what kscfg processes that died on this port left in register mode (their journals,
-// finish_dead_sessions), each entry checked against `layout`: the terminal at the entry's position
-// must have its type and register window (a scan's entry, whose type no catalog has, its control
-// and status byte).
-// `layout_upto(n)` gives the station's terminals 1..n at least. Runs on the port's `engine`.
-// Never throws but Error(interrupted).
-void recover_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so,
-                           const std::function<const StationLayout&(unsigned upto)>& layout_upto);
 
 }  // namespace kscfg

@@ -1,4 +1,4 @@
-// The station a run works on, resolved below the CLI: the port opened (open_port_uri), the
+// The station a run works on, resolved below the CLI: the port opened (open_port), the
 // station from its discovery or a station file, the terminals of a kept scan checked, what dead
 // kscfg processes left on the port finished once the layout is known.
 #pragma once
@@ -14,7 +14,6 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/port.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
-#include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"
 #include "kscfg/station/layout.hpp"
 #include "kscfg/station/station.hpp"
@@ -35,7 +34,7 @@ struct ResolverOptions {
   std::function<void(const std::string&)> trace;
 };
 
-// The station a run works on, resolved once: the port (open_port_uri) and its discovery, or a
+// The station a run works on, resolved once: the port (open_port) and its discovery, or a
 // station file; the terminals of a layout kept from an earlier run checked (their R8); what dead
 // kscfg processes left on the port finished once the layout is known.
 class StationResolver {
@@ -44,8 +43,9 @@ class StationResolver {
   StationResolver(const std::string& uri, const Catalog& catalog, LinkOptions lo, ResolverOptions ro);
   ~StationResolver();
 
-  Link& link() { return *port_.link; }
-  StationDiscovery& discovery() { return *port_.discovery; }
+  // The port the run works on (open_port(), opened by the constructor).
+  Port& port() { return *port_; }
+  StationDiscovery& discovery() { return port_->discovery(); }
   // The port's engine for a library call that may open sessions on any terminal (make_plan,
   // read_channels, the verdict, map_online, scan_station, a RegisterSession of the caller's): the
   // session kept from checking the selected terminal's R8 (check_selected()), in register mode
@@ -54,7 +54,7 @@ class StationResolver {
   // itself close it where they need to.
   Engine& library_engine() {
     close_kept_session();
-    return *port_.engine;
+    return port_->engine();
   }
 
   // The whole station as laid out by the coupler: from the port's discovery, or from the station
@@ -96,6 +96,10 @@ class StationResolver {
       const std::vector<unsigned>& positions, unsigned channel,
       const std::function<std::vector<unsigned>(const TerminalImage&)>& regs_of,
       const std::function<void(unsigned done, unsigned total)>& progress = {});
+  // Discovers the whole station (kscfg scan) on the port's engine, the kept session closed first.
+  // A scan the port's discovery keeps makes the station known: what dead kscfg processes left on
+  // the port is then finished, as by any other command.
+  PortScan scan(const PortScanRequest& req);
   // Closes the session kept from checking the selected terminal's R8 (register mode until it closes).
   void close_kept_session() { kept_.reset(); }
 
@@ -114,7 +118,7 @@ class StationResolver {
   // it is the type the scan kept. No answer (a timeout) or another type: noted, traced (-v), false;
   // any other error is thrown.
   bool r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::exception_ptr error);
-  Engine& engine() { return *port_.engine; }  // for the resolver's own sessions
+  Engine& engine() { return port_->engine(); }  // for the resolver's own sessions
   SessionOptions session_options() const { return ro_.session_options ? ro_.session_options() : SessionOptions{}; }
   void trace(const std::string& line) const {
     if (ro_.trace) ro_.trace(line);
@@ -124,7 +128,7 @@ class StationResolver {
   const Catalog& catalog_;
   ResolverOptions ro_;
   std::shared_ptr<SessionJournal> journal_;
-  OpenedPort port_;  // before the layouts, as the link was in the CLI's Context
+  std::unique_ptr<Port> port_;  // before the layouts, as the link was in the CLI's Context
   std::unique_ptr<StationLayout> layout_;
   std::vector<std::unique_ptr<StationLayout>> retired_;  // layouts sessions may still point into
   bool layout_complete_ = false;
@@ -132,9 +136,6 @@ class StationResolver {
   bool check_cached_ = true;                      // layout(): check a cached layout's R8s
   std::map<unsigned, std::uint16_t> checked_r8_;  // R8 read in this run, by position
   std::optional<StationLayout> matched_;
-  // The port's register access is direct (ADS port 100, CANopen SDO): the coupler reaches a
-  // terminal's registers itself and numbers its terminals from layout().
-  bool direct_access() { return link().ads_connection() || link().sdo_connection(); }
   // The session that checked the selected terminal's R8, handed out by session().
   struct Kept {
     unsigned position = 0, channel = 0;

@@ -80,9 +80,9 @@ class StationDiscovery {
   // A whole scan made elsewhere (kscfg scan) replaces what was found, and is kept.
   virtual void adopt(const ScanResult& r) { (void)r; }
   // A station description given for this coupler (--station FILE), laid out as `L`, checked
-  // against what the coupler reports where the link cannot (an ADS coupler: its table 9 and its
-  // image lengths, discovery/ads_image.hpp): Error(refused) for terminals it does not have; `L`
-  // marked when the coupler contradicts its layout. Modbus: check_image_lengths, by the caller.
+  // against what the coupler reports (a Modbus coupler: its image lengths, check_image_lengths; an
+  // ADS coupler: its table 9 and its image lengths, discovery/ads_image.hpp): Error(refused) for
+  // terminals it does not have; `L` marked when the coupler contradicts its layout.
   virtual void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) {
     (void)L, (void)spec, (void)origin;
   }

@@ -167,7 +167,6 @@ class EmulatorLink : public Link {
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
   std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   EmulatedStation& emulated() { return *station_; }
-  EmulatedStation* emulator() override { return station_; }
 
  private:
   const EmulatorStore* store_ = nullptr;

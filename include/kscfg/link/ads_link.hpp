@@ -49,7 +49,6 @@ class AdsImageLink : public Link {
   std::size_t exchanges() const override { return client_.exchanges(); }
 
   AdsClient& client() { return client_; }
-  AdsClient* ads_connection() override { return &client_; }
 
  private:
   void count() { exchanges_ = client_.exchanges(); }

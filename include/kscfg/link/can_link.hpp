@@ -1,16 +1,14 @@
-// CanLink: a CANopen coupler (BK5120/BK515x, LC5100, BC5150, CX8050's CAN interface) reached
-// through a CAN bus (slcan or SocketCAN, link/can_frame.hpp) as a Link (issue 37). It carries the
-// coupler's SDO connection (sdo_connection()), on which register communication runs
-// (link/can_registers.hpp, under the register-access seam). The process image of a CANopen coupler travels
-// in PDOs that the bus's master (the PLC) owns; kscfg does not send PDOs: the image reads and writes
-// are refused with Error(Exit::usage) naming why (design 13).
+// CanConnection: a CANopen coupler (BK5120/BK515x, LC5100, BC5150, CX8050's CAN interface) reached
+// through a CAN bus (slcan or SocketCAN, link/can_frame.hpp): the coupler's SDO connection, on
+// which register communication runs (link/can_registers.hpp, under the register-access seam). It
+// is no Link: the process image of a CANopen coupler travels in PDOs that the bus's master (the
+// PLC) owns, and kscfg sends no PDOs (design 13).
 #pragma once
 #include <memory>
 #include <string>
 
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/link/can_frame.hpp"
-#include "kscfg/link/link.hpp"
 #include "kscfg/link/sdo.hpp"
 
 namespace kscfg {
@@ -31,20 +29,23 @@ struct CanTarget {
 // Error(Exit::usage) for a node outside 1..127, a bit rate slcan has no code for, an unknown query key.
 CanTarget can_target(const PortUri& p, const std::string& uri);
 
-class CanLink : public Link {
+class CanConnection {
  public:
   // `bus` opened on `target`; `lock`: this computer's lock on that interface and node
   // (discovery/port.hpp), held until the bus has closed.
-  CanLink(CanTarget target, std::unique_ptr<CanBus> bus, SdoOptions opt, OwnerLock lock = {});
-  ~CanLink() override;
-  std::string describe() const override { return target_.uri; }
-  void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
-  void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
-  void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
-  bool proven_dead() const override { return sdo_.proven_dead(); }
-  SdoClient* sdo_connection() override { return &sdo_; }
-  std::size_t exchanges() const override { return sdo_.exchanges(); }
+  CanConnection(CanTarget target, std::unique_ptr<CanBus> bus, SdoOptions opt, OwnerLock lock = {});
+  ~CanConnection();
+  CanConnection(const CanConnection&) = delete;
+  CanConnection& operator=(const CanConnection&) = delete;
+
+  std::string describe() const { return target_.uri; }
+  SdoClient& sdo() { return sdo_; }
+  bool proven_dead() const { return sdo_.proven_dead(); }
+  std::size_t exchanges() const { return sdo_.exchanges(); }
   const CanTarget& target() const { return target_; }
+  // Error(usage) naming why kscfg does not move this coupler's process image: it travels in PDOs
+  // owned by the bus master.
+  [[noreturn]] void refuse_image() const;
 
  private:
   CanTarget target_;

@@ -11,11 +11,6 @@
 
 namespace kscfg {
 
-class ModbusRegisters;  // link/modbus_client.hpp
-class AdsClient;        // link/ads_client.hpp
-class SdoClient;        // link/sdo.hpp
-class EmulatedStation;  // emulator/emulator.hpp (opaque here: the link layer never uses it)
-
 // One terminal channel's part of an image exchange (Link::transfer): output bytes to write and
 // input bytes to read; either may be empty.
 struct ImageTransfer {
@@ -78,17 +73,9 @@ class Link {
   // of the last ones a journal keeps (docs/design.md 6.2).
   virtual bool proven_dead() const { return false; }
 
-  // Capabilities: what callers need of one kind of link, asked for instead of a downcast (as
-  // libmodbus keeps one backend table per transport); nullptr when the link has none.
-  // A Modbus coupler's registers beyond the image (identification, image lengths, watchdog).
-  virtual ModbusRegisters* modbus_registers() { return nullptr; }
-  // An ADS coupler's AMS connection (port 100: its register tables and direct register access).
-  virtual AdsClient* ads_connection() { return nullptr; }
-  // A CANopen coupler's SDO connection (its register communication through 0x4500/0x4501).
-  virtual SdoClient* sdo_connection() { return nullptr; }
-  // The emulated station behind an emulator link (emu commands, the far end of a serial line,
-  // the K-bus run between samples).
-  virtual EmulatedStation* emulator() { return nullptr; }
+  // A poll of the input image costs a network round trip rather than line time (Modbus TCP): the
+  // handshake paces its probes by it (ADS and a serial line keep their plan).
+  virtual bool poll_is_round_trip() const { return false; }
 
   // Link exchanges so far (one request/response on a real link, also those others sent over its
   // connection, such as a scan's identification reads; one image access on the emulator).

@@ -90,8 +90,8 @@ struct ModbusOptions {
 };
 
 // A Modbus coupler's registers beyond its process image (identification 0x1000.., image lengths
-// 0x1010.., watchdog 0x1120..): what callers above a Link ask of a Modbus coupler
-// (Link::modbus_registers()). The ModbusClient of a ModbusLink is one.
+// 0x1010.., watchdog 0x1120..): what the Modbus port and its scan read of a Modbus coupler. The
+// ModbusClient of a ModbusLink is one.
 class ModbusRegisters {
  public:
   virtual ~ModbusRegisters() = default;

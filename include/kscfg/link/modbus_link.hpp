@@ -40,7 +40,9 @@ class ModbusLink : public Link {
   std::size_t exchanges() const override { return client_.exchanges(); }
 
   ModbusClient& client() { return client_; }
-  ModbusRegisters* modbus_registers() override { return &client_; }
+  const ModbusClient& client() const { return client_; }
+  // Over TCP a poll costs a round trip, not line time.
+  bool poll_is_round_trip() const override { return client_.target().tcp; }
   bool proven_dead() const override { return !client_.dead().empty(); }
 
  private:
