@@ -10,6 +10,7 @@
 #include <csignal>
 #include <cstdlib>
 #include <iostream>
+#include <optional>
 
 #include "help.hpp"
 #include "kscfg/base/cancel.hpp"
@@ -174,17 +175,9 @@ static void print_error(const std::string& msg, const std::string& hint, int cod
 
 static void print_error(const Error& e) { print_error(e.what(), e.hint(), static_cast<int>(e.code()), e.details()); }
 
-static int run_command(int argc, char** argv) {
-  std::unique_ptr<App> app;
-  try {
-    app = build_app();
-  } catch (const Error& e) {
-    print_error(e);
-    return static_cast<int>(e.code());
-  }
-  g_app = app.get();
-  for (int i = 1; i < argc && std::string(argv[i]) != "--"; ++i)
-    if (std::string(argv[i]) == "--json") g_json_errors = true;
+// Parses the command line into app; an exit status when that is the end of it (help, version, a
+// mistake in the words), nothing when the command is to run.
+static std::optional<int> parse_command_line(App* app, int argc, char** argv) {
   std::vector<std::string> words(argv + 1, argv + argc);
   try {
     app->cli.parse(argc, argv);
@@ -209,40 +202,65 @@ static int run_command(int argc, char** argv) {
     print_error(p->message, p->hint, static_cast<int>(Exit::usage));
     return static_cast<int>(Exit::usage);
   }
+  return std::nullopt;
+}
+
+// The global options given as text (--terminal, --channel, --timeout, --lock-wait), parsed into o.
+static void parse_global_texts(const App& app, GlobalOptions& o) {
+  if (!app.terminal_text.empty()) {
+    o.selection = parse_terminal_selection(app.terminal_text);
+    if (o.selection.single_position()) o.terminal = o.selection.ranges[0].first;
+  }
+  if (!app.channel_text.empty()) {
+    o.channel = static_cast<unsigned>(parse_uint(app.channel_text, 16, "channel"));
+    if (o.channel == 0) throw Error(Exit::usage, "invalid channel '0': channels start at 1");
+  }
+  if (!app.timeout_text.empty()) {
+    o.timeout_ms = static_cast<unsigned>(parse_uint(app.timeout_text, 600000, "timeout"));
+    if (o.timeout_ms == 0)
+      throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
+                  "leave --timeout out for the default of 1000 ms");
+  }
+  if (!app.lock_wait_text.empty()) {
+    double s = parse_real(app.lock_wait_text, "lock wait");
+    if (s < 0 || s > 86400)
+      throw Error(Exit::usage, fmt::format("invalid lock wait '{}': 0 to 86400 seconds", app.lock_wait_text));
+    o.lock_wait_ms = static_cast<unsigned>(s * 1000 + 0.5);
+  }
+}
+
+// SIGINT, SIGTERM and SIGHUP go to on_signal, which cancels the running command.
+static void catch_signals() {
+  struct sigaction sa {};
+  sa.sa_sigaction = on_signal;
+  sa.sa_flags = SA_SIGINFO | SA_RESTART;  // as std::signal (BSD semantics), with the sender
+  sigemptyset(&sa.sa_mask);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &sa, nullptr);
+}
+
+static int run_command(int argc, char** argv) {
+  std::unique_ptr<App> app;
+  try {
+    app = build_app();
+  } catch (const Error& e) {
+    print_error(e);
+    return static_cast<int>(e.code());
+  }
+  g_app = app.get();
+  for (int i = 1; i < argc && std::string(argv[i]) != "--"; ++i)
+    if (std::string(argv[i]) == "--json") g_json_errors = true;
+  if (auto done = parse_command_line(app.get(), argc, argv)) return *done;
 
   GlobalOptions& o = app->opt;
   std::unique_ptr<Context> ctx;
   int rc = 0;
   try {
-    if (!app->terminal_text.empty()) {
-      o.selection = parse_terminal_selection(app->terminal_text);
-      if (o.selection.single_position()) o.terminal = o.selection.ranges[0].first;
-    }
-    if (!app->channel_text.empty()) {
-      o.channel = static_cast<unsigned>(parse_uint(app->channel_text, 16, "channel"));
-      if (o.channel == 0) throw Error(Exit::usage, "invalid channel '0': channels start at 1");
-    }
-    if (!app->timeout_text.empty()) {
-      o.timeout_ms = static_cast<unsigned>(parse_uint(app->timeout_text, 600000, "timeout"));
-      if (o.timeout_ms == 0)
-        throw Error(Exit::usage, "invalid timeout '0': it is the longest wait for one acknowledge, at least 1 ms",
-                    "leave --timeout out for the default of 1000 ms");
-    }
-    if (!app->lock_wait_text.empty()) {
-      double s = parse_real(app->lock_wait_text, "lock wait");
-      if (s < 0 || s > 86400)
-        throw Error(Exit::usage, fmt::format("invalid lock wait '{}': 0 to 86400 seconds", app->lock_wait_text));
-      o.lock_wait_ms = static_cast<unsigned>(s * 1000 + 0.5);
-    }
+    parse_global_texts(*app, o);
     if (!o.catalog.empty()) set_user_catalog_dir(o.catalog);
     (void)Catalog::standard();  // a broken user catalog is reported before anything is touched
     Command* cmd = parsed_command(*app);
     if (!cmd) throw Error(Exit::usage, "no command given; 'kscfg --help' lists the commands");
-    struct sigaction sa {};
-    sa.sa_sigaction = on_signal;
-    sa.sa_flags = SA_SIGINFO | SA_RESTART;  // as std::signal (BSD semantics), with the sender
-    sigemptyset(&sa.sa_mask);
-    for (int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &sa, nullptr);
+    catch_signals();
     o.cancel = &g_cancel;
     ctx = std::make_unique<Context>(o);
     rc = cmd->run(*ctx);

@@ -66,37 +66,77 @@ const CLI::App* child(const CLI::App* app, const std::string& name) {
   return nullptr;
 }
 
+using Filled = std::map<const CLI::Option*, int>;  // positional option -> values taken
+
+// A word for the command's positionals: the first one with room left takes it.
+void take_positional(ArgvWalk& w, Filled& filled, const std::string& word) {
+  Token t{Token::Kind::positional, word};
+  t.app = w.node;
+  auto pos = positionals_of(w.node);
+  for (std::size_t i = 0; i < pos.size(); ++i) {
+    int max = pos[i]->get_expected_max();
+    if (filled[pos[i]] < max) {
+      ++filled[pos[i]];
+      t.index = static_cast<int>(i);
+      t.option = pos[i];
+      break;
+    }
+  }
+  w.positionals.push_back(word);
+  w.tokens.push_back(t);
+}
+
+// --name or --name=value.
+void take_long_option(ArgvWalk& w, const std::string& word) {
+  auto eq = word.find('=');
+  const CLI::Option* o = find_option(w.node, word.substr(0, eq));
+  if (!o) {
+    w.tokens.push_back({Token::Kind::unknown_option, word, nullptr, w.node});
+    return;
+  }
+  Token t{Token::Kind::option, word, o, w.node};
+  t.inline_value = eq != std::string::npos;
+  w.tokens.push_back(t);
+  if (takes_value(o) && eq == std::string::npos) w.pending = o;
+}
+
+// -t 1, -t1, -vt 1: flags may be bundled; the first option taking a value ends the bundle.
+void take_short_options(ArgvWalk& w, const std::string& word) {
+  std::size_t k = 1;
+  bool bad = false;
+  while (k < word.size()) {
+    const CLI::Option* o = find_option(w.node, std::string("-") + word[k]);
+    if (!o) {
+      bad = true;
+      break;
+    }
+    Token t{Token::Kind::option, word, o, w.node};
+    if (takes_value(o)) {
+      t.inline_value = k + 1 < word.size();
+      w.tokens.push_back(t);
+      if (!t.inline_value) w.pending = o;
+      break;
+    }
+    w.tokens.push_back(t);
+    ++k;
+  }
+  if (bad) w.tokens.push_back({Token::Kind::unknown_option, word, nullptr, w.node});
+}
+
 }  // namespace
 
 ArgvWalk walk_argv(const CLI::App& root, const std::vector<std::string>& words) {
   ArgvWalk w;
   w.node = &root;
-  std::map<const CLI::Option*, int> filled;  // positional option -> values taken
-  auto positional = [&](const std::string& word) {
-    Token t{Token::Kind::positional, word};
-    t.app = w.node;
-    auto pos = positionals_of(w.node);
-    for (std::size_t i = 0; i < pos.size(); ++i) {
-      int max = pos[i]->get_expected_max();
-      if (filled[pos[i]] < max) {
-        ++filled[pos[i]];
-        t.index = static_cast<int>(i);
-        t.option = pos[i];
-        break;
-      }
-    }
-    w.positionals.push_back(word);
-    w.tokens.push_back(t);
-  };
-  for (std::size_t i = 0; i < words.size(); ++i) {
-    const std::string& word = words[i];
+  Filled filled;
+  for (const std::string& word : words) {
     if (w.pending) {
       w.tokens.push_back({Token::Kind::value, word, w.pending, w.node});
       w.pending = nullptr;
       continue;
     }
     if (w.after_separator) {
-      positional(word);
+      take_positional(w, filled, word);
       continue;
     }
     if (word == "--") {
@@ -105,39 +145,11 @@ ArgvWalk walk_argv(const CLI::App& root, const std::vector<std::string>& words) 
       continue;
     }
     if (word.rfind("--", 0) == 0) {
-      auto eq = word.find('=');
-      const CLI::Option* o = find_option(w.node, word.substr(0, eq));
-      if (!o) {
-        w.tokens.push_back({Token::Kind::unknown_option, word, nullptr, w.node});
-        continue;
-      }
-      Token t{Token::Kind::option, word, o, w.node};
-      t.inline_value = eq != std::string::npos;
-      w.tokens.push_back(t);
-      if (takes_value(o) && eq == std::string::npos) w.pending = o;
+      take_long_option(w, word);
       continue;
     }
     if (word.size() > 1 && word[0] == '-') {
-      // -t 1, -t1, -vt 1: flags may be bundled; the first option taking a value ends the bundle.
-      std::size_t k = 1;
-      bool bad = false;
-      while (k < word.size()) {
-        const CLI::Option* o = find_option(w.node, std::string("-") + word[k]);
-        if (!o) {
-          bad = true;
-          break;
-        }
-        Token t{Token::Kind::option, word, o, w.node};
-        if (takes_value(o)) {
-          t.inline_value = k + 1 < word.size();
-          w.tokens.push_back(t);
-          if (!t.inline_value) w.pending = o;
-          break;
-        }
-        w.tokens.push_back(t);
-        ++k;
-      }
-      if (bad) w.tokens.push_back({Token::Kind::unknown_option, word, nullptr, w.node});
+      take_short_options(w, word);
       continue;
     }
     if (const CLI::App* c = child(w.node, word)) {
@@ -146,7 +158,7 @@ ArgvWalk walk_argv(const CLI::App& root, const std::vector<std::string>& words) 
       w.tokens.push_back({Token::Kind::command, word, nullptr, c});
       continue;
     }
-    positional(word);
+    take_positional(w, filled, word);
   }
   return w;
 }

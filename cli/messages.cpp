@@ -46,24 +46,21 @@ std::vector<std::string> option_spellings(const CLI::App* node) {
   return v;
 }
 
-}  // namespace
-
-std::optional<Problem> command_line_problem(const App& a, const std::vector<std::string>& words, bool parsed) {
-  ArgvWalk w = walk_argv(a.cli, words);
-  const auto& t = w.tokens;
-
-  // An option whose value is a command name: `--timeout read R32` took "read" as the timeout.
-  if (!parsed) {
-    for (std::size_t i = 0; i + 1 < t.size(); ++i) {
-      if (t[i].kind != Token::Kind::option || t[i].inline_value || t[i + 1].kind != Token::Kind::value) continue;
-      auto names = command_names(t[i].app);
-      if (std::find(names.begin(), names.end(), t[i + 1].word) == names.end()) continue;
-      return Problem{fmt::format("{} needs {} before the command '{}'", option_label(t[i].option),
-                                 value_text(t[i].option), t[i + 1].word),
-                     fmt::format("kscfg {} {} {} ...", t[i].word, value_text(t[i].option), t[i + 1].word)};
-    }
+// An option whose value is a command name: `--timeout read R32` took "read" as the timeout.
+std::optional<Problem> command_as_value(const std::vector<Token>& t) {
+  for (std::size_t i = 0; i + 1 < t.size(); ++i) {
+    if (t[i].kind != Token::Kind::option || t[i].inline_value || t[i + 1].kind != Token::Kind::value) continue;
+    auto names = command_names(t[i].app);
+    if (std::find(names.begin(), names.end(), t[i + 1].word) == names.end()) continue;
+    return Problem{fmt::format("{} needs {} before the command '{}'", option_label(t[i].option),
+                               value_text(t[i].option), t[i + 1].word),
+                   fmt::format("kscfg {} {} {} ...", t[i].word, value_text(t[i].option), t[i + 1].word)};
   }
-  // Empty values: `-t ''` is a mistake, never "the default".
+  return std::nullopt;
+}
+
+// Empty values: `-t ''` is a mistake, never "the default".
+std::optional<Problem> empty_value(const std::vector<Token>& t) {
   for (std::size_t i = 0; i < t.size(); ++i) {
     if (t[i].kind == Token::Kind::value && t[i].word.empty())
       return Problem{
@@ -72,9 +69,11 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
       return Problem{
           fmt::format("{} needs {}, not an empty string", option_label(t[i].option), value_text(t[i].option)), ""};
   }
-  if (parsed) return std::nullopt;
+  return std::nullopt;
+}
 
-  // Unknown options, with the closest spelling valid at that point.
+// Unknown options, with the closest spelling valid at that point.
+std::optional<Problem> unknown_option_problem(const std::vector<Token>& t) {
   for (const auto& k : t) {
     if (k.kind != Token::Kind::unknown_option) continue;
     std::string name = k.word.substr(0, k.word.find('='));
@@ -95,10 +94,11 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
     std::string dym = name.size() > 2 ? did_you_mean(name, option_spellings(k.app)) : std::string();
     return Problem{fmt::format("unknown option '{}'{}", name, where), dym.empty() ? help_hint(k.app, true) : dym};
   }
-  // An option at the end without its value.
-  if (w.pending)
-    return Problem{fmt::format("{} needs {}", option_label(w.pending), value_text(w.pending)), help_hint(w.node, true)};
-  // An option given twice.
+  return std::nullopt;
+}
+
+// An option given twice.
+std::optional<Problem> option_given_twice(const std::vector<Token>& t) {
   std::map<const CLI::Option*, std::vector<std::string>> given;
   for (std::size_t i = 0; i < t.size(); ++i) {
     if (t[i].kind == Token::Kind::option && takes_value(t[i].option) && t[i].option->get_expected_max() <= 1) {
@@ -114,7 +114,11 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
                                  vals.size() == 2 ? std::string("twice") : std::to_string(vals.size()) + " times",
                                  fmt::format("{}", fmt::join(vals, "', '"))),
                      ""};
-  // Words that are no command, or more arguments than the command takes.
+  return std::nullopt;
+}
+
+// Words that are no command, or more arguments than the command takes.
+std::optional<Problem> stray_word(const std::vector<Token>& t) {
   for (const auto& k : t) {
     if (k.kind != Token::Kind::positional || k.option) continue;
     auto names = command_names(k.app);
@@ -138,7 +142,11 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
                                takes.empty() ? std::string("no arguments") : takes.substr(1)),
                    help_hint(k.app)};
   }
-  // A command that needs a sub-command, or its arguments.
+  return std::nullopt;
+}
+
+// A command that needs a sub-command, or its arguments.
+std::optional<Problem> missing_arguments(const ArgvWalk& w) {
   if (!w.node->get_parent()) return Problem{"no command given", "'kscfg help' lists the commands"};
   auto subs = command_names(w.node);
   if (!subs.empty())
@@ -155,6 +163,27 @@ std::optional<Problem> command_line_problem(const App& a, const std::vector<std:
     return Problem{fmt::format("'{}' needs {}: {}", command_path(w.node), positional_text(p), d), help_hint(w.node)};
   }
   return std::nullopt;
+}
+
+}  // namespace
+
+std::optional<Problem> command_line_problem(const App& a, const std::vector<std::string>& words, bool parsed) {
+  ArgvWalk w = walk_argv(a.cli, words);
+  const auto& t = w.tokens;
+
+  if (!parsed) {
+    if (auto p = command_as_value(t)) return p;
+  }
+  if (auto p = empty_value(t)) return p;
+  if (parsed) return std::nullopt;
+
+  if (auto p = unknown_option_problem(t)) return p;
+  // An option at the end without its value.
+  if (w.pending)
+    return Problem{fmt::format("{} needs {}", option_label(w.pending), value_text(w.pending)), help_hint(w.node, true)};
+  if (auto p = option_given_twice(t)) return p;
+  if (auto p = stray_word(t)) return p;
+  return missing_arguments(w);
 }
 
 Problem parse_error_text(const CLI::ParseError& e) {

@@ -250,7 +250,21 @@ class EmuEncoder : public Command {
     EmulatedStation* emu = ctx.port().emulated();
     if (!emu) throw Error(Exit::usage, "'kscfg emu encoder' works on the emulator");
     EmulatedStation& st = *emu;
-    unsigned pos = ctx.options().terminal;
+    unsigned pos = encoder_position(st, ctx.options().terminal);
+    const TerminalImage& t = st.layout().terminal(pos);
+    if (!st.has_channel(pos, 0) || !st.channel(pos, 0).encoder())
+      throw Error(Exit::usage, fmt::format("terminal {} ({}) is not an emulated KL5101", pos, t.type->type));
+    EncoderModel& enc = *st.channel(pos, 0).encoder();
+    // Everything is checked before anything changes.
+    enc.far = far_end(enc.far);
+    st.cycle();  // one K-bus cycle (1 ms): a step or a pulse takes effect
+    show(ctx, pos, t, enc);
+    return 0;
+  }
+
+ private:
+  // The terminal given, or the first emulated KL5101.
+  static unsigned encoder_position(EmulatedStation& st, unsigned pos) {
     if (!pos)
       for (const auto& t : st.layout().terminals)
         if (st.has_channel(t.position, 0) && st.channel(t.position, 0).encoder()) {
@@ -258,17 +272,17 @@ class EmuEncoder : public Command {
           break;
         }
     if (!pos) throw Error(Exit::usage, "the emulated station has no KL5101", "'kscfg info' lists the station");
-    const TerminalImage& t = st.layout().terminal(pos);
-    if (!st.has_channel(pos, 0) || !st.channel(pos, 0).encoder())
-      throw Error(Exit::usage, fmt::format("terminal {} ({}) is not an emulated KL5101", pos, t.type->type));
-    EncoderModel& enc = *st.channel(pos, 0).encoder();
-    auto on_off = [](const std::string& v, const char* opt) {
-      if (v == "on") return true;
-      if (v == "off") return false;
-      throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: expected on or off", v, opt));
-    };
-    // Everything is checked before anything changes.
-    EncoderFarEnd far = enc.far;
+    return pos;
+  }
+
+  static bool on_off(const std::string& v, const char* opt) {
+    if (v == "on") return true;
+    if (v == "off") return false;
+    throw Error(Exit::usage, fmt::format("invalid value '{}' for {}: expected on or off", v, opt));
+  }
+
+  // The far end as the options change it.
+  EncoderFarEnd far_end(EncoderFarEnd far) const {
     if (!speed_.empty()) {
       double hz = parse_real(speed_, "speed");
       if (!(hz >= 0 && hz <= encoder::kMaxSpeedHz))
@@ -297,9 +311,12 @@ class EmuEncoder : public Command {
     }
     if (!gate_.empty()) far.gate = on_off(gate_, "--gate");
     if (far.ref_pulses > 1000 || far.latch_pulses > 1000) throw Error(Exit::usage, "too many pulses pending");
-    enc.far = far;
-    st.cycle();  // one K-bus cycle (1 ms): a step or a pulse takes effect
-    far = enc.far;
+    return far;
+  }
+
+  // The far end, the counter, the latch and the status bits after the cycle.
+  static void show(Context& ctx, unsigned pos, const TerminalImage& t, EncoderModel& enc) {
+    EncoderFarEnd far = enc.far;
     std::uint8_t s = enc.status();
     if (ctx.json()) {
       print_json({{"position", pos},
@@ -326,10 +343,8 @@ class EmuEncoder : public Command {
                                s & encoder::kCntSetAcc ? " CNTSET_ACC" : "",
                                s & encoder::kLatExtVal ? " LAT_EXT_VAL" : "", s & encoder::kLatcVal ? " LATC_VAL" : "");
     }
-    return 0;
   }
 
- private:
   std::string speed_, direction_, lines_, step_, latch_input_, gate_;
   bool ref_ = false, latch_ = false;
 };

@@ -57,17 +57,8 @@ class EmuInput : public Command {
     if (!emu) throw Error(Exit::usage, "'kscfg emu input' works on the emulator", "use --port emu or emu:PATH");
     if (open_ && connect_) throw Error(Exit::usage, "--open and --connect: give one");
     EmulatedStation& st = *emu;
-    unsigned pos = ctx.options().terminal;
+    unsigned pos = analog_position(st, ctx.options().terminal);
     unsigned ch = ctx.options().channel - 1;
-    if (!pos)
-      for (const auto& t : st.layout().terminals)
-        if (st.has_channel(t.position, 0) && st.channel(t.position, 0).analog()) {
-          pos = t.position;
-          break;
-        }
-    if (!pos)
-      throw Error(Exit::usage, "the emulated station has no analog terminal with a processing chain in the catalog",
-                  "'kscfg catalog' shows which types have one");
     const TerminalImage& t = st.layout().terminal(pos);
     if (!st.has_channel(pos, ch) || !st.channel(pos, ch).analog())
       throw Error(Exit::usage,
@@ -80,24 +71,7 @@ class EmuInput : public Command {
     if (!value_.empty()) {
       if (!an.input())
         throw Error(Exit::usage, fmt::format("terminal {} ({}) is an output: it measures nothing", pos, t.type->type));
-      std::size_t end = 0;
-      while (end < value_.size() &&
-             (std::isdigit(static_cast<unsigned char>(value_[end])) || value_[end] == '.' || value_[end] == '-' ||
-              value_[end] == '+' || value_[end] == 'e' || value_[end] == 'E'))
-        ++end;
-      // "1e3" is a number, "12e" is not; an 'e' at the end belongs to no unit we know either way.
-      double v = parse_real(value_.substr(0, end), "value");
-      std::string unit = canonical_unit(value_.substr(end));
-      std::set<std::string> units;
-      for (const auto& r : t.type->chain->ranges) units.insert(r.unit);
-      if (!unit.empty() && !units.count(unit)) {
-        std::string list;
-        for (const auto& u : units) list += (list.empty() ? "" : ", ") + u;
-        throw Error(Exit::usage, fmt::format("{} measures in {}, not {}", t.type->type, list, quote_input(unit)));
-      }
-      if (!std::isfinite(v) || std::fabs(v) > 1e9) throw Error(Exit::usage, "invalid value: at most 1e9");
-      far.value = v;
-      far.unit = unit;
+      set_value(t, far);
     }
     if (open_) far.open = true;
     if (connect_) far.open = false;
@@ -106,18 +80,66 @@ class EmuInput : public Command {
     const auto& regs = model.registers();
     nlohmann::json j = {{"position", pos}, {"channel", ch + 1}, {"type", t.type->type}};
     if (!an.input()) {
-      auto d = an.driven();
-      j["driven"] = d ? nlohmann::json(*d) : nlohmann::json(nullptr);
-      auto so = an.switch_on(regs);
-      j["switch_on"] = so ? nlohmann::json(*so) : nlohmann::json(nullptr);
-      if (ctx.json()) print_json(j);
-      else
-        std::cout << fmt::format("terminal {} ({}) channel {}: drives {}{}\n", pos, t.type->type, ch + 1,
-                                 d ? fmt::format("0x{:04X} {}", *d, static_cast<std::int16_t>(*d)) : "nothing known",
-                                 so ? fmt::format(" (switch-on value 0x{:04X})", *so) : "");
+      show_output(ctx, j, t, pos, ch, an.driven(), an.switch_on(regs));
       return 0;
     }
-    AnalogReading r = an.read(regs);
+    show_input(ctx, j, t, pos, ch, far, an.read(regs), regs);
+    return 0;
+  }
+
+ private:
+  // The terminal given, or the first with an emulated analog chain.
+  static unsigned analog_position(EmulatedStation& st, unsigned pos) {
+    if (!pos)
+      for (const auto& t : st.layout().terminals)
+        if (st.has_channel(t.position, 0) && st.channel(t.position, 0).analog()) {
+          pos = t.position;
+          break;
+        }
+    if (!pos)
+      throw Error(Exit::usage, "the emulated station has no analog terminal with a processing chain in the catalog",
+                  "'kscfg catalog' shows which types have one");
+    return pos;
+  }
+
+  // VALUE[UNIT] into far, the unit one of the terminal's ranges.
+  void set_value(const TerminalImage& t, AnalogFarEnd& far) const {
+    std::size_t end = 0;
+    while (end < value_.size() &&
+           (std::isdigit(static_cast<unsigned char>(value_[end])) || value_[end] == '.' || value_[end] == '-' ||
+            value_[end] == '+' || value_[end] == 'e' || value_[end] == 'E'))
+      ++end;
+    // "1e3" is a number, "12e" is not; an 'e' at the end belongs to no unit we know either way.
+    double v = parse_real(value_.substr(0, end), "value");
+    std::string unit = canonical_unit(value_.substr(end));
+    std::set<std::string> units;
+    for (const auto& r : t.type->chain->ranges) units.insert(r.unit);
+    if (!unit.empty() && !units.count(unit)) {
+      std::string list;
+      for (const auto& u : units) list += (list.empty() ? "" : ", ") + u;
+      throw Error(Exit::usage, fmt::format("{} measures in {}, not {}", t.type->type, list, quote_input(unit)));
+    }
+    if (!std::isfinite(v) || std::fabs(v) > 1e9) throw Error(Exit::usage, "invalid value: at most 1e9");
+    far.value = v;
+    far.unit = unit;
+  }
+
+  // An analog output: the word it drives and its switch-on value.
+  static void show_output(Context& ctx, nlohmann::json& j, const TerminalImage& t, unsigned pos, unsigned ch,
+                          std::optional<std::uint16_t> d, std::optional<std::uint16_t> so) {
+    j["driven"] = d ? nlohmann::json(*d) : nlohmann::json(nullptr);
+    j["switch_on"] = so ? nlohmann::json(*so) : nlohmann::json(nullptr);
+    if (ctx.json()) print_json(j);
+    else
+      std::cout << fmt::format("terminal {} ({}) channel {}: drives {}{}\n", pos, t.type->type, ch + 1,
+                               d ? fmt::format("0x{:04X} {}", *d, static_cast<std::int16_t>(*d)) : "nothing known",
+                               so ? fmt::format(" (switch-on value 0x{:04X})", *so) : "");
+  }
+
+  // An analog input: what is wired, the range, the data word and status byte, the value `data` shows.
+  static void show_input(Context& ctx, nlohmann::json& j, const TerminalImage& t, unsigned pos, unsigned ch,
+                         const AnalogFarEnd& far, const AnalogReading& r,
+                         const std::array<std::uint16_t, proto::kRegisterCount>& regs) {
     DataValue dv = data_value(*t.type, regs, r.word);
     std::string range = r.range ? fmt::format("{}..{} {}", r.range->min, r.range->max, r.range->unit) : "";
     if (ctx.json()) {
@@ -131,7 +153,7 @@ class EmuInput : public Command {
       j["measured_in"] = dv.known ? nlohmann::json(dv.unit) : nlohmann::json(nullptr);
       j["reading"] = dv.known ? nlohmann::json(dv.text()) : nlohmann::json(nullptr);
       print_json(j);
-      return 0;
+      return;
     }
     std::string input = far.open ? "open (no sensor)"
                         : far.value
@@ -146,10 +168,8 @@ class EmuInput : public Command {
     std::cout << fmt::format("data word 0x{:04X} {}, status 0x{:02X}{}{}\n", r.word, static_cast<std::int16_t>(r.word),
                              r.status, flags.empty() ? "" : ":", flags);
     if (dv.known) std::cout << fmt::format("data shows {}\n", dv.text());
-    return 0;
   }
 
- private:
   std::string value_;
   bool open_ = false, connect_ = false;
 };

@@ -69,33 +69,75 @@ class Info : public Command {
     if (ctx.terminal_given()) positions = ctx.terminal_positions(false);
     else
       for (const auto& t : L.terminals) positions.push_back(t.position);
-    // R8 and R9 of every terminal with registers, all at once (the station engine); R8 only where
-    // this run's scan did not read it.
+    TypeReads reads = read_types(ctx, L, positions);
+    if (ctx.layout_from_cache() && !rescanned_)
+      for (const auto& j : reads.jobs)
+        if (r8_of(ctx, j) != L.terminal(j.position).type->r8) {
+          // The station changed since the scan kept in the cache: scan it again, start over.
+          rescanned_ = true;
+          ctx.resolver().forget_layout();
+          return run(ctx);
+        }
+    Listing list = list_terminals(ctx, L, positions, reads);
+    // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
+    // Modbus the digital terminals, seen only as bit totals.
+    bool discovered = !ctx.resolver().discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
+    std::string digital = L.unidentified_digital();
+    if (discovered)
+      list.rows.push_back(
+          {"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});
+    if (ctx.json()) {
+      print_list_json(ctx, L, list.arr, discovered, digital);
+      return 0;
+    }
+    std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.port().describe());
+    print_table(list.rows);
+    if (!digital.empty())
+      std::cout << fmt::format(
+          "digital terminals: {} in the image, not listed: the coupler reports them as bit "
+          "totals only, not their types or number\n",
+          digital);
+    return 0;
+  }
+
+  // R8 and R9 of every terminal with registers, all at once (the station engine); R8 only where
+  // this run's scan did not read it.
+  struct TypeReads {
     std::vector<ChannelReads> jobs;
-    std::map<unsigned, std::size_t> job_of;
+    std::map<unsigned, std::size_t> job_of;  // position -> its job
+  };
+
+  static TypeReads read_types(Context& ctx, const StationLayout& L, const std::vector<unsigned>& positions) {
+    TypeReads reads;
     for (unsigned pos : positions) {
       const TerminalImage& t = L.terminal(pos);
       if (!t.type->has_registers || !reaches_registers(L, t, 0)) continue;
       ChannelReads j;
       j.position = pos;
       j.regs = ctx.known_r8(pos) ? std::vector<unsigned>{9} : std::vector<unsigned>{8, 9};
-      job_of[pos] = jobs.size();
-      jobs.push_back(std::move(j));
+      reads.job_of[pos] = reads.jobs.size();
+      reads.jobs.push_back(std::move(j));
     }
-    if (!jobs.empty()) read_channels(ctx.resolver().library_engine(), L, jobs, ctx.session_options());
-    for (const auto& j : jobs)
+    if (!reads.jobs.empty()) read_channels(ctx.resolver().library_engine(), L, reads.jobs, ctx.session_options());
+    for (const auto& j : reads.jobs)
       if (j.error) std::rethrow_exception(j.error);  // the first in plug order, as one after the other
-    auto r8_of = [&](const ChannelReads& j) { return j.regs.size() == 2 ? j.values[0] : *ctx.known_r8(j.position); };
-    if (ctx.layout_from_cache() && !rescanned_)
-      for (const auto& j : jobs)
-        if (r8_of(j) != L.terminal(j.position).type->r8) {
-          // The station changed since the scan kept in the cache: scan it again, start over.
-          rescanned_ = true;
-          ctx.resolver().forget_layout();
-          return run(ctx);
-        }
+    return reads;
+  }
+
+  static std::uint16_t r8_of(Context& ctx, const ChannelReads& j) {
+    return j.regs.size() == 2 ? j.values[0] : *ctx.known_r8(j.position);
+  }
+
+  // The terminals as JSON objects and as table rows; a terminal whose R8 differs from the
+  // station's description is said on stderr.
+  struct Listing {
     nlohmann::json arr = nlohmann::json::array();
     std::vector<std::vector<std::string>> rows;
+  };
+
+  static Listing list_terminals(Context& ctx, const StationLayout& L, const std::vector<unsigned>& positions,
+                                const TypeReads& reads) {
+    Listing list;
     for (unsigned pos : positions) {
       const TerminalImage& t = L.terminal(pos);
       nlohmann::json j{{"position", t.position}, {"type", t.type->type}, {"title", t.type->title},
@@ -109,9 +151,9 @@ class Info : public Command {
         j["fits"] = t.fits;
       }
       std::string r8 = "-", ver = "-";
-      if (auto it = job_of.find(pos); it != job_of.end()) {
-        const ChannelReads& job = jobs[it->second];
-        std::uint16_t v8 = r8_of(job), v9 = job.values.back();
+      if (auto it = reads.job_of.find(pos); it != reads.job_of.end()) {
+        const ChannelReads& job = reads.jobs[it->second];
+        std::uint16_t v8 = r8_of(ctx, job), v9 = job.values.back();
         r8 = fmt::format("{}", v8);
         ver = proto::version_text(v9);
         j["r8"] = v8;
@@ -120,40 +162,26 @@ class Info : public Command {
           std::cerr << fmt::format("kscfg: warning: terminal {} reports type {} in R8, the station says {}\n",
                                    t.position, v8, t.type->type);
       }
-      arr.push_back(j);
-      rows.push_back({fmt::format("{}", t.position), shown_type(t), r8, ver, image_ranges(t), title});
+      list.arr.push_back(j);
+      list.rows.push_back({fmt::format("{}", t.position), shown_type(t), r8, ver, image_ranges(t), title});
     }
-    // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
-    // Modbus the digital terminals, seen only as bit totals.
-    bool discovered =
-        !ctx.resolver().discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
-    std::string digital = L.unidentified_digital();
-    if (discovered)
-      rows.push_back(
-          {"-", "KL9010", "-", "-", "-", "End terminal: inferred (the coupler reports no passive terminal)"});
-    if (ctx.json()) {
-      nlohmann::json j{{"coupler", L.coupler}};
-      j.update(ctx.link_json());
-      j["terminals"] = arr;
-      if (discovered) j["end_terminal"] = {{"type", "KL9010"}, {"inferred", true}};
-      if (!digital.empty()) {
-        std::size_t din = 0, dout = 0;
-        for (const auto& t : L.terminals)
-          if (!t.complex) din += t.bits_in, dout += t.bits_out;
-        j["unidentified_digital_bits"] = {{"in", L.digital_in_bits - std::min(din, L.digital_in_bits)},
-                                          {"out", L.digital_out_bits - std::min(dout, L.digital_out_bits)}};
-      }
-      print_json(j);
-      return 0;
+    return list;
+  }
+
+  static void print_list_json(Context& ctx, const StationLayout& L, const nlohmann::json& arr, bool discovered,
+                              const std::string& digital) {
+    nlohmann::json j{{"coupler", L.coupler}};
+    j.update(ctx.link_json());
+    j["terminals"] = arr;
+    if (discovered) j["end_terminal"] = {{"type", "KL9010"}, {"inferred", true}};
+    if (!digital.empty()) {
+      std::size_t din = 0, dout = 0;
+      for (const auto& t : L.terminals)
+        if (!t.complex) din += t.bits_in, dout += t.bits_out;
+      j["unidentified_digital_bits"] = {{"in", L.digital_in_bits - std::min(din, L.digital_in_bits)},
+                                        {"out", L.digital_out_bits - std::min(dout, L.digital_out_bits)}};
     }
-    std::cout << fmt::format("coupler {}  port {}\n", L.coupler, ctx.port().describe());
-    print_table(rows);
-    if (!digital.empty())
-      std::cout << fmt::format(
-          "digital terminals: {} in the image, not listed: the coupler reports them as bit "
-          "totals only, not their types or number\n",
-          digital);
-    return 0;
+    print_json(j);
   }
 
   // The coupler's image lengths contradict the layout (ADS, discovery/ads_image.hpp): the image

@@ -225,87 +225,22 @@ class SerialSend : public Command {
     sub.add_option("--count", count_, "With --recv: stop once N bytes have arrived")->option_text("N");
   }
   int run(Context& ctx) override {
-    std::vector<std::uint8_t> bytes;
-    bool stream = false;  // raw stdin beyond kPreload goes out as it is read, never held whole
-    std::size_t preloaded = 0;
-    if (data_ == "-" && !hex_) {
-      // Read ahead up to kPreload: an input that ends there is sent whole (its size known, so the
-      // progress line has an estimate); a longer one (a device, /dev/zero) is streamed after it.
-      constexpr std::size_t kPreload = 64 * 1024;
-      bytes.resize(kPreload);
-      std::size_t n = 0;
-      for (;;) {
-        if (n == kPreload) {
-          stream = true;
-          break;
-        }
-        ssize_t k = ::read(STDIN_FILENO, bytes.data() + n, kPreload - n);
-        if (k < 0 && errno == EINTR) {
-          if (ctx.cancel()->cancelled()) throw Error(Exit::interrupted, "interrupted before anything was sent");
-          continue;
-        }
-        if (k < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
-          // A non-blocking stdin with nothing yet is not its end: wait for it as a blocking read does.
-          pollfd p{STDIN_FILENO, POLLIN, 0};
-          if (::poll(&p, 1, -1) < 0 && errno == EINTR && ctx.cancel()->cancelled())
-            throw Error(Exit::interrupted, "interrupted before anything was sent");
-          continue;
-        }
-        if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
-        if (k == 0) break;
-        n += static_cast<std::size_t>(k);
-      }
-      bytes.resize(n);
-      if (stream) preloaded = n;
-    } else if (data_ == "-" && hex_) {
-      // Hex text is parsed whole: bounded like every input file (4 MiB of text).
-      bytes = parse_serial_data(read_input("-", "hex data"), true);
-    } else if (!stream) {
-      bytes = parse_serial_data(data_, hex_);
-    }
+    Input in = read_data(ctx);
     std::size_t count = 0;
     if (!count_.empty()) {
       if (!recv_) throw Error(Exit::usage, "--count needs --recv");
       count = static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     }
     auto port = open_port(ctx);
-    std::size_t sent = bytes.size();
-    if (stream) {
-      ByteProgress bar(ctx, *port, "send", 0, [&] { return port->accepted(); });
-      std::size_t handed = 0;  // of the bytes read ahead
-      auto source = [&](std::uint8_t* buf, std::size_t max, int wait_ms) -> long {
-        if (handed < preloaded) {
-          std::size_t k = std::min(max, preloaded - handed);
-          std::copy_n(bytes.begin() + static_cast<std::ptrdiff_t>(handed), k, buf);
-          handed += k;
-          return static_cast<long>(k);
-        }
-        return read_stdin(buf, max, wait_ms);
-      };
-      try {
-        sent = port->send_stream(source, recv_);
-      } catch (const Error& e) {
-        // Ctrl-C ends an endless stream (stdin from a device): say how much went out.
-        if (e.code() != Exit::interrupted) throw;
-        throw Error(Exit::interrupted, fmt::format("interrupted after {} bytes were sent", port->accepted()));
-      }
+    std::size_t sent = in.bytes.size();
+    if (in.stream) {
+      sent = send_stream(ctx, *port, in);
     } else {
-      ByteProgress bar(ctx, *port, "send", bytes.size(),
-                       [&] { return bytes.size() - std::min(bytes.size(), port->queued()); });
-      port->send(bytes, recv_);
+      ByteProgress bar(ctx, *port, "send", in.bytes.size(),
+                       [&] { return in.bytes.size() - std::min(in.bytes.size(), port->queued()); });
+      port->send(in.bytes, recv_);
     }
-    if (recv_) {
-      std::size_t want = count;
-      if (!want || port->received().size() < want) {
-        ByteProgress bar(ctx, *port, "recv", want, [&] { return port->received().size(); });
-        try {
-          port->receive(want, std::chrono::milliseconds(ctx.options().timeout_ms));
-        } catch (const Error&) {
-          if (!ctx.json()) write_bytes(port->received(), hex_);  // what arrived is never dropped
-          throw;
-        }
-      }
-    }
+    if (recv_) receive(ctx, *port, count);
     if (recv_ && !ctx.json()) write_bytes(port->received(), hex_);
     nlohmann::json j = report_diagnostics(ctx, *port);
     if (ctx.json()) {
@@ -323,6 +258,92 @@ class SerialSend : public Command {
   }
 
  private:
+  struct Input {
+    std::vector<std::uint8_t> bytes;
+    bool stream = false;        // raw stdin beyond kPreload goes out as it is read, never held whole
+    std::size_t preloaded = 0;  // streamed: the bytes read ahead
+  };
+
+  Input read_data(Context& ctx) const {
+    Input in;
+    if (data_ == "-" && !hex_) {
+      preload_stdin(ctx, in);
+    } else if (data_ == "-" && hex_) {
+      // Hex text is parsed whole: bounded like every input file (4 MiB of text).
+      in.bytes = parse_serial_data(read_input("-", "hex data"), true);
+    } else {
+      in.bytes = parse_serial_data(data_, hex_);
+    }
+    return in;
+  }
+
+  // Read ahead up to kPreload: an input that ends there is sent whole (its size known, so the
+  // progress line has an estimate); a longer one (a device, /dev/zero) is streamed after it.
+  static void preload_stdin(Context& ctx, Input& in) {
+    constexpr std::size_t kPreload = 64 * 1024;
+    in.bytes.resize(kPreload);
+    std::size_t n = 0;
+    for (;;) {
+      if (n == kPreload) {
+        in.stream = true;
+        break;
+      }
+      ssize_t k = ::read(STDIN_FILENO, in.bytes.data() + n, kPreload - n);
+      if (k < 0 && errno == EINTR) {
+        if (ctx.cancel()->cancelled()) throw Error(Exit::interrupted, "interrupted before anything was sent");
+        continue;
+      }
+      if (k < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+        // A non-blocking stdin with nothing yet is not its end: wait for it as a blocking read does.
+        pollfd p{STDIN_FILENO, POLLIN, 0};
+        if (::poll(&p, 1, -1) < 0 && errno == EINTR && ctx.cancel()->cancelled())
+          throw Error(Exit::interrupted, "interrupted before anything was sent");
+        continue;
+      }
+      if (k < 0) throw Error(Exit::file, fmt::format("cannot read stdin: {}", std::strerror(errno)));
+      if (k == 0) break;
+      n += static_cast<std::size_t>(k);
+    }
+    in.bytes.resize(n);
+    if (in.stream) in.preloaded = n;
+  }
+
+  // The bytes read ahead, then stdin as it comes; the number of bytes sent.
+  std::size_t send_stream(Context& ctx, SerialPort& port, const Input& in) const {
+    ByteProgress bar(ctx, port, "send", 0, [&] { return port.accepted(); });
+    std::size_t handed = 0;  // of the bytes read ahead
+    auto source = [&](std::uint8_t* buf, std::size_t max, int wait_ms) -> long {
+      if (handed < in.preloaded) {
+        std::size_t k = std::min(max, in.preloaded - handed);
+        std::copy_n(in.bytes.begin() + static_cast<std::ptrdiff_t>(handed), k, buf);
+        handed += k;
+        return static_cast<long>(k);
+      }
+      return read_stdin(buf, max, wait_ms);
+    };
+    try {
+      return port.send_stream(source, recv_);
+    } catch (const Error& e) {
+      // Ctrl-C ends an endless stream (stdin from a device): say how much went out.
+      if (e.code() != Exit::interrupted) throw;
+      throw Error(Exit::interrupted, fmt::format("interrupted after {} bytes were sent", port.accepted()));
+    }
+  }
+
+  // --recv: what is still to come after the send, up to count bytes (0: until the line is idle).
+  void receive(Context& ctx, SerialPort& port, std::size_t count) const {
+    std::size_t want = count;
+    if (!want || port.received().size() < want) {
+      ByteProgress bar(ctx, port, "recv", want, [&] { return port.received().size(); });
+      try {
+        port.receive(want, std::chrono::milliseconds(ctx.options().timeout_ms));
+      } catch (const Error&) {
+        if (!ctx.json()) write_bytes(port.received(), hex_);  // what arrived is never dropped
+        throw;
+      }
+    }
+  }
+
   std::string data_, count_;
   bool hex_ = false, recv_ = false;
 };

@@ -129,59 +129,78 @@ class SerialTerm : public Command {
     std::string line = line_text(ctx, serial_terminal(ctx.resolver().layout(), pos, ch), ch);
     auto port = open_port(ctx);
     std::string far = ctx.port().far_end(port->terminal().position, ch);
-    bool echo = echo_;
-    auto banner = [&] {
-      std::string b = fmt::format("kscfg: {} on {}\r\n", port->who(), ctx.port().describe());
-      b += fmt::format("kscfg: {}; {} format, {} data bytes\r\n", line, port->image().format,
-                       port->image().out_data.size());
+    Term term{ctx, *port, log.get(), omap, imap, echo_, line, far, logfile_};
+    RawTty tty;
+    std::cerr << term.banner() << std::flush;
+    return converse(term);
+  }
+
+ private:
+  // A session of the terminal: the port, what the screen shows (maps, echo, log file), the counts.
+  struct Term {
+    Context& ctx;
+    SerialPort& port;
+    std::FILE* log;
+    unsigned omap, imap;
+    bool echo;
+    const std::string &line, &far, &logfile;
+    std::size_t sent = 0, received = 0;
+
+    std::string banner() const {
+      std::string b = fmt::format("kscfg: {} on {}\r\n", port.who(), ctx.port().describe());
+      b += fmt::format("kscfg: {}; {} format, {} data bytes\r\n", line, port.image().format,
+                       port.image().out_data.size());
       if (!far.empty()) b += fmt::format("kscfg: far end of the emulated line: {}\r\n", far);
       b += fmt::format("kscfg: omap {}, imap {}, echo {}, log file {}\r\n", serial_map_text(omap),
-                       serial_map_text(imap), echo ? "on" : "off", logfile_.empty() ? "none" : logfile_);
+                       serial_map_text(imap), echo ? "on" : "off", logfile.empty() ? "none" : logfile);
       b += "kscfg: escape key Ctrl-]: Ctrl-] q quits, Ctrl-] ? lists the keys\r\n";
       return b;
-    };
-    RawTty tty;
-    std::cerr << banner() << std::flush;
-    std::size_t sent = 0, received = 0;
-    auto show = [&](std::span<const std::uint8_t> bytes) {
+    }
+    void show(std::span<const std::uint8_t> bytes) {
       if (bytes.empty()) return;
       ssize_t n = ::write(1, bytes.data(), bytes.size());
       (void)n;
       if (log) {
-        std::fwrite(bytes.data(), 1, bytes.size(), log.get());
-        std::fflush(log.get());
+        std::fwrite(bytes.data(), 1, bytes.size(), log);
+        std::fflush(log);
       }
-    };
-    auto take_received = [&] {
-      auto& rx = port->received();
+    }
+    void take_received() {
+      auto& rx = port.received();
       if (rx.empty()) return;
       received += rx.size();
       show(apply_serial_map(imap, rx));
       rx.clear();
-    };
-    auto type = [&](std::span<const std::uint8_t> keys) {
+    }
+    void type(std::span<const std::uint8_t> keys) {
       if (keys.empty()) return;
       if (echo) show(apply_serial_map(kMapCrCrLf, keys));
       auto out = apply_serial_map(omap, keys);
       sent += out.size();
-      port->queue(out);
-    };
-    std::uint8_t shown = port->status();
+      port.queue(out);
+    }
+  };
+
+  // Received bytes to the screen, stdin's to the line, until Ctrl-] q, or the end of stdin and
+  // nothing arriving for the timeout.
+  static int converse(Term& term) {
+    SerialPort& port = term.port;
+    std::uint8_t shown = port.status();
     bool eof = false, escape = false;
     auto last = std::chrono::steady_clock::now();
     for (;;) {
-      ctx.cancel()->throw_if_cancelled();
-      bool progress = port->poll(true);
-      take_received();
-      std::uint8_t flags = port->status() & (serial::kBufF | serial::kIA);
+      term.ctx.cancel()->throw_if_cancelled();
+      bool progress = port.poll(true);
+      term.take_received();
+      std::uint8_t flags = port.status() & (serial::kBufF | serial::kIA);
       if (flags != (shown & (serial::kBufF | serial::kIA))) {
         std::cerr << fmt::format("\r\n[kscfg: BUF_F {}, IA {}]\r\n", flags & serial::kBufF ? "on" : "off",
                                  flags & serial::kIA ? "on" : "off");
-        shown = port->status();
+        shown = port.status();
       }
-      if (progress || port->queued()) last = std::chrono::steady_clock::now();
-      if (eof && !port->queued() &&
-          std::chrono::steady_clock::now() - last > std::chrono::milliseconds(ctx.options().timeout_ms))
+      if (progress || port.queued()) last = std::chrono::steady_clock::now();
+      if (eof && !port.queued() &&
+          std::chrono::steady_clock::now() - last > std::chrono::milliseconds(term.ctx.options().timeout_ms))
         break;
       pollfd p{0, POLLIN, 0};
       int timeout = progress ? 0 : 1;
@@ -192,48 +211,7 @@ class SerialTerm : public Command {
           eof = true;
           continue;
         }
-        std::vector<std::uint8_t> keys;
-        for (ssize_t i = 0; i < n; ++i) {
-          std::uint8_t c = buf[i];
-          if (!escape) {
-            if (c != kEscape) {
-              keys.push_back(c);
-              continue;
-            }
-            escape = true;  // what was typed before goes out before the command runs
-            type(keys);
-            keys.clear();
-            continue;
-          }
-          escape = false;
-          switch (c) {
-            case 'q':
-            case 'x':
-            case 0x11:
-            case 0x18:  // q, x, Ctrl-Q, Ctrl-X
-              type(keys);
-              finish(*port, take_received);
-              std::cerr << "\r\nkscfg: bye\r\n";
-              return 0;
-            case '?':
-            case 'h': std::cerr << "\r\n" << kEscapeHelp; break;
-            case 'e':
-              echo = !echo;
-              std::cerr << fmt::format("\r\n[kscfg: echo {}]\r\n", echo ? "on" : "off");
-              break;
-            case 's':
-              std::cerr << fmt::format(
-                  "\r\n[kscfg: status 0x{:02X} (BUF_F {}, IA {}); {} bytes sent, {} received, "
-                  "{} waiting to go out]\r\n",
-                  port->status(), port->status() & serial::kBufF ? "on" : "off",
-                  port->status() & serial::kIA ? "on" : "off", sent, received, port->queued());
-              break;
-            case 'b': std::cerr << "\r\n" << banner(); break;
-            case kEscape: keys.push_back(c); break;
-            default: std::cerr << "\r\n[kscfg: no escape key " << key_name(c) << "; Ctrl-] ? lists them]\r\n";
-          }
-        }
-        type(keys);
+        if (typed(term, std::span<const std::uint8_t>(buf, static_cast<std::size_t>(n)), escape)) return 0;
       } else if (eof && !progress) {
         usleep(1000);
       }
@@ -241,7 +219,62 @@ class SerialTerm : public Command {
     return 0;
   }
 
- private:
+  // Bytes read from stdin go to the line, but Ctrl-] and the key after it, a command; true when
+  // that says quit. An escape key's command may come in the next read (escape).
+  static bool typed(Term& term, std::span<const std::uint8_t> buf, bool& escape) {
+    std::vector<std::uint8_t> keys;
+    for (std::uint8_t c : buf) {
+      if (!escape) {
+        if (c != kEscape) {
+          keys.push_back(c);
+          continue;
+        }
+        escape = true;  // what was typed before goes out before the command runs
+        term.type(keys);
+        keys.clear();
+        continue;
+      }
+      escape = false;
+      if (escape_key(term, c, keys)) return true;
+    }
+    term.type(keys);
+    return false;
+  }
+
+  // The command of the key after Ctrl-]; true when it is quit.
+  static bool escape_key(Term& term, std::uint8_t c, std::vector<std::uint8_t>& keys) {
+    SerialPort& port = term.port;
+    switch (c) {
+      case 'q':
+      case 'x':
+      case 0x11:
+      case 0x18: {  // q, x, Ctrl-Q, Ctrl-X
+        term.type(keys);
+        auto take_received = [&term] { term.take_received(); };
+        finish(port, take_received);
+        std::cerr << "\r\nkscfg: bye\r\n";
+        return true;
+      }
+      case '?':
+      case 'h': std::cerr << "\r\n" << kEscapeHelp; break;
+      case 'e':
+        term.echo = !term.echo;
+        std::cerr << fmt::format("\r\n[kscfg: echo {}]\r\n", term.echo ? "on" : "off");
+        break;
+      case 's':
+        std::cerr << fmt::format(
+            "\r\n[kscfg: status 0x{:02X} (BUF_F {}, IA {}); {} bytes sent, {} received, "
+            "{} waiting to go out]\r\n",
+            port.status(), port.status() & serial::kBufF ? "on" : "off", port.status() & serial::kIA ? "on" : "off",
+            term.sent, term.received, port.queued());
+        break;
+      case 'b': std::cerr << "\r\n" << term.banner(); break;
+      case kEscape: keys.push_back(c); break;
+      default: std::cerr << "\r\n[kscfg: no escape key " << key_name(c) << "; Ctrl-] ? lists them]\r\n";
+    }
+    return false;
+  }
+
   static constexpr std::uint8_t kEscape = 0x1d;  // Ctrl-]
   static constexpr const char* kEscapeHelp =
       "[kscfg: escape keys, each after Ctrl-]:\r\n"

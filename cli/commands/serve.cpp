@@ -39,6 +39,7 @@ class Serve : public Command {
     return "Serve the emulated station over Modbus TCP, Modbus RTU, ADS or CANopen (slcan, SocketCAN), or several at "
            "once (its state file: --port emu:PATH)";
   }
+  // The text of serve's man page section is one piece: a single string literal, read as the page reads.
   std::string man() const override {
     return "Puts the emulated station (the emulator state of \\fB\\-\\-port\\fR, which must be \\fBemu\\fR, "
            "\\fBemu:\\fR\\fIPATH\\fR or \\fBemu:mem\\fR) behind a Modbus server with the register map of a "
@@ -185,6 +186,37 @@ class Serve : public Command {
   int run(Context& ctx) override {
     int modbus = !tcp_.empty() + !rtu_.empty() + pty_;
     bool ads = !ads_.empty(), can = !can_.empty();
+    check_protocols(modbus, ads, can);
+    Servers s;
+    if (modbus) s.so = modbus_options(ctx);
+    if (ads) s.ao = ads_options(ctx);
+    if (can) s.co = can_options(ctx);
+    std::string path;
+    auto stop = [&ctx] { return ctx.cancel()->signalled(); };
+    serve_station(ctx, path, [&](EmulatedStation& station, const Saver& save, const Listening& listening) {
+      if (modbus + ads + can > 1) serve_together(station, save, listening, stop, s);
+      else serve_alone(station, save, listening, stop, s);
+    });
+    report_stats(ctx, path.empty() ? "memory" : path, s);
+    return 0;
+  }
+
+ private:
+  using Saver = std::function<void(const std::string&)>;
+  using Listening = std::function<void(const std::vector<std::string>&)>;
+
+  // The options of each protocol served and, once served, what each server counted.
+  struct Servers {
+    std::optional<ServeOptions> so;
+    std::optional<AdsServeOptions> ao;
+    std::optional<CanServeOptions> co;
+    std::optional<ServeStats> st;
+    std::optional<AdsServeStats> at;
+    std::optional<CanServeStats> ct;
+  };
+
+  // The protocols given go together: one Modbus at most, ADS beside TCP only, each one's options with it.
+  void check_protocols(int modbus, bool ads, bool can) const {
     if (modbus > 1 || (modbus == 0 && !ads && !can))
       throw Error(Exit::usage,
                   "give one of --tcp ADDR:PORT, --rtu DEVICE, --pty, --ads ADDR:PORT or --can URI (or --tcp and "
@@ -198,79 +230,80 @@ class Serve : public Command {
       throw Error(Exit::usage, "--node, --can-register-ms and --can-no-ack go with --can URI");
     if (!modbus && (!unit_.empty() || !fault_.empty() || !seed_.empty()))
       throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus (--tcp, --rtu, --pty)");
-    std::optional<ServeOptions> so;
-    std::optional<AdsServeOptions> ao;
-    std::optional<CanServeOptions> co;
-    if (modbus) so = modbus_options(ctx);
-    if (ads) ao = ads_options(ctx);
-    if (can) co = can_options(ctx);
-    std::string path;
-    std::optional<ServeStats> st;
-    std::optional<AdsServeStats> at;
-    std::optional<CanServeStats> ct;
-    auto stop = [&ctx] { return ctx.cancel()->signalled(); };
-    serve_station(ctx, path, [&](EmulatedStation& station, const Saver& save, const Listening& listening) {
-      if (modbus + ads + can > 1) {
-        // One station, one K-bus, one saver; every server in one loop.
-        auto warn = so ? so->warn : ao ? ao->warn : co->warn;
-        unsigned cycle_us = so ? so->cycle_us : ao ? ao->cycle_us : co->cycle_us;
-        unsigned delay = so ? so->save_delay_ms : ao ? ao->save_delay_ms : co->save_delay_ms;
-        ServedStation shared(station, ServedStation::Options{cycle_us, save, delay, warn});
-        std::optional<ModbusServer> m;
-        std::optional<AdsServer> a;
-        std::optional<CanServer> c;
-        std::vector<std::unique_ptr<CouplerAlias>> aliases;
-        std::vector<std::string> uris;
-        std::vector<PollSource*> sources;
-        if (so) {
-          m.emplace(shared, *so);
-          uris.push_back(m->endpoint());
-          sources.push_back(&m->poll_source());
-        }
-        if (ao) {
-          if (m) ao->modbus_port = port_of(m->endpoint());  // table 100 register 26: where the image lengths are
-          a.emplace(shared, *ao);
-          uris.push_back(a->endpoint());
-          sources.push_back(&a->poll_source());
-          if (m) check_tcp_ads(m->endpoint(), a->endpoint());
-        }
-        if (co) {
-          c.emplace(shared, *co);
-          uris.push_back(c->endpoint());
-          sources.push_back(&c->poll_source());
-        }
-        // One coupler by every protocol: kscfg over each takes the lock of the one over the first.
-        std::vector<std::vector<std::string>> keys;
-        if (m) keys.push_back(modbus_client_keys(*so, m->endpoint()));
-        if (a) keys.push_back({listener_key(local_ads(a->endpoint()))});
-        if (c) keys.push_back(can_client_keys(*co));
-        record_aliases(keys, uris, warn, aliases);
-        listening(uris);
-        run_poll_loop(sources, stop, [&shared] { shared.flush(); });
-        if (m) st = m->stats();
-        if (a) at = a->stats();
-        if (c) ct = c->stats();
-      } else if (co) {
-        co->save_state = save;
-        CanServer c(station, *co);
-        listening({c.endpoint()});
-        c.run(stop);
-        ct = c.stats();
-      } else if (so) {
-        so->save_state = save;
-        ModbusServer m(station, *so);
-        listening({m.endpoint()});
-        m.run(stop);
-        st = m.stats();
-      } else {
-        ao->save_state = save;
-        AdsServer a(station, *ao);
-        listening({a.endpoint()});
-        a.run(stop);
-        at = a.stats();
-      }
-    });
-    std::string where = path.empty() ? "memory" : path;
+  }
+
+  // Several protocols: one station, one K-bus, one saver; every server in one loop.
+  static void serve_together(EmulatedStation& station, const Saver& save, const Listening& listening,
+                             const std::function<bool()>& stop, Servers& s) {
+    auto& [so, ao, co, st, at, ct] = s;
+    auto warn = so ? so->warn : ao ? ao->warn : co->warn;
+    unsigned cycle_us = so ? so->cycle_us : ao ? ao->cycle_us : co->cycle_us;
+    unsigned delay = so ? so->save_delay_ms : ao ? ao->save_delay_ms : co->save_delay_ms;
+    ServedStation shared(station, ServedStation::Options{cycle_us, save, delay, warn});
+    std::optional<ModbusServer> m;
+    std::optional<AdsServer> a;
+    std::optional<CanServer> c;
+    std::vector<std::unique_ptr<CouplerAlias>> aliases;
+    std::vector<std::string> uris;
+    std::vector<PollSource*> sources;
+    if (so) {
+      m.emplace(shared, *so);
+      uris.push_back(m->endpoint());
+      sources.push_back(&m->poll_source());
+    }
+    if (ao) {
+      if (m) ao->modbus_port = port_of(m->endpoint());  // table 100 register 26: where the image lengths are
+      a.emplace(shared, *ao);
+      uris.push_back(a->endpoint());
+      sources.push_back(&a->poll_source());
+      if (m) check_tcp_ads(m->endpoint(), a->endpoint());
+    }
+    if (co) {
+      c.emplace(shared, *co);
+      uris.push_back(c->endpoint());
+      sources.push_back(&c->poll_source());
+    }
+    // One coupler by every protocol: kscfg over each takes the lock of the one over the first.
+    std::vector<std::vector<std::string>> keys;
+    if (m) keys.push_back(modbus_client_keys(*so, m->endpoint()));
+    if (a) keys.push_back({listener_key(local_ads(a->endpoint()))});
+    if (c) keys.push_back(can_client_keys(*co));
+    record_aliases(keys, uris, warn, aliases);
+    listening(uris);
+    run_poll_loop(sources, stop, [&shared] { shared.flush(); });
+    if (m) st = m->stats();
+    if (a) at = a->stats();
+    if (c) ct = c->stats();
+  }
+
+  // One protocol: its server alone.
+  static void serve_alone(EmulatedStation& station, const Saver& save, const Listening& listening,
+                          const std::function<bool()>& stop, Servers& s) {
+    auto& [so, ao, co, st, at, ct] = s;
+    if (co) {
+      co->save_state = save;
+      CanServer c(station, *co);
+      listening({c.endpoint()});
+      c.run(stop);
+      ct = c.stats();
+    } else if (so) {
+      so->save_state = save;
+      ModbusServer m(station, *so);
+      listening({m.endpoint()});
+      m.run(stop);
+      st = m.stats();
+    } else {
+      ao->save_state = save;
+      AdsServer a(station, *ao);
+      listening({a.endpoint()});
+      a.run(stop);
+      at = a.stats();
+    }
+  }
+
+  // What the servers counted, on stderr: with -v, or when something went wrong (or faults were injected).
+  static void report_stats(Context& ctx, const std::string& where, const Servers& s) {
+    const auto& [so, ao, co, st, at, ct] = s;
     if (st && (ctx.options().verbose || so->faults.any() || st->refused || st->timed_out || st->malformed)) {
       std::string extra;
       if (st->refused) extra += fmt::format("; {} connection(s) refused (limit {})", st->refused, so->max_connections);
@@ -292,12 +325,7 @@ class Serve : public Command {
           "kscfg: serve: {} slcan line(s), {} frame(s) to node {}, {} answered; {} refused (BELL), {} byte(s) the "
           "host did not read; state saved to {}\n",
           ct->lines, ct->frames_in, co->node, ct->frames_out, ct->refused, ct->dropped, where);
-    return 0;
   }
-
- private:
-  using Saver = std::function<void(const std::string&)>;
-  using Listening = std::function<void(const std::vector<std::string>&)>;
 
   ServeOptions modbus_options(Context& ctx) const {
     ServeOptions so;

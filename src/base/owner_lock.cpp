@@ -264,52 +264,109 @@ std::optional<LockHolder> OwnerLock::holder(const std::string& path) {
   return h;
 }
 
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+bool foreign_owner(const struct stat& st) { return st.st_uid != ::geteuid() && st.st_uid != 0; }
+
+// Who may remove another user's name in the lock directory (root, or the directory's owner): a
+// name another user planted there, or a lock file of theirs that they could remove while this
+// process holds it (and a second kscfg would then make a new one and go on at once), is replaced
+// by a file of this user's, once its lock is held.
+struct Replacing {
+  bool may = false;
+  int replaced = 0;  // names removed: a bound, should another user keep planting them
+};
+
+// The lock file at path opened, st what it is; -1 when a name another user planted there was
+// removed (open it again). Never through a symbolic link, never anything but a regular file: in a
+// directory every user may write, a name planted there must not make kscfg write its record into
+// another file, open a device, or wait on a FIFO. Looked at before it is opened (a device is not
+// even opened), and what was opened looked at again.
+int open_lock_file(const std::string& path, const std::string& what, const LockWait& w, Replacing& r, struct stat& st) {
+  if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) {
+    if (r.may && foreign_owner(st) && !S_ISDIR(st.st_mode) && r.replaced < 3 && ::unlink(path.c_str()) == 0) {
+      ++r.replaced;
+      if (w.notice)
+        w.notice(fmt::format("removed {}, {} owned by {} where the lock file of {} belongs", path, kind_of(st),
+                             user_text(st.st_uid), what));
+      return -1;
+    }
+    refuse(path, what, st);
+  }
+  int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY, 0644);
+  if (fd < 0 && (errno == EACCES || errno == EPERM))  // another user's lock file: lock it, record nothing
+    fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) {
+    int e = errno;
+    if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) refuse(path, what, st);
+    throw Error(Exit::file, fmt::format("cannot open the lock file '{}' of {}: {}", path, what, std::strerror(e)));
+  }
+  if (::fstat(fd, &st) != 0 || !lock_file_shape(st)) {
+    ::close(fd);
+    refuse(path, what, st);
+  }
+  return fd;
+}
+
+// The lock of fd, waited for up to w.limit from start (said once, after w.say_after); fd is
+// closed when that fails.
+void lock_or_give_up(int fd, const std::string& path, const std::string& what, const LockWait& w,
+                     Clock::time_point start, bool& said) {
+  for (;;) {
+    if (::flock(fd, LOCK_EX | LOCK_NB) == 0) break;
+    if (errno != EWOULDBLOCK && errno != EINTR) {
+      int e = errno;
+      ::close(fd);
+      throw Error(Exit::file, fmt::format("cannot lock '{}' ({}): {}", path, what, std::strerror(e)));
+    }
+    auto waited = std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start);
+    auto holder_text = [&] { return holder_of(fd); };
+    if (!said && waited >= w.say_after && w.waiting) {
+      said = true;
+      w.waiting(fmt::format("waiting for {}: {} is using it (up to {} in all, --lock-wait)", what, holder_text(),
+                            seconds(w.limit)));
+    }
+    if (waited >= w.limit) {
+      std::string who = holder_text();
+      ::close(fd);
+      throw Error(Exit::busy, fmt::format("{} is in use by {}; gave up after waiting {}", what, who, seconds(w.limit)),
+                  "try again when it has finished, or wait longer with --lock-wait SECONDS");
+    }
+    if (!sleep_for_or_cancelled(std::chrono::milliseconds(2), w.cancel)) {
+      ::close(fd);
+      throw Error(Exit::interrupted, fmt::format("interrupted while waiting for {}", what));
+    }
+  }
+}
+
+void write_record(int fd) {
+  std::string rec = fmt::format("{}\n{}\n", ::getpid(), own_command_line());
+  // The record first, then the file cut to it: a reader sees the new record's two lines.
+  if (::pwrite(fd, rec.data(), rec.size(), 0) == static_cast<ssize_t>(rec.size()) &&
+      ::ftruncate(fd, static_cast<off_t>(rec.size())) != 0) {
+    // a record with a tail of an older one: its first two lines are this one
+  }
+}
+
+}  // namespace
+
 OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, const LockWait& w) {
   if (w.notice)
     if (std::string n = take_lock_dir_note(); !n.empty()) w.notice(n);
   auto dir = std::filesystem::path(path).parent_path();
   std::error_code ec;
   if (!dir.empty()) std::filesystem::create_directories(dir, ec);
-  using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   bool said = false;
-  // Who may remove another user's name in the lock directory (root, or the directory's owner): a
-  // name another user planted there, or a lock file of theirs that they could remove while this
-  // process holds it (and a second kscfg would then make a new one and go on at once), is replaced
-  // by a file of this user's, once its lock is held.
   struct stat ds {};
-  const bool may_replace =
-      !dir.empty() && ::stat(dir.c_str(), &ds) == 0 && (::geteuid() == 0 || ds.st_uid == ::geteuid());
-  auto foreign = [](const struct stat& st) { return st.st_uid != ::geteuid() && st.st_uid != 0; };
-  int replaced = 0;  // names removed: a bound, should another user keep planting them
+  Replacing r;
+  r.may = !dir.empty() && ::stat(dir.c_str(), &ds) == 0 && (::geteuid() == 0 || ds.st_uid == ::geteuid());
   for (;;) {
-    // Never through a symbolic link, never anything but a regular file: in a directory every user
-    // may write, a name planted there must not make kscfg write its record into another file, open
-    // a device, or wait on a FIFO. Looked at before it is opened (a device is not even opened),
-    // and what was opened looked at again.
     struct stat st {};
-    if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) {
-      if (may_replace && foreign(st) && !S_ISDIR(st.st_mode) && replaced < 3 && ::unlink(path.c_str()) == 0) {
-        ++replaced;
-        if (w.notice)
-          w.notice(fmt::format("removed {}, {} owned by {} where the lock file of {} belongs", path, kind_of(st),
-                               user_text(st.st_uid), what));
-        continue;
-      }
-      refuse(path, what, st);
-    }
-    int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY, 0644);
-    if (fd < 0 && (errno == EACCES || errno == EPERM))  // another user's lock file: lock it, record nothing
-      fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
-    if (fd < 0) {
-      int e = errno;
-      if (::lstat(path.c_str(), &st) == 0 && !lock_file_shape(st)) refuse(path, what, st);
-      throw Error(Exit::file, fmt::format("cannot open the lock file '{}' of {}: {}", path, what, std::strerror(e)));
-    }
-    if (::fstat(fd, &st) != 0 || !lock_file_shape(st)) {
-      ::close(fd);
-      refuse(path, what, st);
-    }
+    int fd = open_lock_file(path, what, w, r, st);
+    if (fd < 0) continue;
     // Only a file of this user takes its record (one of another user, left by a kill -9, or
     // planted, is locked as it is); made 0644 whatever the umask: read by every user, written by
     // its owner alone.
@@ -317,32 +374,7 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
     if (writable && (st.st_mode & 07777) != 0644 && ::fchmod(fd, 0644) != 0) {
       // a file system without modes: nothing to keep
     }
-    for (;;) {
-      if (::flock(fd, LOCK_EX | LOCK_NB) == 0) break;
-      if (errno != EWOULDBLOCK && errno != EINTR) {
-        int e = errno;
-        ::close(fd);
-        throw Error(Exit::file, fmt::format("cannot lock '{}' ({}): {}", path, what, std::strerror(e)));
-      }
-      auto waited = std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start);
-      auto holder_text = [&] { return holder_of(fd); };
-      if (!said && waited >= w.say_after && w.waiting) {
-        said = true;
-        w.waiting(fmt::format("waiting for {}: {} is using it (up to {} in all, --lock-wait)", what, holder_text(),
-                              seconds(w.limit)));
-      }
-      if (waited >= w.limit) {
-        std::string who = holder_text();
-        ::close(fd);
-        throw Error(Exit::busy,
-                    fmt::format("{} is in use by {}; gave up after waiting {}", what, who, seconds(w.limit)),
-                    "try again when it has finished, or wait longer with --lock-wait SECONDS");
-      }
-      if (!sleep_for_or_cancelled(std::chrono::milliseconds(2), w.cancel)) {
-        ::close(fd);
-        throw Error(Exit::interrupted, fmt::format("interrupted while waiting for {}", what));
-      }
-    }
+    lock_or_give_up(fd, path, what, w, start, said);
     // The holder before may have removed the file as it let go (release()): then this lock is on a
     // file nobody else will look at. Open the name again.
     struct stat now {};
@@ -352,19 +384,12 @@ OwnerLock OwnerLock::acquire(const std::string& path, const std::string& what, c
     }
     // Another user's file, which that user could remove under this process: removed while its lock
     // is held (as release() does), and a file of this user's made in its place.
-    if (may_replace && foreign(st) && replaced < 3 && ::unlink(path.c_str()) == 0) {
-      ++replaced;
+    if (r.may && foreign_owner(st) && r.replaced < 3 && ::unlink(path.c_str()) == 0) {
+      ++r.replaced;
       ::close(fd);
       continue;
     }
-    if (writable) {
-      std::string rec = fmt::format("{}\n{}\n", ::getpid(), own_command_line());
-      // The record first, then the file cut to it: a reader sees the new record's two lines.
-      if (::pwrite(fd, rec.data(), rec.size(), 0) == static_cast<ssize_t>(rec.size()) &&
-          ::ftruncate(fd, static_cast<off_t>(rec.size())) != 0) {
-        // a record with a tail of an older one: its first two lines are this one
-      }
-    }
+    if (writable) write_record(fd);
     OwnerLock l;
     l.fd_ = fd;
     l.path_ = path;

@@ -141,6 +141,70 @@ std::vector<std::string> param_choices(const ParamDef& p) {
   return {};
 }
 
+namespace {
+
+// An enumeration's value that is none of its names, for a parameter with a divisor form (baud rates).
+std::uint16_t divisor_register(const ParamDef& p, const std::string& text, bool divisor) {
+  // A rate outside the presets: only with the explicit opt-in (a typo such as 1920 for 19200
+  // must not become 1923 baud), within the manual's maximum, by the divisor form
+  // rate = clock / (prescale * (HB + 1)).
+  const Divisor& d = *p.divisor;
+  std::uint64_t rate = 0;
+  try {
+    rate = parse_uint(text, 10'000'000, p.name);
+  } catch (const Error&) {
+    auto dym = did_you_mean(text, param_choices(p));
+    throw Error(Exit::usage, fmt::format("invalid value {} for {}: use one of {}{}", quote_input(text), p.name,
+                                         join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
+  }
+  std::string upto = d.max ? fmt::format(" up to {}", d.max) : std::string();
+  if (d.max && rate > d.max) {
+    auto dym = near_presets(p, text, rate);
+    throw Error(
+        Exit::usage,
+        fmt::format("{} {} is above the terminal's documented maximum of {} {}{}", p.name, text, d.max,
+                    p.unit.empty() ? "baud" : p.unit, dym.empty() ? "" : "; did you mean " + dym + "?"),
+        fmt::format("rates: {}, or another{} by the divisor form (--divisor)", join(param_choices(p), ", "), upto));
+  }
+  if (!divisor) {
+    auto dym = near_presets(p, text, rate);
+    throw Error(Exit::usage,
+                fmt::format("{} {} is not one of the terminal's rates ({}){}", p.name, text,
+                            join(param_choices(p), ", "), dym.empty() ? "" : "; did you mean " + dym + "?"),
+                fmt::format("another rate{} needs the divisor form, asked for explicitly: 'kscfg set {} RATE "
+                            "--divisor'",
+                            upto, p.name));
+  }
+  double base = static_cast<double>(d.clock) / d.prescale;
+  auto rate_of = [&](long hb) { return base / static_cast<double>(hb + 1); };
+  // The maximum holds for the rate on the line too, within the bit-distortion limit.
+  double limit = d.max ? d.max * (1.0 + d.tolerance_pct / 100.0) : base;
+  long hb = rate ? std::lround(base / static_cast<double>(rate)) - 1 : -1;
+  if (rate && hb >= 0 && hb <= 255) {
+    double err = std::fabs(rate_of(hb) - static_cast<double>(rate)) / static_cast<double>(rate) * 100.0;
+    if (err <= d.tolerance_pct && rate_of(hb) <= limit)
+      return static_cast<std::uint16_t>((static_cast<unsigned>(hb) << 8) | d.low);
+  }
+  // Nearest achievable rates either side.
+  std::vector<std::string> near;
+  if (rate) {
+    double exact = base / static_cast<double>(rate) - 1;
+    for (long h : {static_cast<long>(std::floor(exact)), static_cast<long>(std::ceil(exact))}) {
+      if (h < 0 || h > 255 || rate_of(h) > limit) continue;
+      auto s = fmt::format("{:.0f} (divisor {})", rate_of(h), h);
+      if (std::find(near.begin(), near.end(), s) == near.end()) near.push_back(s);
+    }
+  }
+  throw Error(Exit::usage,
+              fmt::format("{} {} is not reachable: the divisor form gives {} Hz / ({} x (HB + 1)) and the "
+                          "nearest rates differ by more than the {:g} % bit-distortion limit; nearest: {}; "
+                          "presets: {}",
+                          p.name, text, d.clock, d.prescale, d.tolerance_pct, near.empty() ? "none" : join(near, ", "),
+                          join(param_choices(p), ", ")));
+}
+
+}  // namespace
+
 std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint16_t current, bool divisor) {
   switch (p.kind) {
     case ParamDef::Kind::boolean: {
@@ -157,64 +221,7 @@ std::uint16_t encode_param(const ParamDef& p, const std::string& text, std::uint
     case ParamDef::Kind::enumeration: {
       for (const auto& e : p.values)
         if (lower(e.name) == lower(text)) return p.with_field(current, e.code);
-      if (p.divisor) {
-        // A rate outside the presets: only with the explicit opt-in (a typo such as 1920 for 19200
-        // must not become 1923 baud), within the manual's maximum, by the divisor form
-        // rate = clock / (prescale * (HB + 1)).
-        const Divisor& d = *p.divisor;
-        std::uint64_t rate = 0;
-        try {
-          rate = parse_uint(text, 10'000'000, p.name);
-        } catch (const Error&) {
-          auto dym = did_you_mean(text, param_choices(p));
-          throw Error(Exit::usage, fmt::format("invalid value {} for {}: use one of {}{}", quote_input(text), p.name,
-                                               join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));
-        }
-        std::string upto = d.max ? fmt::format(" up to {}", d.max) : std::string();
-        if (d.max && rate > d.max) {
-          auto dym = near_presets(p, text, rate);
-          throw Error(Exit::usage,
-                      fmt::format("{} {} is above the terminal's documented maximum of {} {}{}", p.name, text, d.max,
-                                  p.unit.empty() ? "baud" : p.unit, dym.empty() ? "" : "; did you mean " + dym + "?"),
-                      fmt::format("rates: {}, or another{} by the divisor form (--divisor)",
-                                  join(param_choices(p), ", "), upto));
-        }
-        if (!divisor) {
-          auto dym = near_presets(p, text, rate);
-          throw Error(Exit::usage,
-                      fmt::format("{} {} is not one of the terminal's rates ({}){}", p.name, text,
-                                  join(param_choices(p), ", "), dym.empty() ? "" : "; did you mean " + dym + "?"),
-                      fmt::format("another rate{} needs the divisor form, asked for explicitly: 'kscfg set {} RATE "
-                                  "--divisor'",
-                                  upto, p.name));
-        }
-        double base = static_cast<double>(d.clock) / d.prescale;
-        auto rate_of = [&](long hb) { return base / static_cast<double>(hb + 1); };
-        // The maximum holds for the rate on the line too, within the bit-distortion limit.
-        double limit = d.max ? d.max * (1.0 + d.tolerance_pct / 100.0) : base;
-        long hb = rate ? std::lround(base / static_cast<double>(rate)) - 1 : -1;
-        if (rate && hb >= 0 && hb <= 255) {
-          double err = std::fabs(rate_of(hb) - static_cast<double>(rate)) / static_cast<double>(rate) * 100.0;
-          if (err <= d.tolerance_pct && rate_of(hb) <= limit)
-            return static_cast<std::uint16_t>((static_cast<unsigned>(hb) << 8) | d.low);
-        }
-        // Nearest achievable rates either side.
-        std::vector<std::string> near;
-        if (rate) {
-          double exact = base / static_cast<double>(rate) - 1;
-          for (long h : {static_cast<long>(std::floor(exact)), static_cast<long>(std::ceil(exact))}) {
-            if (h < 0 || h > 255 || rate_of(h) > limit) continue;
-            auto s = fmt::format("{:.0f} (divisor {})", rate_of(h), h);
-            if (std::find(near.begin(), near.end(), s) == near.end()) near.push_back(s);
-          }
-        }
-        throw Error(Exit::usage,
-                    fmt::format("{} {} is not reachable: the divisor form gives {} Hz / ({} x (HB + 1)) and the "
-                                "nearest rates differ by more than the {:g} % bit-distortion limit; nearest: {}; "
-                                "presets: {}",
-                                p.name, text, d.clock, d.prescale, d.tolerance_pct,
-                                near.empty() ? "none" : join(near, ", "), join(param_choices(p), ", ")));
-      }
+      if (p.divisor) return divisor_register(p, text, divisor);
       auto dym = did_you_mean(text, param_choices(p));
       throw Error(Exit::usage, fmt::format("invalid value {} for {}: use one of {}{}", quote_input(text), p.name,
                                            join(param_choices(p), ", "), dym.empty() ? "" : "; " + dym));

@@ -27,21 +27,49 @@ bool all_hex(std::string_view s) {
   return true;
 }
 
+using Result = SlcanAdapter::Result;
+
+Result taken(std::string what, std::string reply = "\r") {
+  Result r;
+  r.what = std::move(what);
+  r.reply = std::move(reply);
+  return r;
+}
+
+Result refused(std::string_view line, std::string what) {
+  Result r;
+  r.what = fmt::format("'{}' refused: {}", shown(line), what);
+  r.reply = "\a";
+  r.refused = true;
+  return r;
+}
+
+// t, T, r, R: a frame the host sends, on the bus when the channel is open at the bus's rate.
+Result send_frame(const SlcanAdapter& a, std::string_view line, bool listen_only, const SlcanAdapter::Options& opt) {
+  if (!a.is_open()) return refused(line, "the channel is closed");
+  if (listen_only) return refused(line, "the channel is open listen-only");
+  std::optional<CanFrame> f;
+  try {
+    f = slcan::decode(line);
+  } catch (const Error&) {
+    return refused(line, "not a frame");
+  }
+  if (!f) return refused(line, "not a frame");
+  if (line.size() != (f->extended ? 10u : 5u) + (f->rtr ? 0u : 2u * f->len))
+    return refused(line, "a time stamp is for received frames");
+  Result r;
+  r.what = fmt::format("sent {}", format_frame(*f));
+  if (a.on_bus()) r.frame = f;
+  else r.what += fmt::format(" (at {} bit/s on a {} bit/s bus: nobody hears it)", a.bitrate(), opt.bitrate);
+  r.reply = opt.ack ? (f->extended ? "Z\r" : "z\r") : "\r";
+  return r;
+}
+
 }  // namespace
 
 SlcanAdapter::Result SlcanAdapter::command(std::string_view line) {
-  Result r;
-  auto ok = [&](std::string what, std::string reply = "\r") {
-    r.what = std::move(what);
-    r.reply = std::move(reply);
-    return r;
-  };
-  auto refuse = [&](std::string what) {
-    r.what = fmt::format("'{}' refused: {}", shown(line), what);
-    r.reply = "\a";
-    r.refused = true;
-    return r;
-  };
+  auto ok = [](std::string what, std::string reply = "\r") { return taken(std::move(what), std::move(reply)); };
+  auto refuse = [&](std::string what) { return refused(line, std::move(what)); };
   if (line.empty()) return ok("empty line");
   char k = line[0];
   std::string_view arg = line.substr(1);
@@ -91,24 +119,7 @@ SlcanAdapter::Result SlcanAdapter::command(std::string_view line) {
     case 't':
     case 'T':
     case 'r':
-    case 'R': {
-      if (!open_) return refuse("the channel is closed");
-      if (listen_only_) return refuse("the channel is open listen-only");
-      std::optional<CanFrame> f;
-      try {
-        f = slcan::decode(line);
-      } catch (const Error&) {
-        return refuse("not a frame");
-      }
-      if (!f) return refuse("not a frame");
-      if (line.size() != (f->extended ? 10u : 5u) + (f->rtr ? 0u : 2u * f->len))
-        return refuse("a time stamp is for received frames");
-      r.what = fmt::format("sent {}", format_frame(*f));
-      if (on_bus()) r.frame = f;
-      else r.what += fmt::format(" (at {} bit/s on a {} bit/s bus: nobody hears it)", bitrate_, opt_.bitrate);
-      r.reply = opt_.ack ? (f->extended ? "Z\r" : "z\r") : "\r";
-      return r;
-    }
+    case 'R': return send_frame(*this, line, listen_only_, opt_);
     default: return refuse("unknown command");
   }
 }
