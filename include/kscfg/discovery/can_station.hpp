@@ -8,6 +8,7 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -15,27 +16,16 @@
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/scan_result.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
+#include "kscfg/discovery/table9.hpp"
 #include "kscfg/link/sdo.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
 
-struct CanScanOptions {
-  // The whole scan (kscfg scan): also each terminal's R8 (checked against table 9) and R9. false:
-  // only what lays the station out (identification, table 9, the registers that decide an image).
-  bool check = true;
-  // The mapping settings: the coupler family's defaults, passed through this when given (the
-  // caller's overrides).
-  std::function<MappingSettings(MappingSettings)> settings;
-  std::string origin;  // the station file's origin
-  std::function<void(const std::string&)> trace;
-  // The step under way, for a status line (station_discovery.hpp): "table 9 (its terminal list) entry 3", ...
-  std::function<void(const std::string&)> status;
-};
-struct CanScan {
-  ScanResult result;                             // layout.registers_direct set
-  std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
-};
+// The options and the result are table 9's (discovery/table9.hpp); the old names for now. The
+// result's layout.registers_direct is set.
+using CanScanOptions = Table9ScanOptions;
+using CanScan = Table9Scan;
 // Error(usage) naming what to do when the coupler does not serve table 9 or reports a type the
 // catalog does not know; SdoAbort/Error(link) from the SDO client.
 CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms, CanScanOptions opt = {});
