@@ -320,6 +320,11 @@ std::vector<TerminalRegisters> AdsReader::registers(const std::vector<TerminalRe
 
 }  // namespace
 
+std::unique_ptr<Table9Reader> ads_table9_reader(AdsClient& client, unsigned timeout_ms, SilentMemo memo,
+                                                const CancelToken* cancel) {
+  return std::make_unique<AdsReader>(client, timeout_ms, true, std::move(memo), cancel);
+}
+
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt) {
   AdsReader reader(client, timeout_ms, opt.check_image, opt.silent_memo, opt.cancel);
   return scan_table9(reader, catalog, opt);

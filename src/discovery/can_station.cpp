@@ -8,7 +8,6 @@
 #include <cctype>
 #include <memory>
 
-#include "kscfg/discovery/match.hpp"
 #include "kscfg/link/can_registers.hpp"
 
 namespace kscfg {
@@ -185,56 +184,13 @@ std::vector<TerminalRegisters> CanReader::registers(const std::vector<TerminalRe
 
 }  // namespace
 
+std::unique_ptr<Table9Reader> can_table9_reader(SdoClient& sdo, unsigned timeout_ms, std::string where) {
+  return std::make_unique<CanReader>(sdo, timeout_ms, std::move(where));
+}
+
 CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms, CanScanOptions opt) {
   CanReader reader(sdo, timeout_ms, "");
   return scan_table9(reader, catalog, opt);
-}
-
-CanDiscovery::CanDiscovery(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms,
-                           std::function<void(const std::string&)> trace, DiscoveryStatus status, std::string where)
-    : sdo_(sdo),
-      catalog_(catalog),
-      timeout_ms_(timeout_ms),
-      trace_(std::move(trace)),
-      status_(std::move(status)),
-      where_(std::move(where)) {}
-
-const StationLayout* CanDiscovery::layout_upto(unsigned) {
-  if (!searched_) {
-    searched_ = true;
-    CanScanOptions so;
-    so.check = false;
-    so.trace = trace_;
-    StatusScope status(status_, "reading CANopen coupler" + (where_.empty() ? std::string() : " at " + where_));
-    so.status = [&status](const std::string& d) { status.detail(d); };
-    CanScan s = scan_can_station(sdo_, catalog_, timeout_ms_, std::move(so));
-    if (trace_)
-      for (const auto& n : s.result.notes) trace_("canopen: " + n);
-    found_ = std::move(s.result);
-  }
-  return found_ ? &found_->layout : nullptr;
-}
-
-const StationSpec* CanDiscovery::station() { return layout() ? &found_->spec : nullptr; }
-
-std::optional<StationLayout> CanDiscovery::match(const StationSpec& file) {
-  StationLayout L = compute_layout(file, catalog_);
-  check_described(L, file, file.origin);
-  return L;
-}
-
-void CanDiscovery::check_described(StationLayout& L, const StationSpec&, const std::string& origin) {
-  L.registers_direct = true;
-  const StationLayout* found = nullptr;
-  try {
-    found = layout();
-  } catch (const Error& e) {
-    if (e.code() != Exit::usage) throw;
-    if (trace_) trace_(fmt::format("canopen: {} is not checked against the coupler: {}", origin, e.what()));
-    return;
-  }
-  if (!found) return;
-  match_table9(L, *found, origin, "a 0x4501 sub-index");
 }
 
 }  // namespace kscfg

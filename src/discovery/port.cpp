@@ -12,6 +12,7 @@
 #include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
+#include "kscfg/discovery/table9_discovery.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/ads_registers.hpp"
@@ -28,88 +29,6 @@
 namespace kscfg {
 
 namespace {
-
-// The station behind an ADS coupler: its table 9 over port 100, read once, on first use.
-class AdsDiscovery : public StationDiscovery {
- public:
-  AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace, const CancelToken* cancel, SilentMemo memo,
-               DiscoveryStatus status)
-      : link_(link),
-        catalog_(catalog),
-        timeout_ms_(timeout_ms),
-        trace_(std::move(trace)),
-        cancel_(cancel),
-        memo_(std::move(memo)),
-        status_(std::move(status)) {}
-
-  const StationLayout* layout_upto(unsigned) override {
-    if (!searched_) {
-      searched_ = true;
-      AdsScanOptions so;
-      so.check = false;  // table 9 and the registers that decide an image only
-      so.silent_memo = memo_;
-      so.trace = trace_;
-      so.cancel = cancel_;
-      StatusScope status(status_, fmt::format("reading coupler at {}", link_.client().target().where()));
-      so.status = [&status](const std::string& d) { status.detail(d); };
-      AdsScan s = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so));
-      ScanResult& r = s.result;
-      if (trace_)
-        for (const auto& n : r.notes) trace_("ads: " + n);
-      found_ = Found{std::move(r.spec), std::move(r.layout), std::move(s.image)};
-    }
-    return found_ ? &found_->layout : nullptr;
-  }
-  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
-
-  // The file's terminals with a number on port 100 against table 9, in order: a complex one by its
-  // type, a digital one by its bits and direction (the file names which type it is); then its
-  // layout against the coupler's image lengths.
-  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
-  // with the passive terminals table 9 does not list, checked against table 9 and the image lengths.
-  std::optional<StationLayout> match(const StationSpec& file) override {
-    StationLayout L = compute_layout(file, catalog_);
-    check_described(L, file, file.origin);
-    return L;
-  }
-
-  void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override {
-    const StationLayout* found = nullptr;
-    try {
-      found = layout();
-    } catch (const Error& e) {
-      if (e.code() != Exit::usage) throw;
-      if (trace_) trace_(fmt::format("ads: {} is not checked against the coupler: {}", origin, e.what()));
-      return;
-    }
-    if (!found) return;
-    match_table9(L, *found, origin, "a number on port 100");
-    judge_image(
-        L, found_->image, spec, catalog_,
-        [&](unsigned pos, unsigned ch) {
-          const TerminalSpec& ts = spec.terminals.at(pos - 1);
-          return channel_registers(catalog_.get(ts.type), &ts, ch);
-        },
-        origin);
-  }
-
- private:
-  struct Found {
-    StationSpec spec;
-    StationLayout layout;
-    CouplerImage image;
-  };
-  AdsImageLink& link_;
-  const Catalog& catalog_;
-  unsigned timeout_ms_;
-  std::function<void(const std::string&)> trace_;
-  const CancelToken* cancel_;
-  SilentMemo memo_;
-  DiscoveryStatus status_;
-  std::optional<Found> found_;
-  bool searched_ = false;
-};
 
 // The emulator's station: the emulated coupler lays its image out itself, and tells it.
 class EmulatorDiscovery : public StationDiscovery {
@@ -172,8 +91,8 @@ OpenedPort open_can_port(const PortUri& p, const std::string& uri, const Catalog
   // Channels unlocked over SDO are noted in the session journal of this node, so that the next
   // kscfg relocks what a killed one left (session/sdo_access.hpp).
   if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
-  auto discovery = std::make_unique<CanDiscovery>(*link->sdo_connection(), catalog, opt.timeout_ms, opt.trace,
-                                                  opt.status, target.where());
+  auto discovery = std::make_unique<Table9Discovery>(
+      can_table9_reader(*link->sdo_connection(), opt.timeout_ms, target.where()), catalog, opt.trace, opt.status);
   OpenedPort port;
   port.link = std::move(link);
   std::function<const StationLayout&()> layout = opt.layout;
@@ -224,8 +143,8 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
     SilentMemo memo;
     if (!opt.cache_dir.empty()) memo.path = opt.cache_dir + "/scans/" + station_key(target) + ".modbus-silent";
     memo.ask_anyway = opt.rescan;
-    auto discovery =
-        std::make_unique<AdsDiscovery>(*link, catalog, opt.timeout_ms, opt.trace, opt.cancel, memo, opt.status);
+    auto discovery = std::make_unique<Table9Discovery>(
+        ads_table9_reader(link->client(), opt.timeout_ms, memo, opt.cancel), catalog, opt.trace, opt.status);
     OpenedPort port;
     port.link = std::move(link);
     SessionOptions so = port_session(opt);

@@ -40,4 +40,10 @@ struct AdsScanOptions : Table9ScanOptions {
 using AdsScan = Table9Scan;  // the result is table 9's (discovery/table9.hpp); the old name for now
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt = {});
 
+// The reader behind scan_ads_station, for the port's discovery (Table9Discovery,
+// discovery/table9_discovery.hpp): the coupler's table 9 and its terminals' registers on port 100,
+// the station checked against the image lengths (AdsScanOptions: `memo`, `cancel`).
+std::unique_ptr<Table9Reader> ads_table9_reader(AdsClient& client, unsigned timeout_ms, SilentMemo memo = {},
+                                                const CancelToken* cancel = nullptr);
+
 }  // namespace kscfg
