@@ -6,8 +6,8 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/ads_station.hpp"
-#include "kscfg/discovery/match.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
+#include "kscfg/discovery/table9_discovery.hpp"
 #include "kscfg/link/ads_link.hpp"
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/coupler_key.hpp"
@@ -17,88 +17,6 @@
 namespace kscfg {
 
 namespace {
-
-// The station behind an ADS coupler: its table 9 over port 100, read once, on first use.
-class AdsDiscovery : public StationDiscovery {
- public:
-  AdsDiscovery(AdsImageLink& link, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace, const CancelToken* cancel, SilentMemo memo,
-               DiscoveryStatus status)
-      : link_(link),
-        catalog_(catalog),
-        timeout_ms_(timeout_ms),
-        trace_(std::move(trace)),
-        cancel_(cancel),
-        memo_(std::move(memo)),
-        status_(std::move(status)) {}
-
-  const StationLayout* layout_upto(unsigned) override {
-    if (!searched_) {
-      searched_ = true;
-      AdsScanOptions so;
-      so.check = false;  // table 9 and the registers that decide an image only
-      so.silent_memo = memo_;
-      so.trace = trace_;
-      so.cancel = cancel_;
-      StatusScope status(status_, fmt::format("reading coupler at {}", link_.client().target().where()));
-      so.status = [&status](const std::string& d) { status.detail(d); };
-      AdsScan s = scan_ads_station(link_.client(), catalog_, timeout_ms_, std::move(so));
-      ScanResult& r = s.result;
-      if (trace_)
-        for (const auto& n : r.notes) trace_("ads: " + n);
-      found_ = Found{std::move(r.spec), std::move(r.layout), std::move(s.image)};
-    }
-    return found_ ? &found_->layout : nullptr;
-  }
-  const StationSpec* station() override { return layout() ? &found_->spec : nullptr; }
-
-  // The file's terminals with a number on port 100 against table 9, in order: a complex one by its
-  // type, a digital one by its bits and direction (the file names which type it is); then its
-  // layout against the coupler's image lengths.
-  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
-  // with the passive terminals table 9 does not list, checked against table 9 and the image lengths.
-  std::optional<StationLayout> match(const StationSpec& file) override {
-    StationLayout L = compute_layout(file, catalog_);
-    check_described(L, file, file.origin);
-    return L;
-  }
-
-  void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override {
-    const StationLayout* found = nullptr;
-    try {
-      found = layout();
-    } catch (const Error& e) {
-      if (e.code() != Exit::usage) throw;
-      if (trace_) trace_(fmt::format("ads: {} is not checked against the coupler: {}", origin, e.what()));
-      return;
-    }
-    if (!found) return;
-    match_table9(L, *found, origin, "a number on port 100");
-    judge_image(
-        L, found_->image, spec, catalog_,
-        [&](unsigned pos, unsigned ch) {
-          const TerminalSpec& ts = spec.terminals.at(pos - 1);
-          return channel_registers(catalog_.get(ts.type), &ts, ch);
-        },
-        origin);
-  }
-
- private:
-  struct Found {
-    StationSpec spec;
-    StationLayout layout;
-    CouplerImage image;
-  };
-  AdsImageLink& link_;
-  const Catalog& catalog_;
-  unsigned timeout_ms_;
-  std::function<void(const std::string&)> trace_;
-  const CancelToken* cancel_;
-  SilentMemo memo_;
-  DiscoveryStatus status_;
-  std::optional<Found> found_;
-  bool searched_ = false;
-};
 
 class AdsPort : public Port {
  public:
@@ -110,8 +28,9 @@ class AdsPort : public Port {
     SilentMemo memo;
     if (!opt.cache_dir.empty()) memo.path = silent_memo_path(opt.cache_dir);
     memo.ask_anyway = opt.rescan;
-    discovery_ =
-        std::make_unique<AdsDiscovery>(link_, catalog, opt.timeout_ms, opt.trace, opt.cancel, memo, opt.status);
+    // The station behind the coupler: its table 9 over port 100, read once, on first use.
+    discovery_ = std::make_unique<Table9Discovery>(ads_table9_reader(link_.client(), opt.timeout_ms, memo, opt.cancel),
+                                                   catalog, opt.trace, opt.status);
     auto layout = numbering_layout(opt.layout, discovery_.get(), "ADS coupler");
     auto number = [layout](unsigned position) { return adsreg::terminal_number(layout(), position); };
     access_ = std::make_unique<AdsAccess>(link_.client(), number, port_session(opt));

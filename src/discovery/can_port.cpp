@@ -7,6 +7,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/discovery/can_station.hpp"
+#include "kscfg/discovery/table9_discovery.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/can_registers.hpp"
 #include "kscfg/link/coupler_key.hpp"
@@ -26,8 +27,9 @@ class CanPort : public Port {
     // Channels unlocked over SDO are noted in the session journal of this node, so that the next
     // kscfg relocks what a killed one left (session/sdo_access.hpp).
     if (opt.journal && !opt.journal_dir.empty()) opt.journal->open(opt.journal_dir, station_key(target));
-    discovery_ =
-        std::make_unique<CanDiscovery>(conn_.sdo(), catalog, opt.timeout_ms, opt.trace, opt.status, target.where());
+    // The station behind the coupler: its table 9 through 0x4500, read once, on first use.
+    discovery_ = std::make_unique<Table9Discovery>(can_table9_reader(conn_.sdo(), opt.timeout_ms, target.where()),
+                                                   catalog, opt.trace, opt.status);
     auto layout = numbering_layout(opt.layout, discovery_.get(), "CANopen coupler");
     auto number = [layout](unsigned position) { return canreg::terminal_number(layout(), position); };
     access_ = std::make_unique<SdoAccess>(conn_.sdo(), number, port_session(opt));

@@ -6,6 +6,7 @@
 #include "../link/fake_canopen.hpp"
 #include "kscfg/discovery/can_station.hpp"
 #include "kscfg/discovery/port.hpp"
+#include "kscfg/discovery/table9_discovery.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/can_registers.hpp"
@@ -97,7 +98,7 @@ TEST_CASE("CANopen station: identification and table 9 laid out by the coupler f
 TEST_CASE("CANopen port: the discovery's layout, SDO register access and a station file checked against table 9",
           "[discovery][canopen]") {
   CanRig rig(station_of({"KL3202", "KL9010", "KL1104", "KL6001"}));
-  CanDiscovery d(rig.sdo(), Catalog::standard(), 300);
+  Table9Discovery d(can_table9_reader(rig.sdo(), 300), Catalog::standard());
   const StationLayout* L = d.layout();
   REQUIRE(L);
   REQUIRE(L->terminals.size() == 3);

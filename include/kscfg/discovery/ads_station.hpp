@@ -3,22 +3,19 @@
 // direction), so no register session and no byte of the process image is needed to lay it out.
 #pragma once
 #include <functional>
+#include <memory>
 #include <optional>
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/ads_image.hpp"
 #include "kscfg/discovery/scan_result.hpp"
+#include "kscfg/discovery/table9.hpp"
 #include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/modbus_link.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
-
-// The catalog type of a table 9 entry (an ADS or CANopen coupler's terminal number `number`): a
-// complex terminal by its type number, a digital one as the first type with its bits and direction.
-// Error(usage) naming the terminal number when the catalog has none.
-const TerminalType& table9_type(const Catalog& catalog, const adsreg::Table9Entry& e, unsigned number);
 
 // The station and `kscfg scan` over ADS (docs/design.md section 4.9): what a Modbus scan reports,
 // from port 100.
@@ -33,27 +30,20 @@ const TerminalType& table9_type(const Catalog& catalog, const adsreg::Table9Entr
 // coupler's image lengths show no digital bit; terminals without registers before the last one
 // with registers are counted, not identified (as over Modbus). The mapping settings are the
 // coupler family's defaults, passed through `settings` when given (the caller's overrides).
-struct AdsScanOptions {
-  // The whole scan (kscfg scan): ReadDeviceInfo, each terminal's R8 and R9, the ADS watchdog.
-  // false: only what lays the station out (table 9 and the registers that decide an image), as
-  // every command on an ads:// port needs it.
-  bool check = true;
-  std::function<MappingSettings(MappingSettings)> settings;
-  std::string origin;  // the station file's origin
+struct AdsScanOptions : Table9ScanOptions {
   // Check the layout against the image lengths the coupler reports on its Modbus TCP side
   // (discovery/ads_image.hpp): result.layout.image_refused / image_unconfirmed, with a note.
   bool check_image = true;
   SilentMemo silent_memo;  // the coupler's Modbus TCP side that did not answer (ads_image.hpp)
-  std::function<void(const std::string&)> trace;
   const CancelToken* cancel = nullptr;
-  // The step under way, for a status line (station_discovery.hpp): "table 9 (its terminal list)", ...
-  std::function<void(const std::string&)> status;
 };
-struct AdsScan {
-  ScanResult result;
-  CouplerImage image;                            // what the coupler reported of its image (check_image)
-  std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
-};
+using AdsScan = Table9Scan;  // the result is table 9's (discovery/table9.hpp); the old name for now
 AdsScan scan_ads_station(AdsClient& client, const Catalog& catalog, unsigned timeout_ms, AdsScanOptions opt = {});
+
+// The reader behind scan_ads_station, for the port's discovery (Table9Discovery,
+// discovery/table9_discovery.hpp): the coupler's table 9 and its terminals' registers on port 100,
+// the station checked against the image lengths (AdsScanOptions: `memo`, `cancel`).
+std::unique_ptr<Table9Reader> ads_table9_reader(AdsClient& client, unsigned timeout_ms, SilentMemo memo = {},
+                                                const CancelToken* cancel = nullptr);
 
 }  // namespace kscfg

@@ -8,34 +8,23 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/discovery/scan_result.hpp"
-#include "kscfg/discovery/station_discovery.hpp"
+#include "kscfg/discovery/table9.hpp"
 #include "kscfg/link/sdo.hpp"
 #include "kscfg/station/layout.hpp"
 
 namespace kscfg {
 
-struct CanScanOptions {
-  // The whole scan (kscfg scan): also each terminal's R8 (checked against table 9) and R9. false:
-  // only what lays the station out (identification, table 9, the registers that decide an image).
-  bool check = true;
-  // The mapping settings: the coupler family's defaults, passed through this when given (the
-  // caller's overrides).
-  std::function<MappingSettings(MappingSettings)> settings;
-  std::string origin;  // the station file's origin
-  std::function<void(const std::string&)> trace;
-  // The step under way, for a status line (station_discovery.hpp): "table 9 (its terminal list) entry 3", ...
-  std::function<void(const std::string&)> status;
-};
-struct CanScan {
-  ScanResult result;                             // layout.registers_direct set
-  std::vector<std::optional<std::uint16_t>> r9;  // per terminal of result.spec; empty: none read
-};
+// The options and the result are table 9's (discovery/table9.hpp); the old names for now. The
+// result's layout.registers_direct is set.
+using CanScanOptions = Table9ScanOptions;
+using CanScan = Table9Scan;
 // Error(usage) naming what to do when the coupler does not serve table 9 or reports a type the
 // catalog does not know; SdoAbort/Error(link) from the SDO client.
 CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms, CanScanOptions opt = {});
@@ -46,31 +35,9 @@ CanScan scan_can_station(SdoClient& sdo, const Catalog& catalog, unsigned timeou
 std::string can_coupler_name(std::optional<std::uint32_t> product_code, std::optional<std::uint16_t> table9_coupler,
                              const std::string& device_name);
 
-// The port's StationDiscovery over CANopen: scan_can_station (check off), once, on first use.
-class CanDiscovery : public StationDiscovery {
- public:
-  // `status`: what it is doing while it reads the coupler (station_discovery.hpp), the coupler
-  // named `where` there ("node 3 on slcan:/dev/ttyACM0").
-  CanDiscovery(SdoClient& sdo, const Catalog& catalog, unsigned timeout_ms,
-               std::function<void(const std::string&)> trace = {}, DiscoveryStatus status = {}, std::string where = {});
-  const StationLayout* layout_upto(unsigned upto) override;
-  const StationSpec* station() override;
-  // The file's terminals with a 0x4501 sub-index against table 9, in order (a complex one by its
-  // type, a digital one by its bits and direction): Error(refused) naming the first difference.
-  // A station file compared with the station (diff, apply, restore): the file's layout, its positions
-  // with the passive terminals table 9 does not list, checked against table 9.
-  std::optional<StationLayout> match(const StationSpec& file) override;
-  void check_described(StationLayout& L, const StationSpec& spec, const std::string& origin) override;
-
- private:
-  SdoClient& sdo_;
-  const Catalog& catalog_;
-  unsigned timeout_ms_;
-  std::function<void(const std::string&)> trace_;
-  DiscoveryStatus status_;
-  std::string where_;
-  std::optional<ScanResult> found_;
-  bool searched_ = false;
-};
+// The reader behind scan_can_station, for the port's discovery (Table9Discovery,
+// discovery/table9_discovery.hpp): table 9 through 0x4500 and the terminals' registers through
+// 0x4501; `where` names the coupler in the discovery's status ("node 3 on slcan:/dev/ttyACM0").
+std::unique_ptr<Table9Reader> can_table9_reader(SdoClient& sdo, unsigned timeout_ms, std::string where = {});
 
 }  // namespace kscfg
