@@ -56,6 +56,10 @@ LAYERS = ("base", "protocol", "catalog", "station", "link", "session", "emulator
 FILE_EXT = (".hpp", ".cpp", ".py", ".toml", ".cmake", ".sh", ".md")
 CODE_EXT = (".hpp", ".cpp", ".h", ".py", ".cmake", ".toml", ".sh", ".json")
 IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
+# The design of record: the index, its topic files (docs/transports/*.md too) and the code's own pages.
+DESIGN_DOCS = ("docs/design.md", "docs/engine.md", "docs/protocol.md", "docs/safety.md", "docs/decisions.md",
+               "docs/cli.md", "docs/catalog.md", "docs/testing.md", "docs/history.md", "src/README.md",
+               "docs/architecture.md")
 HERE = os.path.dirname(os.path.abspath(__file__))
 OWN_FILES = {os.path.join(HERE, "check_design.py"), os.path.join(HERE, "design_fixture.cmake")}
 
@@ -323,11 +327,12 @@ def check_comments(tree):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--root", required=True)
-    ap.add_argument("--doc", action="append", help="default: docs/design.md, src/README.md and docs/architecture.md")
+    ap.add_argument("--doc", action="append", help="default: the design of record (DESIGN_DOCS, docs/transports/*.md)")
     a = ap.parse_args()
     tree = Tree(a.root)
-    docs = a.doc or [os.path.join(tree.root, d) for d in ("docs/design.md", "src/README.md", "docs/architecture.md")
-                     if os.path.exists(os.path.join(tree.root, d))]
+    docs = a.doc or [os.path.join(tree.root, d) for d in DESIGN_DOCS if os.path.exists(os.path.join(tree.root, d))]
+    if not a.doc:
+        docs += sorted(glob.glob(os.path.join(tree.root, "docs", "transports", "*.md")))
     problems = []
     for doc in docs:
         with open(doc, encoding="utf-8") as f:
