@@ -45,7 +45,7 @@ foreach(f IN LISTS libfiles)
   endforeach()
 endforeach()
 
-# Nothing downcasts a link (docs/design.md section 1.1): a caller asks the Link for a capability
+# Nothing downcasts a link (docs/engine.md section 1.1): a caller asks the Link for a capability
 # (modbus_registers(), ads_connection(), emulator()) instead of casting to a concrete link or to
 # what one holds.
 file(GLOB_RECURSE castfiles ${ROOT}/src/*.cpp ${ROOT}/src/*.hpp ${ROOT}/include/*.hpp ${ROOT}/cli/*.cpp
@@ -59,7 +59,7 @@ foreach(f IN LISTS castfiles)
   endforeach()
 endforeach()
 
-# Cancellation is passed, not global (docs/design.md 7.3): no library file names a process-wide
+# Cancellation is passed, not global (docs/engine.md section 2.3): no library file names a process-wide
 # interrupt flag (the g_interrupted/g_interrupts/g_signal of old) or holds a CancelToken of its own
 # at namespace scope; the CLI makes the one token and passes it to every wait.
 foreach(f IN LISTS libfiles)

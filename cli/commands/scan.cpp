@@ -167,7 +167,7 @@ class Scan : public Command {
         r = scan_station(*regs, ctx.engine(), *link, ctx.catalog(), ctx.session_options(), settings, bar.callback());
       }
       // Later commands on this port use it (the scan cache) while the coupler reports the same image
-      // lengths, each terminal's type (R8) checked once a run (docs/design.md 4.6).
+      // lengths, each terminal's type (R8) checked once a run (docs/transports/modbus.md section 6).
       ctx.discovery().adopt(r);
       // Now that the station is known: what kscfg processes that died on this port left in
       // register mode (their journals) is finished, as by any other command (issue 21 item 2).

@@ -1,4 +1,4 @@
-// The station behind a CANopen coupler (discovery/can_station.hpp, docs/design.md section 13).
+// The station behind a CANopen coupler (discovery/can_station.hpp, docs/transports/canopen.md).
 #include "kscfg/discovery/can_station.hpp"
 
 #include <fmt/format.h>

@@ -150,7 +150,7 @@ std::string coupler_lock_path(const CanTarget& t) {
 namespace {
 
 // A CANopen coupler (BK5120/BK515x, LC5100, ...) on an slcan adapter or a SocketCAN interface: its
-// register communication over SDO (objects 0x4500/0x4501), the station from its table 9 (design 13).
+// register communication over SDO (objects 0x4500/0x4501), the station from its table 9 (transports/canopen.md).
 OpenedPort open_can_port(const PortUri& p, const std::string& uri, const Catalog& catalog, const LinkOptions& opt) {
   CanTarget target = can_target(p, uri);
   // One kscfg at a time on a node of this computer's CAN interface, and on an slcan adapter (its tty
@@ -260,7 +260,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   d.cache_dir = opt.cache_dir;
   d.rescan = opt.rescan;
   d.status = opt.status;
-  // Journals per coupler (docs/design.md 6.2): a BK9000 is one coupler whatever unit a request names,
+  // Journals per coupler (docs/safety.md section 2): a BK9000 is one coupler whatever unit a request names,
   // so over TCP the journals every unit of it wrote are this run's to finish (a kill -9 on ?unit=3
   // left a terminal in register mode that a unit-1 run never looked at); on an RTU line each unit
   // is a coupler of its own.

@@ -1,4 +1,4 @@
-// What dead kscfg processes left according to their journals (docs/design.md section 6): each
+// What dead kscfg processes left according to their journals (docs/safety.md): each
 // entry checked against the station, then finished by a session of its own that adopts the entry
 // (handshake.hpp adopt_dead: no leftover watch, the bytes that session found go back).
 #include <fmt/format.h>

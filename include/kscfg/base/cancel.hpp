@@ -1,5 +1,5 @@
-// Cancellation (docs/design.md 6.9 and 7.3): one CancelToken, made by the CLI and signalled from its
-// SIGINT/SIGTERM/SIGHUP handler, is passed explicitly to every wait (link clients, accesses, the
+// Cancellation (docs/safety.md section 9 and docs/engine.md section 2.3): one CancelToken, made by the CLI and
+// signalled from its SIGINT/SIGTERM/SIGHUP handler, is passed explicitly to every wait (link clients, accesses, the
 // engine, serial and process-data loops, lock waits). The library holds no global flag.
 //
 // A token counts the signals it got and keeps the first one (commands that end differently on

@@ -82,7 +82,7 @@ class OwnerLock {
 // Where the coupler locks live: $KSCFG_LOCK_DIR if set, else /run/lock/kscfg (shared by every user
 // of the computer, mode 1777: two engineers on one coupler take turns too), else
 // $XDG_STATE_HOME/kscfg/locks. The shared directory is trusted only when it is a directory owned
-// by root or by this user that others cannot write to without the sticky bit (docs/design.md 6.9):
+// by root or by this user that others cannot write to without the sticky bit (docs/safety.md section 9):
 // anything else there (another user's directory, a file or link planted in its place) neither
 // misleads nor blocks, this user's own directory is used, and take_lock_dir_note() says why once.
 // Chosen once per process.

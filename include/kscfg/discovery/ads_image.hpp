@@ -1,5 +1,5 @@
 // What an ADS coupler says of its own process image, and the layout checked against it
-// (docs/design.md 4.9, "A layout the coupler confirms").
+// (docs/transports/ads.md, "A layout the coupler confirms").
 //
 // Over ADS the BK9000 family documents no register that holds the K-bus settings (complete
 // evaluation, word alignment, Motorola format) or the image sizes: port 300 takes index offsets

@@ -57,7 +57,7 @@ struct LinkOptions {
 // found. Every register operation on the port (commands, the scan,
 // the online map, journal recovery, the lock-out guard) runs on `engine`: one access per port, so a
 // channel's bytes are saved and put back once however many users it has, and over ADS no register
-// request ever goes through the process image (docs/design.md 1.2).
+// request ever goes through the process image (docs/engine.md section 1.2).
 struct OpenedPort {
   // The emulator's state file and station (emu URIs; nullptr for a coupler), which `link` moves
   // the image of: declared first, so that it outlives the link.
@@ -85,7 +85,7 @@ std::unique_ptr<RegisterAccess> open_register_access(Link& link, const SessionOp
 // (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
 // unit) and ADS (port 48898) to one coupler, a serial device and every link to it take one lock,
 // a CANopen node takes one per CAN interface and node id (every node behind one slcan adapter takes
-// the adapter's one: lock_key()), and two kscfg processes on one coupler take turns (docs/design.md 6.9).
+// the adapter's one: lock_key()), and two kscfg processes on one coupler take turns (docs/safety.md section 9).
 // Error(Exit::link) when the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);

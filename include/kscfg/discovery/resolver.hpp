@@ -78,7 +78,7 @@ class StationResolver {
   void forget_layout();
   // The station with the positions of a station file that will be compared with it (diff, apply,
   // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
-  // order and its digital terminals by bit totals (docs/design.md section 4); otherwise layout().
+  // order and its digital terminals by bit totals (docs/transports/modbus.md); otherwise layout().
   const StationLayout& layout_for(const StationSpec& file);
   // The terminal at `position` that a command selected: a terminal of a layout kept from an earlier
   // run tells its type (R8) first, and the session that read it on `channel` is kept for

@@ -3,7 +3,7 @@
 // coupler's SDO connection (sdo_connection()), on which register communication runs
 // (link/can_registers.hpp, under the register-access seam). The process image of a CANopen coupler travels
 // in PDOs that the bus's master (the PLC) owns; kscfg does not send PDOs: the image reads and writes
-// are refused with Error(Exit::usage) naming why (design 13).
+// are refused with Error(Exit::usage) naming why (transports/canopen.md).
 #pragma once
 #include <memory>
 #include <string>

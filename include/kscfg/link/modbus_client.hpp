@@ -1,4 +1,4 @@
-// Modbus couplers (docs/design.md section 4): the BK9000/BK7300 register map, Modbus TCP (BK9000
+// Modbus couplers (docs/transports/modbus.md): the BK9000/BK7300 register map, Modbus TCP (BK9000
 // family) and Modbus RTU over a serial port (BK7300 family) endpoints, and one connection with
 // bounded retries.
 #pragma once
@@ -97,7 +97,7 @@ class ModbusRegisters {
   virtual ~ModbusRegisters() = default;
   virtual std::vector<std::uint16_t> read(std::uint16_t addr, unsigned count) = 0;
   // As read(), but a register the coupler does not serve (exception 2, illegal data address) is
-  // not an error: std::nullopt. For optional registers (docs/design.md section 4).
+  // not an error: std::nullopt. For optional registers (docs/transports/modbus.md).
   virtual std::optional<std::vector<std::uint16_t>> read_optional(std::uint16_t addr, unsigned count) = 0;
   virtual const ModbusTarget& target() const = 0;
 };

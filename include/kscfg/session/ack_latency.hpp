@@ -1,6 +1,5 @@
 // How long a register session on a pipelining link (Modbus) waits after a request before its
-// first poll, per terminal, and how that wait follows the line (issue 21 item 4, docs/design.md
-// section 4).
+// first poll, per terminal, and how that wait follows the line (issue 21 item 4, docs/transports/modbus.md).
 //
 // The wait is an estimate of the terminal's acknowledge latency (AckTiming::wait), never a
 // ratchet:

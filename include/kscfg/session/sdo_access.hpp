@@ -1,4 +1,4 @@
-// SdoAccess: direct register access over CANopen SDO (docs/design.md section 13), the third
+// SdoAccess: direct register access over CANopen SDO (docs/transports/canopen.md), the third
 // implementation of the register-access seam (access.hpp). A CANopen coupler (BK5120/BK515x,
 // LC5100, BC5150, a CX8050's CAN interface) reads and writes a terminal's registers itself through
 // the objects 0x4500/0x4501 (link/can_registers.hpp): no handshake, no byte of the process image
