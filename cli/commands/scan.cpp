@@ -170,7 +170,7 @@ class Scan : public Command {
       // lengths, each terminal's type (R8) checked once a run (docs/transports/modbus.md section 6).
       ctx.discovery().adopt(r);
       // Now that the station is known: what kscfg processes that died on this port left in
-      // register mode (their journals) is finished, as by any other command (issue 21 item 2).
+      // register mode (their journals) is finished, as by any other command.
       if (r.walked) (void)ctx.layout();
     }
     if (!write_.empty()) {

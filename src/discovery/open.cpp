@@ -252,7 +252,7 @@ OpenedPort open_port_uri(const std::string& uri, const Catalog& catalog, const L
   mo.trace = opt.trace;
   mo.cancel = opt.cancel;
   ModbusTarget target = modbus_target(p, uri);
-  // One kscfg at a time on a coupler of this computer (issue 21 item 1): before it connects.
+  // One kscfg at a time on a coupler of this computer: before it connects.
   OwnerLock lock =
       OwnerLock::acquire(coupler_lock_path(target), fmt::format("the coupler at {}", target.where()), opt.lock_wait);
   auto link = std::make_unique<ModbusLink>(target, mo, std::move(lock));

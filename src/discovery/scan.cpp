@@ -466,7 +466,7 @@ class ScanDiscovery : public StationDiscovery {
       if (!c) return;
       saved_wait_ = c->ack_wait;
       saved_suspect_ = c->ack_suspect;
-      // --rescan starts from nothing, latencies too (issue 21 item 4); a latency longer than the
+      // --rescan starts from nothing, latencies too; a latency longer than the
       // timeout is no estimate (a read would sleep past the timeout): learned again.
       for (auto [pos, w] : c->ack_wait) {
         if (opt_.rescan) continue;

@@ -31,7 +31,7 @@ struct CouplerImage {
 };
 
 // Where a coupler's Modbus TCP side did not answer (its port dropped by a firewall, say), each
-// command that needs the layout waited the whole bound (1 s) for it (issue 45). The first that does
+// command that needs the layout waited the whole bound (1 s) for it. The first that does
 // keeps the time in a memo ($XDG_CACHE_HOME/kscfg/scans/KEY.modbus-silent, KEY station_key()); the
 // commands of the next kSilentMemoSeconds do not ask, and say the layout is unconfirmed because of
 // it (-v). `kscfg scan` and --rescan ask all the same; an answer removes the memo.

@@ -50,7 +50,7 @@ class StationResolver {
   // read_channels, the verdict, map_online, scan_station, a RegisterSession of the caller's): the
   // session kept from checking the selected terminal's R8 (check_selected()), in register mode
   // until it closes, is closed here first; another session on that terminal would take this run's
-  // own request for a dead session's leftover (issue 23 item 5). The sessions the resolver opens
+  // own request for a dead session's leftover. The sessions the resolver opens
   // itself close it where they need to.
   Engine& library_engine() {
     close_kept_session();

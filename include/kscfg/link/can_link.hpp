@@ -1,5 +1,5 @@
 // CanLink: a CANopen coupler (BK5120/BK515x, LC5100, BC5150, CX8050's CAN interface) reached
-// through a CAN bus (slcan or SocketCAN, link/can_frame.hpp) as a Link (issue 37). It carries the
+// through a CAN bus (slcan or SocketCAN, link/can_frame.hpp) as a Link. It carries the
 // coupler's SDO connection (sdo_connection()), on which register communication runs
 // (link/can_registers.hpp, under the register-access seam). The process image of a CANopen coupler travels
 // in PDOs that the bus's master (the PLC) owns; kscfg does not send PDOs: the image reads and writes
