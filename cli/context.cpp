@@ -13,7 +13,7 @@
 #include "kscfg/base/files.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/match.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/discovery/scan.hpp"
 #include "kscfg/discovery/scan_cache.hpp"
 #include "kscfg/link/modbus_client.hpp"

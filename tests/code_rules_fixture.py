@@ -26,7 +26,7 @@ def long_function(name, lines=90, above=""):
 CLEAN = {
     "src/a.cpp": SHORT + "struct S {\n  S(int v) : v_{v}, w_(v) {}\n  int v_, w_;\n};\n",
     "include/kscfg/a.hpp": "// A header; the history of this file is in docs/history.md.\nint add(int a, int b);\n",
-    "cli/commands/ok.cpp": '#include "kscfg/discovery/open.hpp"\n// Not the CLI\'s business: p.scheme == "ads".\n'
+    "cli/commands/ok.cpp": '#include "kscfg/discovery/port.hpp"\n// Not the CLI\'s business: p.scheme == "ads".\n'
                            'int run(const char* s) { return s[0] == \'a\'; }\n',
     "docs/x.md": "# x\n\nNothing here names a tracker.\n",
     "README.md": "# readme\n",

@@ -5,7 +5,7 @@
 
 #include "../command.hpp"
 #include "../commands.hpp"
-#include "kscfg/link/serial_ports.hpp"
+#include "kscfg/discovery/serial_ports.hpp"
 
 namespace kscfg::cli {
 

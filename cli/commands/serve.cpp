@@ -16,7 +16,7 @@
 #include "../commands.hpp"
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/emulator/ads_server.hpp"
 #include "kscfg/emulator/can_server.hpp"
 #include "kscfg/emulator/emulator.hpp"

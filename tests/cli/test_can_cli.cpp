@@ -12,7 +12,7 @@
 #include "../link/fake_canopen.hpp"
 #include "kscfg/base/owner_lock.hpp"
 #include "kscfg/discovery/coupler_settings.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/port_uri.hpp"

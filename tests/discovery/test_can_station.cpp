@@ -1,11 +1,11 @@
 // The station over CANopen (discovery/can_station.hpp) and the port's register access over a
-// CanLink (discovery/open.hpp open_register_access, recover_dead_sessions), against a coupler in
+// CanLink (discovery/port.hpp open_register_access, recover_dead_sessions), against a coupler in
 // this process on a loopback bus (tests/link/fake_canopen.hpp).
 #include <catch2/catch.hpp>
 
 #include "../link/fake_canopen.hpp"
 #include "kscfg/discovery/can_station.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/session/session.hpp"

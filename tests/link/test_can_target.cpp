@@ -9,7 +9,7 @@
 #include <string>
 
 #include "kscfg/base/error.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/link/can_link.hpp"
 #include "kscfg/link/coupler_key.hpp"
 #include "kscfg/link/modbus_client.hpp"

@@ -10,7 +10,7 @@
 
 #include "../session/own_access.hpp"
 #include "kscfg/base/error.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/emulator/modbus_server.hpp"
 #include "kscfg/link/busy.hpp"

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "kscfg/catalog/catalog.hpp"
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 #include "kscfg/discovery/station_discovery.hpp"
 #include "kscfg/link/link.hpp"
 #include "kscfg/session/session.hpp"

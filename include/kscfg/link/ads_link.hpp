@@ -27,7 +27,7 @@ constexpr unsigned kWatchdogMs = 1000;    // outputs to the safe state after thi
 
 class AdsImageLink : public Link {
  public:
-  // `lock`: this computer's lock on the coupler (discovery/open.hpp), held until the connection
+  // `lock`: this computer's lock on the coupler (discovery/port.hpp), held until the connection
   // has closed.
   AdsImageLink(AdsTarget target, AdsOptions opt, OwnerLock lock = {});
   std::string describe() const override { return client_.target().uri; }

@@ -34,7 +34,7 @@ CanTarget can_target(const PortUri& p, const std::string& uri);
 class CanLink : public Link {
  public:
   // `bus` opened on `target`; `lock`: this computer's lock on that interface and node
-  // (discovery/open.hpp), held until the bus has closed.
+  // (discovery/port.hpp), held until the bus has closed.
   CanLink(CanTarget target, std::unique_ptr<CanBus> bus, SdoOptions opt, OwnerLock lock = {});
   ~CanLink() override;
   std::string describe() const override { return target_.uri; }

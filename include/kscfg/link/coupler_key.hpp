@@ -55,7 +55,7 @@ std::string coupler_key(const ModbusTarget& target);
 std::string coupler_key(const AdsTarget& target);
 // "can-_dev_ttyACM0-n3" (slcan), "can-can0-n3" (SocketCAN).
 std::string coupler_key(const CanTarget& target);
-// What a CAN target's lock stands for (discovery/open.hpp coupler_lock_path()): an slcan adapter
+// What a CAN target's lock stands for (discovery/port.hpp coupler_lock_path()): an slcan adapter
 // is one program's at a time (open_serial() locks its tty), so every node behind it takes the lock
 // of its serial line, the one an RTU link on that device takes ("rtu-_dev_ttyACM0"): kscfg
 // processes on two nodes of one adapter, or on one tty by rtu: and slcan:, take turns; a SocketCAN

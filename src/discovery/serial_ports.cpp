@@ -1,5 +1,5 @@
 // The serial ports of this machine with their USB descriptions (libserialport).
-#include "kscfg/link/serial_ports.hpp"
+#include "kscfg/discovery/serial_ports.hpp"
 
 #include <libserialport.h>
 

@@ -1,4 +1,4 @@
-#include "kscfg/discovery/open.hpp"
+#include "kscfg/discovery/port.hpp"
 
 #include <fmt/format.h>
 
