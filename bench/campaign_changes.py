@@ -1,4 +1,4 @@
-"""Changes that survive a kill and locks nobody else can bend (docs/design.md 6.2 and 6.9). Run from
+"""Changes that survive a kill and locks nobody else can bend (docs/safety.md sections 2 and 9). Run from
 bench/campaign.py (campaigns kill9change, otheruser); C is campaign_common.
 
   kill9change  kill -9 at a random point of a two-register `set` (terminal 1, KL6001: baud and

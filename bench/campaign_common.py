@@ -64,7 +64,7 @@ def kscfg_at(uri, args, env, timeout=120, options=()):
 
 def outcome(rc, err, ok=(0,)):
     """'ok', 'clean' or 'crashed' for one finished command. The error is one line; only a rollback that
-    failed adds one line per terminal after it ("kscfg:   terminal ...", docs/design.md 6.4)."""
+    failed adds one line per terminal after it ("kscfg:   terminal ...", docs/safety.md section 4)."""
     if rc in ok:
         return "ok"
     lines = err.splitlines()

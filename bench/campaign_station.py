@@ -16,7 +16,7 @@ kills it (SIGKILL) at a random point of the time an apply takes, then runs one o
   left in register mode  a control byte with REG set after the ordinary command
 
 A kill between the two writes of one terminal leaves it with one new register: apply is all or
-nothing only while it lives (docs/design.md 6.4); after a kill -9 the undo file is the way back.
+nothing only while it lives (docs/safety.md section 4); after a kill -9 the undo file is the way back.
 How often that happened is noted, as are the kills that left a terminal in register mode.
 """
 import json

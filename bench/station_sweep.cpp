@@ -141,7 +141,7 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
 }
 
 // Issue 34's request counts. A cold `info` of 8, 12 and 16 KL6001 through `kscfg serve` against the
-// walk's floor (design 7.4: 23 requests for the first terminal, then 4 per terminal); warm `info`
+// walk's floor (engine.md 2.4: 23 requests for the first terminal, then 4 per terminal); warm `info`
 // and warm `read R8` (scan cache kept, no --station) against the median of their --station runs,
 // 20 runs each on the pymodbus peer (2 ms, 1-2 cycles), on a quiet machine and with busy loops on
 // every core.

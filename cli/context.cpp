@@ -117,7 +117,7 @@ SessionOptions Context::session_options() const {
   so.dead_force = dead_force_;
   so.cancel = opt_.cancel;
 #ifdef KSCFG_TEST_HOOKS
-  // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/design.md 2.5).
+  // Test hooks, only in a build made for tests (CMake option KSCFG_TEST_HOOKS; docs/safety.md section 10).
   if (const char* e = std::getenv("KSCFG_TEST_NO_UNLOCK"); e && std::string(e) == "1") so.skip_unlock = true;
   if (const char* e = std::getenv("KSCFG_TEST_KILL_AFTER"); e && *e) {
     unsigned kill_after = parse_register(e);

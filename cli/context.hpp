@@ -118,11 +118,11 @@ class Context {
   unsigned select_position();
 
   GlobalOptions opt_;
-  // Before link_: sessions left open note it at exit. It exists from the start, so that every
-  // SessionOptions handed out carries it, also those taken before the link opened it: C++ leaves
+  // Before resolver_: sessions left open note it at exit. It exists from the start, so that every
+  // SessionOptions handed out carries it, also those taken before the port opened it: C++ leaves
   // the order of a call's arguments open, and f(ctx.port(), ctx.session_options()) took the options
-  // first (GCC goes right to left), so the sessions of backup, apply and others were never noted
-  // (issue 21 item 2). It is opened with the link, before any exchange.
+  // first (GCC goes right to left), so the sessions of backup, apply and others were never noted.
+  // It is opened with the port, before any exchange.
   std::shared_ptr<SessionJournal> journal_ = std::make_shared<SessionJournal>();
   bool release_forced_ = false;                       // release_forced()
   std::function<void(const DeadForce&)> dead_force_;  // release_forced()

@@ -64,25 +64,7 @@ foreach(f IN LISTS castfiles)
   endforeach()
 endforeach()
 
-# The CLI never asks which transport a port is: it includes no link header and compares no URI
-# scheme; what differs by transport is the Port's, and what is known of a URI without opening it is
-# transport_facts() (discovery/port.hpp).
-file(GLOB_RECURSE clifiles ${ROOT}/cli/*.cpp ${ROOT}/cli/*.hpp)
-foreach(f IN LISTS clifiles)
-  file(STRINGS ${f} lines REGEX "^[ \t]*#[ \t]*include[ \t]*[\"<]kscfg/link/")
-  foreach(line IN LISTS lines)
-    file(RELATIVE_PATH rel ${ROOT} ${f})
-    list(APPEND violations "${rel}: the CLI includes a link header (ask the Port): ${line}")
-  endforeach()
-  file(STRINGS ${f} lines REGEX "parse_port_uri|PortUri|[.>]scheme[^_A-Za-z0-9]|\"(emu|tcp|rtu|ads|slcan|socketcan)\"[ \t]*[!=]=|[!=]=[ \t]*\"(emu|tcp|rtu|ads|slcan|socketcan)\"|rfind\\(\"(emu|tcp|rtu|ads|slcan|socketcan)")
-  foreach(line IN LISTS lines)
-    file(RELATIVE_PATH rel ${ROOT} ${f})
-    string(STRIP "${line}" line)
-    list(APPEND violations "${rel}: the CLI branches on a port's transport (ask the Port): ${line}")
-  endforeach()
-endforeach()
-
-# Cancellation is passed, not global (docs/design.md 7.3): no library file names a process-wide
+# Cancellation is passed, not global (docs/engine.md section 2.3): no library file names a process-wide
 # interrupt flag (the g_interrupted/g_interrupts/g_signal of old) or holds a CancelToken of its own
 # at namespace scope; the CLI makes the one token and passes it to every wait.
 foreach(f IN LISTS libfiles)

@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
-"""The design of record cites only what exists (issue 33 item 5).
+"""The design of record cites only what exists, and the architecture page's seams are the code's.
 
-Reads the design of record (docs/design.md, src/README.md, its picture of the layers, and
-docs/architecture.md, the newcomer's tour of the code as it is) and fails, naming each, when a code
+Reads the design of record (docs/design.md and the files it indexes, DESIGN_DOCS and
+docs/transports/*.md; src/README.md, its picture of the layers; and docs/architecture.md, the
+newcomer's tour of the code as it is) and fails, naming each, when a code
 identifier one of them cites in backticks does not exist in the source tree, or when a comment in the
 C++ sources names a file that does not exist. What counts as a citation, for an inline code span
 outside fenced blocks (the span's text is S):
@@ -39,6 +40,15 @@ tree ($XDG_..., ~/..., /run/...), and runtime file names (KEY.json, NAME.tmp.PID
 Python, CMake, TOML and shell): a name that survives only in a comment does not exist. This check
 and its fixture (design_fixture.cmake, which plants stale names) are not code for it.
 
+The seams of docs/architecture.md: a paragraph that starts **`Base`** and the table after it (its
+first column lists the classes), or a row of a table headed "interface ... implementations". A
+class or struct of include/ or src/ that derives publicly and directly from Base (`class X : public
+Base`, `class X final : public ns::Base<T>`, `struct X : Base`) must be listed in Base's table; and a
+count the page states in a sentence or table row that names `Base` ("its three accesses",
+"4 implementations": a number or number word before "implementations" or before the plural of
+Base's last word) must equal the number of such classes. Test doubles under tests/ are not counted;
+a seam whose base the code does not declare yet is not counted.
+
 A comment in a C++ file of the tree that names a file (src/..., tests/..., a layer's session/x.hpp)
 must name one that exists, as a path from the root, from include/kscfg/ or from src/.
 
@@ -56,6 +66,10 @@ LAYERS = ("base", "protocol", "catalog", "station", "link", "session", "emulator
 FILE_EXT = (".hpp", ".cpp", ".py", ".toml", ".cmake", ".sh", ".md")
 CODE_EXT = (".hpp", ".cpp", ".h", ".py", ".cmake", ".toml", ".sh", ".json")
 IDENT = r"[A-Za-z_][A-Za-z0-9_]*"
+# The design of record: the index, its topic files (docs/transports/*.md too) and the code's own pages.
+DESIGN_DOCS = ("docs/design.md", "docs/engine.md", "docs/protocol.md", "docs/safety.md", "docs/decisions.md",
+               "docs/cli.md", "docs/catalog.md", "docs/testing.md", "docs/history.md", "src/README.md",
+               "docs/architecture.md")
 HERE = os.path.dirname(os.path.abspath(__file__))
 OWN_FILES = {os.path.join(HERE, "check_design.py"), os.path.join(HERE, "design_fixture.cmake")}
 
@@ -320,20 +334,156 @@ def check_comments(tree):
     return problems
 
 
+NUMBER_WORDS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9,
+                "ten": 10, "eleven": 11, "twelve": 12}
+SEAM_DIRS = ("include", "src")  # where a seam's implementations are counted (test doubles are not)
+
+
+def implementations(tree):
+    """{base: [(class, path, line)]}: every class or struct of include/ and src/ that derives publicly
+    from base directly (`class X : public B`, `class X final : public ns::B<T>`, `struct X : B`)."""
+    out = {}
+    for path, text in sorted(tree.code.items()):
+        if path.split("/")[0] not in SEAM_DIRS or not path.endswith((".hpp", ".cpp", ".h")):
+            continue
+        for m in re.finditer(r"\b(class|struct)\s+(?:\[\[[^\]]*\]\]\s*)?(\w+)\s*(?:final\s*)?:(?!:)\s*([^;{]*)\{", text):
+            kind, name, bases = m.groups()
+            depth, cur, parts = 0, "", []
+            for c in bases:  # split the base list at top-level commas
+                depth += {"<": 1, ">": -1}.get(c, 0)
+                if c == "," and depth == 0:
+                    parts.append(cur)
+                    cur = ""
+                else:
+                    cur += c
+            parts.append(cur)
+            for b in parts:
+                words = b.split()
+                if not words:
+                    continue
+                access = words[0] if words[0] in ("public", "protected", "private") else None
+                if words[0] == "virtual" or (len(words) > 1 and words[1] == "virtual"):
+                    words = [w for w in words if w != "virtual"]
+                    access = words[0] if words[0] in ("public", "protected", "private") else None
+                if (access or ("public" if kind == "struct" else "private")) != "public":
+                    continue
+                base = re.sub(r"<.*", "", words[-1] if access is None else " ".join(words[1:])).split("::")[-1].strip()
+                line = text.count("\n", 0, m.start()) + 1
+                out.setdefault(base, []).append((name, path, line))
+    return out
+
+
+def seam_tables(text):
+    """{base: (line, set of names listed)} from docs/architecture.md: a paragraph that starts
+    **`Base`** followed by a table (its first column lists the classes), and the rows of a table whose
+    header says "interface" and "implementations" (`Base` first, the classes in the last column)."""
+    lines = text.split("\n")
+    seams, current, header = {}, None, None
+    for no, line in enumerate(lines, 1):
+        m = re.match(r"\*\*`(\w+)`\*\*", line)
+        if m:
+            current = m.group(1)
+            seams.setdefault(current, (no, set()))
+            header = None
+            continue
+        if line.startswith("#") or re.match(r"\*\*[^`]", line):
+            current, header = None, None
+            continue
+        if not line.startswith("|"):
+            if line.strip() == "":
+                header = None if header == "done" else header
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if header is None:
+            header = cells
+            continue
+        if set("".join(cells)) <= set("-: "):
+            continue
+        if "interface" in header[0] and "implementations" in header[-1]:
+            names = re.findall(r"`(\w+)`", cells[0])
+            if names:
+                seams.setdefault(names[0], (no, set()))[1].update(re.findall(r"`(\w+)`", cells[-1]))
+        elif current:
+            seams[current][1].update(re.findall(r"`(\w+)`", cells[0]))
+    return seams
+
+
+def plural_nouns(base):
+    last = re.findall(r"[A-Z][a-z0-9]*", base)[-1].lower() if re.search(r"[A-Z]", base) else base.lower()
+    if last.endswith(("s", "x", "ch", "sh")):
+        plural = last + "es"
+    elif last.endswith("y") and last[-2:-1] not in "aeiou":
+        plural = last[:-1] + "ies"
+    else:
+        plural = last + "s"
+    return ("implementations", plural)
+
+
+def check_seams(tree, doc_text, doc_name="docs/architecture.md"):
+    """A class that implements a seam the page lists is in the seam's table; a count the page states
+    of a seam's implementations ("its three accesses", "4 implementations") is the number of classes
+    in include/ and src/ that derive from it. A seam whose base the code does not declare (yet) is
+    not counted."""
+    problems = []
+    impl = implementations(tree)
+    seams = seam_tables(doc_text)
+    for base, (no, listed) in sorted(seams.items()):
+        for name, path, line in impl.get(base, []):
+            if name not in listed:
+                problems.append("%s:%d: `%s` (%s:%d) implements the seam `%s`, which its table does not list"
+                                % (doc_name, no, name, path, line, base))
+    # Counts: a sentence (a table row, or a paragraph's sentence) that names the seam `Base` and
+    # "N implementations" or N of the seam's own noun (three accesses, 4 links, two ports).
+    paragraphs, start, cur = [], 1, []
+    for no, line in enumerate(doc_text.split("\n") + [""], 1):
+        if line.strip() == "" or line.startswith(("|", "#")):
+            if cur:
+                paragraphs.append((start, " ".join(cur)))
+                cur = []
+            if line.startswith("|"):
+                paragraphs.append((no, line))
+            continue
+        if not cur:
+            start = no
+        cur.append(line)
+    for base in sorted(seams):
+        if not tree.type_declared(base):
+            continue
+        found = impl.get(base, [])
+        nouns = "|".join(plural_nouns(base))
+        for no, para in paragraphs:
+            for sentence in re.split(r"(?<=[.;])\s+(?=[A-Z`*])", para):
+                if "`%s`" % base not in sentence:
+                    continue
+                for m in re.finditer(r"\b(\d+|%s)\s+(?:\w+\s+)?(%s)\b" % ("|".join(NUMBER_WORDS), nouns), sentence, re.I):
+                    said = m.group(1).lower()
+                    n = int(said) if said.isdigit() else NUMBER_WORDS[said]
+                    if n != len(found):
+                        problems.append("%s:%d: says \"%s\" of the seam `%s`; include/ and src/ hold %d (%s)"
+                                        % (doc_name, no, m.group(0), base, len(found),
+                                           ", ".join(c for c, _, _ in found) or "none"))
+    return problems
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--root", required=True)
-    ap.add_argument("--doc", action="append", help="default: docs/design.md, src/README.md and docs/architecture.md")
+    ap.add_argument("--doc", action="append", help="default: the design of record (DESIGN_DOCS, docs/transports/*.md)")
     a = ap.parse_args()
     tree = Tree(a.root)
-    docs = a.doc or [os.path.join(tree.root, d) for d in ("docs/design.md", "src/README.md", "docs/architecture.md")
-                     if os.path.exists(os.path.join(tree.root, d))]
+    docs = a.doc or [os.path.join(tree.root, d) for d in DESIGN_DOCS if os.path.exists(os.path.join(tree.root, d))]
+    if not a.doc:
+        docs += sorted(glob.glob(os.path.join(tree.root, "docs", "transports", "*.md")))
     problems = []
     for doc in docs:
         with open(doc, encoding="utf-8") as f:
             text = f.read()
         name = os.path.relpath(doc, tree.root) if os.path.abspath(doc).startswith(tree.root + os.sep) else doc
         problems += ["%s:%s" % (name, p) for p in check(tree, text)]
+    arch = os.path.join(tree.root, "docs/architecture.md")
+    if (not a.doc or any(os.path.abspath(d) == arch for d in a.doc)) and os.path.exists(arch):
+        with open(arch, encoding="utf-8") as f:
+            problems += check_seams(tree, f.read())
     problems += check_comments(tree)
     for p in problems:
         print(p, file=sys.stderr)

@@ -186,7 +186,7 @@ class Info : public Command {
 
   // The coupler's image lengths contradict the layout (ADS, discovery/ads_image.hpp): the image
   // ranges info shows would not be the coupler's, so it is refused as process data is (before, it
-  // showed them with exit 0 and nothing said, issue 45). --station with the coupler's settings
+  // showed them with exit 0 and nothing said). --station with the coupler's settings
   // lays the station out right.
   static void refuse_contradicted(const StationLayout& L) {
     if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);

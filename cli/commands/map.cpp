@@ -171,7 +171,7 @@ class Map : public Command {
       const StationLayout& current = ctx.resolver().layout();
       // The coupler contradicts the layout (an ADS coupler's image lengths): its offsets are not the
       // coupler's, so the map is refused as process data is (before, it showed them with exit 0
-      // and nothing said, issue 45), unless the settings are given here; then the map's layout is
+      // and nothing said), unless the settings are given here; then the map's layout is
       // checked against the coupler's lengths itself (below).
       const bool settings_given = !coupler_.empty() || ce || mo || wa;
       if (!current.image_refused.empty() && !settings_given)
@@ -199,7 +199,7 @@ class Map : public Command {
       }
       // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
       // they give another layout than the one the coupler uses now, the map shows what is in effect
-      // and, after it, what the next start brings (issue 23 item 21).
+      // and, after it, what the next start brings.
       if (coupler_.empty() && !ce && !mo && !wa && !same_layout(L, current)) {
         next = std::move(L);
         L = current;

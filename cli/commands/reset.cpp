@@ -75,7 +75,7 @@ class Reset : public Command {
     }
     auto s = ctx.session();
     // Catalog defaults are a change of registers: saved first, as `set` does (R7 is a command that
-    // cannot be taken back, docs/design.md 6.5).
+    // cannot be taken back, docs/safety.md section 5).
     UndoSaver undo(ctx, "reset");
     s->work().save_undo_with([&undo](const SessionJournal::Change& c) { return undo(c); });
     auto results = factory_reset(*s, plan);  // R7: before and after the command, read

@@ -84,7 +84,7 @@ class Set : public Command {
     (void)register_terminal(ctx.resolver().layout(), pos, chan);
     // The guard reads the mapping registers on the command's engine, where the terminal's channel is
     // the session's own: a second session of its own on the channel would take this one's register
-    // request for a dead session's and zero the channel's bytes when it closed (issue 23 item 20).
+    // request for a dead session's and zero the channel's bytes when it closed.
     const StationLayout& L = ctx.resolver().layout();
     auto s = ctx.session();
     Verdict v = enforce_verdict(&ctx.resolver().library_engine(), L, ctx.catalog(), ctx.session_options(),

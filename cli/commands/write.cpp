@@ -64,7 +64,7 @@ class Write : public Command {
     std::uint16_t value = parse_value(value_);
     std::uint16_t mask = mask_.empty() ? 0xFFFF : parse_value(mask_);
     // Before anything is written: the layout this write gives the station at the coupler's next
-    // start must leave every terminal its register window (docs/design.md section 6).
+    // start must leave every terminal its register window (docs/safety.md).
     unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
     const TerminalType& ttype = *register_terminal(ctx.resolver().layout(), pos, chan).type;
     std::vector<PlannedWrite> planned;

@@ -388,7 +388,7 @@ toml::table parse_toml(std::string_view text, std::string_view origin) {
   try {
     return toml::parse(text, std::string(origin));
   } catch (const toml::parse_error& e) {
-    // The line is quoted only when anyone may read it anyway (docs/design.md 10): a link named
+    // The line is quoted only when anyone may read it anyway (docs/safety.md section 11): a link named
     // station.toml to /etc/shadow, given to kscfg run as root, printed a line of it.
     std::string in;
     if (std::string why = unquotable(std::string(origin)); !why.empty()) {

@@ -1,5 +1,5 @@
 // The station behind an ADS coupler, and `kscfg scan` over ADS port 100 (discovery/ads_station.hpp,
-// docs/design.md section 4.9).
+// docs/transports/ads.md).
 #include "kscfg/discovery/ads_station.hpp"
 
 #include <fmt/format.h>

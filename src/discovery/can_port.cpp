@@ -1,5 +1,5 @@
 // A CANopen coupler's port (slcan:, socketcan://; BK5120/BK515x, LC5100, ...): its register
-// communication over SDO (objects 0x4500/0x4501), the station from its table 9 (design 13). Its
+// communication over SDO (objects 0x4500/0x4501), the station from its table 9 (transports/canopen.md). Its
 // process image travels in PDOs that the bus master owns: kscfg does not move it.
 #include <fmt/format.h>
 

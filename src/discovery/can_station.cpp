@@ -1,5 +1,5 @@
 // The station behind a CANopen coupler: its table 9 through SDO 0x4500/0x4501 (discovery/can_station.hpp,
-// docs/design.md section 13).
+// docs/transports/canopen.md).
 #include "kscfg/discovery/can_station.hpp"
 
 #include <fmt/format.h>

@@ -88,7 +88,7 @@ constexpr const char* kCanDevicePage = "https://infosys.beckhoff.com/content/103
 constexpr const char* kCanIdentityPage = "https://infosys.beckhoff.com/content/1033/bk51x0/3173372171.html";
 constexpr const char* kCanTable100Page = "https://infosys.beckhoff.com/content/1033/bk51x0/3130082187.html";
 
-// A CANopen coupler: its identification objects and table 100 through 0x4500 (design 13). An object
+// A CANopen coupler: its identification objects and table 100 through 0x4500 (transports/canopen.md). An object
 // or register the coupler aborts is "not served"; a bus that does not answer is the error it is.
 CouplerSettings canopen_settings(SdoClient& sdo, unsigned timeout_ms) {
   CouplerSettings s{"canopen", {}};

@@ -21,7 +21,7 @@ class ModbusPort : public Port {
   ModbusPort(const ModbusTarget& target, const ModbusOptions& mo, OwnerLock lock, const Catalog& catalog,
              const LinkOptions& opt)
       : link_(target, mo, std::move(lock)) {
-    // Journals per coupler (docs/design.md 6.2): a BK9000 is one coupler whatever unit a request
+    // Journals per coupler (docs/safety.md section 2): a BK9000 is one coupler whatever unit a request
     // names, so over TCP the journals every unit of it wrote are this run's to finish (a kill -9 on
     // ?unit=3 left a terminal in register mode that a unit-1 run never looked at); on an RTU line
     // each unit is a coupler of its own.
@@ -69,7 +69,7 @@ class ModbusPort : public Port {
     PortScan s;
     s.result = scan_station(link_.client(), *engine_, link_, catalog, so, settings, req.progress);
     // Later commands on this port use it (the scan cache) while the coupler reports the same image
-    // lengths, each terminal's type (R8) checked once a run (docs/design.md 4.6).
+    // lengths, each terminal's type (R8) checked once a run (docs/transports/modbus.md section 6).
     discovery_->adopt(s.result);
     s.adopted = true;
     return s;

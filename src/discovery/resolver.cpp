@@ -176,7 +176,7 @@ bool StationResolver::r8_as_kept(const TerminalImage& t, std::uint16_t r8, std::
       std::rethrow_exception(error);
     } catch (const Error& e) {
       // No answer where the kept scan puts the terminal: terminals swapped for others that keep the
-      // image lengths move every window (issue 21 item 6). The station is not what was kept.
+      // image lengths move every window. The station is not what was kept.
       if (e.code() != Exit::timeout) throw;
       trace(fmt::format("terminal {} ({}) does not answer where the scan cache puts it ({}); scanning again",
                         t.position, t.type->type, e.what()));

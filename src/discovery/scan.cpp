@@ -1,5 +1,5 @@
 // Discovery of a Modbus coupler's station: identification, image lengths, then a walk over the
-// complex area reading each terminal's R8 (docs/design.md section 4).
+// complex area reading each terminal's R8 (docs/transports/modbus.md).
 #include "kscfg/discovery/scan.hpp"
 
 #include <fmt/format.h>
@@ -471,7 +471,7 @@ class ScanDiscovery : public StationDiscovery {
       if (!c) return;
       saved_wait_ = c->ack_wait;
       saved_suspect_ = c->ack_suspect;
-      // --rescan starts from nothing, latencies too (issue 21 item 4); a latency longer than the
+      // --rescan starts from nothing, latencies too; a latency longer than the
       // timeout is no estimate (a read would sleep past the timeout): learned again.
       for (auto [pos, w] : c->ack_wait) {
         if (opt_.rescan) continue;
@@ -552,7 +552,7 @@ class ScanDiscovery : public StationDiscovery {
     prime();
     // With a kept scan, the image lengths alone decide whether to take it (one request): the
     // identification names the coupler model, not its station, and each terminal a run talks to
-    // first tells its type (R8) anyway (docs/design.md 4.6). Otherwise the identification too.
+    // first tells its type (R8) anyway (docs/transports/modbus.md section 6). Otherwise the identification too.
     std::optional<ScanHead> head;
     if (!kept_ || !cache_ || opt_.rescan || forgotten_) head = read_scan_head(link_.client());
     if (cache_ && !opt_.rescan && !forgotten_) {

@@ -251,7 +251,7 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
       break;
     }
     default:
-      // A BK9050 answered ReadState with "unknown command ID" (ads-client issue 116).
+      // A BK9050 answered ReadState with "unknown command ID" (as reported to the ads-client library).
       return ams_error(kUnknownCommand, ams::command_name(h.command));
   }
   rep.what = fmt::format("port {} {} from {}: {}", h.target_port, ams::command_name(h.command),

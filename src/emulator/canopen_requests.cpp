@@ -15,7 +15,7 @@ namespace {
 
 // ---------------------------------------------------------------------------------------------
 // The register word and the procedure of a register access, in one place (Beckhoff's "Bus
-// Terminal register communication" of the BK51x0/CX8050 manuals; docs/design.md section 13):
+// Terminal register communication" of the BK51x0/CX8050 manuals; docs/transports/canopen.md):
 //   byte 3: bit 7 the access bit, bits 0..6 the channel (0x4501, 0-based) or table (0x4500)
 //   byte 2: the register; byte 1: value high; byte 0: value low (little endian in the SDO data)
 // READ: a download with the access bit clear names the register (bytes 1..0 ignored) and is

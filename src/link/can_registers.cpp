@@ -10,7 +10,7 @@
 
 namespace kscfg::canreg {
 
-// ---- The wire procedure, in one place (docs/design.md section 13; BK51x0/CX8050 manuals, "Bus ----
+// ---- The wire procedure, in one place (docs/transports/canopen.md; BK51x0/CX8050 manuals, "Bus ----
 // ---- Coupler / Bus Terminal register communication") --------------------------------------------
 namespace {
 // 0x4500 is read and written at sub-index 0 (the table is in byte 3 of the word).
@@ -30,7 +30,7 @@ bool value_available(const Word& got) { return !got.access; }
 bool echoes(const Word& got, unsigned group, unsigned reg) { return got.group == group && got.reg == reg; }
 }  // namespace
 
-// PROVISIONAL (medium confidence, design 13): sub-index N counts every terminal the coupler sees on
+// PROVISIONAL (medium confidence, transports/canopen.md): sub-index N counts every terminal the coupler sees on
 // the K-bus, digital ones too, not passive ones: the numbering of ADS port 100.
 unsigned terminal_number(const StationLayout& layout, unsigned position) {
   return adsreg::terminal_number(layout, position);
@@ -107,7 +107,7 @@ std::uint16_t run(SdoClient& sdo, unsigned timeout_ms, std::uint16_t index, std:
     throw Error(Exit::link, fmt::format("{}: not written: {} in this run", what, sdo.stopped_answering()),
                 "check the CAN wiring and the coupler's power, then run the command again");
   // An answer still owed to a request Ctrl-C cut short is waited for first: the deadline is this
-  // access's own (a rollback's read was declared timed out after one busy answer, issue 45).
+  // access's own (a rollback's read was declared timed out after one busy answer).
   sdo.settle();
   auto deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
   DefaultPacing fallback;

@@ -99,7 +99,7 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
       }
     } else if (t.inferred) {
       // The coupler (ADS, CANopen table 9) gave its bits, not its type: the file says so where it
-      // names one that fits (before, it named the stand-in as if it were known, issue 45).
+      // names one that fits (before, it named the stand-in as if it were known).
       comment =
           fmt::format("position {}: {} (the coupler gives no type): {} fits, as does {}; name the terminal's type",
                       t.position, digital_label(t), t.type->type, fits_text(t, 8));
@@ -117,7 +117,7 @@ namespace {
 
 // Why a file without positions that names fewer terminals than the station has is refused, and
 // what it lacks: each type it names that the station has once is at a known position, so say it
-// and that a file configuring only some terminals names them (position = N; docs/design.md 6.8).
+// and that a file configuring only some terminals names them (position = N; docs/safety.md section 8).
 // It is never taken as such a file: a file without positions describes the whole station.
 std::string count_hint(const StationSpec& desired, const StationLayout& layout) {
   std::string nothing = "nothing was written";
@@ -325,7 +325,7 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   CancelNote note(so.cancel, undoing);
   // The change's intent before its first write, every terminal of it in one record: a kill -9 in
   // its middle leaves it half done, and the next kscfg on the coupler rolls it back from what the
-  // terminals hold (docs/design.md 6.2). Each channel's write_masked notes none of its own.
+  // terminals hold (docs/safety.md section 2). Each channel's write_masked notes none of its own.
   const unsigned journaled = so.journal ? so.journal->begin_change(intent) : 0;
   SessionOptions each = so;
   each.change_journaled = journaled != 0;
@@ -409,7 +409,7 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   std::string msg = fmt::format("apply failed: {}", cause);
   if (!unverified.empty()) {
     // The undo command first, then one line per terminal; a reason that all share (a dead link) is
-    // said once, in the first line (issue 36 item 3: 26 registers made one line of 3,400 characters).
+    // said once, in the first line (26 registers made one line of 3,400 characters).
     std::set<std::string> whys;
     std::size_t count = 0;
     for (const auto& [w, regs] : unverified)

@@ -1,4 +1,4 @@
-// What a dead kscfg left of a change of several registers (journal "c" lines, docs/design.md 6.2):
+// What a dead kscfg left of a change of several registers (journal "c" lines, docs/safety.md section 2):
 // every register of the change read from the terminal, and the change judged whole by what it
 // holds. Every register at its old value: nothing was written (or the dead process rolled it back).
 // Every one at its new value: the change was done, and is said. Anything between: the change is

@@ -353,7 +353,7 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
 
   // Before the first write: the undo file where the command keeps one, and the change's intent in
   // the journal (a change of several registers: a kill -9 in its middle leaves it half done, and
-  // the next kscfg rolls it back from what the terminal holds, docs/design.md 6.2).
+  // the next kscfg rolls it back from what the terminal holds, docs/safety.md section 2).
   SessionJournal::Change intent;
   intent.channels.push_back({term_.position, key_.channel, term_.type->type, {}});
   for (const auto& w : change) intent.channels.back().registers.push_back({w.reg, w.before, w.after});
@@ -423,7 +423,7 @@ Task<std::vector<std::uint16_t>> Channel::write_change(const std::vector<WriteRe
   if (lock && done > 0) unlocked_ = done < writes;
   if (!lost)
     co_return std::vector<std::uint16_t>(p.values.begin() + static_cast<std::ptrdiff_t>(writes), p.values.end());
-  // An answer was lost (docs/design.md 6.3): from that request on, one at a time; a write whose
+  // An answer was lost (docs/safety.md section 3): from that request on, one at a time; a write whose
   // answer was lost is read before it is written again.
   for (std::size_t k = done; k < writes; ++k) {
     const RegisterOp& op = p.ops[k];

@@ -1,4 +1,4 @@
-// Channel::roll_back and what it says (channel.hpp; docs/design.md 6.4): roll back from what the
+// Channel::roll_back and what it says (channel.hpp; docs/safety.md section 4): roll back from what the
 // terminal holds, claim "as it was" only after reading it.
 #include <fmt/format.h>
 

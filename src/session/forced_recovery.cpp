@@ -1,4 +1,4 @@
-// Outputs a dead `kscfg data force` left forced (journal.hpp "f" lines; docs/design.md 6.2): each
+// Outputs a dead `kscfg data force` left forced (journal.hpp "f" lines; docs/safety.md section 2): each
 // checked against the station and against the byte as the coupler holds it now, then put back
 // (SessionOptions::release_forced) or named in one warning per dead process.
 #include <fmt/format.h>

@@ -177,7 +177,7 @@ void HandshakeAccess::sleep_until(Clock::time_point t) const {
 bool HandshakeAccess::watch_found(Chan& c) {
   // Another master at work (a kscfg on another computer, KS2000 on the service port) changes the
   // control byte with every request; a dead session's stays. Never taken for a leftover on first
-  // sight (issue 21 item 1): watched for as long as a live handshake can go without a step. A
+  // sight: watched for as long as a live handshake can go without a step. A
   // journal's entry (adopt_dead) says whose it is: no watch.
   if (c.dead_entry || !link_.other_masters_possible()) return true;
   // A dead kscfg's journal names this channel with that control byte (a scan walking towards a
@@ -252,10 +252,9 @@ void HandshakeAccess::save(std::vector<Chan*>& chans, std::vector<Program*>& don
       }
       c.shadow.assign(c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_lo - c.saved_at),
                       c.saved.begin() + static_cast<std::ptrdiff_t>(c.out_hi - c.saved_at + 1));
-      // A control byte in register mode is not process data: a session died here (docs/design.md
-      // section 6). Restoring it would repeat that session's request (the code word, say) after
-      // ours, so what goes back are the idle process-data bytes, or those the dead session found
-      // when its journal says so.
+      // A control byte in register mode is not process data: a session died here (docs/safety.md). Restoring it would
+      // repeat that session's request (the code word, say) after ours, so what goes back are the idle process-data
+      // bytes, or those the dead session found when its journal says so.
       if (leftover) {
         c.found.leftover = at(c.w.ctrl);
         if (c.dead_entry) {
@@ -360,7 +359,7 @@ std::vector<Program*> HandshakeAccess::advance() {
   // Channels waiting for an answer that is not due yet: their status bytes go with this exchange
   // where the link carries them at no cost. An answer there is taken at once, so terminals whose
   // answers came at different times (a coupler with random latency, a probe) meet again in one
-  // exchange instead of each polling on its own (docs/design.md section 7).
+  // exchange instead of each polling on its own (docs/engine.md section 2).
   std::vector<Chan*> peeks;
   if (link_.pipelines())
     for (auto& [k, c] : chans_) {

@@ -1,6 +1,6 @@
 // The changes of a session journal (journal.hpp "c", "C" and "e" lines): a change of several
 // registers noted before its first write, so that the next kscfg finds what a killed one left half
-// done (change_recovery.cpp, docs/design.md 6.2).
+// done (change_recovery.cpp, docs/safety.md section 2).
 #include <fmt/format.h>
 
 #include <map>

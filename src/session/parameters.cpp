@@ -252,7 +252,7 @@ CommandResult run_command(RegisterSession& s, unsigned reg, std::uint16_t value)
   r.effect = command_effect(*s.terminal().type, reg, value);
   if (r.effect)
     for (const auto& [er, v] : r.effect->expect) r.checked.push_back({er, s.read(er), v, false});
-  // A command cannot be taken back (docs/design.md 6.5): once it is sent the terminal carries it
+  // A command cannot be taken back (docs/safety.md section 5): once it is sent the terminal carries it
   // out, and a Ctrl-C then ended with "interrupted" (status 8: the terminal was restored) while it
   // was not. So a Ctrl-C before it sends nothing; one from here on lets the command and the check of
   // its effect finish (bounded by the timeout) and what is said is what happened; a second one

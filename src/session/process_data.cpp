@@ -21,7 +21,7 @@ namespace kscfg {
 
 ImageSnapshot read_image(Link& link, const StationLayout& layout) {
   // The coupler contradicts this layout (an ADS coupler's image lengths): its bytes would be
-  // decoded as what they are not, so not one is read (docs/design.md 4.9).
+  // decoded as what they are not, so not one is read (docs/transports/ads.md).
   if (!layout.image_refused.empty()) throw Error(Exit::refused, layout.image_refused, layout.image_refused_hint);
   ImageSnapshot s;
   s.in.assign(layout.in_bytes, 0);

@@ -474,7 +474,7 @@ std::string station_to_toml(const StationSpec& spec) {
       continue;
     }
     // Several channels: each configured one in its own table, named by number (order carries no
-    // identity, docs/design.md section 6).
+    // identity, docs/safety.md).
     for (std::size_t c = 0; c < t.channels.size(); ++c) {
       if (t.channels[c].empty()) continue;
       out += fmt::format("[[terminal.channel]]\nchannel = {}\n", c + 1);

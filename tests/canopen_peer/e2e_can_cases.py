@@ -86,7 +86,7 @@ def c_read_others(ctx):
 
 
 @case("write-R32", "KL6001: R32-R47 need the code word 0x1235 in R31; kscfg never leaves a terminal "
-      "unlocked (docs/design.md decision 5)")
+      "unlocked (docs/decisions.md decision 5)")
 def c_write(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0007")
     st = ctx.state()
@@ -94,7 +94,7 @@ def c_write(ctx):
     check(not ctx.unlocked(st), "left unlocked: %r" % ctx.unlocked(st))
 
 
-@case("write-unchanged-no-eeprom", "docs/design.md decision 6: a write that changes nothing is not written "
+@case("write-unchanged-no-eeprom", "docs/decisions.md decision 6: a write that changes nothing is not written "
       "(the first write of 7 is, once)")
 def c_write_same(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0007")
@@ -209,7 +209,7 @@ def c_restore(ctx):
     ctx.expect_rc(0, "diff", f)
 
 
-@case("apply-idempotent", "apply writes only what differs (docs/design.md decision 6): 19200 baud is "
+@case("apply-idempotent", "apply writes only what differs (docs/decisions.md decision 6): 19200 baud is "
       "R32 = 0x0007; a second apply writes nothing")
 def c_apply(ctx):
     want = ctx.write_station(DEFAULT_TYPES, {1: {"baud": "19200"}, 3: {"baud": "38400"}}, name="want.toml")
@@ -310,7 +310,7 @@ def c_dead_bus(ctx):
     for n in sorted({max(2, total // 4), total // 2, (3 * total) // 4}):
         rc, secs, err = dead_bus_run(ctx, n, want)
         # 3: the bus died before a change (nothing written, or each change verified and rolled back);
-        # 9: a change failed and its rollback could not be verified on a dead bus (design 6: the state
+        # 9: a change failed and its rollback could not be verified on a dead bus (safety.md: the state
         # is unknown; the journal makes the next kscfg finish it).
         check(rc in (3, 9), "--stop-after %d: exit %s (want 3 or 9): %s" % (n, rc, err.strip()[:200]))
         check(secs < 2 * 0.4 + 1.5, "--stop-after %d: gave up after %.2f s with --timeout 400" % (n, secs))

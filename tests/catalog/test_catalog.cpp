@@ -1,5 +1,5 @@
-// Catalog facts checked against the seeds (the KL6001 manual (seed KL6001, docs/design.md Sources),
-// the KL5101 manual (seed KL5101, docs/design.md Sources)): register defaults and storage classes from
+// Catalog facts checked against the seeds (the KL6001 manual (seed KL6001, docs/decisions.md Sources),
+// the KL5101 manual (seed KL5101, docs/decisions.md Sources)): register defaults and storage classes from
 // the register tables at the end of each seed, enum codes from the bit tables, parameter
 // encode/decode round trips, and the catalog description parser's error messages. The catalog as
 // a whole and its format extensions are in test_catalog_format.cpp.
@@ -59,7 +59,7 @@ TEST_CASE("KL6001 register defaults match the seed's register table", "[catalog]
       {18, 0x0080},
       {32, 0x0006},
       {33, 0x0003},
-      // R34: the seed's table says 0x0002, the register description says [0x0003]. docs/design.md
+      // R34: the seed's table says 0x0002, the register description says [0x0003]. docs/decisions.md
       // decision 8: RTS/CTS (bit 0) and the alternative format (bit 1) are active at delivery,
       // so the project uses 0x0003.
       {34, 0x0003},

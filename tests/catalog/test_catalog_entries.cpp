@@ -4,7 +4,7 @@
 //
 // Each example is described, with its source, in docs/research/mapping-examples.md (examples 1, 3b,
 // 5, 6, 7). The earlier examples (2a-2d, 3a) are in tests/station/test_map.cpp. Where a manual's table
-// disagrees with the rules of docs/design.md section 3, the comment says so and the test follows the rules.
+// disagrees with the rules of docs/protocol.md section 2, the comment says so and the test follows the rules.
 #include <algorithm>
 #include <catch2/catch.hpp>
 #include <cctype>

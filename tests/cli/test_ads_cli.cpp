@@ -114,7 +114,7 @@ TEST_CASE(
   TempDir d;
   std::string state = d.file("emu.json");
   // Every terminal register access on port 100 takes 60 s (the delay of the emulated K-bus applies
-  // to its image only; over ADS kscfg reads registers on port 100, docs/design.md 4.9).
+  // to its image only; over ADS kscfg reads registers on port 100, docs/transports/ads.md).
   Server s(state, {"--ads", "127.0.0.1:0", "--ads-register-ms", "60000"}, d.file("serve.err"));
   // kscfg reads R32 of the slow terminal on port 100: it waits for the answer. SIGINT ends it with
   // status 8.

@@ -153,7 +153,7 @@ TEST_CASE("Ctrl-C during apply over Modbus TCP rolls back", "[cancel][modbus]") 
                                kTailModbus, {false, ": write R32"});
 }
 
-// A command register is a command (docs/design.md 6.5): once the factory reset is sent the terminal
+// A command register is a command (docs/safety.md section 5): once the factory reset is sent the terminal
 // carries it out, and no rollback takes it back. A Ctrl-C right after it ended with status 8,
 // "interrupted" (which says the terminal was restored), the check of the effect cut short and the
 // terminal at its factory settings all the same (bench: 2 of 27 Ctrl-C during `reset -t 3`).

@@ -1,4 +1,4 @@
-// Changes that survive a kill -9 (docs/design.md 6.2): a change of several registers notes its intent
+// Changes that survive a kill -9 (docs/safety.md section 2): a change of several registers notes its intent
 // in the session journal before its first write, and the next kscfg on the coupler, whatever
 // terminal it works on, reads the registers and rolls a half-done change back (or says it is
 // whole, or names what each register holds and the undo command). `set` keeps an undo file as

@@ -86,7 +86,7 @@ void check_default_station(const std::vector<json>& rows, unsigned counter, cons
 }
 
 // The default station as a station file: over Modbus a scan sees digital terminals only as bit
-// totals, so the file names them (docs/design.md section 4).
+// totals, so the file names them (docs/transports/modbus.md).
 const char* kDefaultStation =
     "coupler = \"BK9000\"\n[[terminal]]\ntype = \"KL6001\"\n[[terminal]]\ntype = \"KL5101\"\n"
     "[[terminal]]\ntype = \"KL6031\"\n[[terminal]]\ntype = \"KL3022\"\n[[terminal]]\ntype = \"KL1104\"\n"

@@ -230,7 +230,7 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
 TEST_CASE("issue 36 item 12: a 3 MB name, key or value in a station file is quoted cut to a readable length",
           "[issue36][files]") {
   TempDir d;
-  ::chmod(d.path.c_str(), 0755);  // a file every user may read: its offending line is quoted (design 10)
+  ::chmod(d.path.c_str(), 0755);  // a file every user may read: its offending line is quoted (safety.md 11)
   const std::string big(3000000, 'B');
   const std::vector<std::pair<std::string, std::string>> files{
       {"coupler = \"" + big + "\"\n", "unknown coupler 'BBBB"},

@@ -1,4 +1,4 @@
-// What an error about a file's content may show (docs/design.md 10): the offending line is quoted
+// What an error about a file's content may show (docs/safety.md section 11): the offending line is quoted
 // only when whoever reads the message may read the file anyway. Run as root against a link named
 // station.toml to a file only root may read (as /etc/shadow is), a parse error printed a line of
 // it. And a --catalog that names a file says so, not that the directory "does not exist".

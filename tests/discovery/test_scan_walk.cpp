@@ -1,4 +1,4 @@
-// The scan's walk over a pipelining coupler (docs/design.md 4.5): each terminal's R8 and the
+// The scan's walk over a pipelining coupler (docs/transports/modbus.md section 5): each terminal's R8 and the
 // registers that decide its image in one session; the registers that decided the terminal before
 // it read with R8, each request sent with the poll for the one before.
 #include <fmt/format.h>

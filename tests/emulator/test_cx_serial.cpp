@@ -1,5 +1,5 @@
 // The RS232/RS485 interface of a CX embedded PC in KL6xx1 mode (catalog/CX-KL6xx1.toml), against
-// the CX KL6xx1-mode manual (seed CX KL6xx1, docs/design.md Sources): the control/status word (OL/IL bits 15..8,
+// the CX KL6xx1-mode manual (seed CX KL6xx1, docs/decisions.md Sources): the control/status word (OL/IL bits 15..8,
 // CW.3 reserved / SW.3 BUF_F, IR/IA bit 2, RA/RR bit 1, TR/TA bit 0), the 64-byte data array, and
 // the manual's example: data sent through the RS232 interface comes back through a bridge from
 // pin 2 (RxD) to pin 3 (TxD) -- the emulator's "loopback" far end.

@@ -1,4 +1,4 @@
-// The emulated KL5101 counts: every behaviour of the KL5101 manual (seed KL5101, docs/design.md Sources)
+// The emulated KL5101 counts: every behaviour of the KL5101 manual (seed KL5101, docs/decisions.md Sources)
 // ("Description of functions", R32 feature register, CONTROL and STATUS byte in process data
 // transfer, the annex's mapping tables), driven through the process image as a controller does.
 #include <catch2/catch.hpp>

@@ -1,5 +1,5 @@
 // The serial handshake (engine) and the emulated serial terminal (model), against the seeds'
-// data-transfer tables: the KL6001 manual (seed KL6001, docs/design.md Sources) ("Data transfer") and
+// data-transfer tables: the KL6001 manual (seed KL6001, docs/decisions.md Sources) ("Data transfer") and
 // KL6031-KL6041-control-and-status-word.txt ("Data transfer examples", "Initialization").
 #include <fcntl.h>
 #include <poll.h>

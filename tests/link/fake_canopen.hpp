@@ -77,7 +77,7 @@ inline CanFrame frame(std::uint32_t id, std::vector<std::uint8_t> data) {
 
 // The coupler: an SDO server for node `node` with the identification objects, 0x4500 (table 9)
 // and 0x4501 (the terminals with a number: every terminal with an image or registers, in plug
-// order), the terminals' registers those of `station`. Aborts as the emulator maps them (design 13):
+// order), the terminals' registers those of `station`. Aborts as the emulator maps them (transports/canopen.md):
 // a slot beyond the last 0x06090011, a terminal without registers or a channel it lacks 0x06020011,
 // a register beyond R63 0x06020010.
 class FakeCanopenCoupler {

@@ -1,4 +1,4 @@
-// ADS client: every wait bounded in one place (docs/design.md 4.9, "Waits over ADS"), against a
+// ADS client: every wait bounded in one place (docs/transports/ads.md, "Waits over ADS"), against a
 // coupler scripted here connection by connection: one that resets connections after their first
 // request (with or without answering it), one that stops answering (the dead-link rule), one that
 // answers again in between. Every client call runs under a watchdog that cancels it after 8 s, so

@@ -40,7 +40,7 @@ SUPPORTED_FC = (1, 2, 3, 4, 5, 6, 15, 16, 23)
 COUPLERS = {
     # name: (complete evaluation, motorola, word alignment, watchdog type default)
     # BK9000: Ethernet/Modbus TCP family -> complete evaluation on, Intel,
-    # word alignment on (docs/design.md section 3).  0x1122 default 1 = telegram
+    # word alignment on (docs/protocol.md section 2).  0x1122 default 1 = telegram
     # watchdog (BK9000 ModbusTCP interface table).
     "BK9000": (True, False, True, 1),
     "BK9050": (True, False, True, 1),

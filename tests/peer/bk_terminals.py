@@ -31,7 +31,7 @@ def kl6001_regs():
     r[33] = 0x0003          # 8N1
     # Seed register description says 0x0003, the seed table 0x0002; the
     # functional description (RTS/CTS active at delivery, alternative format
-    # at delivery) needs bits 0 and 1: 0x0003 (docs/design.md decision 8).
+    # at delivery) needs bits 0 and 1: 0x0003 (docs/decisions.md decision 8).
     r[34] = 0x0003
     r[35] = 0x0003          # 3 data bytes
     return r

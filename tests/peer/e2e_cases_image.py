@@ -12,7 +12,7 @@ from e2e_harness import DEFAULT_TYPES, case, check, no_station_ok, raw_value
 
 def compare_map(ctx, doc, st, scanned=False):
     """Compare kscfg's --json map with the peer's layout.  A scan cannot tell
-    digital terminals apart (docs/design.md section 4): then the complex terminals
+    digital terminals apart (docs/transports/modbus.md): then the complex terminals
     are compared in order and the digital area by its bit totals."""
     peer_terms = st["terminals"]
     bad = []
@@ -75,7 +75,7 @@ def compare_map(ctx, doc, st, scanned=False):
     return bad
 
 
-@case("map-online-station", "docs/design.md section 3 and the seed annex tables: complex terminals in "
+@case("map-online-station", "docs/protocol.md section 2 and the seed annex tables: complex terminals in "
       "plug order (KL6001 8 bytes with complete evaluation + word alignment, KL5101 8, KL6031 24, "
       "KL3022 2 x 4 on a BK9000; on a BK7300 KL6001 standard 4, KL5101 6, KL6031 24, KL3022 2 x 2 "
       "inputs and no outputs), then digital bits")
@@ -171,7 +171,7 @@ def c_scan_one_per_reg(ctx):
     check(raw_value(out) == 6001, "R8 = %s" % out.strip())
 
 
-@case("scan-unknown-coupler", "docs/design.md section 4: the image lengths 0x1010-0x1013 describe the image "
+@case("scan-unknown-coupler", "docs/transports/modbus.md: the image lengths 0x1010-0x1013 describe the image "
       "whatever the coupler is called; an identification that names no known coupler is reported and "
       "the scan goes on", passes=("tcp",), peer_extra=["--ident", "XY-COUPLER"])
 def c_scan_unknown(ctx):
@@ -187,7 +187,7 @@ def c_scan_unknown(ctx):
     check(raw_value(out) == 6001, "R8 = %s" % out.strip())
 
 
-@case("scan-without-watchdog-registers", "docs/design.md section 4: optional registers (the watchdog, "
+@case("scan-without-watchdog-registers", "docs/transports/modbus.md: optional registers (the watchdog, "
       "0x100A-0x100C) refused with exception 2 are unknown, never a failure", passes=("tcp",),
       peer_extra=["--no-watchdog-regs"])
 def c_scan_no_wd(ctx):
@@ -198,7 +198,7 @@ def c_scan_no_wd(ctx):
     check("unknown" in out, "plain scan does not say the watchdog is unknown")
 
 
-@case("image-lengths-change-rescans", "the coupler builds its image at power-on (docs/design.md section 3): "
+@case("image-lengths-change-rescans", "the coupler builds its image at power-on (docs/protocol.md section 2): "
       "after a mapping change and a restart (SIGHUP) the image lengths differ, and a command must "
       "follow the new layout (seed KL6001 annex: standard format, value in bytes 1-2), never "
       "read through the old one", passes=("tcp",))
@@ -225,7 +225,7 @@ def c_rescan(ctx):
 
 
 @case("cache-terminal-removed", "the image lengths 0x1010-0x1013 change when a terminal is removed "
-      "(docs/design.md section 3: complex terminals in plug order); kscfg keeps a scan between runs and must "
+      "(docs/protocol.md section 2: complex terminals in plug order); kscfg keeps a scan between runs and must "
       "notice: with the KL6031 gone, terminal 3 is the KL3022 (R8 = 3022, seed example)", passes=("tcp",))
 def c_cache_removed(ctx):
     out, _ = ctx.expect_rc(0, "-t", "4", "read", "--raw", "R8")

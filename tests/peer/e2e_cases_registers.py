@@ -12,7 +12,7 @@ R8 = {1: 6001, 2: 5101, 3: 6031, 4: 3022}
 @case("info", "R8 is the terminal type (seed KL6001 R8 = 6001, seed KL5101 R8 = 5101, "
       "KL6031 manual R8 = 0x178F, seed example 0x0BCE = 3022); the coupler serves "
       "0x1000-0x1006 and 0x1010-0x1013 as separate blocks (BK9000/BK7300 register map, "
-      "docs/design.md section 4)")
+      "docs/transports/modbus.md)")
 def c_info_(ctx):
     c_info(ctx)
 
@@ -91,7 +91,7 @@ def c_read_r32(ctx):
 
 
 @case("read-range-station", "seed KL6001 table: R32-R35 = 0x0006 0x0003 0x0003* 0x0003 "
-      "(*R34: docs/design.md decision 8; this peer's value is read from its own state)")
+      "(*R34: docs/decisions.md decision 8; this peer's value is read from its own state)")
 def c_read_range(ctx):
     out, _ = ctx.expect_rc(0, "read", "--raw", "R32-R35", station=True)
     vals = [int(x, 16) for x in out.split()]
@@ -102,7 +102,7 @@ def c_read_range(ctx):
 
 @case("read-other-terminals", "KL5101 R8 = 5101 (seed), KL6031 R8 = 0x178F (KL6031 manual), "
       "KL3022 channel 2 R8 = 3022 (seed example); without complete evaluation (BK7300) "
-      "an analog terminal has no control/status byte (docs/design.md section 3) and must be "
+      "an analog terminal has no control/status byte (docs/protocol.md section 2) and must be "
       "refused with status 5")
 def c_read_others(ctx):
     for pos, want in ((2, 5101), (3, 6031)):
@@ -124,14 +124,14 @@ def c_read_r9(ctx):
 
 
 @case("write-R32", "seed KL6001: R32-R47 are write-protected by the code word 0x1235 in R31; "
-      "a session never leaves the terminal unlocked (docs/design.md decision 5)")
+      "a session never leaves the terminal unlocked (docs/decisions.md decision 5)")
 def c_write_r32(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0007", station=True)
     check(ctx.reg(1, 32) == 7, "peer R32 = 0x%04X" % ctx.reg(1, 32))
     check(not ctx.unlocked(1), "R31 left at 0x1235 (terminal unlocked)")
 
 
-@case("write-unchanged-no-eeprom", "docs/design.md decision 6: compare before writing a SEEROM "
+@case("write-unchanged-no-eeprom", "docs/decisions.md decision 6: compare before writing a SEEROM "
       "register; skip writes that change nothing")
 def c_write_same(ctx):
     ctx.expect_rc(0, "write", "R32", "0x0006", station=True)

@@ -14,7 +14,7 @@ INIT_TYPES = ["KL6001", "KL1104", "KL5101", "KL9100", "KL3022", "KL2134", "KL901
 @case("fleet-apply-station-init", "the guide's fleet example (docs/guide.md, Fleets): "
       "'kscfg --port tcp://HOST --json apply line3.toml' on a file written by 'kscfg station init', "
       "without --station. A scan sees the complex terminals by R8 in plug order and the digital ones as bit totals "
-      "(docs/design.md section 4): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
+      "(docs/transports/modbus.md): KL1104 4 inputs + KL2134 4 outputs = 0x1012/0x1013 = 4/4",
       passes=("tcp",), types={"tcp": INIT_TYPES})
 def c_fleet(ctx):
     f = ctx.path("line3.toml")
@@ -33,7 +33,7 @@ def c_fleet(ctx):
 
 
 @case("apply-digital-bits-differ-refused", "a scan sees digital terminals only as bit totals "
-      "(docs/design.md section 4): a file whose digital terminals add up to 8 input bits on a coupler "
+      "(docs/transports/modbus.md): a file whose digital terminals add up to 8 input bits on a coupler "
       "reporting 4 (0x1013) must be refused, naming the difference, before anything is written",
       passes=("tcp",))
 def c_digital_refused(ctx):
@@ -89,7 +89,7 @@ def c_backup_restore(ctx):
     check(not ctx.unlocked(1), "terminal left unlocked")
 
 
-@case("apply-idempotent", "apply writes only what differs (docs/design.md decision 6): 19200 baud is "
+@case("apply-idempotent", "apply writes only what differs (docs/decisions.md decision 6): 19200 baud is "
       "R32 = 0x0007 (seed); a second apply writes nothing")
 def c_apply(ctx):
     want = ctx.write_station(ctx.cfg["coupler"], DEFAULT_TYPES,
@@ -159,7 +159,7 @@ def c_read_ext(ctx):
     ctx.expect_rc(5, "read", "R50", station=True)
 
 
-@case("process-data-restored", "docs/design.md decision 5: the process-data control byte found at the "
+@case("process-data-restored", "docs/decisions.md decision 5: the process-data control byte found at the "
       "start is restored at the end; the coupler's output image is as before")
 def c_restored(ctx):
     before = ctx.state()["out_image"]
@@ -169,7 +169,7 @@ def c_restored(ctx):
     check(after == before, "output image %s -> %s" % (before[:48], after[:48]))
 
 
-@case("watchdog-untouched", "docs/design.md section 4: the tool must not silently change watchdog "
+@case("watchdog-untouched", "docs/transports/modbus.md: the tool must not silently change watchdog "
       "settings (0x1120 preset 1000 ms, 0x1122 type)")
 def c_watchdog(ctx):
     st0 = ctx.state()["watchdog"]
@@ -190,7 +190,7 @@ def c_bk7300_alt(ctx):
     check(raw_value(out) == 5101, "KL5101 R8 = %s" % out.strip())
 
 
-@case("neighbour-byte-kept", "docs/design.md section 4: writing one byte of a shared word must not "
+@case("neighbour-byte-kept", "docs/transports/modbus.md: writing one byte of a shared word must not "
       "clobber the neighbour byte. BK7300 without word alignment: KL6001 standard format with "
       "2 data bytes takes bytes 0-2, the KL5101's CT/ST is byte 3, in the same Modbus register "
       "as the KL6001's D1", passes=("tcp",),

@@ -59,7 +59,7 @@ def finish_and_check(ctx, station, says):
     check(ctx.reg(1, 32) == 7, "R32 = %s, want 7" % ctx.reg(1, 32))
 
 
-@case("crash-leftover-register-mode", "docs/design.md section 6: a control byte with REG set found at the start of a "
+@case("crash-leftover-register-mode", "docs/safety.md: a control byte with REG set found at the start of a "
       "session belongs to a session that died (here one of a kscfg on another computer, whose journal is not here): finish it (relock, control byte back to process-data mode), say "
       "so, never restore REG; seed: R31 reads 0 when locked", peer_extra=["--watchdog-ms", "0"])
 def c_crash_reg(ctx):
@@ -68,7 +68,7 @@ def c_crash_reg(ctx):
     finish_and_check(ctx, ctx.station, "was in register mode (control byte 0xDF)")
 
 
-@case("crash-leftover-other-terminal", "docs/design.md section 6: a kscfg that dies in register mode on one terminal "
+@case("crash-leftover-other-terminal", "docs/safety.md: a kscfg that dies in register mode on one terminal "
       "is finished by the next kscfg on the port, whichever terminal that one works on (the dead process's "
       "journal names it); the next session on it finds nothing left", peer_extra=["--watchdog-ms", "0"])
 def c_crash_other(ctx):
@@ -113,7 +113,7 @@ def power_cycle(ctx):
 
 
 @case("lockout-alternative-format-without-complete-evaluation", "seed KL6001 annex: in the alternative format "
-      "without complete evaluation only Ser-CT/ST and D0-D2 are mapped, no CT/ST; docs/design.md section 6: refuse "
+      "without complete evaluation only Ser-CT/ST and D0-D2 are mapped, no CT/ST; docs/safety.md: refuse "
       "without --force; mapping registers take effect at the coupler's power-on", passes=("rtu",))
 def c_lock_alt(ctx):
     rc, _, err = ctx.kscfg("-t", "1", "set", "alternative-format", "on", station=ctx.station)

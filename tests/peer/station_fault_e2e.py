@@ -1,6 +1,6 @@
 #!/usr/bin/python3
-"""A fault on one terminal during a 12-terminal apply rolls all of them back (issue 22; docs/design.md
-sections 6.4 and 7.3): `kscfg apply` of the baud rate on 12 KL6001 at once, with terminal K
+"""A fault on one terminal during a 12-terminal apply rolls all of them back (issue 22; docs/safety.md
+section 4 and docs/engine.md section 2.3): `kscfg apply` of the baud rate on 12 KL6001 at once, with terminal K
 misbehaving on R32 (the baud rate):
 
   * serve, ignore-write: K acknowledges the write and keeps the old value (read-back mismatch);

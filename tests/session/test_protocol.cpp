@@ -1,5 +1,5 @@
 // Register protocol: control byte codec, the seeds' worked examples as golden vectors, and the
-// session's handshake rules (docs/design.md section 2) against scripted terminals.
+// session's handshake rules (docs/protocol.md section 1) against scripted terminals.
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <csignal>

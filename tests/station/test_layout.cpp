@@ -1,6 +1,6 @@
 // Process-image layout against the annex tables of the seeds (the KL6001 and KL5101 manuals,
-// seeds in docs/design.md Sources) and the rules of docs/design.md
-// section 3.
+// seeds in docs/decisions.md Sources) and the rules of docs/protocol.md
+// section 2.
 //
 // Reading the annex tables: "I/O Offset N" is a 16-bit word offset, so the "Low Byte" cell of row
 // N is image byte 2N and the "High Byte" cell is byte 2N+1. An empty cell inside the channel's range
@@ -206,7 +206,7 @@ TEST_CASE("KL6001 alternative format: register window with complete evaluation",
       CHECK(ch.window->out_hi == offset_of(ch.out, "D0"));
       CHECK(ch.window->in_lo == offset_of(ch.in, "Ser-CT/ST"));
       CHECK(ch.window->in_hi == offset_of(ch.in, "D0"));
-      // Intel: low byte at the lower address; Motorola: high byte first (docs/design.md decision 3).
+      // Intel: low byte at the lower address; Motorola: high byte first (docs/decisions.md decision 3).
       if (mo) CHECK(ch.window->out_hi < ch.window->out_lo);
       else CHECK(ch.window->out_lo < ch.window->out_hi);
     }
@@ -329,7 +329,7 @@ TEST_CASE("KL3022 with complete evaluation and word alignment (BK2000 example)",
 }
 
 // ---------------------------------------------------------------------------------------------
-// Station level (docs/design.md section 3)
+// Station level (docs/protocol.md section 2)
 // ---------------------------------------------------------------------------------------------
 
 namespace {

@@ -1,7 +1,7 @@
 // Process-image maps of mixed stations for several coupler families, the map views (annex table,
 // station table, grid, JSON), coupler limits and station-file errors.
 //
-// Offsets are worked out from docs/design.md section 3 and from the public mapping examples collected in
+// Offsets are worked out from docs/protocol.md section 2 and from the public mapping examples collected in
 // docs/research/mapping-examples.md (each test cites its source). Where a manual's table disagrees
 // with the rules, the comment says so and the test follows the rules.
 #include <catch2/catch.hpp>

@@ -1,4 +1,4 @@
-// Station files keep channel identity (issue 10 item 3, docs/design.md section 6) and round-trip
+// Station files keep channel identity (issue 10 item 3, docs/safety.md) and round-trip
 // whatever station_to_toml writes (issue 11: names written into TOML are escaped).
 #include <catch2/catch.hpp>
 

@@ -1,5 +1,5 @@
-// Cancellation (docs/design.md 6.9 and 7.3): one CancelToken, made by the CLI and signalled from its
-// SIGINT/SIGTERM/SIGHUP handler, is passed explicitly to every wait (link clients, accesses, the
+// Cancellation (docs/safety.md section 9 and docs/engine.md section 2.3): one CancelToken, made by the CLI and
+// signalled from its SIGINT/SIGTERM/SIGHUP handler, is passed explicitly to every wait (link clients, accesses, the
 // engine, serial and process-data loops, lock waits). The library holds no global flag.
 //
 // A token counts the signals it got and keeps the first one (commands that end differently on
@@ -115,8 +115,8 @@ class CancelNote {
 std::string cancel_note_text(std::string_view what);
 
 // Every sleep of kscfg goes through these: they wake at least every kInterruptSlice to look at
-// `cancel` (null: never cancelled), so a signal ends any wait within that (issue 21 item 4: within
-// 100 ms). They return false when `cancel->cancelled()` (before or during the sleep), true when the
+// `cancel` (null: never cancelled), so a signal ends any wait within that
+// (within 100 ms). They return false when `cancel->cancelled()` (before or during the sleep), true when the
 // time passed.
 constexpr std::chrono::milliseconds kInterruptSlice{5};
 bool sleep_until_or_cancelled(std::chrono::steady_clock::time_point due, const CancelToken* cancel);

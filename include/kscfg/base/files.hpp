@@ -66,7 +66,7 @@ RegularFile read_regular_file(const std::string& path, std::string_view what, st
 int lock_file(const std::string& path, double timeout_s, const CancelToken* cancel);
 
 // Why the content of the file at `origin` must not be quoted in an error ("" when it may): kscfg
-// quotes a file only when whoever reads the message may read it anyway (docs/design.md 10): a file
+// quotes a file only when whoever reads the message may read it anyway (docs/safety.md section 11): a file
 // of the user kscfg runs as, when that is not root; a file every user may read (mode o+r, every
 // directory on its real path o+x); a text that is no file (standard input, a built-in catalog
 // file: no file of that name). Otherwise an error names the place (line and column) only, and why.

@@ -1,5 +1,5 @@
 // What an ADS coupler says of its own process image, and the layout checked against it
-// (docs/design.md 4.9, "A layout the coupler confirms").
+// (docs/transports/ads.md, "A layout the coupler confirms").
 //
 // Over ADS the BK9000 family documents no register that holds the K-bus settings (complete
 // evaluation, word alignment, Motorola format) or the image sizes: port 300 takes index offsets
@@ -31,7 +31,7 @@ struct CouplerImage {
 };
 
 // Where a coupler's Modbus TCP side did not answer (its port dropped by a firewall, say), each
-// command that needs the layout waited the whole bound (1 s) for it (issue 45). The first that does
+// command that needs the layout waited the whole bound (1 s) for it. The first that does
 // keeps the time in a memo ($XDG_CACHE_HOME/kscfg/scans/KEY.modbus-silent, KEY station_key()); the
 // commands of the next kSilentMemoSeconds do not ask, and say the layout is unconfirmed because of
 // it (-v). `kscfg scan` and --rescan ask all the same; an answer removes the memo.

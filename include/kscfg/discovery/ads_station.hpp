@@ -17,7 +17,7 @@
 
 namespace kscfg {
 
-// The station and `kscfg scan` over ADS (docs/design.md section 4.9): what a Modbus scan reports,
+// The station and `kscfg scan` over ADS (docs/transports/ads.md): what a Modbus scan reports,
 // from port 100.
 // The identification is ReadDeviceInfo's name and version; the terminals are table 9's (every
 // numbered terminal; a digital one as an inferred catalog type of its bits, TerminalSpec::inferred),

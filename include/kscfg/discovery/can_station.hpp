@@ -1,4 +1,4 @@
-// The station behind a CANopen coupler (docs/design.md section 13), from what it reports over SDO:
+// The station behind a CANopen coupler (docs/transports/canopen.md), from what it reports over SDO:
 // its identification (0x1000 device type, 0x1018 identity, 0x1008 name, 0x1009/0x100A versions) and
 // its coupler table 9 through object 0x4500 (every terminal it found at power-on: complex ones by
 // type number, digital ones by bit count and direction, as over ADS port 100), laid out with the

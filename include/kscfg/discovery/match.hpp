@@ -1,4 +1,4 @@
-// Station descriptions against what a Modbus coupler reports (docs/design.md section 4): a scan sees
+// Station descriptions against what a Modbus coupler reports (docs/transports/modbus.md): a scan sees
 // the complex terminals by R8 and position, and the digital terminals only as bit totals.
 #pragma once
 #include <array>

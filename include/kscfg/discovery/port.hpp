@@ -103,7 +103,7 @@ class Port {
   // where kscfg does not move it (a CANopen coupler's image travels in its master's PDOs).
   virtual Link& image() = 0;
   // Every register operation on the port runs on this one access and its engine: a channel's bytes
-  // are saved and put back once however many users it has (docs/design.md 1.2).
+  // are saved and put back once however many users it has (docs/engine.md section 1.2).
   RegisterAccess& access() { return *access_; }
   Engine& engine() { return *engine_; }
   // How the station behind the port is found: a Modbus scan, a coupler's table 9, the emulated
@@ -185,7 +185,7 @@ std::optional<std::string> emulator_state_path(const std::string& uri);
 // (coupler_key(), link/coupler_key.hpp): every name of its address, Modbus TCP (port 502, every
 // unit) and ADS (port 48898) to one coupler, a serial device and every link to it take one lock,
 // a CANopen node takes one per CAN interface and node id (every node behind one slcan adapter takes
-// the adapter's one: lock_key()), and two kscfg processes on one coupler take turns (docs/design.md 6.9).
+// the adapter's one: lock_key()), and two kscfg processes on one coupler take turns (docs/safety.md section 9).
 // Error(Exit::link) when the host does not resolve.
 std::string coupler_lock_path(const ModbusTarget& target);
 std::string coupler_lock_path(const AdsTarget& target);

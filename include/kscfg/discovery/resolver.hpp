@@ -50,7 +50,7 @@ class StationResolver {
   // read_channels, the verdict, map_online, scan_station, a RegisterSession of the caller's): the
   // session kept from checking the selected terminal's R8 (check_selected()), in register mode
   // until it closes, is closed here first; another session on that terminal would take this run's
-  // own request for a dead session's leftover (issue 23 item 5). The sessions the resolver opens
+  // own request for a dead session's leftover. The sessions the resolver opens
   // itself close it where they need to.
   Engine& library_engine() {
     close_kept_session();
@@ -78,7 +78,7 @@ class StationResolver {
   void forget_layout();
   // The station with the positions of a station file that will be compared with it (diff, apply,
   // restore): over a scanned Modbus coupler, the file's complex terminals are matched by type and
-  // order and its digital terminals by bit totals (docs/design.md section 4); otherwise layout().
+  // order and its digital terminals by bit totals (docs/transports/modbus.md); otherwise layout().
   const StationLayout& layout_for(const StationSpec& file);
   // The terminal at `position` that a command selected: a terminal of a layout kept from an earlier
   // run tells its type (R8) first, and the session that read it on `channel` is kept for

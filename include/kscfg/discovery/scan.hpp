@@ -1,4 +1,4 @@
-// Discovery of the station behind a Modbus coupler (docs/design.md section 4).
+// Discovery of the station behind a Modbus coupler (docs/transports/modbus.md).
 #pragma once
 #include <array>
 #include <functional>
@@ -73,7 +73,7 @@ struct DiscoveryOptions {
 
 // Discovers the station behind `link` with a scan on first use of layout(), only as far as the
 // command needs. With a cache directory, an earlier run's scan is used when the coupler reports
-// the same image lengths (one request; docs/design.md 4.6), and a scan is kept there, with the
+// the same image lengths (one request; docs/transports/modbus.md section 6), and a scan is kept there, with the
 // terminals' acknowledge latencies, for the next run: the latencies kept are given to the link
 // here, before its first session. Its sessions run on the port's `engine` (open_port_uri).
 // Refers to `link` and `engine`: destroy it first.

@@ -33,8 +33,8 @@ class ScanCache {
   ScanCache(std::string dir, const ModbusTarget& target);
   const std::string& path() const { return path_; }
   // The entry, if there is a readable one of this format whose terminal types the catalog knows;
-  // nullopt otherwise (never throws: a broken cache is no cache). Read like any other input
-  // (issue 21 item 5): only a regular file (looked at before it is opened, so a FIFO cannot block
+  // nullopt otherwise (never throws: a broken cache is no cache). Read like any other input:
+  // only a regular file (looked at before it is opened, so a FIFO cannot block
   // the open), at most kMaxBytes; anything else is ignored, and `note` (-v) says why.
   static constexpr std::size_t kMaxBytes = 1u << 20;  // a cache entry is a few KiB
   std::optional<CachedScan> load(const Catalog& catalog,

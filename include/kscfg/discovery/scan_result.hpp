@@ -12,7 +12,7 @@
 
 namespace kscfg {
 
-// What a scan of a Modbus coupler found (docs/design.md section 4). A scan may stop after the terminals
+// What a scan of a Modbus coupler found (docs/transports/modbus.md). A scan may stop after the terminals
 // a command needs and go on later (`complete` says whether it covered the whole complex area).
 struct ScanResult {
   std::string ident;           // identification registers, decoded ("" when the coupler refuses them)

@@ -1,5 +1,5 @@
 // How the station behind a port is found (Modbus: a scan; ADS: the coupler's table 9; the emulator:
-// its emulated station). Owned above the link (docs/design.md section 1): a Link only moves bytes,
+// its emulated station). Owned above the link (docs/engine.md section 1): a Link only moves bytes,
 // and discovery, which opens register sessions on that link, runs beside it, never inside it.
 #pragma once
 

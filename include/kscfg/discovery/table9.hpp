@@ -1,4 +1,4 @@
-// The station behind a coupler that lists its terminals in its table 9 (docs/design.md sections 4.9
+// The station behind a coupler that lists its terminals in its table 9 (docs/transports/ads.md
 // and 13): an ADS coupler on port 100 (discovery/ads_station.hpp) and a CANopen coupler through
 // objects 0x4500/0x4501 (discovery/can_station.hpp). One scan, scan_table9, over a per-transport
 // Table9Reader: table 9 lists every terminal the coupler found at power-on (complex ones by type

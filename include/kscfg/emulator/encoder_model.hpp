@@ -1,5 +1,5 @@
 // The emulated KL5101 incremental encoder interface in process-data mode (REG = 0), and the encoder
-// on its far end. Behaviour from the KL5101 manual (seed KL5101, docs/design.md Sources):
+// on its far end. Behaviour from the KL5101 manual (seed KL5101, docs/decisions.md Sources):
 //  * a 16-bit up/down counter fed by A/B in 1-, 2- or 4-fold evaluation (R32 bits 10/11), or in
 //    counter mode (R32 bit 15) by pulses on A with the direction on B;
 //  * the gate input (24 V): a high level suppresses counting;

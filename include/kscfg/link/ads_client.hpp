@@ -92,7 +92,7 @@ class AdsClient {
   // Error(Exit::link) naming the cause; cancellation (AdsOptions::cancel) throws Error(Exit::interrupted) within
   // 50 ms. An ADS result other than 0 is returned in Reply::result: what it means depends on the call.
   //
-  // Every wait is bounded in this one place (docs/design.md 4.9, "Waits over ADS"): a call has its
+  // Every wait is bounded in this one place (docs/transports/ads.md, "Waits over ADS"): a call has its
   // timeout from when it first went out, sent again or not. A connection that goes away with calls
   // outstanding: the repeatable ones go out again on a fresh connection within that deadline, the
   // others fail (their outcome is unknown); a call past its deadline is given up, never sent again,

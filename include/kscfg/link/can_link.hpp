@@ -2,7 +2,7 @@
 // through a CAN bus (slcan or SocketCAN, link/can_frame.hpp): the coupler's SDO connection, on
 // which register communication runs (link/can_registers.hpp, under the register-access seam). It
 // is no Link: the process image of a CANopen coupler travels in PDOs that the bus's master (the
-// PLC) owns, and kscfg sends no PDOs (design 13).
+// PLC) owns, and kscfg sends no PDOs (transports/canopen.md).
 #pragma once
 #include <memory>
 #include <string>

@@ -1,6 +1,6 @@
-// Bus Terminal register communication over CANopen SDO (issue 37; BK51x0, LC5100, BC5150, CX8050
-// "Bus Terminal register communication", sources and the open questions settled in docs/design.md
-// section 13): all registers that KS2000 configures are reached through two objects,
+// Bus Terminal register communication over CANopen SDO (BK51x0, LC5100, BC5150, CX8050
+// "Bus Terminal register communication", sources and the open questions settled in docs/transports/canopen.md): all
+// registers that KS2000 configures are reached through two objects,
 //   0x4500           the coupler's own register tables
 //   0x4501 sub N     the registers of Bus Terminal N (sub-index 0: the number of terminals)
 // whose 32-bit value (little endian in the SDO data) is
@@ -41,7 +41,7 @@ std::uint32_t encode(const Word& w);
 Word decode(std::uint32_t v);
 
 // The 0x4501 sub-index of the terminal at plug position `position` (1-based) in `layout`; 0 when it
-// has none. PROVISIONAL (design 13): every terminal the coupler sees on the K-bus counts, digital
+// has none. PROVISIONAL (transports/canopen.md): every terminal the coupler sees on the K-bus counts, digital
 // ones too, passive ones (KL9010, KL9100) not: the numbering of ADS port 100 (adsreg::numbered).
 // Error(usage) for a position outside the station.
 unsigned terminal_number(const StationLayout& layout, unsigned position);

@@ -1,5 +1,5 @@
-// A coupler's identity on this computer, whatever name it was reached by (issue 32 item 1,
-// docs/design.md 6.9): the one key behind its lock file, its session journals and its scan cache.
+// A coupler's identity on this computer, whatever name it was reached by
+// (docs/safety.md section 9): the one key behind its lock file, its session journals and its scan cache.
 //
 // Hosts are keyed by their numeric address (getaddrinfo): `localhost`, `127.0.0.1` and any other
 // name of one address are one key. A name with several addresses is keyed by the lowest IPv4
@@ -93,7 +93,7 @@ class CouplerAlias {
 // per unit, decision 24): "ip-10.0.3.11-unit1", "rtu-_dev_ttyUSB0-unit3".
 std::string station_key(const ModbusTarget& target);
 // The session journals of direct register access over ADS (their entries are of another kind than
-// a Modbus session's, docs/design.md 6.2): "ip-10.0.3.11-ads".
+// a Modbus session's, docs/safety.md section 2): "ip-10.0.3.11-ads".
 std::string station_key(const AdsTarget& target);
 // A CANopen node is one station and reached one way (SDO): its coupler key, "can-can0-n3".
 std::string station_key(const CanTarget& target);

@@ -70,7 +70,7 @@ class Link {
   // A link proven dead (Modbus: two requests in a row got no answer): every later request fails
   // before anything goes out. The session journal notes no control byte then, since none reaches a
   // terminal: noted, the bytes of a rollback tried against it pushed the one the terminal holds out
-  // of the last ones a journal keeps (docs/design.md 6.2).
+  // of the last ones a journal keeps (docs/safety.md section 2).
   virtual bool proven_dead() const { return false; }
 
   // A poll of the input image costs a network round trip rather than line time (Modbus TCP): the

@@ -27,7 +27,7 @@ constexpr Control decode(std::uint8_t b) {
   return {(b & kReg) != 0, (b & kWrite) != 0, static_cast<unsigned>(b & kAddrMask)};
 }
 
-// docs/design.md decision 1: the ack is REG=1 and the same address; bit 6 may be set (the text:
+// docs/decisions.md decision 1: the ack is REG=1 and the same address; bit 6 may be set (the text:
 // status == control) or clear (the worked example answers 0xDF with 0x9F). Accept both.
 constexpr bool is_ack(std::uint8_t status, unsigned addr) {
   return (status & kReg) != 0 && (status & kAddrMask) == (addr & kAddrMask);

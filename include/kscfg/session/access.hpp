@@ -48,7 +48,7 @@ struct RegisterOp {
   std::uint16_t value = 0;  // what a write writes
   // A write that may be done twice (it stores a value: never a command register). On a link that
   // pipelines, the next request may then go out with the poll for its answer; if that came too
-  // early, the write is asked again (docs/design.md 7.2).
+  // early, the write is asked again (docs/engine.md section 2.2).
   bool repeatable = false;
 };
 

@@ -1,4 +1,4 @@
-// AdsAccess: direct register access over ADS port 100 (docs/design.md section 7), the second
+// AdsAccess: direct register access over ADS port 100 (docs/engine.md section 2), the second
 // implementation of the register-access seam (access.hpp). The coupler reads and writes a
 // terminal's registers itself: no handshake, no byte of the process image touched, so nothing is
 // saved or put back, and a PLC that owns the image is never disturbed. The session journal notes

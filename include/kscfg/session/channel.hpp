@@ -1,6 +1,6 @@
 // The safety rules of register communication with one terminal channel, written once above the
-// register-access seam (access.hpp) and run by the station engine (engine.hpp): docs/design.md
-// sections 2 and 6.
+// register-access seam (access.hpp) and run by the station engine (engine.hpp): docs/protocol.md
+// section 1 and docs/safety.md.
 //
 // - Protected registers (R16..R30, R32..R47, and those the catalog marks) are written between the
 //   code word (R31 = 0x1235) and the relock (R31 = 0), and the relock is verified (R31 reads 0).
@@ -108,7 +108,7 @@ struct WriteResult {
   bool changed = false;
 };
 
-// What a rollback found by reading the terminal (docs/design.md section 6: roll back from what the
+// What a rollback found by reading the terminal (docs/safety.md: roll back from what the
 // terminal holds, claim "as it was" only after reading it).
 struct RollbackResult {
   std::vector<std::pair<unsigned, std::uint16_t>> verified;  // registers read back with their old value
@@ -193,7 +193,7 @@ class Channel {
 
   // While one lives, this channel's work runs as clean-up does: a first signal lets it go on, a
   // second ends it. For work that cannot be taken back once begun (a command sent, and the check of
-  // its effect: docs/design.md 6.5).
+  // its effect: docs/safety.md section 5).
   class Shield {
    public:
     explicit Shield(Channel& c) : c_(c) { ++c_.shield_; }

@@ -1,4 +1,4 @@
-// HandshakeAccess: register access through the coupler's process image (docs/design.md section 2
+// HandshakeAccess: register access through the coupler's process image (docs/protocol.md section 1
 // and "Station engine"), the first implementation of the register-access seam (access.hpp).
 //
 // A terminal channel in register mode is driven through its control byte (REG, W/NR, address)
@@ -9,7 +9,7 @@
 // whose answer is due, in one Link::transfer (one Modbus FC23; one K-bus cycle on the emulator).
 // Each channel advances on its own acknowledge, with its own timeout.
 //
-// Per channel it keeps the rules of the handshake (docs/design.md section 2):
+// Per channel it keeps the rules of the handshake (docs/protocol.md section 1):
 // - decision 1: an acknowledge is REG and the same address, bit 6 either way;
 // - decision 2: a status that already acknowledges the register asked for cannot be told from a new
 //   answer: another register (R8 or R9) is asked first, so the acknowledge waited for is a change;
@@ -151,7 +151,7 @@ class HandshakeAccess final : public RegisterAccess {
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
   // After requests went out in the exchange at `sent`, the first polls still waiting go out
-  // together, at the latest of their due times within reach (docs/design.md section 7.2).
+  // together, at the latest of their due times within reach (docs/engine.md section 2.2).
   void align_first_polls(Clock::time_point sent);
   // Modbus TCP: a probe's misses are followed by polls at the link's pace, and a wait kept from an
   // earlier run is checked once per run (ack_latency.hpp); RTU and ADS keep their plan.

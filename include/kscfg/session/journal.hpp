@@ -1,5 +1,5 @@
 // Which terminals a kscfg process has in register mode, kept where the next kscfg on the same port
-// finds them (docs/design.md section 6, issue 11 item 3, issue 21 items 2 and 3).
+// finds them (docs/safety.md).
 //
 // A session that dies (kill -9, a crash) leaves its terminal in register mode. The next session on
 // that terminal sees REG in the control byte and finishes it; but a command on another terminal
@@ -38,7 +38,7 @@
 //                                                 its new value, or rolled back and verified
 // An entry is left ("-", "r") only once what was put back is known to be there: the exchange that
 // carried it was answered. A dead link, a timeout or a relock that failed keeps it open, and a
-// journal with an open entry outlives its process (docs/design.md 6.2).
+// journal with an open entry outlives its process (docs/safety.md section 2).
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -122,7 +122,7 @@ class SessionJournal {
 
   // Journals for one port live in `dir` as KEY.PID-TIME.sessions. Nothing is written before enter().
   // `siblings`: the journals of every KEY' = SIBLINGS + digits are this coupler's too (the Modbus
-  // units of one BK9000, docs/design.md 6.2), claimed with Dead::other_unit.
+  // units of one BK9000, docs/safety.md section 2), claimed with Dead::other_unit.
   void open(std::string dir, std::string key, std::string siblings = {});
   bool enabled() const { return !prefix_.empty(); }
 

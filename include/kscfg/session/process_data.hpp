@@ -95,7 +95,7 @@ void apply_force(Link& link, const ForcePlan& p);
 // Writes the bits back as they were before the force (other bits as they are now), verified.
 void restore_force(Link& link, const ForcePlan& p);
 // Notes each byte of `p` in the session journal before it is forced ("f": a kill -9 leaves them
-// for the next kscfg on the port, docs/design.md 6.2), and that it is back once restore_force()
+// for the next kscfg on the port, docs/safety.md section 2), and that it is back once restore_force()
 // verified it ("r"). A journal that cannot be written is given up quietly (journal.hpp).
 void journal_force(SessionJournal& j, const TerminalImage& t, unsigned channel, const ForcePlan& p);
 void journal_restored(SessionJournal& j, const TerminalImage& t, unsigned channel, const ForcePlan& p);

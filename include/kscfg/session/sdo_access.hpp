@@ -1,4 +1,4 @@
-// SdoAccess: direct register access over CANopen SDO (docs/design.md section 13), the third
+// SdoAccess: direct register access over CANopen SDO (docs/transports/canopen.md), the third
 // implementation of the register-access seam (access.hpp). A CANopen coupler (BK5120/BK515x,
 // LC5100, BC5150, a CX8050's CAN interface) reads and writes a terminal's registers itself through
 // the objects 0x4500/0x4501 (link/can_registers.hpp): no handshake, no byte of the process image
@@ -17,7 +17,7 @@
 // work cannot keep several requests in flight here: every advance() runs the next request of one
 // channel to its end, the channels taken in turn (round robin), and returns what finished.
 //
-// A read's uploads go at the terminal's pace (issue 45), by the acknowledge plan of the Modbus
+// A read's uploads go at the terminal's pace, by the acknowledge plan of the Modbus
 // handshake (session/ack_latency.hpp): one AckTiming per terminal position, the first upload once
 // the estimate has passed since the download, the next ones at the estimate after a probe or
 // every eighth of the time since the download past it, at most canreg::kMaxUploads. Before,

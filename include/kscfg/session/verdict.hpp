@@ -1,4 +1,4 @@
-// One verdict per change (docs/design.md 6.6): every path that proposes register writes (set, write,
+// One verdict per change (docs/safety.md section 6): every path that proposes register writes (set, write,
 // reset, apply, apply --dry-run, restore, diff, station check, and so the Ansible module in check
 // mode, which runs apply --dry-run) has them judged here, before anything is written. A change is
 // refused, Error(Exit::refused) with the same text on every path, when

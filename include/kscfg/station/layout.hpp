@@ -1,4 +1,4 @@
-// Process-image layout: where each terminal's bytes sit in a coupler's image (docs/design.md section 3).
+// Process-image layout: where each terminal's bytes sit in a coupler's image (docs/protocol.md section 2).
 #pragma once
 #include <array>
 #include <cstdint>
@@ -74,7 +74,7 @@ struct StationLayout {
   std::size_t digital_in_bits = 0, digital_out_bits = 0;
   // The coupler contradicts this layout (an ADS coupler's image lengths, read over its Modbus TCP
   // side, differ from it): process data laid out so would be decoded wrong. read_image() refuses
-  // with Error(refused, image_refused, image_refused_hint) (docs/design.md 4.9). Empty: not
+  // with Error(refused, image_refused, image_refused_hint) (docs/transports/ads.md). Empty: not
   // contradicted.
   std::string image_refused, image_refused_hint;
   // Not contradicted and not confirmed either: why the coupler could not be asked (a note).

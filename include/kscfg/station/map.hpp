@@ -13,7 +13,7 @@
 namespace kscfg {
 
 // Modbus couplers (BK7xx0, BK9xx0): input image register n = bytes 2n (low) and 2n+1 (high) at
-// 0x0000 + n, output image at 0x0800 + n (docs/research/mapping-examples.md, docs/design.md section 4).
+// 0x0000 + n, output image at 0x0800 + n (docs/research/mapping-examples.md, docs/transports/modbus.md).
 constexpr unsigned kModbusInputBase = 0x0000;
 constexpr unsigned kModbusOutputBase = 0x0800;
 constexpr std::size_t kModbusImageBytes = 512;  // 0x0000-0x00FF / 0x0800-0x08FF: 256 registers
