@@ -1,6 +1,8 @@
 // kscfg serve: the emulated station behind a Modbus TCP or RTU server (BK9000/BK7300 register map),
 // an ADS server (BK9000), a CANopen coupler's SDO server on a CAN bus (BK5120: slcan or SocketCAN),
 // or several of them at once on one station.
+#include "kscfg/emulator/serve.hpp"
+
 #include <fmt/format.h>
 
 #include <functional>
@@ -17,16 +19,7 @@
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
 #include "kscfg/discovery/port.hpp"
-#include "kscfg/emulator/ads_server.hpp"
-#include "kscfg/emulator/can_server.hpp"
 #include "kscfg/emulator/emulator.hpp"
-#include "kscfg/emulator/modbus_server.hpp"
-#include "kscfg/emulator/poll_loop.hpp"
-#include "kscfg/emulator/served_station.hpp"
-#include "kscfg/link/ams.hpp"
-#include "kscfg/link/can_link.hpp"
-#include "kscfg/link/coupler_key.hpp"
-#include "kscfg/link/port_uri.hpp"
 
 namespace kscfg::cli {
 
@@ -193,28 +186,14 @@ class Serve : public Command {
     if (can) s.co = can_options(ctx);
     std::string path;
     auto stop = [&ctx] { return ctx.cancel()->signalled(); };
-    serve_station(ctx, path, [&](EmulatedStation& station, const Saver& save, const Listening& listening) {
-      if (modbus + ads + can > 1) serve_together(station, save, listening, stop, s);
-      else serve_alone(station, save, listening, stop, s);
+    with_station(ctx, path, [&](EmulatedStation& station, const SaveStateText& save, const Listening& listening) {
+      serve_station(station, save, listening, stop, s);
     });
     report_stats(ctx, path.empty() ? "memory" : path, s);
     return 0;
   }
 
  private:
-  using Saver = std::function<void(const std::string&)>;
-  using Listening = std::function<void(const std::vector<std::string>&)>;
-
-  // The options of each protocol served and, once served, what each server counted.
-  struct Servers {
-    std::optional<ServeOptions> so;
-    std::optional<AdsServeOptions> ao;
-    std::optional<CanServeOptions> co;
-    std::optional<ServeStats> st;
-    std::optional<AdsServeStats> at;
-    std::optional<CanServeStats> ct;
-  };
-
   // The protocols given go together: one Modbus at most, ADS beside TCP only, each one's options with it.
   void check_protocols(int modbus, bool ads, bool can) const {
     if (modbus > 1 || (modbus == 0 && !ads && !can))
@@ -230,75 +209,6 @@ class Serve : public Command {
       throw Error(Exit::usage, "--node, --can-register-ms and --can-no-ack go with --can URI");
     if (!modbus && (!unit_.empty() || !fault_.empty() || !seed_.empty()))
       throw Error(Exit::usage, "--unit, --fault and --seed are for Modbus (--tcp, --rtu, --pty)");
-  }
-
-  // Several protocols: one station, one K-bus, one saver; every server in one loop.
-  static void serve_together(EmulatedStation& station, const Saver& save, const Listening& listening,
-                             const std::function<bool()>& stop, Servers& s) {
-    auto& [so, ao, co, st, at, ct] = s;
-    auto warn = so ? so->warn : ao ? ao->warn : co->warn;
-    unsigned cycle_us = so ? so->cycle_us : ao ? ao->cycle_us : co->cycle_us;
-    unsigned delay = so ? so->save_delay_ms : ao ? ao->save_delay_ms : co->save_delay_ms;
-    ServedStation shared(station, ServedStation::Options{cycle_us, save, delay, warn});
-    std::optional<ModbusServer> m;
-    std::optional<AdsServer> a;
-    std::optional<CanServer> c;
-    std::vector<std::unique_ptr<CouplerAlias>> aliases;
-    std::vector<std::string> uris;
-    std::vector<PollSource*> sources;
-    if (so) {
-      m.emplace(shared, *so);
-      uris.push_back(m->endpoint());
-      sources.push_back(&m->poll_source());
-    }
-    if (ao) {
-      if (m) ao->modbus_port = port_of(m->endpoint());  // table 100 register 26: where the image lengths are
-      a.emplace(shared, *ao);
-      uris.push_back(a->endpoint());
-      sources.push_back(&a->poll_source());
-      if (m) check_tcp_ads(m->endpoint(), a->endpoint());
-    }
-    if (co) {
-      c.emplace(shared, *co);
-      uris.push_back(c->endpoint());
-      sources.push_back(&c->poll_source());
-    }
-    // One coupler by every protocol: kscfg over each takes the lock of the one over the first.
-    std::vector<std::vector<std::string>> keys;
-    if (m) keys.push_back(modbus_client_keys(*so, m->endpoint()));
-    if (a) keys.push_back({listener_key(local_ads(a->endpoint()))});
-    if (c) keys.push_back(can_client_keys(*co));
-    record_aliases(keys, uris, warn, aliases);
-    listening(uris);
-    run_poll_loop(sources, stop, [&shared] { shared.flush(); });
-    if (m) st = m->stats();
-    if (a) at = a->stats();
-    if (c) ct = c->stats();
-  }
-
-  // One protocol: its server alone.
-  static void serve_alone(EmulatedStation& station, const Saver& save, const Listening& listening,
-                          const std::function<bool()>& stop, Servers& s) {
-    auto& [so, ao, co, st, at, ct] = s;
-    if (co) {
-      co->save_state = save;
-      CanServer c(station, *co);
-      listening({c.endpoint()});
-      c.run(stop);
-      ct = c.stats();
-    } else if (so) {
-      so->save_state = save;
-      ModbusServer m(station, *so);
-      listening({m.endpoint()});
-      m.run(stop);
-      st = m.stats();
-    } else {
-      ao->save_state = save;
-      AdsServer a(station, *ao);
-      listening({a.endpoint()});
-      a.run(stop);
-      at = a.stats();
-    }
   }
 
   // What the servers counted, on stderr: with -v, or when something went wrong (or faults were injected).
@@ -333,15 +243,7 @@ class Serve : public Command {
       so.mode = ServeOptions::Mode::tcp;
       std::tie(so.host, so.port) = host_port("--tcp", tcp_);
     } else if (!rtu_.empty()) {
-      PortUri p = parse_port_uri("rtu:" + rtu_);
-      ModbusTarget t = modbus_target(p, "rtu:" + rtu_);
-      so.mode = ServeOptions::Mode::rtu;
-      so.device = t.device;
-      so.baud = t.baud;
-      so.parity = t.parity;
-      so.data_bits = t.data_bits;
-      so.stop_bits = t.stop_bits;
-      if (p.query.count("unit")) so.unit = t.unit;
+      set_rtu_line(so, rtu_);
     } else {
       so.mode = ServeOptions::Mode::pty;
     }
@@ -365,7 +267,7 @@ class Serve : public Command {
       if (n == 0)
         throw Error(Exit::usage, fmt::format("invalid --node {}: a CANopen node id is 1..127", quote_input(node_, 20)));
       // Given twice, in --can's ?node= and --node: one of them would be dropped without a word.
-      if (parse_port_uri(can_).query.count("node") && n != co.node)
+      if (can_uri_names_node(can_) && n != co.node)
         throw Error(Exit::usage, fmt::format("--can {} names node {} and --node {}: give the node id once",
                                              quote_input(can_), co.node, n));
       co.node = n;
@@ -378,118 +280,16 @@ class Serve : public Command {
     return co;
   }
 
-  // serve --tcp --ads: an ADS client asks the Modbus port at the address it reached (a BK9000
-  // answers both on its one IP address): the Modbus server must be there too, or on every address.
-  static void check_tcp_ads(const std::string& modbus, const std::string& ads) {
-    if (host_of(modbus) != host_of(ads) && host_of(modbus) != "0.0.0.0" && host_of(modbus) != "[::]")
-      throw Error(
-          Exit::usage,
-          fmt::format("--tcp {} and --ads {}: serve both on one address (or --tcp on 0.0.0.0 or [::])", modbus, ads),
-          "an ADS client looks for the Modbus port (table 100 register 26) at the address it reached, as "
-          "a BK9000 answers both on its one IP address");
-  }
-
-  // The keys of the kscfg clients of this computer that reach the Modbus server: its TCP port, the
-  // pseudo-terminal it made (--pty), or the other ends of the pseudo-terminal pair it serves on
-  // (--rtu PATH; a serial line to another computer has none here).
-  static std::vector<std::string> modbus_client_keys(const ServeOptions& so, const std::string& endpoint) {
-    if (so.mode == ServeOptions::Mode::tcp) return {listener_key(local_modbus(endpoint))};
-    ModbusTarget t;
-    t.tcp = false;
-    if (so.mode == ServeOptions::Mode::pty) {
-      t.device = endpoint.substr(4, endpoint.find('?') - 4);  // rtu:/dev/pts/N?parity=N
-      return {listener_key(t)};
-    }
-    std::vector<std::string> keys;
-    for (const auto& peer : pty_peers(so.device)) {
-      t.device = peer;
-      keys.push_back(listener_key(t));
-    }
-    return keys;
-  }
-  // ... of the CANopen server: the SocketCAN interface and node, or the other ends of the
-  // pseudo-terminal pair it plays an slcan adapter on.
-  static std::vector<std::string> can_client_keys(const CanServeOptions& co) {
-    CanTarget t;
-    t.scheme = co.scheme;
-    t.node = co.node;
-    if (co.scheme == "socketcan") {
-      t.device = co.device;
-      return {listener_key(t)};
-    }
-    std::vector<std::string> keys;
-    for (const auto& peer : pty_peers(co.device)) {
-      t.device = peer;
-      keys.push_back(listener_key(t));
-    }
-    return keys;
-  }
-  // One coupler by every protocol it serves (link/coupler_key.hpp): each client key beyond the
-  // first protocol's first stands for it while this serve runs, so kscfg over any of them takes one
-  // lock and they take turns, as on a BK9000's standard ports (serve --tcp --can gave its two
-  // protocols no common lock: Modbus and slcan writers lost verified writes to each other's
-  // rollbacks). A protocol whose clients cannot be named from here (an slcan line to another
-  // computer) is said.
-  static void record_aliases(const std::vector<std::vector<std::string>>& keys, const std::vector<std::string>& uris,
-                             const std::function<void(const std::string&)>& warn,
-                             std::vector<std::unique_ptr<CouplerAlias>>& aliases) {
-    std::string primary;
-    for (std::size_t i = 0; i < keys.size(); ++i) {
-      if (keys[i].empty()) {
-        warn(
-            fmt::format("{}: no client of this computer found on its other end; kscfg over it and over {} will not "
-                        "take turns",
-                        uris[i], uris[i == 0 ? 1 : 0]));
-        continue;
-      }
-      for (const auto& k : keys[i]) {
-        if (primary.empty()) {
-          primary = k;
-          continue;
-        }
-        try {
-          aliases.push_back(std::make_unique<CouplerAlias>(k, primary));
-        } catch (const Error& e) {
-          warn(fmt::format("{}: kscfg over {} and over {} will not take turns", e.what(), uris[0], uris[i]));
-        }
-      }
-    }
-  }
-
   AdsServeOptions ads_options(Context& ctx) const {
     AdsServeOptions ao;
     std::tie(ao.host, ao.port) = host_port("--ads", ads_);
-    for (const auto& r : ads_routes_) ao.routes.push_back(netid_arg("--ads-route", r));
-    if (!ads_netid_.empty()) ao.netid = netid_arg("--ads-netid", ads_netid_);
+    for (const auto& r : ads_routes_) ao.routes.push_back(netid_option("--ads-route", r));
+    if (!ads_netid_.empty()) ao.netid = netid_option("--ads-netid", ads_netid_);
     if (!ads_idle_.empty()) ao.idle_cut_ms = static_cast<unsigned>(parse_uint(ads_idle_, 3600000, "idle time"));
     if (!ads_register_ms_.empty())
       ao.register_ms = static_cast<unsigned>(parse_uint(ads_register_ms_, 60000, "register access time"));
     common_options(ctx, ao);
     return ao;
-  }
-
-  // The target a client of this computer gives for a server's endpoint ("tcp://*:5020": every
-  // address of this computer is one host, link/coupler_key.hpp).
-  static std::string host_of(const std::string& endpoint) {  // "tcp://[::1]:5020": "[::1]"
-    auto from = endpoint.find("://");
-    from = from == std::string::npos ? 0 : from + 3;
-    return endpoint.substr(from, endpoint.rfind(':') - from);
-  }
-  static unsigned port_of(const std::string& endpoint) {
-    return static_cast<unsigned>(std::stoul(endpoint.substr(endpoint.rfind(':') + 1)));
-  }
-  static ModbusTarget local_modbus(const std::string& endpoint) {
-    ModbusTarget t;
-    t.tcp = true;
-    t.host = "127.0.0.1";
-    t.port = port_of(endpoint);
-    return t;
-  }
-  static AdsTarget local_ads(const std::string& endpoint) {
-    AdsTarget t;
-    t.host = "127.0.0.1";
-    t.port = port_of(endpoint);
-    return t;
   }
 
   static std::pair<std::string, unsigned> host_port(const char* opt, const std::string& v) {
@@ -500,13 +300,6 @@ class Serve : public Command {
     if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
     if (host.empty()) throw Error(Exit::usage, fmt::format("invalid {} '{}': no address", opt, v));
     return {host, static_cast<unsigned>(parse_uint(port, 65535, "TCP port"))};
-  }
-
-  static ams::NetId netid_arg(const char* opt, const std::string& v) {
-    auto id = ams::parse_netid(v);
-    if (!id)
-      throw Error(Exit::usage, fmt::format("invalid {} '{}': an AMS NetId is six numbers 0..255, A.B.C.D.E.F", opt, v));
-    return *id;
   }
 
   // What both kinds of server take alike: the K-bus cycle, the watchdog, the connection limit, the
@@ -533,23 +326,23 @@ class Serve : public Command {
   // text (durable: the servers save soon after every change, not only when they stop) and the one it
   // calls with its URIs once it listens (stdout, and the record that sends another kscfg on the file
   // to the first). PATH is the state file served ("" for emu:mem).
-  static void serve_station(Context& ctx, std::string& path,
-                            const std::function<void(EmulatedStation&, const Saver&, const Listening&)>& serve) {
-    PortUri p = parse_port_uri(ctx.options().port);
-    if (p.scheme != "emu")
+  static void with_station(Context& ctx, std::string& path,
+                           const std::function<void(EmulatedStation&, const SaveStateText&, const Listening&)>& serve) {
+    std::optional<std::string> state = emulator_state_path(ctx.options().port);
+    if (!state)
       throw Error(Exit::usage, fmt::format("'kscfg serve' serves the emulator; the port is '{}'", ctx.options().port),
                   "use --port emu, emu:PATH or emu:mem");
-    path = p.target.empty() ? EmulatorStore::default_path() : p.target;
+    path = *state;
     want_signal_origin();
     // The store (and its lock) lives as long as the servers: no other kscfg changes the state meanwhile.
     EmulatorStore store(path, ctx.catalog(), ctx.lock_wait());
-    Saver save;
+    SaveStateText save;
     if (!store.path().empty()) save = [&store](const std::string& text) { store.save_text(text); };
     serve(store.station(), save, [&](const std::vector<std::string>& uris) {
       store.announce(uris);  // another kscfg on the file is told where to go (every URI)
       if (ctx.json()) {
         nlohmann::json j{{"port", uris.front()}, {"state", path}};
-        for (std::size_t k = 1; k < uris.size(); ++k) j[uris[k].rfind("ads://", 0) == 0 ? "ads" : "can"] = uris[k];
+        for (std::size_t k = 1; k < uris.size(); ++k) j[served_protocol(uris[k])] = uris[k];
         std::cout << j.dump() << std::endl;
       } else {
         for (const auto& u : uris) std::cout << u << "\n";
