@@ -242,7 +242,7 @@ TEST_CASE("station init's example names channels by number and reads back", "[pr
 
 // Issue 23 item 1: backup replaced an existing file without a word; station init and scan --write
 // refused. Now all three refuse before anything is read (exit 7), and --force replaces.
-TEST_CASE("backup never replaces an existing file without --force", "[provision][issue23]") {
+TEST_CASE("backup never replaces an existing file without --force", "[provision]") {
   Station st;
   write_text(st.file("keep.toml"), "precious\n");
   Run r = st({"backup", st.file("keep.toml")});
