@@ -10,9 +10,9 @@
 #include <regex>
 #include <sstream>
 
+#include "fixtures.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "support.hpp"
 
 using kscfg::test::Child;
 using kscfg::test::Emu;
@@ -38,11 +38,7 @@ std::vector<std::string> lines_of(const std::string& text) {
 // The output image of the coupler behind `uri` (another Modbus client), empty when it does not answer.
 std::vector<std::uint8_t> outputs(const std::string& uri) {
   try {
-    kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri), uri), {});
-    std::vector<std::uint8_t> b;
-    for (auto v : c.read(kscfg::mbmap::kOutputImage, 24))
-      b.insert(b.end(), {static_cast<std::uint8_t>(v & 0xFF), static_cast<std::uint8_t>(v >> 8)});
-    return b;
+    return kscfg::test::modbus_image(uri, kscfg::mbmap::kOutputImage, 24);
   } catch (...) {
     return {};
   }

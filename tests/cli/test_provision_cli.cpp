@@ -3,27 +3,17 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
-#include "support.hpp"
+#include "fixtures.hpp"
 
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
+using kscfg::test::Station;
 using kscfg::test::TempDir;
 using kscfg::test::write_text;
 
 namespace {
-
-struct Station {
-  TempDir dir;
-  std::string port;
-  explicit Station(std::string p = "") : port(p.empty() ? "emu:" + dir.file("emulator.json") : p) {}
-  Run operator()(std::vector<std::string> args) const {
-    args.insert(args.begin(), {"--port", port});
-    return run_kscfg(args, {{"XDG_STATE_HOME", dir.file("state")}});
-  }
-  std::string file(const std::string& n) const { return dir.file(n); }
-};
 
 std::size_t count(const std::string& s, const std::string& what) {
   std::size_t n = 0;
