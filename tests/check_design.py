@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The design of record cites only what exists (issue 33 item 5).
+"""The design of record cites only what exists.
 
 Reads the design of record (docs/design.md, src/README.md, its picture of the layers, and
 docs/architecture.md, the newcomer's tour of the code as it is) and fails, naming each, when a code

@@ -1,6 +1,6 @@
 # The design check (tests/check_design.py) fails on a stale citation: docs/design.md with planted
 # citations of what the tree does not hold (each kind of citation, and the seven functions the
-# design once cited as "Held by" after they were gone, issue 33 item 5) fails it, naming each; the
+# design once cited as "Held by" after they were gone) fails it, naming each; the
 # same text without them passes; and a source comment that cites a file that does not exist fails
 # it too. Usage: cmake -DPYTHON=python3 -DCHECK=check_design.py -DROOT=source -DWORK=dir -P this
 file(REMOVE_RECURSE ${WORK})

@@ -63,7 +63,7 @@ std::string kind_of(const struct stat& st) {
 bool lock_file_shape(const struct stat& st) { return S_ISREG(st.st_mode) && st.st_nlink <= 1; }
 
 // In a directory every user may write (/run/lock/kscfg), anyone may plant a name: it is refused,
-// with whose it is, so that an administrator knows whom to ask (issue 32 item 6).
+// with whose it is, so that an administrator knows whom to ask.
 [[noreturn]] void refuse(const std::string& path, const std::string& what, const struct stat& st) {
   throw Error(Exit::file,
               fmt::format("the lock file {} of {} is {} owned by {}, not a kscfg lock", path, what, kind_of(st),
@@ -151,7 +151,7 @@ std::string own_command_line() {
 namespace {
 
 // A directory of lock files is trusted when no one but this user and root can remove or replace
-// what is in it (issue: another user who made /run/lock/kscfg first, mode 0777, deleted root's
+// what is in it (once another user who made /run/lock/kscfg first, mode 0777, deleted root's
 // lock files, and a second root kscfg wrote at once): owned by root or by this user, and not
 // writable by others unless sticky (then only a file's owner removes it). `why`: what it is else.
 bool trusted_dir(const std::string& dir, std::string& why) {

@@ -107,7 +107,7 @@ std::uint16_t run(SdoClient& sdo, unsigned timeout_ms, std::uint16_t index, std:
     throw Error(Exit::link, fmt::format("{}: not written: {} in this run", what, sdo.stopped_answering()),
                 "check the CAN wiring and the coupler's power, then run the command again");
   // An answer still owed to a request Ctrl-C cut short is waited for first: the deadline is this
-  // access's own (a rollback's read was declared timed out after one busy answer, issue 45).
+  // access's own (a rollback's read was declared timed out after one busy answer).
   sdo.settle();
   auto deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
   DefaultPacing fallback;

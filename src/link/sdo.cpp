@@ -185,7 +185,7 @@ CanFrame SdoClient::exchange(const CanFrame& req, std::uint16_t index, std::uint
   // The answer is owed once the frame went out, until it is taken or the wait ends: a wait cut short
   // by cancellation leaves it owed. A send cut by cancellation wrote nothing (CanBus::send): nothing
   // is owed then, and the trace does not show the frame (before, it was traced and its answer
-  // waited for, issue 45). A send that failed otherwise may have written it.
+  // waited for). A send that failed otherwise may have written it.
   try {
     bus_.send(req);
   } catch (const Error& e) {

@@ -73,7 +73,7 @@ class SlcanBus final : public CanBus {
   // Cancellation is looked at only before the first byte goes out: once the line is being written
   // it is finished (bounded by the timeout), and what the adapter says after it is read without
   // looking at the token, so a frame send() returned from is on its way and one it threw
-  // Error(interrupted) for was never written (issue 45: a frame traced as sent at a Ctrl-C had not
+  // Error(interrupted) for was never written (a frame traced as sent at a Ctrl-C had not
   // gone out, and its answer was then waited for 1 s, which ate the rollback's read).
   void send(const CanFrame& f) override {
     if (cancel_ && cancel_->cancelled()) throw Error(Exit::interrupted, "interrupted");

@@ -99,7 +99,7 @@ StationSpec backup_station(Engine& engine, const StationLayout& layout, const Se
       }
     } else if (t.inferred) {
       // The coupler (ADS, CANopen table 9) gave its bits, not its type: the file says so where it
-      // names one that fits (before, it named the stand-in as if it were known, issue 45).
+      // names one that fits (before, it named the stand-in as if it were known).
       comment =
           fmt::format("position {}: {} (the coupler gives no type): {} fits, as does {}; name the terminal's type",
                       t.position, digital_label(t), t.type->type, fits_text(t, 8));
@@ -409,7 +409,7 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   std::string msg = fmt::format("apply failed: {}", cause);
   if (!unverified.empty()) {
     // The undo command first, then one line per terminal; a reason that all share (a dead link) is
-    // said once, in the first line (issue 36 item 3: 26 registers made one line of 3,400 characters).
+    // said once, in the first line (26 registers made one line of 3,400 characters).
     std::set<std::string> whys;
     std::size_t count = 0;
     for (const auto& [w, regs] : unverified)

@@ -177,7 +177,7 @@ void HandshakeAccess::sleep_until(Clock::time_point t) const {
 bool HandshakeAccess::watch_found(Chan& c) {
   // Another master at work (a kscfg on another computer, KS2000 on the service port) changes the
   // control byte with every request; a dead session's stays. Never taken for a leftover on first
-  // sight (issue 21 item 1): watched for as long as a live handshake can go without a step. A
+  // sight: watched for as long as a live handshake can go without a step. A
   // journal's entry (adopt_dead) says whose it is: no watch.
   if (c.dead_entry || !link_.other_masters_possible()) return true;
   // A dead kscfg's journal names this channel with that control byte (a scan walking towards a

@@ -116,7 +116,7 @@ void finish_dead_sessions(Engine& engine, Link& link, const Catalog& catalog, co
           type = &unknown;
         }
         const RegisterWindow& w = e.window;
-        // A journal is input like any other (issue 21 item 3): its entry must describe the terminal
+        // A journal is input like any other: its entry must describe the terminal
         // at that position of this station (its type and register window), or nothing is touched.
         if (fits && !fits(e)) {
           trace(

@@ -303,7 +303,7 @@ StationSpec expand_partial(const StationSpec& file, const StationLayout& station
   for (const auto& [pos, t] : named) {
     const TerminalImage& have = station.terminal(pos);  // Error(usage): no such position
     // A digital terminal the coupler knows by its bits (ADS, CANopen table 9): the file names which
-    // of the types that fit it is (before, its stand-in type had to be named: issue 45).
+    // of the types that fit it is (before, its stand-in type had to be named).
     if (!fits_type(have, t->type))
       throw Error(
           Exit::refused,

@@ -1,4 +1,4 @@
-// Issue 36 item 11 through the CLI: with every connection of `serve --ads` in use, kscfg named no
+// Through the CLI: with every connection of `serve --ads` in use, kscfg named no
 // cause ("Broken pipe", "Connection reset by peer", exit 3 at once); now it says the ADS server is
 // full and tries again over the busy wait a busy Modbus server gets, as over Modbus.
 #include <catch2/catch.hpp>

@@ -189,7 +189,7 @@ TEST_CASE("__complete offers every command and every option of each command", "[
   CHECK_THAT(run({"--port", "tcp://192.0.2.1", "-t", "3", "set", "baud", ""}), Catch::Contains("38400"));  // no link
 }
 
-// Issue 23 item 16: bash offered candidates sorted as text (R0 R10 R12, 1200 19200 2400). In an
+// Bash offered candidates sorted as text (R0 R10 R12, 1200 19200 2400). In an
 // interactive bash (tmux) Tab Tab lists them in kscfg's order.
 TEST_CASE("bash lists candidates in kscfg's order, not sorted as text (tmux)", "[completion][tmux]") {
   Tmux tmux("compl");  // a missing tool never passes: tmux is a test dependency

@@ -220,7 +220,7 @@ TEST_CASE("data --once --json: every terminal of the default station over the em
   CHECK(text.out.find("counter 40") != std::string::npos);
   CHECK(text.out.find("= 4.0000 mA") != std::string::npos);                  // KL3022: 1/2048 mA a digit, four decimals
   CHECK(text.out.find("TA=0 RR=0 IA=0 BUF_F=0 IL=0") != std::string::npos);  // the catalog's order
-  // Issue 23 item 13: lines fit 80 columns (or COLUMNS, which watch sets), under a header.
+  // Lines fit 80 columns (or COLUMNS, which watch sets), under a header.
   CHECK(kscfg::test::widest_line(text.out) <= 80);
   CHECK_THAT(text.out, Catch::Contains("\nPOS CH TYPE      PROCESS DATA\n"));
   auto narrow_env = emu.env;
@@ -471,8 +471,8 @@ TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[
   CHECK(tmux.wait_for([](const std::string& p) { return p.find("EXIT=0") != std::string::npos; }, 20));
 }
 
-// The commands of issue 14 in the completion (the shells' scripts ask 'kscfg __complete'), next to
-// their help and man sections that tests/cli/test_docs.cpp keeps from drifting.
+// The data, emu encoder and serial line commands in the completion (the shells' scripts ask 'kscfg __complete'), next
+// to their help and man sections that tests/cli/test_docs.cpp keeps from drifting.
 TEST_CASE("data, emu encoder and serial line: completion of commands, options and values", "[data][completion]") {
   Emu emu;
   auto complete = [&](std::vector<std::string> words) {
@@ -510,7 +510,7 @@ TEST_CASE("data, emu encoder and serial line: completion of commands, options an
     CHECK_THAT(man.out, Catch::Contains(s));
 }
 
-// Issue 23 item 4: right after a command that read R8, the terminal's answer was still in the
+// Right after a command that read R8, the terminal's answer was still in the
 // input image, and 'data --once' showed it as process data ("KL3022 status 0x88 ... word 3022",
 // register_mode false). Now a sample is taken once no status byte answers a register request.
 TEST_CASE("data samples process data only outside register mode, right after a register read", "[data][cli][serve]") {

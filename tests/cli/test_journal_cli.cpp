@@ -1,4 +1,4 @@
-// Issue 32: journals that outlive every failure. End to end through the CLI against `kscfg serve`
+// Journals that outlive every failure. End to end through the CLI against `kscfg serve`
 // (Modbus TCP): a link that dies in the middle of a 12-terminal apply keeps the journal with every
 // channel it could not close, and the next command on one terminal finishes all of them; a
 // `data force` killed with kill -9 is named by the next command, and one with --yes puts the

@@ -64,7 +64,7 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
   CHECK(off.rc == 5);
   CHECK(one_line_error(off));
   CHECK_THAT(off.err, Catch::Contains("image-size 22 needs extended-image on"));
-  // Given apart, refused as apply refuses them (one verdict per change, issue 33 item 2).
+  // Given apart, refused as apply refuses them (one verdict per change).
   Run both = emu({"-t", "3", "set", "extended-image", "on", "image-size", "3"});
   CHECK(both.rc == 5);
   CHECK_THAT(both.err, Catch::Contains("image-size 3 needs extended-image off, and extended-image is on"));

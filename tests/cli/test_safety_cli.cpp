@@ -1,4 +1,4 @@
-// Issues 10 and 11, session side: command registers, lock-out refusal, crash recovery, rollback
+// Session side: command registers, lock-out refusal, crash recovery, rollback
 // that reads, usable backups. Against the emulator through the CLI. Baud rates and parameter
 // names a user meant are in test_near_miss_cli.cpp.
 #include <algorithm>
@@ -262,7 +262,7 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 11 item 3: a crashed session's leftovers.
+// A crashed session's leftovers.
 
 namespace {
 
@@ -387,7 +387,7 @@ TEST_CASE(
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 11 item 4: rollback that reads, against kscfg serve dropping replies.
+// Rollback that reads, against kscfg serve dropping replies.
 
 TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it verified, and it is true",
           "[safety][rollback][serve]") {
@@ -456,7 +456,7 @@ TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it ver
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 10 item 9: backups you can use.
+// Backups you can use.
 
 namespace {
 

@@ -264,7 +264,7 @@ TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchang
   CHECK(k.rc == 2);
 }
 
-// Issue 23 item 10: `serial send - </dev/zero` read stdin into memory until std::bad_alloc. Now
+// `serial send - </dev/zero` read stdin into memory until std::bad_alloc. Now
 // stdin is sent as it is read: what was read and not yet sent stays bounded, and Ctrl-C says how
 // many bytes went out.
 TEST_CASE("serial send - streams stdin in bounded memory (/dev/zero)", "[serial][cli]") {

@@ -1,4 +1,4 @@
-// `kscfg serve` against clients that misbehave (issue 11): a regression test for each defect
+// `kscfg serve` against clients that misbehave: a regression test for each defect
 // found by the reliability campaign. Raw sockets stand in for the bad clients; the kscfg CLI is
 // the well-behaved one that must keep being served meanwhile. Every wait is on a condition with a
 // generous bound.

@@ -1,8 +1,8 @@
-// Issue 21: safe when sessions meet, die or find poisoned caches. End to end through the CLI
+// Safe when sessions meet, die or find poisoned caches. End to end through the CLI
 // against `kscfg serve` (Modbus TCP): one kscfg at a time per coupler (the second waits and names
 // the first), every session journaled before its first exchange (kill -9 of each command kind),
 // journals checked before they are acted on, another master's register mode told from a dead
-// session's, caches read like any other input, a swapped station noticed. Issue 23 items 5 and 9:
+// session's, caches read like any other input, a swapped station noticed;
 // no note about this run's own register mode; the emulator state file's holder named.
 #include <signal.h>
 #include <sys/stat.h>
@@ -134,7 +134,7 @@ TEST_CASE(
   TempDir d;
   std::string state = d.file("station.json");
   Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
-  // Issue 36 item 2: no wait for a server that does not end (the default --lock-wait is 30 s; the run
+  // No wait for a server that does not end (the default --lock-wait is 30 s; the run
   // is killed after 10).
   std::string refusal = "kscfg: error: the emulator state file " + state + " is held by kscfg serve (process " +
                         std::to_string(srv.pid) + "), which serves it at " + srv.uri +

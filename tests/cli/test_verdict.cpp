@@ -1,4 +1,4 @@
-// One verdict per change (issue 33 item 2, docs/design.md 6.6): every path that proposes a change
+// One verdict per change (docs/design.md 6.6): every path that proposes a change
 // (set, write, apply, apply --dry-run, restore, restore --dry-run, diff, station check) refuses
 // the same change with status 5 and the same reason, and writes nothing.
 #include <catch2/catch.hpp>

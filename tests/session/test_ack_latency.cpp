@@ -410,7 +410,7 @@ TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learni
 TEST_CASE("ack latency: three early polls among many acknowledges do not end read-ahead, a terminal often early does",
           "[ack]") {
   // A wait at 2 ms, answers at 1.9 ms: the first polls at the wait find them, except where this
-  // process or the coupler was slow (issue 34: three of those in a run ended read-ahead for good).
+  // process or the coupler was slow (three of those in a run ended read-ahead for good).
   AckTiming t;
   t.wait = microseconds(2000);
   // A request the handshake read ahead of: a first poll at the wait that came too early replaced

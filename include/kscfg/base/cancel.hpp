@@ -115,7 +115,7 @@ class CancelNote {
 std::string cancel_note_text(std::string_view what);
 
 // Every sleep of kscfg goes through these: they wake at least every kInterruptSlice to look at
-// `cancel` (null: never cancelled), so a signal ends any wait within that (issue 21 item 4: within
+// `cancel` (null: never cancelled), so a signal ends any wait within that (within
 // 100 ms). They return false when `cancel->cancelled()` (before or during the sleep), true when the
 // time passed.
 constexpr std::chrono::milliseconds kInterruptSlice{5};

@@ -1,4 +1,4 @@
-// One owner at a time, and a waiter that can name it (issue 21 item 1, issue 23 item 9).
+// One owner at a time, and a waiter that can name it.
 //
 // An OwnerLock is an advisory lock (flock) on a file, held for as long as a command works on what
 // the file stands for: a coupler (its port and unit, coupler_lock_path()) or an emulator state
@@ -8,7 +8,7 @@
 //
 // The lock file is a regular file of mode 0644, opened without following links and without
 // blocking: a name that is anything else (a link, FIFO, directory, device planted in the shared lock
-// directory) is refused naming its owner (issue 32 item 6). Only the file's owner writes the record;
+// directory) is refused naming its owner. Only the file's owner writes the record;
 // a record is believed only when its process belongs to the file's owner, so no user can make
 // kscfg name another user's process as the holder. A lock file another user left (its kscfg was
 // killed) is locked read-only, without a record.

@@ -3,7 +3,7 @@
 // out (no I/O, no threads), so that it can be tested and fuzzed; serve's CAN server (can_server.hpp)
 // puts it on a bus.
 //
-// What it serves (issue 37; the facts and their sources: docs/design.md section 13):
+// What it serves (the facts and their sources: docs/design.md section 13):
 //   SDO requests to COB-ID 0x600 + node with 8 data bytes, answered on 0x580 + node; NMT
 //   commands on COB-ID 0 (start 0x01, stop 0x02, pre-operational 0x80, reset 0x81/0x82: the
 //   boot-up frame 0x700 + node, one byte 0); SDO is off while the node is stopped. Every other

@@ -11,7 +11,7 @@
 // A register is 2 bytes, little endian. "When reading the register, the time out of the ADS block
 // has to be set to a time longer than 1 second" (same page): kMinRegisterTimeoutMs.
 //
-// These are the client calls; the register-access seam (issue 22) puts the safety rules above them.
+// These are the client calls; the register-access seam puts the safety rules above them.
 #pragma once
 #include <cstdint>
 #include <optional>

@@ -5,7 +5,7 @@
 //
 // The attempts are spread over the busy wait, the link's response timeout (--timeout): the pauses
 // double from kFirstPause to kLongestPause, so a slot freed a few milliseconds later is taken at
-// once and one freed near the end of the wait is still reached. Before (issue 45), four attempts
+// once and one freed near the end of the wait is still reached. Before, four attempts
 // 5 ms apart gave up within 15-21 ms: a slot freed 20 ms later was never reached.
 #pragma once
 #include <algorithm>

@@ -1,4 +1,4 @@
-// CAN frames and the frame mover below the CANopen link (issue 37, docs/design.md section 13):
+// CAN frames and the frame mover below the CANopen link (docs/design.md section 13):
 // a CanBus sends and receives classic CAN 2.0 frames and knows nothing of CANopen. Two buses share
 // everything above it: SlcanBus (link/slcan.hpp, the Lawicel ASCII protocol of USB-CAN adapters on
 // a serial port, opened as the RTU link opens its line) and SocketCanBus (open_socketcan(), a raw

@@ -1,4 +1,4 @@
-// Bus Terminal register communication over CANopen SDO (issue 37; BK51x0, LC5100, BC5150, CX8050
+// Bus Terminal register communication over CANopen SDO (BK51x0, LC5100, BC5150, CX8050
 // "Bus Terminal register communication", sources and the open questions settled in docs/design.md
 // section 13): all registers that KS2000 configures are reached through two objects,
 //   0x4500           the coupler's own register tables

@@ -1,5 +1,5 @@
-// A coupler's identity on this computer, whatever name it was reached by (issue 32 item 1,
-// docs/design.md 6.9): the one key behind its lock file, its session journals and its scan cache.
+// A coupler's identity on this computer, whatever name it was reached by
+// (docs/design.md 6.9): the one key behind its lock file, its session journals and its scan cache.
 //
 // Hosts are keyed by their numeric address (getaddrinfo): `localhost`, `127.0.0.1` and any other
 // name of one address are one key. A name with several addresses is keyed by the lowest IPv4

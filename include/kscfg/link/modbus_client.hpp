@@ -119,7 +119,7 @@ class ModbusClient : public ModbusRegisters {
 
   // A link proven dead: two requests in a row got no answer after all their attempts (each about
   // the ack timeout). From then on every request fails at once with that reason, so that a
-  // rollback or a restore over a dead link ends within about two timeouts (issue 23 item 3)
+  // rollback or a restore over a dead link ends within about two timeouts
   // instead of trying every register for seconds. Empty while the link lives.
   const std::string& dead() const { return dead_; }
 
@@ -137,7 +137,7 @@ class ModbusClient : public ModbusRegisters {
   // Runs one request with bounded retries. `addr`/`count`: the registers it reads or writes (for
   // the hint of an exception 2). With `refused`, exception 2 sets it and returns instead of throwing.
   // With `parse` (the expected reply from its raw bytes), the wait for a reply is cut into slices
-  // of kSlice: between two, cancellation (ModbusOptions::cancel) ends it (issue 21 item 4).
+  // of kSlice: between two, cancellation (ModbusOptions::cancel) ends it.
   template <class F, class P>
   void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused = nullptr);
   // After the first slice passed without a reply: waits on for it (modbus_receive_confirmation)

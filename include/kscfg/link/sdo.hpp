@@ -1,4 +1,4 @@
-// The CANopen SDO client of the CANopen link (issue 37; CiA 301 "SDO protocols"): expedited
+// The CANopen SDO client of the CANopen link (CiA 301 "SDO protocols"): expedited
 // download (1..4 bytes), expedited and segmented upload, one transfer at a time per server, as the
 // protocol allows (the default SDO channel of a node has one transfer in progress at a time).
 //   client -> server  COB-ID 0x600 + node;  server -> client  COB-ID 0x580 + node
@@ -82,12 +82,12 @@ class SdoClient {
   // SDO requests sent so far (one per expedited transfer; a segmented upload counts each segment).
   std::size_t exchanges() const { return exchanges_; }
   // Two requests in a row got no answer: every later request fails with Error(Exit::link) before
-  // anything is sent (a dead bus is given up within two timeouts, issue 37).
+  // anything is sent (a dead bus is given up within two timeouts).
   bool proven_dead() const { return silent_ >= 2; }
   // A request of this run got no answer: why ("node 3 on ... stopped answering (SDO ...)"), "" while
   // every request was answered. No register is written to the node after that in this run
   // (canreg::Registers::write): a write sent meanwhile took effect when the node came back, after
-  // the change it belonged to had been given up (issue 45).
+  // the change it belonged to had been given up.
   const std::string& stopped_answering() const { return stopped_; }
   // Before a register access begins: the answer still owed to a request whose wait was cut short
   // (Ctrl-C while the node worked on it) is waited for until that request's deadline and dropped,

@@ -1,5 +1,5 @@
 // The slcan (Lawicel CAN232/CANUSB ASCII) protocol of USB-CAN adapters on a serial port, and the
-// CanBus over it (issue 37). Commands end with CR; an adapter answers CR for "done" and BELL (0x07)
+// CanBus over it. Commands end with CR; an adapter answers CR for "done" and BELL (0x07)
 // for "refused". Setup: "C" (close, ignoring a refusal), "Sn" (bit rate: S0 10k, S1 20k, S2 50k,
 // S3 100k, S4 125k, S5 250k, S6 500k, S7 800k, S8 1M), "O" (open). Frames both ways:
 // "tIIILDD..." (11-bit id, 3 hex digits; L data bytes, 0..8), "TIIIIIIIILDD..." (29-bit id),

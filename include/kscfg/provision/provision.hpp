@@ -62,7 +62,7 @@ struct ApplyResult {
 };
 
 // What apply's backup records about the run that made it, so that it can be told apart from
-// others and used as printed (issue 10 item 9).
+// others and used as printed.
 struct BackupInfo {
   std::string coupler;           // the coupler type (also the backup's `coupler` key)
   std::string port;              // the link as --port takes it (tcp://10.0.0.5:502, emu:/path)

@@ -1,5 +1,5 @@
 // How long a register session on a pipelining link (Modbus) waits after a request before its
-// first poll, per terminal, and how that wait follows the line (issue 21 item 4, docs/design.md
+// first poll, per terminal, and how that wait follows the line (docs/design.md
 // section 4).
 //
 // The wait is an estimate of the terminal's acknowledge latency (AckTiming::wait), never a
@@ -10,7 +10,7 @@
 //  - up when an answer shows only on a later poll: to what it took, at most twice the wait before;
 //    an eighth up when a request written ahead replaced the one waited for (how much slower the
 //    terminal was is unknown there);
-//  - down, by measuring (issue 34): a wait that went up (or was guessed, or kept from an earlier run
+//  - down, by measuring: a wait that went up (or was guessed, or kept from an earlier run
 //    at a quarter of the timeout or more) is `suspect`, and the next first poll is a probe at half of
 //    it (a plain poll, never one that writes). On TCP (ack_next_poll with a pace) a probe that finds
 //    nothing is followed by polls at the link's own pace up to the wait, so a probe times the answer
@@ -22,10 +22,10 @@
 //    (those too where they are within half again of the next: the spread, not an outlier).
 //    The wait has to cover the slowest answers, not the typical one: where a terminal answers after
 //    one or two bus cycles at random, one fast sample lowered the wait below every other answer and
-//    made every other read-ahead come too early (issue 22); an answer slow one time in four or
+//    made every other read-ahead come too early; an answer slow one time in four or
 //    more often is always among them. One late answer is not: before, the slowest answer of the
 //    last 64 held the wait up, and one answer at 6.4 ms from a terminal answering at 2.0 ms kept a
-//    5.0 ms wait for the rest of the run and, through the scan cache, into the next (issue 34).
+//    5.0 ms wait for the rest of the run and, through the scan cache, into the next.
 //    If a sample reaches seven eighths of the wait, or the answer is there only at the poll at the
 //    wait, the wait is confirmed and kept as it is. If some samples were there already at the probe (the answer may
 //    have come much earlier), the lowered wait is measured again. A measurement
@@ -48,7 +48,7 @@
 // the scan cache kept before the first session and saves it at the end (discovery/scan.cpp). The
 // link only moves bytes: it knows nothing of terminals or of how fast they answer.
 //
-// A station engine (issue 22) that runs several terminals' handshakes at once uses the same
+// A station engine that runs several terminals' handshakes at once uses the same
 // functions per terminal.
 #pragma once
 #include <array>
@@ -136,7 +136,7 @@ struct AckPoll {
 AckPoll ack_next_poll(const AckPlan& p, unsigned polls, std::chrono::microseconds last, std::chrono::microseconds pace);
 // The acknowledge showed at poll `poll` (1: the first), `took` after the request. `late`: that poll
 // went out later than planned by more than ack_late_slack() (this process was not scheduled, or
-// slept past its time: issue 34): `took` then tells of the machine's load, not of the terminal, and
+// slept past its time): `took` then tells of the machine's load, not of the terminal, and
 // it neither teaches a learning estimate nor raises one (it still counts as an acknowledge).
 void ack_seen(AckTiming& t, const AckPlan& p, unsigned poll, std::chrono::microseconds took,
               std::chrono::milliseconds timeout, bool late = false);
@@ -153,7 +153,7 @@ void ack_replaced(AckTiming& t, std::chrono::milliseconds timeout);
 // read-ahead costs an exchange on every register. Three misses used to end read-ahead for the rest
 // of the run: a `dump` through `kscfg serve` on a loaded machine missed three times in its first 23
 // registers (the server's K-bus thread late) and polled the other 25 without read-ahead, 2
-// exchanges each (issue 34).
+// exchanges each.
 bool ack_speculate(const AckTiming& t);
 // A latency kept from an earlier run is used only when it is shorter than the timeout; one of a
 // quarter of the timeout or more is suspect.

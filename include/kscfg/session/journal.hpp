@@ -1,5 +1,5 @@
 // Which terminals a kscfg process has in register mode, kept where the next kscfg on the same port
-// finds them (docs/design.md section 6, issue 11 item 3, issue 21 items 2 and 3).
+// finds them (docs/design.md section 6).
 //
 // A session that dies (kill -9, a crash) leaves its terminal in register mode. The next session on
 // that terminal sees REG in the control byte and finishes it; but a command on another terminal

@@ -1,5 +1,5 @@
 // Is a control byte found in register mode a dead session's leftover, or another master at work?
-// (issue 21 item 1, docs/design.md section 6.)
+// (docs/design.md section 6.)
 //
 // On this computer the coupler lock (owner_lock.hpp) lets one kscfg at a time use a coupler, and
 // the journal of a kscfg that died names what it left. Across computers there is no shared lock:

@@ -1,4 +1,4 @@
-// No write that locks kscfg out (docs/design.md section 6, issue 10 item 4): before a write, the station
+// No write that locks kscfg out (docs/design.md section 6): before a write, the station
 // is laid out as the coupler will lay it out at its next start with the written values; a terminal
 // that would lose its register window (KL6001 standard format with one data byte, alternative
 // format without complete evaluation, an image that outgrows the coupler, ...) makes the write a

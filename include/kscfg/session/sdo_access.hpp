@@ -17,7 +17,7 @@
 // work cannot keep several requests in flight here: every advance() runs the next request of one
 // channel to its end, the channels taken in turn (round robin), and returns what finished.
 //
-// A read's uploads go at the terminal's pace (issue 45), by the acknowledge plan of the Modbus
+// A read's uploads go at the terminal's pace, by the acknowledge plan of the Modbus
 // handshake (session/ack_latency.hpp): one AckTiming per terminal position, the first upload once
 // the estimate has passed since the download, the next ones at the estimate after a probe or
 // every eighth of the time since the download past it, at most canreg::kMaxUploads. Before,
