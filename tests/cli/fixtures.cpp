@@ -14,16 +14,11 @@
 
 namespace kscfg::test {
 
-namespace {
-
-// `s` as one word of a shell command line, in single quotes.
-std::string quote(const std::string& s) {
+std::string shell_quote(const std::string& s) {
   std::string out = "'";
   for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
   return out + "'";
 }
-
-}  // namespace
 
 Station::Station(const std::string& p) : port(p.empty() ? "emu:" + state : p) {
   env["KSCFG_PORT"] = port;
@@ -86,7 +81,7 @@ Tmux::~Tmux() { kill_server(); }
 
 void Tmux::start(const std::string& command, int columns, int rows) const {
   shell_output(tmux + "new-session -d -s t -x " + std::to_string(columns) + " -y " + std::to_string(rows) + " " +
-               quote(command));
+               shell_quote(command));
 }
 
 void Tmux::send_keys(const std::string& keys) const { shell_output(tmux + "send-keys -t t " + keys); }

@@ -32,6 +32,9 @@ bool all_channels_locked(const std::string& state, double timeout_s = 10);
 // client), as bytes, low byte first. Throws when the coupler does not answer.
 std::vector<std::uint8_t> modbus_image(const std::string& uri, std::uint16_t at, std::size_t words);
 
+// `s` as one word of a shell command line, in single quotes.
+std::string shell_quote(const std::string& s);
+
 // What `command` (through /bin/sh) writes to stdout.
 std::string shell_output(const std::string& command);
 

@@ -14,17 +14,12 @@
 #include "fixtures.hpp"
 
 using kscfg::test::Emu;
+using kscfg::test::shell_quote;
 using kscfg::test::TempDir;
 using kscfg::test::Tmux;
 using kscfg::test::write_text;
 
 namespace {
-
-std::string quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
 
 struct Shells {
   Emu emu;
@@ -40,14 +35,14 @@ struct Shells {
   std::map<std::string, std::string> complete(const std::string& shell, const std::string& line) const {
     std::string cmd;
     if (shell == "bash")
-      cmd = env() + "timeout 60 bash " + quote(src + "/tests/completion/bash_complete.sh") + " " +
-            quote(src + "/completions/kscfg.bash") + " " + quote(line);
+      cmd = env() + "timeout 60 bash " + shell_quote(src + "/tests/completion/bash_complete.sh") + " " +
+            shell_quote(src + "/completions/kscfg.bash") + " " + shell_quote(line);
     else if (shell == "zsh")
-      cmd = env() + "timeout 60 zsh -f " + quote(src + "/tests/completion/zsh_complete.zsh") + " " +
-            quote(src + "/completions") + " " + quote(line);
+      cmd = env() + "timeout 60 zsh -f " + shell_quote(src + "/tests/completion/zsh_complete.zsh") + " " +
+            shell_quote(src + "/completions") + " " + shell_quote(line);
     else
       cmd = env() + "timeout 60 fish --no-config -c " +
-            quote("source " + src + "/completions/kscfg.fish; complete -C " + quote(line));
+            shell_quote("source " + src + "/completions/kscfg.fish; complete -C " + shell_quote(line));
     FILE* p = popen(cmd.c_str(), "r");
     std::map<std::string, std::string> out;
     if (!p) return out;
