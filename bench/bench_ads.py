@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""ADS register access against its per-access latency (issue 24 item 7): a 48-register dump over
+"""ADS register access against its per-access latency: a 48-register dump over
 ads:// set against 48 times the single-access round trip.
 
 The other side is the independent ADS peer (tests/ads_peer/ads_peer.py), which takes --latency-ms

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Per-register time over slcan at 500 kbit/s against the wire floor of its frames (issue 37).
+"""Per-register time over slcan at 500 kbit/s against the wire floor of its frames.
 
     nice -n 10 bench/bench_can.py [--kscfg build/kscfg] [-n RUNS] [--quick] [--target serve|peer|peer0]
 
@@ -7,7 +7,7 @@ Targets: `kscfg serve --can` on one end of a socat pseudo-terminal pair (`socat 
 pty,raw,echo=0 pty,raw,echo=0`), the CANopen peer (tests/canopen_peer/canopen_peer.py; the
 manual's K-bus cycle: the first upload after a register's address answers busy) and the peer
 with --busy-uploads 0 (peer0: every value at the first upload, the fewest frames the manual's
-procedure allows); and two couplers whose register access takes 2 ms (issue 45: a coupler
+procedure allows); and two couplers whose register access takes 2 ms (a coupler
 answering within 2 ms, where uploads back to back cost many frames a register): peer2ms, the
 peer with --busy-uploads 0 --kbus-ms 2, and serve2ms, serve --can --can-register-ms 2. For each:
 

@@ -40,7 +40,7 @@ namespace {
 
 using namespace bench;
 
-// The cases of issue 12's table, on one TCP peer and one pty peer.
+// The reference cases (peer cycle and acknowledge latency), on one TCP peer and one pty peer.
 void reference(const Options& o, const std::string& station, std::vector<Row>& rows, double cycle_ms, unsigned dmin,
                unsigned dmax) {
   const unsigned n = o.runs;
@@ -99,7 +99,7 @@ void reference(const Options& o, const std::string& station, std::vector<Row>& r
   }
 }
 
-// Issue 34: a peer whose terminals answer at the first K-bus cycle after a request, TCP only: an
+// A peer whose terminals answer at the first K-bus cycle after a request, TCP only: an
 // ideal client's latency is one cycle, and a poll at the right moment finds every answer.
 void one_cycle(const Options& o, const std::string& station, std::vector<Row>& rows) {
   auto peer = spawn(peer_argv(o, true, 2.0, 1, 1));
@@ -180,7 +180,7 @@ std::string kept_waits(const fs::path& dir) {
   return "none";
 }
 
-// Issue 34: a wait learned while the machine was loaded must not slow the quiet runs after it.
+// A wait learned while the machine was loaded must not slow the quiet runs after it.
 void loaded(const Options& o, const std::string& station, std::vector<Row>& rows) {
   auto peer = spawn(peer_argv(o, true, 2.0, 1, 2));
   auto colon = peer->first_line.rfind(':');
@@ -306,13 +306,13 @@ int main(int argc, char** argv) {
     rows.clear();
   }
   if (o.only == "load" || (o.only.empty() && !o.quick)) {
-    fmt::print("\n## A wait learned under load (issue 34): busy loops on every core for 10 runs, then quiet\n\n");
+    fmt::print("\n## A wait learned under load: busy loops on every core for 10 runs, then quiet\n\n");
     loaded(o, station, rows);
     print_rows(rows);
     rows.clear();
   }
   if (o.only == "counts" || (o.only.empty() && !o.quick)) {
-    fmt::print("\n## Request counts (issue 34): cold info against the walk's floor; warm against --station\n\n");
+    fmt::print("\n## Request counts: cold info against the walk's floor; warm against --station\n\n");
     print_rows({});
     std::vector<Row> counts;
     request_counts(o, counts);  // prints its rows as it goes

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Reliability campaigns (issue 11 item 5): kscfg and `kscfg serve` against faults, kill -9, many
+"""Reliability campaigns: kscfg and `kscfg serve` against faults, kill -9, many
 and slow clients, and parallel writers, counted as
 
     tried / failed cleanly / wrong value / left unlocked / left in register mode / crashed
@@ -15,11 +15,11 @@ itself dying.
     bench/campaign.py [--kscfg build/kscfg] [--seed N] [--quick] [CAMPAIGN...]
 
 CAMPAIGN (default: all): mixed, kill9, connections, writers, durability, and in files of their
-own (ELSEWHERE): issue 21's meet, kill9all, forged, poison; issue 22's kill9apply12 (kill -9 during
-an apply on 12 terminals); issue 24's adsfaults, adskill9, adstwo (serve --ads and the ADS peer);
-issue 32's spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped during
-such an apply), kill9force (kill -9 of data force); issue 35's twoprotocols (Modbus TCP and ADS);
-issue 37's cankill9, canwriters, canint, candead (CANopen over slcan: serve --can and the CANopen
+own (ELSEWHERE): sessions that meet, die or find poisoned caches: meet, kill9all, forged, poison;
+kill9apply12 (kill -9 during an apply on 12 terminals); adsfaults, adskill9, adstwo (serve --ads and
+the ADS peer); spellings (one coupler by localhost and 127.0.0.1), deadlink12 (the coupler stopped
+during such an apply), kill9force (kill -9 of data force); twoprotocols (Modbus TCP and ADS);
+cankill9, canwriters, canint, candead (CANopen over slcan: serve --can and the CANopen
 peer; kill -9, two writers on one node, SIGINT, a coupler that stops answering mid-apply);
 kill9change (kill -9 of a two-register set or a two-terminal apply over serve, serve --ads, serve
 --can and the pymodbus peer: no change left half done unsaid) and otheruser (another user's alias

@@ -1,4 +1,4 @@
-"""ADS rows of the reliability campaign (issue 24): kscfg over ads:// against `kscfg serve --ads` and
+"""ADS rows of the reliability campaign: kscfg over ads:// against `kscfg serve --ads` and
 against the independent ADS peer (tests/ads_peer/ads_peer.py, standard library only). Run from
 bench/campaign.py (campaigns adsfaults, adskill9, adstwo); C is that module (run(), outcome(),
 Tally, load_state, register).

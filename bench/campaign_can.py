@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""CANopen rows of the reliability campaign (issue 37): kscfg over slcan against `kscfg serve --can`
+"""CANopen rows of the reliability campaign: kscfg over slcan against `kscfg serve --can`
 (the emulator as a BK5120 behind an slcan adapter on a pseudo-terminal) and against the independent
 CANopen peer (tests/canopen_peer/canopen_peer.py). Run from bench/campaign.py (campaigns cankill9,
 canwriters, canint, candead); C is campaign_common.
@@ -452,7 +452,7 @@ def canwriters(C, kind, n, seed, work):
             jobs = [(["-t", str(POS["KL6001"]), "write", "R33", f"0x{v1:04X}"], {(POS["KL6001"], 1, 33): v1}),
                     (["-t", str(POS["KL3022"]), "write", "R36", f"0x{v2:04X}"], {(POS["KL3022"], 1, 36): v2})]
         before = tg.begin(t)
-        # The same bus and node spelled another way: one lock all the same (issue 37).
+        # The same bus and node spelled another way: one lock all the same.
         dev = tg.uri[len("slcan:"):].split("?")[0]
         other = rnd.random() < 0.5
         uris = [tg.uri, f"slcan://{dev}?bitrate=500000&node=1" if other else tg.uri]
@@ -686,7 +686,7 @@ def candead(C, kind, n, seed, work, timeout_ms=400):
 
 
 def canint300(C, kind, n, seed, work):
-    """Issue 45's row: SIGINTs during an apply only (a false exit 9 came 5 times in 270 against the peer)."""
+    """The row of SIGINTs during an apply only (a false exit 9 came 5 times in 270 against the peer)."""
     return canint(C, kind, n, seed, work, ops=("apply",))
 
 

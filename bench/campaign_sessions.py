@@ -1,4 +1,4 @@
-"""Issue 21's campaign rows (sessions that meet, die or find poisoned caches), each through
+"""The campaign rows of sessions that meet, die or find poisoned caches, each through
 `kscfg serve` and through the independent pymodbus peer (tests/peer/bk_coupler.py). Run from
 bench/campaign.py (campaigns meet, kill9all, forged, poison); C is that module (run(), outcome(),
 Serve, Tally, load_state).

@@ -1,4 +1,4 @@
-"""Issue 32 item 1's campaign rows: one coupler reached by two names at once, and issue 35's: by two
+"""The campaign rows of one coupler reached by two names at once, and of one reached by two
 protocols at once. Run from bench/campaign.py (campaigns spellings, twoprotocols); C is that module
 (run(), outcome(), Tally, Serve).
 
@@ -13,7 +13,7 @@ protocols at once. Run from bench/campaign.py (campaigns spellings, twoprotocols
              ADS: no byte of the output image written), no code word in the process data.
 
 Before one key per coupler (link/coupler_key.hpp) the two names took two locks and the writers'
-sessions undid each other's writes (issue 32: 3 verified writes lost over Modbus, 9 of 300 over ADS).
+sessions undid each other's writes (3 verified writes lost over Modbus, 9 of 300 over ADS).
 SPELLINGS_SPLIT_LOCKS=1 gives each name a lock directory of its own, as then: the row's control.
 
   twoprotocols  10 kscfg at once on one `kscfg serve --tcp --ads`, 5 over tcp:// (the register
@@ -166,7 +166,7 @@ def ends(t, got, counts, ended):
 
 
 def twoprotocols(C, writers, writes, seed, work):
-    """One coupler by two protocols (issue 35): `serve --tcp --ads` on one station, half the writers over
+    """One coupler by two protocols: `serve --tcp --ads` on one station, half the writers over
     Modbus TCP (the image handshake), half over ADS (port 100, straight to the registers), at once."""
     t = C.Tally(f"two protocols on one coupler: {writers} kscfg at once on one `serve --tcp --ads`, {writers // 2} "
                 f"over Modbus TCP and {writers // 2} over ADS, writing R33 of the KL3022's two channels {writes} times "

@@ -1,7 +1,7 @@
-"""Issue 22's campaign row: kill -9 of kscfg during an apply on a station of 12 KL6001, through
+"""The campaign row of kill -9 of kscfg during an apply on a station of 12 KL6001, through
 `kscfg serve` and through the independent pymodbus peer (tests/peer/bk_coupler.py). Run from
-bench/campaign.py (campaign kill9apply12); C is that module (Tally, outcome). Issue 32's rows
-(campaigns deadlink12 and kill9force) are below: the coupler stopped (SIGSTOP) during such an
+bench/campaign.py (campaign kill9apply12); C is that module (Tally, outcome). The rows
+of campaigns deadlink12 and kill9force are below: the coupler stopped (SIGSTOP) during such an
 apply, then one read of terminal 1; kill -9 of `data force`, then a read and `data release --yes`.
 
 Each trial starts from the same station (every KL6001 at 9600 baud, 8N1), runs `kscfg apply` of
@@ -143,7 +143,7 @@ def apply_outcome(rc, err):
 
 
 def deadlink(C, kind, n, seed, work):
-    """Issue 32 item 2: the coupler stops (SIGSTOP of serve or of the peer) at a random point of an
+    """The coupler stops (SIGSTOP of serve or of the peer) at a random point of an
     apply of 2 parameters on 12 KL6001; the apply ends on its own (a dead link), the coupler comes
     back (SIGCONT), and one `-t 1 read R8` must leave no terminal unlocked or in register mode."""
     from nstation import NStation
@@ -225,7 +225,7 @@ def deadlink(C, kind, n, seed, work):
 
 
 def kill9force(C, kind, n, seed, work):
-    """Issue 32 item 5: `data force D0=0x41 --yes` on terminal 2 killed with kill -9 once forced;
+    """`data force D0=0x41 --yes` on terminal 2 killed with kill -9 once forced;
     the next command must name it (one warning), `data release --yes` must put it back."""
     from nstation import NStation
 

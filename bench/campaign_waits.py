@@ -1,4 +1,4 @@
-"""Issue 45's rows of the reliability campaign: every wait over ADS bounded, against `kscfg serve
+"""The rows of the reliability campaign that bound every wait over ADS, against `kscfg serve
 --ads` and the independent ADS peer (tests/ads_peer/ads_peer.py). Run from bench/campaign.py
 (campaigns adsreset, adsstop) or alone:
 
@@ -80,7 +80,7 @@ class ResetRelay:
         try:
             if spoil and self.answered == "full" and self.conns > 1:
                 # A full server: closed (reset) as it comes, after the first connection was answered
-                # once and reset (issue 45's hang: the requests queued to go out again were dropped).
+                # once and reset (the hang this row found: the requests queued to go out again were dropped).
                 c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
                 time.sleep(self.rnd.uniform(0, 0.002))
                 return

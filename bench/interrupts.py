@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""How fast kscfg lets go (issue 21 item 4, issue 23 item 3): timing figures, not pass/fail tests.
+"""How fast kscfg lets go: timing figures, not pass/fail tests.
 
     nice -n 10 bench/interrupts.py [--kscfg build/kscfg] [-n 20]
 
@@ -14,7 +14,7 @@ Against `kscfg serve` (Modbus TCP on loopback, watchdog off, default --timeout o
                  to kscfg's exit (status 9 with the undo command), and whether it named the backup
   Ctrl-C, dead   the same, and SIGINT 0.5 s after the stop: time from the signal to the exit; and
                  a second SIGINT during the rollback
-  Ctrl-C row     (issue 32 item 3, --ctrl-c) SIGINT at a random point of `apply`, `restore`, `set`
+  Ctrl-C row     (--ctrl-c) SIGINT at a random point of `apply`, `restore`, `set`
                  and `backup`, N runs each over Modbus TCP (serve, K-bus cycle 2 ms) and over ADS
                  (serve --ads, every register access 30 ms, one at a time): runs whose registers
                  are neither as before nor as the command sets them (wrong), a channel left
@@ -403,7 +403,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--kscfg", default=KSCFG)
     ap.add_argument("-n", type=int, default=20)
-    ap.add_argument("--ctrl-c", action="store_true", help="only the Ctrl-C row of issue 32 (N runs per command)")
+    ap.add_argument("--ctrl-c", action="store_true", help="only the Ctrl-C row (N runs per command)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--only", nargs="*", help="rows of --ctrl-c: modbus-apply ... ads-backup")
     a = ap.parse_args()

@@ -1,4 +1,4 @@
-// The station-size sweep (issue 22): stations of 1, 2, 4, 8, 12 and 16 KL6001 behind `kscfg serve` and
+// The station-size sweep: stations of 1, 2, 4, 8, 12 and 16 KL6001 behind `kscfg serve` and
 // behind the pymodbus peer, over Modbus TCP and RTU, each case a whole kscfg process:
 //  * backup of the station (--station FILE);
 //  * apply of one parameter on every terminal (the baud rate, 19200 and 9600 in turn, so that every
@@ -129,7 +129,7 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
       };
       row("backup", measure(o, *relay, {"--station", station, "backup"}, Cache::warm, tag + "-backup", o.runs));
       row("apply, baud on every terminal", apply_turns(o, *relay, station, fa, fb, tag + "-apply"));
-      // Issue 22's single-terminal targets: a warm `read R8` (scan cache kept, no --station) at most
+      // The single-terminal targets: a warm `read R8` (scan cache kept, no --station) at most
       // 5 requests; the apply of one changed parameter above at most 16.
       if (n == 1 && sv.tcp)
         row("`read R8`, warm scan cache",
@@ -140,7 +140,7 @@ void station_sweep(const Options& o, std::vector<Row>& rows) {
   }
 }
 
-// Issue 34's request counts. A cold `info` of 8, 12 and 16 KL6001 through `kscfg serve` against the
+// Request counts. A cold `info` of 8, 12 and 16 KL6001 through `kscfg serve` against the
 // walk's floor (engine.md 2.4: 23 requests for the first terminal, then 4 per terminal); warm `info`
 // and warm `read R8` (scan cache kept, no --station) against the median of their --station runs,
 // 20 runs each on the pymodbus peer (2 ms, 1-2 cycles), on a quiet machine and with busy loops on

@@ -10,7 +10,7 @@ namespace bench {
 // one parameter per terminal, cold info; rows with the ratios to the 1-terminal station.
 void station_sweep(const Options& o, std::vector<Row>& rows);
 
-// Issue 34's request counts: cold info at 8, 12 and 16 terminals through serve against the walk's
+// Request counts: cold info at 8, 12 and 16 terminals through serve against the walk's
 // floor; warm info and read R8 against --station, 20 runs each, quiet and loaded (`--only counts`).
 void request_counts(const Options& o, std::vector<Row>& rows);
 

@@ -1,4 +1,4 @@
-// libFuzzer: CANopen, both ends (issue 37). The first byte picks the end:
+// libFuzzer: CANopen, both ends. The first byte picks the end:
 //   even: what a host sends to `serve --can` (emulator/slcan_adapter.hpp, canopen_requests.hpp):
 //     slcan command lines split at CR; each frame the adapter puts on the bus goes to the emulated
 //     BK5120. Every answer is an SDO answer of the node (0x580 + node, 8 bytes) or its boot-up

@@ -1,4 +1,4 @@
-// libFuzzer: the session journal's parser (session/journal.hpp; issue 21 item 3). Any text gives
+// libFuzzer: the session journal's parser (session/journal.hpp). Any text gives
 // the open entries within the parser's limits, and nothing else: positions 1..1024, channels up to
 // 256, image offsets below 512, at most 512 saved bytes and four control bytes (each once) per
 // entry; an entry written with format_entry() reads back the same; an entry of direct access ("u")

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerates the seed corpora in fuzz/corpus/ from the built kscfg and the tests' inputs, and
-# the regression inputs in fuzz/regressions/ (the crashers of issue 11). The committed files are
+# the regression inputs in fuzz/regressions/ (the crashers the reliability campaign found). The committed files are
 # its output; run it after a format changes: fuzz/seeds.sh build/kscfg
 set -euo pipefail
 K=$(realpath "${1:-build/kscfg}")
@@ -52,7 +52,7 @@ cp "$T/ser.json" corpus/state/serial.json
 cp "$T/r.json" corpus/state/rtu.json
 
 # Modbus requests: first byte even = TCP, odd = RTU (fuzz_modbus_requests.cpp); RTU frames get
-# their CRC. Regressions: the frames of issue 11 (protocol id 7, length 0 and 65535, FC16 byte
+# their CRC. Regressions: the frames that crashed it once (protocol id 7, length 0 and 65535, FC16 byte
 # count that does not match the quantity).
 /usr/bin/python3 - <<'PY'
 def crc(b):
@@ -118,7 +118,7 @@ printf '+ 1 0 0 0 2 3 2 3 0 0000000000000000 KL6001\n> 1 0 88\n> 1 0 9f\n- 1 0\n
 printf '+ 3 0 16 16 18 19 18 19 16 000041420000000000000000000000000000000000000000 KL6031\n> 3 0 df\n> 3 0 a0\n> 3 0 88\n' > corpus/journal/open
 printf '+ 4 1 44 44 46 47 46 47 44 00000000 KL3022\n> 4 1 a4\n+ 2 0 8 8 10 11 10 11 8 0000000000000000 ?\n> 2 0 8' > corpus/journal/cut
 printf '+ 1 0 600 0 2 3 2 3 0 00 KL6001\n+ 99999 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 zz\n- 1\n' > regressions/journal/forged
-# Issue 32: a relock that failed ("!") and outputs a `data force` left forced ("f", "r" once back).
+# A relock that failed ("!") and outputs a `data force` left forced ("f", "r" once back).
 printf '+ 1 0 0 0 2 3 2 3 0 00 KL6001\n> 1 0 a0\n> 1 0 df\n> 1 0 00\n> 1 0 df\n! 1 0\n> 1 0 00\n' > corpus/journal/relock-failed
 printf 'f 6 0 7 05 00 05 KL2134\nf 6 0 6 01 00 01 KL2134\nr 6 0 6\nf 3 1 20 ff 10 27 KL4032\n' > corpus/journal/forced
 

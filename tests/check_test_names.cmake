@@ -1,18 +1,54 @@
 # CTest runs each Catch2 test case by its name; catch_discover_tests passes names as a CMake list,
 # so a name with ';' is split and its ctest runs a filter that matches nothing and "passes".
-# Fails when any test case name holds a ';' (usage: cmake -DEXE=kscfg_tests -P this file).
+# Fails when any test case name holds a ';' (use ',').
+# Tests are named by what they hold, not by the tracker entry that asked for them: fails too when a
+# test case name or tag of EXE, or the name of a file under ROOT/tests, contains "issue" (any case).
+# Usage: cmake -DEXE=kscfg_tests -DROOT=source-dir -P this file.
 execute_process(COMMAND ${EXE} --list-test-names-only OUTPUT_VARIABLE names RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0 AND names STREQUAL "")
   message(FATAL_ERROR "cannot list the test names of ${EXE}")
 endif()
+execute_process(COMMAND ${EXE} --list-tags OUTPUT_VARIABLE tags RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0 AND tags STREQUAL "")
+  message(FATAL_ERROR "cannot list the test tags of ${EXE}")
+endif()
+set(issue "[Ii][Ss][Ss][Uu][Ee]")
+
 string(REPLACE ";" "<SEMICOLON>" names "${names}")
 string(REPLACE "\n" ";" lines "${names}")
 set(bad "")
+set(by_issue "")
 foreach(line IN LISTS lines)
   if(line MATCHES "<SEMICOLON>")
     string(APPEND bad "\n  ${line}")
   endif()
+  if(line MATCHES "${issue}")
+    string(APPEND by_issue "\n  test case: ${line}")
+  endif()
 endforeach()
 if(bad)
   message(FATAL_ERROR "test case names with ';' never run under CTest (use ','):${bad}")
+endif()
+
+string(REPLACE ";" "<SEMICOLON>" tags "${tags}")
+string(REPLACE "\n" ";" lines "${tags}")
+foreach(line IN LISTS lines)
+  if(line MATCHES "\\[[^]]*${issue}[^]]*\\]")
+    string(STRIP "${line}" line)
+    string(APPEND by_issue "\n  tag: ${line}")
+  endif()
+endforeach()
+
+if(NOT ROOT)
+  message(FATAL_ERROR "ROOT (the source tree) is not set")
+endif()
+file(GLOB_RECURSE files RELATIVE ${ROOT} ${ROOT}/tests/*)
+foreach(f IN LISTS files)
+  get_filename_component(name "${f}" NAME)
+  if(name MATCHES "${issue}")
+    string(APPEND by_issue "\n  file: ${f}")
+  endif()
+endforeach()
+if(by_issue)
+  message(FATAL_ERROR "tests named by a tracker entry, not by what they hold (say what they test):${by_issue}")
 endif()

@@ -1,4 +1,4 @@
-# A test that needs a tool fails when the tool is missing, never passes (issue 23 item 19):
+# A test that needs a tool fails when the tool is missing, never passes:
 # runs EXE ARGS with an empty PATH and expects a failure that names TOOL.
 file(MAKE_DIRECTORY ${WORK})
 execute_process(COMMAND ${CMAKE_COMMAND} -E env PATH=${WORK} ${EXE} ${ARGS}

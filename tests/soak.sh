@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The suite must not flake (issue 11 item 6): runs the whole ctest suite ROUNDS times in a row
+# The suite must not flake: runs the whole ctest suite ROUNDS times in a row
 # (default 20) while stress-ng keeps every CPU busy, and reports how many rounds passed.
 #   tests/soak.sh [ROUNDS] [BUILD_DIR]          e.g. nice -n 10 tests/soak.sh 20 build
 # Needs stress-ng (Debian package). Each failing round's log stays in BUILD_DIR/soak/.

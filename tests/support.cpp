@@ -125,12 +125,12 @@ std::string kscfg_cache_dir() { return test_cache_dir(); }
 std::string kscfg_state_dir() { return test_cache_dir() + "/state/kscfg"; }
 std::string kscfg_lock_dir() { return test_cache_dir() + "/locks"; }
 
-bool wait_for(const std::function<bool()>& cond, double timeout_s) {
+bool wait_for(const std::function<bool()>& cond, double timeout_s, double every_s) {
   auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
   for (;;) {
     if (cond()) return true;
     if (std::chrono::steady_clock::now() > deadline) return false;
-    usleep(2000);
+    usleep(static_cast<useconds_t>(every_s * 1e6));
   }
 }
 

@@ -57,8 +57,9 @@ std::string kscfg_cache_dir();
 std::string kscfg_state_dir();  // .../state/kscfg
 std::string kscfg_lock_dir();
 
-// Waits until `cond` holds, looking every 2 ms, at most `timeout_s` seconds; returns whether it did.
-bool wait_for(const std::function<bool()>& cond, double timeout_s = 30);
+// Waits until `cond` holds, looking every `every_s` seconds (2 ms), at most `timeout_s` seconds;
+// returns whether it did.
+bool wait_for(const std::function<bool()>& cond, double timeout_s = 30, double every_s = 0.002);
 
 // A fresh temporary directory, removed when the object dies.
 struct TempDir {

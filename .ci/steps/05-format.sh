@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Every C++ file laid out as .clang-format says (issue 33 item 7): the format was applied once, in
+# Every C++ file laid out as .clang-format says: the format was applied once, in
 # a commit of its own; this keeps it so. Debian 12's clang-format (14) is the one that applied it.
 # A file out of format fails the step naming the file and line; `clang-format -i FILE` fixes it.
 set -euo pipefail

@@ -31,7 +31,7 @@ echo "30-deb: built $deb"
 dpkg-deb --field "$deb"
 
 # lintian: errors always fail; warnings, info and pedantic tags fail unless kept in the table of
-# docs/guide.md (with a reason): the guide says only those are left (issue 23 item 17: an info tag,
+# docs/guide.md (with a reason): the guide says only those are left (an info tag,
 # spelling-error-in-binary, showed although the table did not name it).
 kept=$(awk '/<!-- lintian-kept -->/{f=1; next} f && /^\| *`/{gsub(/[` ]/, "", $2); print $2; next} f && !/^\|/{exit}' \
   FS='|' docs/guide.md | paste -sd, -)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# ADS against sides kscfg did not make (issue 24 item 6), for real (the CTests skip without them):
+# ADS against sides kscfg did not make, for real (the CTests skip without them):
 # the npm package ads-client in raw mode (no router) drives `kscfg serve --ads` through ports 100
 # and 300, and Debian's tshark decodes captured ADS traffic as AMS with no malformed frame.
 # ads-client 2.1.0: CommonJS, no "engines" field, runs on Debian 12's Node.js 18.

@@ -151,7 +151,7 @@ std::string own_command_line() {
 namespace {
 
 // A directory of lock files is trusted when no one but this user and root can remove or replace
-// what is in it (issue: another user who made /run/lock/kscfg first, mode 0777, deleted root's
+// what is in it (once another user who made /run/lock/kscfg first, mode 0777, deleted root's
 // lock files, and a second root kscfg wrote at once): owned by root or by this user, and not
 // writable by others unless sticky (then only a file's owner removes it). `why`: what it is else.
 bool trusted_dir(const std::string& dir, std::string& why) {

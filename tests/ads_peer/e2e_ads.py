@@ -4,7 +4,7 @@
 Runs kscfg's port-100 register calls (through the ads_probe tool) and kscfg commands over
 ads:// against the peer, and checks what the peer holds afterwards. With --figures it also
 prints the time of a 48-register read, pipelined and one at a time, against the peer's
-per-access latency (the figures of issue 24 item 7; no assertion on time here: bench/ has those).
+per-access latency (the figures of the ADS latency benchmark; no assertion on time here: bench/ has those).
 """
 import argparse
 import json
@@ -118,8 +118,8 @@ def main():
               "scan --json: identification, image lengths of the layout, the ADS watchdog: "
               f"{ {k: j.get(k) for k in ('identification', 'coupler', 'matches', 'image_bits', 'watchdog')} }")
         check(not peer.image_writes, "scan wrote no byte of the process image")
-        # map --online reads the mapping registers through the port's one register access, port 100
-        # (issue 33 item 1): the peer's image answers process data only (no register mode), and
+        # map --online reads the mapping registers through the port's one register access, port 100:
+        # the peer's image answers process data only (no register mode), and
         # not one byte of it is written.
         peer.image_writes.clear()
         peer.log = []
@@ -175,7 +175,7 @@ def main():
               and "3022" in r.stdout, f"-t all read R8 over ADS: rc {r.returncode} {r.stderr.strip()[:200]}")
         # A coupler without table 9: walked by terminal number, the digital ones counted. No manual
         # says whether a digital terminal answers 0x703 or 0x702 (as no terminal at all): the walk
-        # ends on neither, and both give the same station (issue 35).
+        # ends on neither, and both give the same station.
         peer.table9 = False
         for code in (ads_peer.ADS_OFFSET, ads_peer.ADS_GROUP):
             peer.digital_answers = code
@@ -223,7 +223,7 @@ def main():
               f"--station naming an input terminal where table 9 has 4 outputs: refused: rc {r.returncode} "
               f"{r.stderr.strip()[:300]}")
 
-        # A type that fits is accepted everywhere (issue 45): a partial file naming the real KL2404 at
+        # A type that fits is accepted everywhere: a partial file naming the real KL2404 at
         # table 9's position 4 (before: "the station has a KL2114 there", exit 5); a backup says the
         # digital terminals' types are only ones that fit; messages name them by their bits.
         partial = os.path.join(env["XDG_CACHE_HOME"], "partial.toml")
@@ -266,7 +266,7 @@ def main():
               f"{r.stderr.strip()[:400]}")
         peer.log = None
         # map --online and info show image offsets: refused as data is, naming the setting (before,
-        # the word-aligned offsets with exit 0 and nothing said, issue 45).
+        # the word-aligned offsets with exit 0 and nothing said).
         for cmd in (["map", "--online"], ["info"], ["-t", "3", "info"]):
             r = run([a.kscfg, "--port", uri] + cmd, 120)
             check(r.returncode == 5 and r.stderr.count("\n") == 1 and "set to word alignment off" in r.stderr
@@ -305,7 +305,7 @@ def main():
 
         # A Modbus TCP side that does not answer (its port dropped): the first command waits its bound
         # (1 s), the next ones do not ask for 10 minutes and say why (-v); kscfg scan asks again, and
-        # an answer ends it (before, every command that needed the layout waited 1 s, issue 45).
+        # an answer ends it (before, every command that needed the layout waited 1 s).
         peer.modbus_mute = True
         times = []
         for _ in range(3):

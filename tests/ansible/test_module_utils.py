@@ -56,7 +56,7 @@ class Tmp(unittest.TestCase):
 
 
 class StationFileProblemTest(Tmp):
-    # Issue 23 item 14: a directory was "does not exist".
+    # A directory was "does not exist".
     def test_the_cause_is_named(self):
         self.assertEqual(ku.station_file_problem(self.dir.name), 'is a directory, not a station file')
         self.assertEqual(ku.station_file_problem(self.path('none.toml')), 'does not exist')
@@ -338,7 +338,7 @@ class FactsTest(Tmp):
 # ---------------------------------------------------------------------------------------------
 # The kscfg_station module's check mode without Ansible: the module's main() with a stand-in for
 # AnsibleModule (the parts it uses), against kscfg and the emulator. A change kscfg refuses must
-# fail in check mode too, with kscfg's reason, instead of reporting "would change" (issue 33 item 2).
+# fail in check mode too, with kscfg's reason, instead of reporting "would change".
 
 MODULE = os.path.join(ROOT, 'contrib', 'ansible', 'ansible_collections', 'kscfg', 'bus', 'plugins', 'modules',
                       'kscfg_station.py')

@@ -104,7 +104,7 @@ def main():
               'missing station file: %s' % x['msg'])
         x = res['unit_conflict']
         check(x['failed'] and 'names unit 2 but unit is 3' in x['msg'], 'unit against the URI: %s' % x['msg'])
-        # Issue 10 item 8: without a layout, the file's complex terminals are matched with the
+        # Without a layout, the file's complex terminals are matched with the
         # scan by R8 and order, its digital terminals by bit totals, so the seven-terminal file
         # applies over Modbus as it is.
         x = res['no_layout']
@@ -130,7 +130,7 @@ def main():
               ['KL6001', 'KL5101', 'KL6031', 'KL3022'] and t[2]['params']['baud'] == 38400 and
               'registers' not in t[2]['channels'][0], 'facts over Modbus: baud 38400, no registers asked')
         check(len(t) == 7 and t[4]['type'] == 'KL1104', 'facts over Modbus with the layout: 7 terminals')
-        # Issue 23 item 18: snake_case keys (params.data_bytes), partial stations by position.
+        # snake_case keys (params.data_bytes), partial stations by position.
         check(str(res['data_bytes_dot']) == '3', 'facts: params.data_bytes by dot access: %r' % res['data_bytes_dot'])
         check('data-bytes' not in res['facts_emu']['ansible_facts']['kscfg']['terminals'][0]['params'],
               'facts: no hyphenated keys')

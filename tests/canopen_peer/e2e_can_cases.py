@@ -160,7 +160,7 @@ def c_reset(ctx):
     check(not ctx.unlocked(st), "left unlocked")
 
 
-@case("unlock-lock", "R31 = 0x1235 unlocks, another value locks (terminal manuals); the issue's telegram "
+@case("unlock-lock", "R31 = 0x1235 unlocks, another value locks (terminal manuals); the manual's telegram "
       "'Id=0x603 DLC=8; Data=23 01 45 05 35 12 1F 80' is the code word to channel 1 of slot 5 of node 3",
       peer=["--node", "3"], types=["KL1104", "KL2134", "KL3022", "KL5101", "KL6001", "KL9010"])
 def c_unlock(ctx):
@@ -297,8 +297,8 @@ def dead_bus_run(ctx, n, want):
     return rc, secs, err
 
 
-@case("dead-bus-mid-apply", "a bus that dies mid-apply is given up within two timeouts with a link error "
-      "(issue 37); after it comes back the next command finishes what was left: no terminal unlocked, "
+@case("dead-bus-mid-apply", "a bus that dies mid-apply is given up within two timeouts with a link error; "
+      "after it comes back the next command finishes what was left: no terminal unlocked, "
       "every register either as before or as asked (0 wrong)")
 def c_dead_bus(ctx):
     want = ctx.write_station(DEFAULT_TYPES, {1: {"baud": "19200"}, 3: {"baud": "38400"}}, name="want.toml")

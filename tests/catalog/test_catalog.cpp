@@ -199,7 +199,7 @@ TEST_CASE("KL6001 R32 divisor form: rate = 4 MHz / (16 * (HB + 1)), low byte 0xF
 TEST_CASE("KL6001 baud: a rate outside the list needs the opt-in, stays within the maximum, near misses named",
           "[catalog][baud]") {
   const ParamDef& p = param("KL6001", "baud");
-  // Issue 10: 'set baud 1920' (a typo for 19200) silently became 1923 baud through the divisor.
+  // 'set baud 1920' (a typo for 19200) silently became 1923 baud through the divisor.
   std::string typo = error_of([&] { encode_param(p, "1920", 0x0006); }, Exit::usage);
   CHECK_THAT(typo, Catch::Contains("baud 1920 is not one of the terminal's rates (1200, 2400, 4800, 9600, 19200); "
                                    "did you mean 19200?"));

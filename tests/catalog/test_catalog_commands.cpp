@@ -1,4 +1,4 @@
-// Catalog data for command registers and baud limits (issue 10 items 5 and 6).
+// Catalog data for command registers and baud limits.
 #include <catch2/catch.hpp>
 
 #include "kscfg/base/error.hpp"

@@ -81,7 +81,7 @@ TEST_CASE("catalog entries: at least 150 types, every family represented", "[cat
     INFO(fam);
     CHECK(by_family[fam] >= 1);
   }
-  // The examples of the coupler manuals need these (issue: `kscfg map` stopped at KL1114).
+  // The examples of the coupler manuals need these (without them `kscfg map` stopped at KL1114).
   for (const char* t : {"KL1114", "KL9200", "KL1501", "KL3062", "KL2502", "KL9020", "KL9050"}) {
     INFO(t);
     CHECK(cat().find(t) != nullptr);
@@ -247,7 +247,7 @@ TEST_CASE("mapping example 1: BK8000 13-position station with the manual's types
   CHECK(d["inputs"]["bytes"] == 6);
   CHECK(d["outputs"]["bytes"] == 5);
 
-  // The plain table works too (the issue's failing command).
+  // The plain table works too (the command that once failed).
   std::vector<std::string> plain = {"--port", "emu:mem", "map", "--coupler", "BK8000"};
   plain.insert(plain.end(), types.begin(), types.end());
   Run p = run_kscfg(plain);

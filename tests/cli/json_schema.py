@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Every command's --json output against docs/kscfg.schema.json (issue 23 item 12), with Debian's
+"""Every command's --json output against docs/kscfg.schema.json, with Debian's
 python3-jsonschema: one definition per command output, and one name for one thing, as docs/json.md
 promises (a name that has a definition of its own refers to it wherever it appears).
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Progress on long work (issue 13 item 6), seen from a real pseudo-terminal.
+"""Progress on long work, seen from a real pseudo-terminal.
 
 kscfg runs against `kscfg serve` with every Modbus reply 30 ms late (5 ms for serial), so backup,
 dump, restore, scan and serial send/recv of a few hundred bytes take longer than the 300 ms after

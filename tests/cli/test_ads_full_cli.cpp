@@ -1,4 +1,4 @@
-// Issue 36 item 11 through the CLI: with every connection of `serve --ads` in use, kscfg named no
+// Through the CLI: with every connection of `serve --ads` in use, kscfg named no
 // cause ("Broken pipe", "Connection reset by peer", exit 3 at once); now it says the ADS server is
 // full and tries again over the busy wait a busy Modbus server gets, as over Modbus.
 #include <catch2/catch.hpp>
@@ -11,8 +11,8 @@
 
 using namespace kscfg::test;
 
-TEST_CASE("issue 36 item 11: serve --ads with every connection in use is named full and tried again, as busy Modbus is",
-          "[issue36][ads]") {
+TEST_CASE("serve --ads with every connection in use is named full and tried again, as busy Modbus is",
+          "[newcomer][ads]") {
   TempDir d;
   Server s(d.file("emu.json"), {"--ads", "127.0.0.1:0", "--max-connections", "1"}, d.file("serve.err"));
   std::map<std::string, std::string> env{{"XDG_CACHE_HOME", d.file("cache")}};

@@ -24,7 +24,7 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     REQUIRE(r.rc == 0);
     CHECK(r.out.find("coupler   BK9000 (identification \"BK9000") == 0);
     // serve --ads alone serves no Modbus TCP, and says so in table 100 register 15 bit 0: the layout
-    // is not confirmed, and no Modbus connection is tried (issue 35).
+    // is not confirmed, and no Modbus connection is tried.
     CHECK_THAT(r.err, Catch::Contains("Modbus TCP disabled (table 100 register 15 bit 0)"));
     CHECK(r.out.find("watchdog  1000 ms (ADS watchdog, table 100 register 14)") != std::string::npos);
     CHECK(r.out.find("4    KL3022  3022") != std::string::npos);
@@ -75,7 +75,7 @@ TEST_CASE("kscfg scan over ads://: table 9 and R8/R9 on port 100, the same answe
     CHECK(at[i].at("r9").is_number());
     for (const auto& [k, v] : mt[i].items()) CHECK(at[i].contains(k));
   }
-  // Table 9 gives a digital terminal's bits and direction, not its type (issue 35).
+  // Table 9 gives a digital terminal's bits and direction, not its type.
   CHECK(at[4].at("type").is_null());
   CHECK(at[4].at("digital") == "digital, 4 inputs");
   CHECK(std::find(at[4].at("fits").begin(), at[4].at("fits").end(), "KL1104") != at[4].at("fits").end());

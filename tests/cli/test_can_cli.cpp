@@ -1,4 +1,4 @@
-// kscfg's CANopen ports at their boundaries (issue 37, attacked from outside): two kscfg processes
+// kscfg's CANopen ports at their boundaries (attacked from outside): two kscfg processes
 // on two nodes behind one slcan adapter, and port URIs given twice or at length.
 #include <pty.h>
 #include <termios.h>

@@ -1,4 +1,4 @@
-// `kscfg serve --can slcan:PATH` (issue 37): serve plays a USB slcan adapter on one end of a
+// `kscfg serve --can slcan:PATH`: serve plays a USB slcan adapter on one end of a
 // pseudo-terminal pair with the emulated BK5120 behind it; the test is the host on the other end,
 // speaking slcan in raw bytes. Every wait is on a condition with a deadline.
 #include <fcntl.h>
@@ -108,7 +108,7 @@ TEST_CASE("serve --can slcan: an slcan adapter on a pty with the BK5120 of node 
   CHECK(p.talk("t60384008100000000000\r", 1) == "\a");
   CHECK(p.talk("C\rS6\rO\r", 3) == "\r\r\r");
   CHECK(p.talk("V\rN\rF\r", 3) == "V1013\rNKSCF\rF00\r");
-  // The issue's telegram: acknowledged by the adapter, answered 0x60 by node 3.
+  // The manual's telegram: acknowledged by the adapter, answered 0x60 by node 3.
   CHECK(p.talk("t60382301450535121F80\r", 2) == "z\rt58386001450500000000\r");
   // Read R8 of channel 0 of terminal 5 (the KL3022: 3022 = 0x0BCE): the address, then the upload.
   CHECK(p.talk("t60382301450500000800\r", 2) == "z\rt58386001450500000000\r");

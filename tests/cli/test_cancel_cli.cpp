@@ -1,4 +1,4 @@
-// Issue 32 item 3: Ctrl-C during `apply` over ADS (direct register access, slow register
+// Ctrl-C during `apply` over ADS (direct register access, slow register
 // accesses) rolls back and relocks as over Modbus; the first Ctrl-C says at once what it undoes and
 // that a second one abandons it; a second Ctrl-C abandons the rollback and the error names the undo
 // file. End to end against `kscfg serve --ads` and `kscfg serve --tcp`.

@@ -11,19 +11,15 @@
 #include <sstream>
 #include <thread>
 
-#include "support.hpp"
+#include "fixtures.hpp"
 
 using kscfg::test::Emu;
+using kscfg::test::shell_quote;
 using kscfg::test::TempDir;
+using kscfg::test::Tmux;
 using kscfg::test::write_text;
 
 namespace {
-
-std::string quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
 
 struct Shells {
   Emu emu;
@@ -39,14 +35,14 @@ struct Shells {
   std::map<std::string, std::string> complete(const std::string& shell, const std::string& line) const {
     std::string cmd;
     if (shell == "bash")
-      cmd = env() + "timeout 60 bash " + quote(src + "/tests/completion/bash_complete.sh") + " " +
-            quote(src + "/completions/kscfg.bash") + " " + quote(line);
+      cmd = env() + "timeout 60 bash " + shell_quote(src + "/tests/completion/bash_complete.sh") + " " +
+            shell_quote(src + "/completions/kscfg.bash") + " " + shell_quote(line);
     else if (shell == "zsh")
-      cmd = env() + "timeout 60 zsh -f " + quote(src + "/tests/completion/zsh_complete.zsh") + " " +
-            quote(src + "/completions") + " " + quote(line);
+      cmd = env() + "timeout 60 zsh -f " + shell_quote(src + "/tests/completion/zsh_complete.zsh") + " " +
+            shell_quote(src + "/completions") + " " + shell_quote(line);
     else
       cmd = env() + "timeout 60 fish --no-config -c " +
-            quote("source " + src + "/completions/kscfg.fish; complete -C " + quote(line));
+            shell_quote("source " + src + "/completions/kscfg.fish; complete -C " + shell_quote(line));
     FILE* p = popen(cmd.c_str(), "r");
     std::map<std::string, std::string> out;
     if (!p) return out;
@@ -188,42 +184,18 @@ TEST_CASE("__complete offers every command and every option of each command", "[
   CHECK_THAT(run({"--port", "tcp://192.0.2.1", "-t", "3", "set", "baud", ""}), Catch::Contains("38400"));  // no link
 }
 
-// Issue 23 item 16: bash offered candidates sorted as text (R0 R10 R12, 1200 19200 2400). In an
+// Bash offered candidates sorted as text (R0 R10 R12, 1200 19200 2400). In an
 // interactive bash (tmux) Tab Tab lists them in kscfg's order.
 TEST_CASE("bash lists candidates in kscfg's order, not sorted as text (tmux)", "[completion][tmux]") {
-  if (!installed("tmux")) FAIL("tmux is not installed (the README's test command installs it)");
+  Tmux tmux("compl");  // a missing tool never passes: tmux is a test dependency
   Shells sh;
-  std::string sock = "kscfg-compl-" + std::to_string(getpid());
-  std::string tmux = "tmux -L " + sock + " ";
-  auto run = [](const std::string& cmd) {
-    std::string out;
-    FILE* p = popen(cmd.c_str(), "r");
-    if (!p) return out;
-    char buf[4096];
-    while (std::size_t n = fread(buf, 1, sizeof buf, p)) out.append(buf, n);
-    pclose(p);
-    return out;
-  };
-  struct Kill {
-    std::string cmd;
-    ~Kill() { (void)std::system(cmd.c_str()); }
-  } kill{tmux + "kill-server 2>/dev/null"};
   write_text(sh.home.file("rc"), "source /usr/share/bash-completion/bash_completion\nsource " + sh.src +
                                      "/completions/kscfg.bash\nPS1='$ '\n");
-  run(tmux + "new-session -d -s c -x 120 -y 20 " +
-      quote(sh.env() + "bash --noprofile --rcfile " + sh.home.file("rc") + " -i"));
-  auto pane = [&] { return run(tmux + "capture-pane -p -t c 2>/dev/null"); };
-  auto wait_for = [&](const std::string& text) {
-    for (int i = 0; i < 400; ++i) {  // bounded: 20 s
-      if (pane().find(text) != std::string::npos) return true;
-      std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
-    return false;
-  };
-  REQUIRE(wait_for("$"));  // the prompt (capture-pane drops trailing blanks)
-  run(tmux + "send-keys -t c 'kscfg set baud ' Tab Tab");
-  REQUIRE(wait_for("19200"));
-  std::string screen = pane();
+  tmux.start(sh.env() + "bash --noprofile --rcfile " + sh.home.file("rc") + " -i", 120, 20);
+  REQUIRE(tmux.wait_for("$", 20));  // the prompt (capture-pane drops trailing blanks)
+  tmux.send_keys("'kscfg set baud ' Tab Tab");
+  REQUIRE(tmux.wait_for("19200", 20));
+  std::string screen = tmux.pane();
   INFO(screen);
   auto at = [&](const std::string& w) { return screen.find(w + " "); };
   CHECK(at("1200") < at("2400"));

@@ -1,4 +1,4 @@
-// Issue 32 items 1 and 6, end to end against `kscfg serve`: one lock per coupler whatever name
+// End to end against `kscfg serve`: one lock per coupler whatever name
 // reaches it (localhost and 127.0.0.1 over Modbus TCP and ADS, a serial device and a link to it),
 // and a lock directory every user may write in that no user can use to block or fool kscfg (a
 // planted link or FIFO is removed by root and refused naming its owner by others, a directory

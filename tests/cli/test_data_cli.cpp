@@ -15,8 +15,8 @@
 #include <sstream>
 #include <thread>
 
+#include "fixtures.hpp"
 #include "kscfg/catalog/catalog.hpp"
-#include "support.hpp"
 
 using kscfg::test::Emu;
 using kscfg::test::one_line_error;
@@ -24,6 +24,7 @@ using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::Server;
+using kscfg::test::Tmux;
 using kscfg::test::write_text;
 using nlohmann::json;
 
@@ -219,7 +220,7 @@ TEST_CASE("data --once --json: every terminal of the default station over the em
   CHECK(text.out.find("counter 40") != std::string::npos);
   CHECK(text.out.find("= 4.0000 mA") != std::string::npos);                  // KL3022: 1/2048 mA a digit, four decimals
   CHECK(text.out.find("TA=0 RR=0 IA=0 BUF_F=0 IL=0") != std::string::npos);  // the catalog's order
-  // Issue 23 item 13: lines fit 80 columns (or COLUMNS, which watch sets), under a header.
+  // Lines fit 80 columns (or COLUMNS, which watch sets), under a header.
   CHECK(kscfg::test::widest_line(text.out) <= 80);
   CHECK_THAT(text.out, Catch::Contains("\nPOS CH TYPE      PROCESS DATA\n"));
   auto narrow_env = emu.env;
@@ -447,43 +448,15 @@ TEST_CASE("data force over kscfg serve: held while running, restored on Ctrl-C",
 }
 
 TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[data][cli][tmux]") {
-  if (system("command -v tmux >/dev/null 2>&1") != 0) {
-    // A missing tool never passes (issue 23 item 19): tmux is a test dependency.
-    FAIL("tmux is not installed (the README's test command installs it)");
-  }
+  Tmux tmux("data");  // a missing tool never passes: tmux is a test dependency
   Emu emu;
   REQUIRE(emu({"emu", "encoder", "--speed", "100"}).rc == 0);
-  std::string sock = "kscfg-data-" + std::to_string(getpid());
-  std::string tmux = "tmux -L " + sock + " ";
-  auto sh = [](const std::string& cmd) {
-    std::string out;
-    FILE* p = popen(cmd.c_str(), "r");
-    if (!p) return out;
-    char buf[4096];
-    while (std::size_t n = fread(buf, 1, sizeof buf, p)) out.append(buf, n);
-    pclose(p);
-    return out;
-  };
-  struct Kill {
-    std::string t;
-    std::function<std::string(const std::string&)> sh;
-    ~Kill() { sh(t + "kill-server 2>/dev/null"); }
-  } kill{tmux, sh};
-  auto pane = [&] { return sh(tmux + "capture-pane -p -t t 2>/dev/null"); };
-  auto wait_for = [&](const std::function<bool(const std::string&)>& pred, double seconds) {
-    auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    while (std::chrono::steady_clock::now() < end) {
-      if (pred(pane())) return true;
-      std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
-    return false;
-  };
-  std::string cmd = "KSCFG_PORT=emu:" + emu.state + " timeout --foreground 30 " + std::string(KSCFG_BIN) +
-                    " data --interval 100; echo EXIT=$?; sleep 30";
-  // An 80-column screen (issue 23 item 13: lines of about 150 columns wrapped mid-word).
-  sh(tmux + "new-session -d -s t -x 80 -y 40 \"" + cmd + "\"");
-  REQUIRE(wait_for([](const std::string& p) { return p.find("sample 3") != std::string::npos; }, 20));
-  std::string screen = pane();
+  // An 80-column screen (lines of about 150 columns once wrapped mid-word).
+  tmux.start("KSCFG_PORT=emu:" + emu.state + " timeout --foreground 30 " + std::string(KSCFG_BIN) +
+                 " data --interval 100; echo EXIT=$?; sleep 30",
+             80, 40);
+  REQUIRE(tmux.wait_for([](const std::string& p) { return p.find("sample 3") != std::string::npos; }, 20));
+  std::string screen = tmux.pane();
   CHECK_THAT(screen, Catch::Contains("Ctrl-C quits"));
   CHECK_THAT(screen, Catch::Contains("POS CH TYPE      PROCESS DATA"));
   CHECK_THAT(screen, Catch::Contains("TA=0 RR=0 IA=0 BUF_F=0 IL=0"));  // whole words on one line
@@ -494,12 +467,12 @@ TEST_CASE("data on a terminal screen refreshes in place until Ctrl-C (tmux)", "[
   std::size_t first = screen.find("KL5101"), second = screen.find("KL5101", first + 1);
   CHECK(first != std::string::npos);
   CHECK(second == std::string::npos);
-  sh(tmux + "send-keys -t t C-c");
-  CHECK(wait_for([](const std::string& p) { return p.find("EXIT=0") != std::string::npos; }, 20));
+  tmux.send_keys("C-c");
+  CHECK(tmux.wait_for([](const std::string& p) { return p.find("EXIT=0") != std::string::npos; }, 20));
 }
 
-// The commands of issue 14 in the completion (the shells' scripts ask 'kscfg __complete'), next to
-// their help and man sections that tests/cli/test_docs.cpp keeps from drifting.
+// The data, emu encoder and serial line commands in the completion (the shells' scripts ask 'kscfg __complete'), next
+// to their help and man sections that tests/cli/test_docs.cpp keeps from drifting.
 TEST_CASE("data, emu encoder and serial line: completion of commands, options and values", "[data][completion]") {
   Emu emu;
   auto complete = [&](std::vector<std::string> words) {
@@ -537,7 +510,7 @@ TEST_CASE("data, emu encoder and serial line: completion of commands, options an
     CHECK_THAT(man.out, Catch::Contains(s));
 }
 
-// Issue 23 item 4: right after a command that read R8, the terminal's answer was still in the
+// Right after a command that read R8, the terminal's answer was still in the
 // input image, and 'data --once' showed it as process data ("KL3022 status 0x88 ... word 3022",
 // register_mode false). Now a sample is taken once no status byte answers a register request.
 TEST_CASE("data samples process data only outside register mode, right after a register read", "[data][cli][serve]") {

@@ -1,4 +1,4 @@
-// Issue 23 item 2: `data force` puts the outputs back on every way out: SIGHUP (a closed SSH session
+// `data force` puts the outputs back on every way out: SIGHUP (a closed SSH session
 // or terminal window), SIGTERM, SIGINT, a reader of stdout that went away (SIGPIPE/EPIPE), a link
 // that failed (the error names the command that puts them back), and says at the start how to put
 // them back after a kill -9. Checked end to end against kscfg serve, read by a second kscfg.

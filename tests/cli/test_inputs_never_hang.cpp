@@ -1,4 +1,4 @@
-// Issue 32 item 4: every file kscfg reads is opened so that it cannot hang. A FIFO, a device, a
+// Every file kscfg reads is opened so that it cannot hang. A FIFO, a device, a
 // socket or a directory as the emulator state file, a station file, a catalog directory's entry, a
 // scan cache or a session journal: one line and exit 7 at once (what is kept for itself, a cache or
 // a journal, is passed over). Every run is bounded (run_kscfg kills it after a few seconds), so a
@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// Generous on a loaded machine, far below "for ever": the FIFO hang of issue 32 was seen for 717 s.
+// Generous on a loaded machine, far below "for ever": the FIFO hang this guards against was seen for 717 s.
 constexpr double kBound = 10;
 
 // A listening Unix socket at `path`, closed (and removed) when the object dies.

@@ -1,4 +1,4 @@
-// Issue 32: journals that outlive every failure. End to end through the CLI against `kscfg serve`
+// Journals that outlive every failure. End to end through the CLI against `kscfg serve`
 // (Modbus TCP): a link that dies in the middle of a 12-terminal apply keeps the journal with every
 // channel it could not close, and the next command on one terminal finishes all of them; a
 // `data force` killed with kill -9 is named by the next command, and one with --yes puts the
@@ -13,13 +13,15 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "fixtures.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
 #include "kscfg/session/journal.hpp"
-#include "support.hpp"
 
 using kscfg::SessionJournal;
+using kscfg::test::all_channels_locked;
 using kscfg::test::Child;
+using kscfg::test::modbus_image;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
@@ -73,27 +75,7 @@ struct Coupler {
   }
   // The coupler's output image as it holds it now (another Modbus client).
   std::vector<std::uint8_t> outputs(unsigned words) const {
-    kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(srv->uri), srv->uri), {});
-    auto w = c.read(kscfg::mbmap::kOutputImage, words);
-    std::vector<std::uint8_t> b;
-    for (auto v : w) b.insert(b.end(), {static_cast<std::uint8_t>(v & 0xFF), static_cast<std::uint8_t>(v >> 8)});
-    return b;
-  }
-  // Channels with R31 = 0x1235 as serve's state file holds them (saved a few ms after a change):
-  // none, waited for up to 10 s.
-  bool none_unlocked() const {
-    return wait_for(
-        [&] {
-          try {
-            auto j = nlohmann::json::parse(read_text(state));
-            for (const auto& c : j["channels"])
-              if (c["registers"][31] == 0x1235) return false;
-            return true;
-          } catch (...) {
-            return false;
-          }
-        },
-        10);
+    return modbus_image(srv->uri, kscfg::mbmap::kOutputImage, words);
   }
 };
 
@@ -158,7 +140,7 @@ TEST_CASE(
   }
   auto out = c.outputs(48);
   for (unsigned p = 1; p <= 12; ++p) CHECK((out[8 * (p - 1)] & 0x80) == 0);  // no register mode
-  CHECK(c.none_unlocked());
+  CHECK(all_channels_locked(c.state));
   CHECK(c.journals().empty());
   // The undo file puts every register back.
   Run undo = c({"restore", c.dir.file("undo.toml")});
@@ -309,6 +291,6 @@ TEST_CASE("a link that dies in the middle of a restore of 12 registers: the next
   CHECK_THAT(rd.err, Catch::Contains("terminal 4 (KL3022) channel 1 was left in register mode (control byte 0x") &&
                          Catch::Contains(fmt::format("by kscfg process {}, which ended without finishing", pid)));
   CHECK((c.outputs(24)[40] & 0x80) == 0);  // KL3022 channel 1: its control byte out of register mode
-  CHECK(c.none_unlocked());
+  CHECK(all_channels_locked(c.state));
   CHECK(c.journals().empty());
 }

@@ -113,9 +113,9 @@ TEST_CASE("the man page says each parameter's factory value once", "[messages][d
   CHECK_THAT(man, Catch::Contains(".SS \"kscfg read REG...\""));
 }
 
-// Issue 23 item 8: '--station /nonexistent.toml info' on the emulator exited 0 (the file was never
+// '--station /nonexistent.toml info' on the emulator exited 0 (the file was never
 // read); over Modbus it was 7. Now the emulator reads it too and checks it against its station.
-TEST_CASE("the emulator reads a --station file and checks it against its station", "[messages][cli][issue23]") {
+TEST_CASE("the emulator reads a --station file and checks it against its station", "[messages][cli]") {
   kscfg::test::TempDir d;
   Run missing = k({"--station", d.file("nonexistent.toml"), "info"});
   CHECK(missing.rc == 7);
@@ -134,8 +134,8 @@ TEST_CASE("the emulator reads a --station file and checks it against its station
   CHECK(same.err.empty());
 }
 
-// Issue 23 item 14: messages that name the real cause.
-TEST_CASE("messages name the real cause: --timeout 0, RTU baud rates", "[messages][cli][issue23]") {
+// Messages that name the real cause.
+TEST_CASE("messages name the real cause: --timeout 0, RTU baud rates", "[messages][cli]") {
   Run t = k({"--timeout", "0", "info"});
   CHECK(t.rc == 2);
   CHECK_THAT(t.err, Catch::Contains("at least 1 ms"));

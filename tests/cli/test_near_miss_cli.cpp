@@ -1,4 +1,4 @@
-// Issue 10 item 6, session side: baud rates a user meant, parameter names a user meant (set and
+// Session side: baud rates a user meant, parameter names a user meant (set and
 // station files). Against the emulator through the CLI.
 #include <catch2/catch.hpp>
 #include <string>

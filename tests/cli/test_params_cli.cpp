@@ -1,4 +1,4 @@
-// Issue: named parameters end to end — show, get, set (rollback), reset, decode, catalog.
+// Named parameters end to end — show, get, set (rollback), reset, decode, catalog.
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 

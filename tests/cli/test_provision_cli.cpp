@@ -1,29 +1,19 @@
-// Issue: scripted provisioning — backup, diff, apply, restore — on the emulator and over Modbus TCP.
+// Scripted provisioning — backup, diff, apply, restore — on the emulator and over Modbus TCP.
 #include <catch2/catch.hpp>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
-#include "support.hpp"
+#include "fixtures.hpp"
 
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
+using kscfg::test::Station;
 using kscfg::test::TempDir;
 using kscfg::test::write_text;
 
 namespace {
-
-struct Station {
-  TempDir dir;
-  std::string port;
-  explicit Station(std::string p = "") : port(p.empty() ? "emu:" + dir.file("emulator.json") : p) {}
-  Run operator()(std::vector<std::string> args) const {
-    args.insert(args.begin(), {"--port", port});
-    return run_kscfg(args, {{"XDG_STATE_HOME", dir.file("state")}});
-  }
-  std::string file(const std::string& n) const { return dir.file(n); }
-};
 
 std::size_t count(const std::string& s, const std::string& what) {
   std::size_t n = 0;
@@ -206,7 +196,7 @@ TEST_CASE("bad provisioning files: line numbers, nothing written", "[provision]"
 
 TEST_CASE("a 2-channel terminal keeps each channel's settings through backup, diff and restore",
           "[provision][channels]") {
-  // Issue 10: channel 2's R32 used to come back as channel 1's.
+  // Channel 2's R32 used to come back as channel 1's.
   Station st;
   REQUIRE(st({"-t", "4", "-c", "2", "write", "R32", "0x0005"}).rc == 0);
   REQUIRE(st({"backup", st.file("b.toml")}).rc == 0);
@@ -240,9 +230,9 @@ TEST_CASE("station init's example names channels by number and reads back", "[pr
   CHECK(c.err.empty());
 }
 
-// Issue 23 item 1: backup replaced an existing file without a word; station init and scan --write
+// Backup replaced an existing file without a word; station init and scan --write
 // refused. Now all three refuse before anything is read (exit 7), and --force replaces.
-TEST_CASE("backup never replaces an existing file without --force", "[provision][issue23]") {
+TEST_CASE("backup never replaces an existing file without --force", "[provision]") {
   Station st;
   write_text(st.file("keep.toml"), "precious\n");
   Run r = st({"backup", st.file("keep.toml")});

@@ -1,4 +1,4 @@
-// Issues 10 and 11, session side: command registers, lock-out refusal, crash recovery, rollback
+// Session side: command registers, lock-out refusal, crash recovery, rollback
 // that reads, usable backups. Against the emulator through the CLI. Baud rates and parameter
 // names a user meant are in test_near_miss_cli.cpp.
 #include <algorithm>
@@ -7,16 +7,17 @@
 #include <map>
 #include <nlohmann/json.hpp>
 
+#include "fixtures.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "support.hpp"
 
 using kscfg::test::Emu;
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
+using kscfg::test::Station;
 using kscfg::test::TempDir;
 using kscfg::test::write_text;
 
@@ -94,25 +95,6 @@ TEST_CASE("a command without effect is not reported as verified", "[safety][comm
 }
 
 namespace {
-
-// An emulator with its own station (emu reset --station).
-struct Station {
-  TempDir dir;
-  std::string state = dir.file("emulator.json");
-  std::map<std::string, std::string> env{{"KSCFG_PORT", "emu:" + state}, {"XDG_STATE_HOME", dir.file("xdg")}};
-  explicit Station(const std::string& toml = "") {
-    if (toml.empty()) return;
-    write_text(dir.file("station.toml"), toml);
-    Run r = (*this)({"emu", "reset", "--station", dir.file("station.toml")});
-    REQUIRE(r.rc == 0);
-  }
-  Run operator()(const std::vector<std::string>& args) const { return run_kscfg(args, env); }
-  std::string snapshot() const {
-    Run b = (*this)({"backup"});
-    REQUIRE(b.rc == 0);
-    return b.out;
-  }
-};
 
 struct LockoutCase {
   std::string name;
@@ -202,7 +184,8 @@ TEST_CASE("writes that would lock kscfg out are refused with exit 5 and leave th
   };
   for (const auto& c : cases) {
     SECTION(c.name) {
-      Station st(c.station);
+      Station st;
+      st.emulate(c.station);
       if (!c.setup.empty()) REQUIRE(st(c.setup).rc == 0);
       std::string before = st.snapshot();
       auto cmd = c.change;
@@ -243,7 +226,8 @@ TEST_CASE("a terminal without a register window names the real cause", "[safety]
   CHECK_THAT(r.err, Catch::Contains("terminal 1 (KL6001) has no register window: its standard image maps 1 data "
                                     "byte after the control/status byte (R35 = 1); a register value needs 2"));
   CHECK(r.err.find("mapped without its control/status byte") == std::string::npos);
-  Station ce(kBK7300);
+  Station ce;
+  ce.emulate(kBK7300);
   REQUIRE(ce({"-t", "1", "set", "alternative-format", "on", "--force"}).rc == 0);
   REQUIRE(ce({"emu", "restart"}).rc == 0);
   Run r2 = ce({"-t", "1", "reset", "-y"});
@@ -278,7 +262,7 @@ TEST_CASE("apply and restore refuse a station file that would lock kscfg out", "
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 11 item 3: a crashed session's leftovers.
+// A crashed session's leftovers.
 
 namespace {
 
@@ -403,7 +387,7 @@ TEST_CASE(
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 11 item 4: rollback that reads, against kscfg serve dropping replies.
+// Rollback that reads, against kscfg serve dropping replies.
 
 TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it verified, and it is true",
           "[safety][rollback][serve]") {
@@ -472,7 +456,7 @@ TEST_CASE("kscfg serve --fault drop: every failed apply says exactly what it ver
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 10 item 9: backups you can use.
+// Backups you can use.
 
 namespace {
 

@@ -13,12 +13,13 @@
 #include <regex>
 #include <thread>
 
-#include "support.hpp"
+#include "fixtures.hpp"
 
 using kscfg::test::one_line_error;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::TempDir;
+using kscfg::test::Tmux;
 using kscfg::test::write_text;
 
 namespace {
@@ -42,17 +43,6 @@ std::string random_text(std::size_t n, unsigned seed) {
   std::string s(n, '\0');
   for (auto& c : s) c = static_cast<char>(g());
   return s;
-}
-
-std::string sh(const std::string& cmd) {
-  std::string out;
-  FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return out;
-  char buf[4096];
-  std::size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
-  pclose(p);
-  return out;
 }
 
 }  // namespace
@@ -176,61 +166,43 @@ TEST_CASE("serial: clear errors, and the terminal stays usable in process-data m
 }
 
 TEST_CASE("serial term in tmux: typed text comes back through the loopback", "[serial][cli][tmux]") {
-  if (sh("command -v tmux").empty()) {
-    // A missing tool never passes (issue 23 item 19): tmux is a test dependency.
-    FAIL("tmux is not installed (the README's test command installs it)");
-  }
+  Tmux tmux("serial");  // a missing tool never passes: tmux is a test dependency
   Emu emu;
-  std::string sock = "kscfg-test-" + std::to_string(getpid());
-  std::string tmux = "tmux -L " + sock + " ";
-  auto pane = [&] { return sh(tmux + "capture-pane -p -t t 2>/dev/null"); };
-  auto wait_for = [&](const std::string& text, double seconds) {
-    auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    while (std::chrono::steady_clock::now() < end) {
-      if (pane().find(text) != std::string::npos) return true;
-      std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    }
-    return false;
-  };
   auto start = [&] {
-    std::string cmd = "KSCFG_PORT=emu:" + emu.state + " timeout --foreground 60 " + std::string(KSCFG_BIN) +
-                      " serial term; echo EXIT=$?; sleep 60";
-    sh(tmux + "new-session -d -s t -x 200 -y 20 \"" + cmd + "\"");
-    return wait_for("Ctrl-] q quits", 30);
+    tmux.start("KSCFG_PORT=emu:" + emu.state + " timeout --foreground 60 " + std::string(KSCFG_BIN) +
+                   " serial term; echo EXIT=$?; sleep 60",
+               200, 20);
+    return tmux.wait_for("Ctrl-] q quits", 30);
   };
-  struct Kill {
-    std::string t;
-    ~Kill() { sh(t + "kill-server 2>/dev/null"); }
-  } kill{tmux};
 
   // An open line: typed text goes out and nothing comes back (raw mode: no local echo).
   REQUIRE(emu({"serial", "line", "none"}).rc == 0);
   REQUIRE(start());
   // No fixed wait: the keys and then Ctrl-] go in order, so once the program has quit it has
   // read the text; an echo (the terminal not in raw mode) would be on the screen by then.
-  sh(tmux + "send-keys -t t -l 'quiet please'");
-  sh(tmux + "send-keys -t t C-] q");
-  CHECK(wait_for("EXIT=0", 30));
-  CHECK(pane().find("quiet please") == std::string::npos);
-  sh(tmux + "kill-server 2>/dev/null");
+  tmux.send_keys("-l 'quiet please'");
+  tmux.send_keys("C-] q");
+  CHECK(tmux.wait_for("EXIT=0", 30));
+  CHECK(tmux.pane().find("quiet please") == std::string::npos);
+  tmux.kill_server();
 
   // Loopback: the same keys come back on the screen.
   REQUIRE(emu({"serial", "line", "loopback"}).rc == 0);
   REQUIRE(start());
-  CHECK_THAT(pane(), Catch::Contains("far end of the emulated line: loopback"));
+  CHECK_THAT(tmux.pane(), Catch::Contains("far end of the emulated line: loopback"));
   // The banner: port, terminal, baud rate, frame, flow control (from R32..R34), maps, escape key.
-  CHECK_THAT(pane(), Catch::Contains("kscfg: terminal 1 (KL6001) on emu:"));
-  CHECK_THAT(pane(), Catch::Contains("kscfg: 9600 baud, 8N1, flow control RTS/CTS;"));
-  CHECK_THAT(pane(), Catch::Contains("kscfg: omap none, imap none, echo off, log file none"));
-  sh(tmux + "send-keys -t t -l 'hello through the KL6001'");
-  CHECK(wait_for("hello through the KL6001", 30));
+  CHECK_THAT(tmux.pane(), Catch::Contains("kscfg: terminal 1 (KL6001) on emu:"));
+  CHECK_THAT(tmux.pane(), Catch::Contains("kscfg: 9600 baud, 8N1, flow control RTS/CTS;"));
+  CHECK_THAT(tmux.pane(), Catch::Contains("kscfg: omap none, imap none, echo off, log file none"));
+  tmux.send_keys("-l 'hello through the KL6001'");
+  CHECK(tmux.wait_for("hello through the KL6001", 30));
   // Ctrl-] then ? lists the escape keys; Ctrl-] alone does not quit.
-  sh(tmux + "send-keys -t t C-] ?");
-  CHECK(wait_for("escape keys, each after Ctrl-]", 30));
-  CHECK_THAT(pane(), Catch::Contains("q, x    quit"));
-  CHECK_THAT(pane(), !Catch::Contains("EXIT="));
-  sh(tmux + "send-keys -t t C-] q");
-  CHECK(wait_for("EXIT=0", 30));
+  tmux.send_keys("C-] ?");
+  CHECK(tmux.wait_for("escape keys, each after Ctrl-]", 30));
+  CHECK_THAT(tmux.pane(), Catch::Contains("q, x    quit"));
+  CHECK_THAT(tmux.pane(), !Catch::Contains("EXIT="));
+  tmux.send_keys("C-] q");
+  CHECK(tmux.wait_for("EXIT=0", 30));
 }
 
 TEST_CASE("serial term: banner, --omap/--imap, --echo, --logfile and the escape keys", "[serial][cli][term]") {
@@ -292,10 +264,10 @@ TEST_CASE("serial send --recv over Modbus TCP to kscfg serve: 4 KiB back unchang
   CHECK(k.rc == 2);
 }
 
-// Issue 23 item 10: `serial send - </dev/zero` read stdin into memory until std::bad_alloc. Now
+// `serial send - </dev/zero` read stdin into memory until std::bad_alloc. Now
 // stdin is sent as it is read: what was read and not yet sent stays bounded, and Ctrl-C says how
 // many bytes went out.
-TEST_CASE("serial send - streams stdin in bounded memory (/dev/zero)", "[serial][cli][issue23]") {
+TEST_CASE("serial send - streams stdin in bounded memory (/dev/zero)", "[serial][cli]") {
   Emu emu;
   REQUIRE(emu({"serial", "line", "none"}).rc == 0);  // bytes leave, nothing comes back
   std::string err = emu.dir.file("send.err");

@@ -1,4 +1,4 @@
-// `kscfg serve --tcp ADDR --ads ADDR`: one station over Modbus TCP and ADS at once (issue 35), as a
+// `kscfg serve --tcp ADDR --ads ADDR`: one station over Modbus TCP and ADS at once, as a
 // BK9000 answers both: one emulator, one state-file lock, one K-bus, one loop for both protocols.
 #include <catch2/catch.hpp>
 #include <thread>
@@ -30,7 +30,7 @@ TEST_CASE("serve --tcp --ads: one station over Modbus TCP and ADS at once, what 
   REQUIRE(r.rc == 0);
   CHECK(on(tcp, {"-t", "4", "-c", "1", "read", "--raw", "R33"}).out == "0x0123\n");
   // Over ADS the layout is confirmed by the image lengths on the Modbus port table 100 register 26
-  // names (serve's own --tcp port), so scan notes nothing unconfirmed (issue 35).
+  // names (serve's own --tcp port), so scan notes nothing unconfirmed.
   r = on(ads, {"scan"});
   CHECK(r.rc == 0);
   CHECK_THAT(r.err, !Catch::Contains("not confirmed"));
@@ -60,7 +60,7 @@ TEST_CASE("serve --tcp --ads: one station over Modbus TCP and ADS at once, what 
   r = run_kscfg({"--port", "emu:" + state, "info"}, env);
   CHECK(r.rc == 11);
   CHECK_THAT(r.err, Catch::Contains("-p " + tcp));
-  CHECK_THAT(r.err, Catch::Contains("-p " + ads));  // both URIs that reach it (issue 36 item 2)
+  CHECK_THAT(r.err, Catch::Contains("-p " + ads));  // both URIs that reach it
 
   // Stopped, the state file holds what both wrote.
   CHECK(s.stop() == 0);

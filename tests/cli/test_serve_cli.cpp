@@ -17,30 +17,20 @@
 #include <regex>
 #include <sstream>
 
+#include "fixtures.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/station/station.hpp"
-#include "support.hpp"
 
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::Server;
+using kscfg::test::Station;
 using kscfg::test::TempDir;
 
 namespace {
-
-// A station whose state we can look at after the server saved it.
-struct Station {
-  TempDir dir;
-  std::string state = dir.file("emulator.json");
-  Run emu(const std::vector<std::string>& args) const {
-    std::vector<std::string> a = {"--port", "emu:" + state};
-    a.insert(a.end(), args.begin(), args.end());
-    return run_kscfg(a);
-  }
-};
 
 Run on(const std::string& uri, std::vector<std::string> args, double timeout_s = 30) {
   args.insert(args.begin(), {"--port", uri});
@@ -111,8 +101,8 @@ void exercise(const std::string& uri, Station& st) {
 }
 
 void check_saved(Station& st) {
-  CHECK(st.emu({"read", "--raw", "R32"}).out == "0x0007\n");
-  CHECK(st.emu({"-t", "3", "read", "--raw", "R33"}).out == "0x0004\n");
+  CHECK(st({"read", "--raw", "R32"}).out == "0x0007\n");
+  CHECK(st({"-t", "3", "read", "--raw", "R33"}).out == "0x0004\n");
 }
 
 }  // namespace
@@ -150,7 +140,7 @@ TEST_CASE("serve over a pseudo-terminal pair (Modbus RTU)", "[serve]") {
   CHECK(srv.stop(SIGINT) == 0);
   check_saved(st);
   // The state file was not locked any longer.
-  CHECK(st.emu({"read", "R8"}).rc == 0);
+  CHECK(st({"read", "R8"}).rc == 0);
 }
 
 TEST_CASE("mbpoll reads the identification and the image lengths from serve", "[serve]") {

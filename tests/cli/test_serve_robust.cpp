@@ -1,4 +1,4 @@
-// `kscfg serve` against clients that misbehave (issue 11): a regression test for each defect
+// `kscfg serve` against clients that misbehave: a regression test for each defect
 // found by the reliability campaign. Raw sockets stand in for the bad clients; the kscfg CLI is
 // the well-behaved one that must keep being served meanwhile. Every wait is on a condition with a
 // generous bound.
@@ -18,17 +18,18 @@
 #include <regex>
 #include <thread>
 
+#include "fixtures.hpp"
 #include "kscfg/catalog/catalog.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/station/station.hpp"
-#include "support.hpp"
 
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 using kscfg::test::Server;
-using kscfg::test::TempDir;
+using kscfg::test::Station;
+using kscfg::test::wait_for;
 using Bytes = std::vector<std::uint8_t>;
 using Clock = std::chrono::steady_clock;
 
@@ -95,11 +96,6 @@ Bytes mbap(const Bytes& pdu, std::uint16_t tid = 1, std::uint16_t protocol = 0, 
 }
 const Bytes kReadIdent = {3, 0x10, 0x00, 0, 7};
 
-struct Station {
-  TempDir dir;
-  std::string state = dir.file("emulator.json");
-};
-
 Run on(const std::string& uri, std::vector<std::string> args, double timeout_s = 60) {
   args.insert(args.begin(), {"--port", uri});
   return run_kscfg(args, {}, timeout_s);
@@ -115,16 +111,6 @@ int saved_r32(const std::string& state) {
   } catch (const std::exception&) {
     return -1;
   }
-}
-
-template <class F>
-bool eventually(F&& f, std::chrono::milliseconds bound = std::chrono::milliseconds(15000)) {
-  auto deadline = Clock::now() + bound;
-  while (Clock::now() < deadline) {
-    if (f()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  return f();
 }
 
 kscfg::StationSpec big_station() {
@@ -198,12 +184,14 @@ TEST_CASE("serve survives more than 1024 connections and refuses those over its 
   CHECK(silent == 0);
   clients.clear();
   // Once the server has seen them go, a new client is served.
-  CHECK(eventually([&] {
-    Raw r(srv.uri);
-    r.send(mbap(kReadIdent));
-    Bytes b = r.recv(std::chrono::milliseconds(2000), nullptr, 9);
-    return b.size() >= 9 && b[7] == 3;
-  }));
+  CHECK(wait_for(
+      [&] {
+        Raw r(srv.uri);
+        r.send(mbap(kReadIdent));
+        Bytes b = r.recv(std::chrono::milliseconds(2000), nullptr, 9);
+        return b.size() >= 9 && b[7] == 3;
+      },
+      15, 0.02));
   // Still serving, and the state is saved on a clean stop.
   Run w = on(srv.uri, {"write", "R32", "0x0007"});
   INFO(w.err);
@@ -323,7 +311,7 @@ TEST_CASE("an acknowledged write survives kill -9 of serve", "[serve][robust]") 
   REQUIRE(w.rc == 0);
   // Saved while serving (within a fraction of a second; bench/campaign measures how soon), not
   // only at SIGTERM.
-  CHECK(eventually([&] { return saved_r32(st.state) == 7; }));
+  CHECK(wait_for([&] { return saved_r32(st.state) == 7; }, 15, 0.02));
   srv.kill_now();
   Run r = run_kscfg({"--port", "emu:" + st.state, "read", "--raw", "R32"});
   CHECK(r.out == "0x0007\n");

@@ -1,8 +1,8 @@
-// Issue 21: safe when sessions meet, die or find poisoned caches. End to end through the CLI
+// Safe when sessions meet, die or find poisoned caches. End to end through the CLI
 // against `kscfg serve` (Modbus TCP): one kscfg at a time per coupler (the second waits and names
 // the first), every session journaled before its first exchange (kill -9 of each command kind),
 // journals checked before they are acted on, another master's register mode told from a dead
-// session's, caches read like any other input, a swapped station noticed. Issue 23 items 5 and 9:
+// session's, caches read like any other input, a swapped station noticed;
 // no note about this run's own register mode; the emulator state file's holder named.
 #include <signal.h>
 #include <sys/stat.h>
@@ -18,12 +18,14 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
+#include "fixtures.hpp"
 #include "kscfg/emulator/emulator.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "support.hpp"
 
+using kscfg::test::all_channels_locked;
 using kscfg::test::Child;
+using kscfg::test::modbus_image;
 using kscfg::test::one_line_error;
 using kscfg::test::read_text;
 using kscfg::test::Run;
@@ -79,13 +81,7 @@ struct Coupler {
   // The coupler's output (input) image as it holds it now (over Modbus, another client).
   std::vector<std::uint8_t> outputs() const { return image(kscfg::mbmap::kOutputImage); }
   std::vector<std::uint8_t> inputs() const { return image(kscfg::mbmap::kInputImage); }
-  std::vector<std::uint8_t> image(std::uint16_t at) const {
-    kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri()), uri()), {});
-    auto w = c.read(at, 24);
-    std::vector<std::uint8_t> b;
-    for (auto v : w) b.insert(b.end(), {static_cast<std::uint8_t>(v & 0xFF), static_cast<std::uint8_t>(v >> 8)});
-    return b;
-  }
+  std::vector<std::uint8_t> image(std::uint16_t at) const { return modbus_image(uri(), at, 24); }
   // Plug positions whose control byte is in register mode now.
   std::vector<std::size_t> in_register_mode() const {
     auto o = outputs();
@@ -93,21 +89,6 @@ struct Coupler {
     for (auto [pos, at] : kCtrl)
       if (o[at] & 0x80) r.push_back(at);
     return r;
-  }
-  // R31 of every channel as the state file holds it once serve saved it (a few ms after a change).
-  bool all_locked() const {
-    return wait_for(
-        [&] {
-          try {
-            auto j = nlohmann::json::parse(read_text(state));
-            for (const auto& c : j["channels"])
-              if (c["registers"][31] == 0x1235) return false;
-            return true;
-          } catch (...) {
-            return false;
-          }
-        },
-        10);
   }
 };
 
@@ -153,7 +134,7 @@ TEST_CASE(
   TempDir d;
   std::string state = d.file("station.json");
   Server srv(state, {"--tcp", "127.0.0.1:0", "--watchdog-ms", "0"}, d.file("serve.err"));
-  // Issue 36 item 2: no wait for a server that does not end (the default --lock-wait is 30 s; the run
+  // No wait for a server that does not end (the default --lock-wait is 30 s; the run
   // is killed after 10).
   std::string refusal = "kscfg: error: the emulator state file " + state + " is held by kscfg serve (process " +
                         std::to_string(srv.pid) + "), which serves it at " + srv.uri +
@@ -267,7 +248,7 @@ TEST_CASE(
       CHECK_THAT(r.err, Catch::Contains("was left in register mode") &&
                             Catch::Contains("by kscfg process " + std::to_string(pid)));
       CHECK(c.in_register_mode().empty());
-      CHECK(c.all_locked());
+      CHECK(all_channels_locked(c.state));
     }
     CHECK(caught);
   }
@@ -384,7 +365,7 @@ TEST_CASE(
   CHECK(after[19] == 0x42);
   for (std::size_t b = 0; b < after.size(); ++b)
     if (b < 16 || b > 19) CHECK(after[b] == before[b]);
-  CHECK(c.all_locked());
+  CHECK(all_channels_locked(c.state));
 }
 
 namespace {
@@ -479,7 +460,7 @@ TEST_CASE(
         return (std::stoul(j["outputs"].get<std::string>().substr(0, 2), nullptr, 16) & 0x80) == 0;
       },
       10));
-  CHECK(c.all_locked());
+  CHECK(all_channels_locked(c.state));
 }
 
 TEST_CASE(

@@ -1,5 +1,5 @@
-// kscfg over slcan: end to end against `kscfg serve --can` through a socat pseudo-terminal pair (issue
-// 37): every register command on the emulated BK5120, backup -> change -> restore byte-identical, the
+// kscfg over slcan: end to end against `kscfg serve --can` through a socat pseudo-terminal pair:
+// every register command on the emulated BK5120, backup -> change -> restore byte-identical, the
 // process image refused, a dead bus given up within two timeouts. The independent side is
 // tests/canopen_peer (CTest canopen_peer_e2e); this is kscfg's own server.
 #include <fcntl.h>

@@ -1,4 +1,4 @@
-// Files and streams (issue 10 item 7): every write to stdout or a file is checked; a failure is
+// Files and streams: every write to stdout or a file is checked; a failure is
 // exit 7 with the OS reason and leaves no truncated file in place of a good one; a reader that
 // quits ends kscfg quietly; '-' is stdin/stdout for FILE arguments; a directory is "is a directory".
 #include <fcntl.h>

@@ -1,4 +1,4 @@
-// One verdict per change (issue 33 item 2, docs/safety.md section 6): every path that proposes a change
+// One verdict per change (docs/safety.md section 6): every path that proposes a change
 // (set, write, apply, apply --dry-run, restore, restore --dry-run, diff, station check) refuses
 // the same change with status 5 and the same reason, and writes nothing.
 #include <catch2/catch.hpp>
@@ -30,7 +30,7 @@ std::string partial(unsigned position, const std::string& type, const std::strin
 
 }  // namespace
 
-TEST_CASE("every path refuses the same change with status 5 and the same reason", "[verdict][issue33]") {
+TEST_CASE("every path refuses the same change with status 5 and the same reason", "[verdict]") {
   std::vector<RefusedChange> cases = {
       {"KL6031 image-size 3 with extended-image on",
        {},
@@ -106,7 +106,7 @@ TEST_CASE("every path refuses the same change with status 5 and the same reason"
   }
 }
 
-TEST_CASE("what the verdict refuses, --force writes (and --dry-run --force shows the plan)", "[verdict][issue33]") {
+TEST_CASE("what the verdict refuses, --force writes (and --dry-run --force shows the plan)", "[verdict]") {
   Emu emu;
   std::string file = emu.dir.file("change.toml");
   write_text(file, partial(3, "KL6031", "image-size = 3\nextended-image = true\n"));

@@ -1,5 +1,5 @@
 // serve --can's SDO server as a function of frames (emulator/canopen_requests.hpp): the golden
-// telegram of the issue, register reads and writes through 0x4500/0x4501, the segmented upload of
+// telegram of the manual, register reads and writes through 0x4500/0x4501, the segmented upload of
 // the device name, the CiA 301 abort codes, a mute terminal and slow register accesses.
 #include <fmt/format.h>
 
@@ -95,7 +95,7 @@ std::string upload_string(Coupler& c, unsigned node, std::uint16_t index) {
 
 }  // namespace
 
-TEST_CASE("serve --can: the issue's telegram unlocks R31 of channel 0 of terminal 5 of node 3, answered 0x60",
+TEST_CASE("serve --can: the manual's telegram unlocks R31 of channel 0 of terminal 5 of node 3, answered 0x60",
           "[canopen]") {
   Coupler c(3);
   // "Id=0x603 DLC=8; Data=23 01 45 05 35 12 1F 80"

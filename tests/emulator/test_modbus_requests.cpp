@@ -73,7 +73,7 @@ TEST_CASE("MBAP framing: protocol id and length are checked", "[serve][requests]
   Bytes two = ok;
   for (auto b : ok) two.push_back(b);
   CHECK(tcp_frame(two).length == ok.size());
-  // The issue's frames: protocol id 7, length 0 and 65535 are not Modbus.
+  // The frames that once crashed it: protocol id 7, length 0 and 65535 are not Modbus.
   Bytes pid7 = ok;
   pid7[3] = 7;
   CHECK(tcp_frame(pid7).status == FrameCheck::invalid);

@@ -222,7 +222,7 @@ TEST_CASE("line errors on the command line: serial line --frame/--send, serial s
   CHECK(bad.rc == 2);
 }
 
-// Item 4 of issue 14 on the command line: 'serial status' shows the receive FIFO overflow (R6 bits
+// On the command line: 'serial status' shows the receive FIFO overflow (R6 bits
 // 0 and 4, BUF_F) that a far end sending more than the 128-byte buffer causes, and names every R6
 // bit of the KL6001 manual's table. The emulator never sets bit 3 (overrun: the UART's character
 // not fetched in time): the manuals give no condition for it; its text is checked through a state

@@ -1,8 +1,8 @@
-// The emulator state file and the other input files as the reliability campaign found them
-// (issue 11): corrupt numbers are "corrupt state file", exit 7, never undefined behaviour or a
+// The emulator state file and the other input files as the reliability campaign found them:
+// corrupt numbers are "corrupt state file", exit 7, never undefined behaviour or a
 // silent truncation; a symbolic link stays one; a killed writer's temporary file is cleaned up;
 // input files are bounded before they are read; TOML is bounded before it reaches the parser.
-// And issue 12: a run that only reads does not write the state file.
+// And a run that only reads does not write the state file.
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -185,7 +185,7 @@ TEST_CASE("temporary files left by a killed kscfg are removed by the next run", 
 
 TEST_CASE("input files are bounded before they are read: apply /dev/zero", "[files][robust]") {
   Emu emu;
-  // A device is not read at all (issue 32 item 4: only regular files are); a regular file beyond
+  // A device is not read at all (only regular files are); a regular file beyond
   // the limit is refused by its size.
   TempDir big;
   std::string huge = big.file("huge.toml");

@@ -207,7 +207,7 @@ TEST_CASE("ADS errors come by name and code with a hint that names the cause") {
     c.write(adsport::kRegisters, 0, adsreg::table_offset(9, 1), std::vector<std::uint8_t>{0, 0}, "x");
   });
   CHECK(m.find("0x704") != std::string::npos);
-  // A table register past 255 is no such register (0x703), not a wrong size (issue 35); a read
+  // A table register past 255 is no such register (0x703), not a wrong size; a read
   // that runs past 255 from a register that exists is the wrong size.
   for (unsigned reg : {256u, 300u, 0xFFFFu}) {
     INFO(reg);
@@ -516,7 +516,7 @@ TEST_CASE("serve --ads refuses a port-300 read whose length wraps the image boun
 }
 
 TEST_CASE("serve --ads refuses a sum command whose answers overflow the read length or one telegram") {
-  // Found by the attack on the 0xF082 sum (issue 35): the read lengths of the sub-requests were added
+  // Found by the attack on the 0xF082 sum: the read lengths of the sub-requests were added
   // in 32 bits, so a sub-request of length 2^32 - 512 beside a 512-byte read made 16 of them, and the
   // server answered 528 bytes to a request that would read 16; and 118 reads of the whole image (the
   // most one request holds) were answered in a 61 KB frame, past the 1900 bytes of user data a coupler

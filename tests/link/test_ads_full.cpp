@@ -1,4 +1,4 @@
-// ADS client against a server whose connections are all in use (issue 36 item 11): it resets a new
+// ADS client against a server whose connections are all in use: it resets a new
 // connection as its first request comes, or refuses it. The client names the server full and tries
 // again over the busy wait a Modbus server that answers busy gets (link/busy.hpp).
 #include <arpa/inet.h>

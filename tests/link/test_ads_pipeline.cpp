@@ -1,4 +1,4 @@
-// ADS client: several requests in flight on one connection (issue 24 item 2) against a coupler
+// ADS client: several requests in flight on one connection against a coupler
 // scripted here byte by byte: replies out of order, replies for invoke ids nobody waits for
 // (dropped and counted, never fatal), a coupler that takes one request at a time.
 #include <arpa/inet.h>

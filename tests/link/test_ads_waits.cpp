@@ -180,7 +180,7 @@ Outcome read_65(AdsClient& c, unsigned timeout_ms) {
 }  // namespace
 
 TEST_CASE("ADS client: connections reset after their first request never leave a request waited for forever") {
-  // Issue 45's relay: the first N connections are reset after their first request. Before, the
+  // A relay where the first N connections are reset after their first request. Before, the
   // requests still queued to go out again on the fresh connection were dropped when a second reset
   // came while they were being sent, and the batch waited for them without a deadline (polling
   // every 50 ms until Ctrl-C).

@@ -1,5 +1,5 @@
 // CAN port URIs (slcan:, socketcan:) parsed strictly, and the CANopen coupler keys: one lock per
-// CAN interface and node (issue 37).
+// CAN interface and node.
 #include <pty.h>
 #include <termios.h>
 #include <unistd.h>

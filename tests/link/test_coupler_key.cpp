@@ -1,4 +1,4 @@
-// A coupler's identity whatever name reaches it (issue 32 item 1, link/coupler_key.hpp): every
+// A coupler's identity whatever name reaches it (link/coupler_key.hpp): every
 // spelling of one address is one key, Modbus TCP on 502 and ADS on 48898 of one address are one
 // coupler, other ports keep theirs, a serial device is its real path.
 #include <unistd.h>

@@ -1,5 +1,5 @@
 // The slcan codec (golden vectors) and SlcanBus against a scripted adapter on a real
-// pseudo-terminal pair (issue 37): the setup it sends, frames both ways, acknowledgements kept out
+// pseudo-terminal pair: the setup it sends, frames both ways, acknowledgements kept out
 // of the frames, a refusal, a silent adapter, an adapter that goes away, cancellation.
 #include <fcntl.h>
 #include <poll.h>
@@ -38,7 +38,7 @@ CanFrame frame(std::uint32_t id, std::vector<std::uint8_t> data, bool extended =
   return f;
 }
 
-// The issue's telegram: node 3, download 0x4501 sub 5 of 0x801F1235.
+// The manual's telegram: node 3, download 0x4501 sub 5 of 0x801F1235.
 const CanFrame kGolden = frame(0x603, {0x23, 0x01, 0x45, 0x05, 0x35, 0x12, 0x1F, 0x80});
 
 // The Error(code) that `f` throws; fails the case when it throws none.
@@ -407,7 +407,7 @@ TEST_CASE("slcan bus: a cancelled token ends a wait within the polling slice", "
 TEST_CASE("slcan bus: a frame is sent whole or not at all, cancellation looked at only before it", "[link][can]") {
   // Before, a signal that came while the adapter acknowledged the frame made send() throw
   // Error(interrupted) after the frame had gone out, and a signal before it was taken for a frame
-  // sent by the SDO client's trace and wait (issue 45).
+  // sent by the SDO client's trace and wait.
   CancelToken token;
   Adapter a;
   auto bus = open_slcan(a.path, 500000, 1000, &token);

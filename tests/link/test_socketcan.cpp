@@ -1,4 +1,4 @@
-// SocketCanBus (issue 37): frames both ways on a virtual CAN interface where the kernel offers one,
+// SocketCanBus: frames both ways on a virtual CAN interface where the kernel offers one,
 // reported skipped (never passed) where it does not; an interface that is not there fails naming it
 // everywhere.
 #include <catch2/catch.hpp>

@@ -106,7 +106,7 @@ def c_map_follow(ctx):
     check(not bad, "; ".join(bad[:4]))
 
 
-@case("map-in-effect-and-next-start", "issue 23 item 21: a mapping register (KL6001 R34 bit 1, "
+@case("map-in-effect-and-next-start", "a mapping register (KL6001 R34 bit 1, "
       "alternative format) takes effect when the coupler lays out its image at power-on; until then "
       "the coupler keeps 48 complex bytes and the KL6001 its alternative format. set says a restart is "
       "needed, map shows what is in effect and what the next start brings", passes=("tcp",))
@@ -129,7 +129,7 @@ def c_map_next_start(ctx):
     check("In effect now" in out and "next start" in out, "map text shows one layout: %r" % out[:300])
 
 
-@case("set-unchanged-keeps-handshake-bytes", "issue 23 item 20: seed KL6001 alternative format, "
+@case("set-unchanged-keeps-handshake-bytes", "seed KL6001 alternative format, "
       "Ser-CT/ST carries RA; a set that changes nothing must leave the process-data bytes as they "
       "were, or RA toggles, the terminal takes it as an acknowledge and its last bytes come again",
       passes=("tcp",))
@@ -265,7 +265,7 @@ def c_cache_replaced(ctx):
     check(got[3] == ("KL3062", 3062), "info lists %r" % got)
 
 
-@case("walk-no-further-than-needed", "issue 12: a command on terminal N walks the complex area as far as "
+@case("walk-no-further-than-needed", "a command on terminal N walks the complex area as far as "
       "terminal N and no further (each step reads the R8 of the terminal whose control byte comes next)",
       passes=("tcp",))
 def c_walk_upto(ctx):

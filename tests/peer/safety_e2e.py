@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Safety cases against the independent peer coupler (issues 10 and 11, session side).
+"""Safety cases against the independent peer coupler (session side).
 
     /usr/bin/python3 tests/peer/safety_e2e.py build/kscfg [--pass tcp|rtu] [-k NAME] [-v]
 
@@ -162,7 +162,7 @@ def c_r7(ctx):
     check("unchanged" not in out, "the second command was skipped: %r" % out)
 
 
-@case("baud-near-miss", "issue 10 item 6; seed KL6001 technical data: 'max. 19200 Baud'; the rates of R32 bits 0-2 "
+@case("baud-near-miss", "seed KL6001 technical data: 'max. 19200 Baud'; the rates of R32 bits 0-2 "
       "are 1200..19200: 1920 is refused with 'did you mean 19200?', 250000 is above the maximum even with "
       "--divisor, 14400 --divisor is HB = 16 -> R32 = 0x10FF", passes=("tcp",))
 def c_baud(ctx):

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""A fault on one terminal during a 12-terminal apply rolls all of them back (issue 22; docs/safety.md
+"""A fault on one terminal during a 12-terminal apply rolls all of them back (docs/safety.md
 section 4 and docs/engine.md section 2.3): `kscfg apply` of the baud rate on 12 KL6001 at once, with terminal K
 misbehaving on R32 (the baud rate):
 

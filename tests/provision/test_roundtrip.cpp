@@ -1,4 +1,4 @@
-// Property test (issue 10 item 3): for every catalog type with registers and every channel,
+// Property test: for every catalog type with registers and every channel,
 // random values in the writable registers survive backup -> station file -> diff (empty) ->
 // factory reset -> restore, register for register. In-process on an in-memory emulated station.
 #include <catch2/catch.hpp>

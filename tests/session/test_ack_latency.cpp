@@ -63,7 +63,7 @@ struct ScriptedTerminal {
 
 }  // namespace
 
-TEST_CASE("ack latency: a kept wait the terminal beats is forgotten within two runs (issue 34)", "[ack]") {
+TEST_CASE("ack latency: a kept wait the terminal beats is forgotten within two runs", "[ack]") {
   // The scan cache kept 9.3 ms from a loaded machine; the terminal answers in 4.3-5.4 ms. Before,
   // a probe at half the wait found nothing for answers between half and the full wait, which ended
   // the suspicion: 9289, 6967, 6967, 6967, 5226, 5226, 5879, 5879, 4410 us over eight runs.
@@ -264,7 +264,7 @@ TEST_CASE("ack latency: the spread leaves out one answer far slower than the oth
   CHECK(ack_floor(t) == microseconds(4400));
 }
 
-TEST_CASE("ack latency: one late answer among fast ones is forgotten within a few answers (issue 34)", "[ack]") {
+TEST_CASE("ack latency: one late answer among fast ones is forgotten within a few answers", "[ack]") {
   // The 1-cycle peer: every answer at 2.0 ms but one at 6.4 ms. Before, the slowest of the last 64
   // held the wait at 5.0 ms (the probes never lowered it below) for the rest of the run, and the
   // scan cache kept it for the next.
@@ -286,7 +286,7 @@ TEST_CASE("ack latency: one late answer among fast ones is forgotten within a fe
   CHECK(term.polls <= 48 + 16);
 }
 
-TEST_CASE("ack latency: answers after one or two cycles at random: the wait covers two (issue 22)", "[ack]") {
+TEST_CASE("ack latency: answers after one or two cycles at random: the wait covers two", "[ack]") {
   for (int pattern = 0; pattern < 2; ++pattern) {
     ScriptedTerminal term;
     // Alternating, or at random (a fixed seed: the same script every run).
@@ -320,7 +320,7 @@ TEST_CASE("ack latency: an answer slow one time in four is kept", "[ack]") {
   CHECK(ack_keep(t) >= microseconds(5000));
 }
 
-TEST_CASE("ack latency: a wait a late answer left in the scan cache is forgotten within two runs (issue 34)", "[ack]") {
+TEST_CASE("ack latency: a wait a late answer left in the scan cache is forgotten within two runs", "[ack]") {
   // Run 1 ended with the wait up at 5.0 ms after one late answer; the terminal answers at 2.0 ms.
   for (bool suspect : {false, true}) {
     ScriptedTerminal term;
@@ -377,8 +377,7 @@ TEST_CASE("a terminal not timed yet starts from the slowest acknowledge timed on
   CHECK(timings.at(3).wait == std::chrono::microseconds(3000));
 }
 
-TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learning sample, no raise (issue 34)",
-          "[ack]") {
+TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learning sample, no raise", "[ack]") {
   AckTiming t;
   AckPlan p = ack_plan(t, milliseconds(1000));  // learning
   REQUIRE_FALSE(p.known());
@@ -411,7 +410,7 @@ TEST_CASE("ack latency: a poll this process sent late teaches nothing: no learni
 TEST_CASE("ack latency: three early polls among many acknowledges do not end read-ahead, a terminal often early does",
           "[ack]") {
   // A wait at 2 ms, answers at 1.9 ms: the first polls at the wait find them, except where this
-  // process or the coupler was slow (issue 34: three of those in a run ended read-ahead for good).
+  // process or the coupler was slow (three of those in a run ended read-ahead for good).
   AckTiming t;
   t.wait = microseconds(2000);
   // A request the handshake read ahead of: a first poll at the wait that came too early replaced

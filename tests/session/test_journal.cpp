@@ -1,4 +1,4 @@
-// Issue 11 item 3 across terminals: what a kscfg process that died left in register mode is found
+// Across terminals: what a kscfg process that died left in register mode is found
 // through its journal and finished by the next kscfg on the port, whichever terminal that one uses;
 // a live process's sessions are never touched. The dead process is a real one (fork, _exit without
 // cleanup, as after kill -9); the station is the emulator.

@@ -1,4 +1,4 @@
-// Issue 32 item 1: journals of one coupler reached over Modbus and over ADS. An entry that only a
+// Journals of one coupler reached over Modbus and over ADS. An entry that only a
 // kscfg of the other kind can finish (an ADS unlock in a journal a Modbus run claims, or a Modbus
 // register-mode entry in one an ADS run claims) keeps its journal: it is not dropped untouched.
 #include <sys/wait.h>

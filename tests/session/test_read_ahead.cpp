@@ -1,4 +1,4 @@
-// Read-ahead that came too early (issue 34): the poll for a register carried the request for the
+// Read-ahead that came too early: the poll for a register carried the request for the
 // next one, but the terminal had not answered the first yet, so it took the second. Its answer is
 // kept (it came after the request was written, a visible change of the status: decision 2), the
 // first register is asked again, and the read-ahead after it asks for the register after the one

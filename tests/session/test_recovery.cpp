@@ -1,4 +1,4 @@
-// Issue 11 items 3 and 4 in-process: a crashed session's leftovers are finished, never restored;
+// In-process: a crashed session's leftovers are finished, never restored;
 // a lost reply is an unknown outcome that is read before deciding; the rollback restores from
 // what the terminal holds and claims "as it was" only after reading it. Deterministic fault
 // injection on an emulated station.
@@ -301,7 +301,7 @@ TEST_CASE("apply: a failed rollback is never reported as 'as it was'", "[provisi
     CHECK(e.code() == Exit::unverified);
     CHECK(m.find("as it was") == std::string::npos);
     // Both terminals wrote at once; neither could be read back once the link was down. The undo
-    // command comes first, the one reason once; then a line per terminal (issue 36 item 3).
+    // command comes first, the one reason once; then a line per terminal.
     CHECK_THAT(m, Catch::Contains("apply failed: request lost (test); rollback failed (nothing could be read back): "
                                   "undo with 'kscfg "
                                   "restore " +

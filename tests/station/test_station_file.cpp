@@ -1,5 +1,5 @@
-// Station files keep channel identity (issue 10 item 3, docs/safety.md) and round-trip
-// whatever station_to_toml writes (issue 11: names written into TOML are escaped).
+// Station files keep channel identity (docs/safety.md) and round-trip
+// whatever station_to_toml writes (names written into TOML are escaped).
 #include <catch2/catch.hpp>
 
 #include "kscfg/base/error.hpp"
@@ -148,7 +148,7 @@ TEST_CASE("station file: names with quotes, backslashes and control characters a
   CHECK(toml_key("") == "\"\"");
   CHECK(toml_comment("a\nb") == "# a b\n");
 
-  // A user catalog type whose name has a quote (issue 11): the file kscfg writes reads back.
+  // A user catalog type whose name has a quote: the file kscfg writes reads back.
   Catalog c = Catalog::builtin();
   c.add_text("quote.toml", R"(type = 'KL"Q'
 title = "a type with a quote"

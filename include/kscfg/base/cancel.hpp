@@ -115,8 +115,8 @@ class CancelNote {
 std::string cancel_note_text(std::string_view what);
 
 // Every sleep of kscfg goes through these: they wake at least every kInterruptSlice to look at
-// `cancel` (null: never cancelled), so a signal ends any wait within that
-// (within 100 ms). They return false when `cancel->cancelled()` (before or during the sleep), true when the
+// `cancel` (null: never cancelled), so a signal ends any wait within that (within
+// 100 ms). They return false when `cancel->cancelled()` (before or during the sleep), true when the
 // time passed.
 constexpr std::chrono::milliseconds kInterruptSlice{5};
 bool sleep_until_or_cancelled(std::chrono::steady_clock::time_point due, const CancelToken* cancel);

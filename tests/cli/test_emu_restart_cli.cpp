@@ -1,5 +1,5 @@
-// Issue 36, the emulator and serial items: an emulated coupler that can be power-cycled (item 4),
-// `serial send -` that ends at the end of its input (item 7), and a stdout shared in non-blocking mode.
+// An emulated coupler that can be power-cycled (emu restart), `serial send -` that ends at the end
+// of its input, and a stdout shared in non-blocking mode.
 #include <fcntl.h>
 #include <spawn.h>
 #include <sys/ioctl.h>
@@ -35,7 +35,7 @@ char proc_state(int pid) {
 
 }  // namespace
 
-TEST_CASE("issue 36 item 7: serial send - ends normally at the end of a non-blocking stdin", "[issue36][serial]") {
+TEST_CASE("serial send - ends normally at the end of a non-blocking stdin", "[newcomer][serial]") {
   // A stdin whose open file is non-blocking (O_NONBLOCK set by whoever shares it: a shell after some
   // programs, a harness) answers EAGAIN while the writer has nothing yet. That is not the end of the
   // input: kscfg said "kscfg: error: cannot read stdin: Resource temporarily unavailable" (exit 7).
@@ -71,8 +71,7 @@ TEST_CASE("issue 36 item 7: serial send - ends normally at the end of a non-bloc
   }
 }
 
-TEST_CASE("issue 36 item 4: emu restart power-cycles the emulated coupler, until then map shows both images",
-          "[issue36][emu][map]") {
+TEST_CASE("emu restart power-cycles the emulated coupler, until then map shows both images", "[newcomer][emu][map]") {
   Emu emu;
   Run set = emu({"-t", "1", "set", "alternative-format", "off"});
   REQUIRE(set.rc == 0);
@@ -115,8 +114,7 @@ TEST_CASE("issue 36 item 4: emu restart power-cycles the emulated coupler, until
   CHECK(a["before"] == a["after"]);
 }
 
-TEST_CASE("issue 36 item 4: emu restart on a state file a serve holds is refused at once, saying what to do",
-          "[issue36][emu][serve]") {
+TEST_CASE("emu restart on a state file a serve holds is refused at once, saying what to do", "[newcomer][emu][serve]") {
   TempDir d;
   std::string state = d.file("emulator.json");
   REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
@@ -129,7 +127,7 @@ TEST_CASE("issue 36 item 4: emu restart on a state file a serve holds is refused
 }
 
 TEST_CASE("a stdout shared in non-blocking mode whose reader is behind is waited for, not an error",
-          "[issue36][output]") {
+          "[newcomer][output]") {
   // The write side of the pipe is O_NONBLOCK (set by whoever shares it). kscfg fills the pipe, then
   // its write answers EAGAIN: it said "kscfg: error: cannot write to stdout: Resource temporarily
   // unavailable" (exit 7) with 64 KiB of an 83 KB man page written.

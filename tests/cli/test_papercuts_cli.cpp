@@ -1,4 +1,4 @@
-// Issue 23 ("what new users tripped over"): raw values checked against the catalog, KL6031 image
+// What new users tripped over: raw values checked against the catalog, KL6031 image
 // settings written together, strict --keep-backups, messages that name the real cause, a set
 // that changes nothing keeping the process-data bytes, partial station files by position.
 #include <fcntl.h>
@@ -25,7 +25,7 @@ using kscfg::test::TempDir;
 using kscfg::test::write_text;
 using nlohmann::json;
 
-TEST_CASE("raw writes and station files hold values the catalog documents, unless forced", "[issue23][write]") {
+TEST_CASE("raw writes and station files hold values the catalog documents, unless forced", "[papercuts][write]") {
   Emu emu;
   // KL6001: 250000 baud by divisor (max 19200), an undefined baud code, 6 data bytes (1..5).
   for (auto [reg, value] : {std::pair{"R32", "0x00FF"}, {"R32", "0x0008"}, {"R35", "6"}}) {
@@ -58,13 +58,13 @@ TEST_CASE("raw writes and station files hold values the catalog documents, unles
   CHECK(s.err.find("raw register") == std::string::npos);
 }
 
-TEST_CASE("KL6031 image-size and extended-image are written together or refused", "[issue23][set]") {
+TEST_CASE("KL6031 image-size and extended-image are written together or refused", "[papercuts][set]") {
   Emu emu;
   Run off = emu({"-t", "3", "set", "extended-image", "off"});  // image-size is 22: the two would disagree
   CHECK(off.rc == 5);
   CHECK(one_line_error(off));
   CHECK_THAT(off.err, Catch::Contains("image-size 22 needs extended-image on"));
-  // Given apart, refused as apply refuses them (one verdict per change, issue 33 item 2).
+  // Given apart, refused as apply refuses them (one verdict per change).
   Run both = emu({"-t", "3", "set", "extended-image", "on", "image-size", "3"});
   CHECK(both.rc == 5);
   CHECK_THAT(both.err, Catch::Contains("image-size 3 needs extended-image off, and extended-image is on"));
@@ -87,7 +87,7 @@ TEST_CASE("KL6031 image-size and extended-image are written together or refused"
   CHECK(emu({"-t", "3", "get", "image-size", "extended-image"}).out == "22\non\n");
 }
 
-TEST_CASE("a partial station file names terminals by position, the others are left alone", "[issue23][provision]") {
+TEST_CASE("a partial station file names terminals by position, the others are left alone", "[papercuts][provision]") {
   Emu emu;
   REQUIRE(emu({"-t", "4", "-c", "2", "write", "R35", "5"}).rc == 0);
   write_text(emu.dir.file("p.toml"),
@@ -122,7 +122,8 @@ TEST_CASE("a partial station file names terminals by position, the others are le
   CHECK(emu({"--station", emu.dir.file("p.toml"), "info"}).rc == 2);
 }
 
-TEST_CASE("apply parses --keep-backups strictly, only backup files count toward the rotation", "[issue23][provision]") {
+TEST_CASE("apply parses --keep-backups strictly, only backup files count toward the rotation",
+          "[papercuts][provision]") {
   Emu emu;
   auto env = emu.env;
   env["XDG_STATE_HOME"] = emu.dir.file("state");
@@ -152,7 +153,7 @@ TEST_CASE("apply parses --keep-backups strictly, only backup files count toward 
   CHECK(dirs == 2);
 }
 
-TEST_CASE("messages name the real cause over Modbus: digital terminals, the show columns", "[issue23][serve]") {
+TEST_CASE("messages name the real cause over Modbus: digital terminals, the show columns", "[papercuts][serve]") {
   Emu emu;
   Server srv(emu.state, {"--tcp", "127.0.0.1:0"}, emu.dir.file("serve.err"));
   std::map<std::string, std::string> env{{"XDG_CACHE_HOME", emu.dir.file("cache")}};
@@ -211,7 +212,7 @@ TEST_CASE("messages name the real cause over Modbus: digital terminals, the show
   CHECK(last.find("is the coupler (or 'kscfg serve') listening") == std::string::npos);
 }
 
-TEST_CASE("a set that changes nothing leaves the process-data bytes as they were (serve)", "[issue23][serve][set]") {
+TEST_CASE("a set that changes nothing leaves the process-data bytes as they were (serve)", "[papercuts][serve][set]") {
   Emu emu;
   Server srv(emu.state, {"--tcp", "127.0.0.1:0"}, emu.dir.file("serve.err"));
   std::map<std::string, std::string> env{{"XDG_CACHE_HOME", emu.dir.file("cache")}};

@@ -1,4 +1,4 @@
-// Issue 36: what a newcomer trips over, through the CLI. Each case names its item.
+// What a newcomer trips over, through the CLI: each case names the behaviour it holds.
 #include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -10,9 +10,9 @@
 #include <regex>
 #include <sstream>
 
+#include "fixtures.hpp"
 #include "kscfg/link/modbus_client.hpp"
 #include "kscfg/link/port_uri.hpp"
-#include "support.hpp"
 
 using kscfg::test::Child;
 using kscfg::test::Emu;
@@ -38,11 +38,7 @@ std::vector<std::string> lines_of(const std::string& text) {
 // The output image of the coupler behind `uri` (another Modbus client), empty when it does not answer.
 std::vector<std::uint8_t> outputs(const std::string& uri) {
   try {
-    kscfg::ModbusClient c(kscfg::modbus_target(kscfg::parse_port_uri(uri), uri), {});
-    std::vector<std::uint8_t> b;
-    for (auto v : c.read(kscfg::mbmap::kOutputImage, 24))
-      b.insert(b.end(), {static_cast<std::uint8_t>(v & 0xFF), static_cast<std::uint8_t>(v >> 8)});
-    return b;
+    return kscfg::test::modbus_image(uri, kscfg::mbmap::kOutputImage, 24);
   } catch (...) {
     return {};
   }
@@ -51,9 +47,9 @@ std::vector<std::uint8_t> outputs(const std::string& uri) {
 }  // namespace
 
 TEST_CASE(
-    "issue 36 item 3: a failed rollback says the undo command first, then one line per terminal with the "
+    "a failed rollback says the undo command first, then one line per terminal with the "
     "registers, the shared cause once",
-    "[issue36][rollback][serve]") {
+    "[newcomer][rollback][serve]") {
   TempDir d;
   std::string state = d.file("emulator.json");
   REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);
@@ -110,7 +106,7 @@ TEST_CASE(
   CHECK(j["details"].size() >= 1);
 }
 
-TEST_CASE("issue 36 item 5: the next-start note only for a setting that changes the image", "[issue36][lockout]") {
+TEST_CASE("the next-start note only for a setting that changes the image", "[newcomer][lockout]") {
   Emu emu;
   // The KL6001 in the alternative format (its factory setting): these do not change its image.
   for (const std::vector<std::string>& s :
@@ -127,8 +123,7 @@ TEST_CASE("issue 36 item 5: the next-start note only for a setting that changes 
                                     "terminal 1 (KL6001): alternative-format = off (R34"));
 }
 
-TEST_CASE("issue 36 item 6: backup refuses -t (it saves the whole station) and honours --json without FILE",
-          "[issue36][backup]") {
+TEST_CASE("backup refuses -t (it saves the whole station) and honours --json without FILE", "[newcomer][backup]") {
   Emu emu;
   TempDir d;
   for (const char* t : {"1", "3", "KL6001", "1-2"}) {
@@ -152,8 +147,7 @@ TEST_CASE("issue 36 item 6: backup refuses -t (it saves the whole station) and h
   CHECK(t.out == doc["station"].get<std::string>());
 }
 
-TEST_CASE("issue 36 item 8: info, info -t and scan write image ranges in one notation (the map's)",
-          "[issue36][info][scan][serve]") {
+TEST_CASE("info, info -t and scan write image ranges in one notation (the map's)", "[newcomer][info][scan][serve]") {
   TempDir d;
   std::string state = d.file("emulator.json");
   Run info = run_kscfg({"--port", "emu:" + state, "info"});
@@ -172,7 +166,7 @@ TEST_CASE("issue 36 item 8: info, info -t and scan write image ranges in one not
   CHECK(scan.out.find("..") == std::string::npos);
 }
 
-TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (user guide and man page)", "[issue36][docs]") {
+TEST_CASE("exit status 5 is documented as it is (user guide and man page)", "[newcomer][docs]") {
   Emu emu;
   // The refusals the documentation did not name, each exit 5.
   Run force = emu({"-t", "6", "data", "force", "1=on"});
@@ -199,8 +193,8 @@ TEST_CASE("issue 36 item 9: exit status 5 is documented as it is (user guide and
   }
 }
 
-TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the shape of the path apply writes",
-          "[issue36][docs][ansible]") {
+TEST_CASE("the Ansible module's backup path sample has the shape of the path apply writes",
+          "[newcomer][docs][ansible]") {
   Emu emu;
   TempDir d;
   write_text(d.file("want.toml"),
@@ -227,8 +221,7 @@ TEST_CASE("issue 36 item 10: the Ansible module's backup path sample has the sha
   }
 }
 
-TEST_CASE("issue 36 item 12: a 3 MB name, key or value in a station file is quoted cut to a readable length",
-          "[issue36][files]") {
+TEST_CASE("a 3 MB name, key or value in a station file is quoted cut to a readable length", "[newcomer][files]") {
   TempDir d;
   ::chmod(d.path.c_str(), 0755);  // a file every user may read: its offending line is quoted (safety.md 11)
   const std::string big(3000000, 'B');
@@ -256,8 +249,7 @@ TEST_CASE("issue 36 item 12: a 3 MB name, key or value in a station file is quot
   CHECK_THAT(reg.err, Catch::Contains("...' (100000 bytes)"));
 }
 
-TEST_CASE("issue 36 item 4 (part): map --online says the next start's image and shows both, as set promised",
-          "[issue36][map][serve]") {
+TEST_CASE("map --online says the next start's image and shows both, as set promised", "[newcomer][map][serve]") {
   TempDir d;
   std::string state = d.file("emulator.json");
   REQUIRE(run_kscfg({"--port", "emu:" + state, "emu", "reset"}).rc == 0);

@@ -1,4 +1,4 @@
-// Issue 35, the small ones that are CLI text: every place that names the links names ADS too.
+// Every place in the CLI text that names the links names ADS too.
 #include <catch2/catch.hpp>
 #include <string>
 
@@ -8,8 +8,7 @@ using kscfg::test::read_text;
 using kscfg::test::Run;
 using kscfg::test::run_kscfg;
 
-TEST_CASE("issue 35 small ones: --help, the man page and the Ansible modules name ADS among the links",
-          "[issue35][docs]") {
+TEST_CASE("the links are named with ADS among them in --help, the man page and the Ansible modules", "[docs]") {
   const std::string links = "Modbus TCP, Modbus RTU or ADS";
   Run help = run_kscfg({"--help"});
   REQUIRE(help.rc == 0);
