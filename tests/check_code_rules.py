@@ -29,8 +29,9 @@ import re
 import subprocess
 import sys
 
-ISSUE_PATHS = ("src", "include", "cli", "docs", "README.md", "NEWS.md")
-ISSUE_WARN_PATHS = ("tests", "bench")
+ISSUE_PATHS = ("src", "include", "cli", "docs", "README.md", "NEWS.md", "tests", "bench", "fuzz", ".ci", "cmake",
+               "CMakeLists.txt", "packaging", "contrib")
+ISSUE_WARN_PATHS = ()
 ISSUE_RE = re.compile(r"\bissues?\s*#?\s*\d+|\btest_issue_?\d+", re.I)
 
 FUNCTION_PATHS = ("src", "include", "cli")
@@ -268,7 +269,9 @@ def check_cli_transports(root, paths):
 
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-OWN_FILES = {os.path.join(HERE, "check_code_rules.py"), os.path.join(HERE, "code_rules_fixture.py")}
+# The checks' own files and fixtures, which name what they reject.
+OWN_FILES = {os.path.join(HERE, f) for f in ("check_code_rules.py", "code_rules_fixture.py", "check_test_names.cmake",
+                                              "test_names_fixture.cmake")}
 
 
 def main():
@@ -280,7 +283,7 @@ def main():
     errors, reports = [], []
 
     errors += check_issues(root, ISSUE_PATHS)
-    warnings = check_issues(root, ISSUE_WARN_PATHS)
+    warnings = check_issues(root, ISSUE_WARN_PATHS) if ISSUE_WARN_PATHS else []
     for rule, enforced, found in (
             ("function length", FUNCTION_RULE_ENFORCED, check_functions(root, FUNCTION_PATHS)),
             ("transports in cli/", CLI_TRANSPORT_RULE_ENFORCED, check_cli_transports(root, CLI_PATHS))):

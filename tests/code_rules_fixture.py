@@ -4,7 +4,7 @@
 A tree of a few files is made in a temporary folder: clean, it passes; then each violation is
 planted alone and the check must fail naming it (an issue number in src/, docs/ and README.md; a
 function over 80 lines, and a transport asked about in cli/, with --enforce-all) or only report it
-(the report-only rules without --enforce-all; an issue number under tests/ is a warning).
+(the report-only rules without --enforce-all).
 
 Usage: code_rules_fixture.py --check tests/check_code_rules.py   (exit 1 naming the first case that
 does not behave)
@@ -68,8 +68,8 @@ def main():
          "README.md:3: names an issue (issue #3)")
     case("test file name in docs/", {"docs/x.md": "# x\n\nSee tests/cli/test_issue36.cpp.\n"}, [], 1,
          "docs/x.md:3: names an issue (test_issue36)")
-    case("issue number in tests/ is a warning", {"tests/t.cpp": "// issue 4 item 2\nint t();\n"}, [], 0,
-         "warning: tests/t.cpp:1: names an issue")
+    case("issue number in tests/", {"tests/t.cpp": "// issue 4 item 2\nint t();\n"}, [], 1,
+         "tests/t.cpp:1: names an issue")
     # (b) long functions
     case("long function, report-only", {"src/long.cpp": long_function("big")}, [], 0,
          "report: (function length, not enforced yet) src/long.cpp:1: big is 90 lines")
