@@ -268,24 +268,7 @@ class Data : public Command {
     // Outputs a killed `data force` left forced are put back before this one reads what it will
     // restore at its end (else those would be its "previous values").
     if (force && yes_ && !no_restore_) ctx.release_forced(true);
-    if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
-    std::size_t count = once_            ? 1
-                        : count_.empty() ? 0
-                                         : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
-    if (!count_.empty() && count == 0) throw Error(Exit::usage, "--count needs at least 1");
-    auto interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
-    // A coupler that switches its outputs off after a time without a telegram (ADS port 300):
-    // held values are written every interval, so it must be shorter.
-    const TransportFacts facts = transport_facts(ctx.options().port);
-    if (force && facts.output_watchdog_ms && interval >= std::chrono::milliseconds(facts.output_watchdog_ms))
-      throw Error(Exit::usage,
-                  fmt::format("--interval {} ms: over {} the coupler switches the outputs off after {} ms without a "
-                              "telegram, so forced values would drop between two writes",
-                              interval.count(), facts.name, facts.output_watchdog_ms),
-                  fmt::format("give --interval below {} (default 500)", facts.output_watchdog_ms));
-    if (interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
-    std::optional<std::chrono::milliseconds> hold;
-    if (!hold_.empty()) hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));
+    const Pace pace = parse_pace(ctx, force);
 
     const StationLayout& L = ctx.resolver().layout();
     unsigned only = ctx.options().terminal;
@@ -297,6 +280,64 @@ class Data : public Command {
       if (shown.size() == 1) only = shown.front(), shown.clear();
     }
     Link& link = ctx.port().image();
+    note_unassigned_bits(L, only, shown);
+
+    Force f;
+    f.channel = ctx.options().channel - 1;
+    if (no_restore_ && (!force || !hold_.empty() || once_ || !count_.empty()))
+      throw Error(Exit::usage, "--no-restore goes with 'data force' alone (no --hold, --once or --count)",
+                  "it writes the values once and leaves them; kscfg prints it for putting outputs back by hand");
+    if (force && start_force(ctx, link, L, only, shown, f)) return 0;  // --no-restore: forced and left so
+    int rc = 0;
+    try {
+      rc = loop(ctx, link, L, only, shown, pace.count, pace.interval, pace.hold, force ? &f.plan : nullptr);
+    } catch (const Error& e) {
+      // Ctrl-C during an exchange ends the view like Ctrl-C between two samples.
+      if (e.code() != Exit::interrupted) {
+        if (force) restore_after_error(ctx, link, f);
+        throw;
+      }
+      ctx.cancel()->reset();
+    } catch (...) {
+      if (force) restore_after_error(ctx, link, f);
+      throw;
+    }
+    if (force) end_force(ctx, link, f);
+    return rc;
+  }
+
+ private:
+  // How often the view samples: --once, --count, --interval, --hold.
+  struct Pace {
+    std::size_t count = 0;  // 0: until Ctrl-C
+    std::chrono::milliseconds interval{500};
+    std::optional<std::chrono::milliseconds> hold;
+  };
+  Pace parse_pace(Context& ctx, bool force) const {
+    Pace pace;
+    if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
+    pace.count = once_            ? 1
+                 : count_.empty() ? 0
+                                  : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    if (!count_.empty() && pace.count == 0) throw Error(Exit::usage, "--count needs at least 1");
+    pace.interval =
+        std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
+    // A coupler that switches its outputs off after a time without a telegram (ADS port 300):
+    // held values are written every interval, so it must be shorter.
+    const TransportFacts facts = transport_facts(ctx.options().port);
+    if (force && facts.output_watchdog_ms && pace.interval >= std::chrono::milliseconds(facts.output_watchdog_ms))
+      throw Error(Exit::usage,
+                  fmt::format("--interval {} ms: over {} the coupler switches the outputs off after {} ms without a "
+                              "telegram, so forced values would drop between two writes",
+                              pace.interval.count(), facts.name, facts.output_watchdog_ms),
+                  fmt::format("give --interval below {} (default 500)", facts.output_watchdog_ms));
+    if (pace.interval.count() < 10) throw Error(Exit::usage, "--interval: at least 10 ms");
+    if (!hold_.empty()) pace.hold = std::chrono::milliseconds(parse_uint(hold_, 86400000, "hold time"));
+    return pace;
+  }
+
+  // Digital bits a scan knows only by their totals: said once, when the whole image is shown.
+  static void note_unassigned_bits(const StationLayout& L, unsigned only, const std::vector<unsigned>& shown) {
     std::size_t din = 0, dout = 0;
     for (const auto& t : L.terminals)
       if (!t.complex) din += t.bits_in, dout += t.bits_out;
@@ -305,124 +346,116 @@ class Data : public Command {
           "kscfg: note: {} digital input and {} output bits belong to no terminal here (a scan "
           "sees only their totals); give --station FILE to see them by terminal\n",
           L.digital_in_bits - din, L.digital_out_bits - dout);
-
-    ForcePlan plan;
-    const TerminalImage* ft = nullptr;
-    unsigned fch = ctx.options().channel - 1;
-    if (no_restore_ && (!force || !hold_.empty() || once_ || !count_.empty()))
-      throw Error(Exit::usage, "--no-restore goes with 'data force' alone (no --hold, --once or --count)",
-                  "it writes the values once and leaves them; kscfg prints it for putting outputs back by hand");
-    std::string undo_cmd;
-    if (force) {
-      if (!shown.empty())
-        throw Error(Exit::usage,
-                    fmt::format("-t {} selects {} terminals ({}): data force needs one", ctx.options().selection.text,
-                                shown.size(), fmt::join(shown, ", ")),
-                    "give -t POS ('kscfg data' shows the positions)");
-      if (!only)
-        throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
-      std::vector<std::string> specs(args_.begin() + 1, args_.end());
-      ft = &L.terminal(only);
-      ImageSnapshot before = read_image(link, L);
-      plan = plan_force(*ft, fch, specs, before.out);  // checks everything, writes nothing
-      if (!yes_)
-        throw Error(Exit::refused,
-                    fmt::format("forcing outputs of terminal {} ({}) moves what is wired to them; nothing written",
-                                ft->position, ft->type->type),
-                    "add --yes to force them");
-      undo_cmd = undo_command(ctx, *ft, fch, plan);
-      // kill -9 is the one way out kscfg cannot clean up after: say how to do it by hand before
-      // anything is forced (said after, a kill could come between).
-      if (!no_restore_)
-        std::cerr << fmt::format(
-            "kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
-            "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
-            ft->position, ft->type->type, undo_cmd);
-      // Noted in the session journal before they are written: a kill -9 leaves them for the next
-      // kscfg on this coupler, which names them and puts them back with --yes (data release).
-      if (!no_restore_) journal_force(ctx.journal(), *ft, fch, plan);
-      apply_force(link, plan);
-      if (no_restore_) {
-        if (ctx.json()) {
-          nlohmann::json j{
-              {"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes}, {"restored", false}};
-          if (ft->complex) j["channel"] = fch + 1;
-          write_out(j.dump() + "\n");
-        } else {
-          write_out(fmt::format("terminal {} ({}): outputs forced and left so (--no-restore)\n", ft->position,
-                                ft->type->type));
-        }
-        return 0;
-      }
-    }
-    int rc = 0;
-    // Puts the outputs back, verified, under a shield (base/cancel.hpp): a signal during it says
-    // so at once and does not stop it, a second one abandons it (the Ctrl-C that ended the view
-    // was forgotten with it); a link error is tried again (a Modbus link reconnects). Returns the
-    // error.
-    auto restore = [&]() -> std::optional<Error> {
-      ShieldScope shield(ctx.cancel(),
-                         fmt::format("restoring the forced outputs of terminal {} ({})", ft->position, ft->type->type));
-      std::optional<Error> failed;
-      for (int attempt = 0; attempt < 3; ++attempt) {
-        try {
-          restore_force(link, plan);
-          journal_restored(ctx.journal(), *ft, fch, plan);
-          failed.reset();
-          break;
-        } catch (const Error& e) {
-          failed = e;
-          if (e.code() != Exit::link) break;
-        }
-      }
-      return failed;
-    };
-    auto restore_after_error = [&] {
-      if (!force) return;
-      if (auto e = restore())
-        std::cerr << fmt::format(
-            "kscfg: warning: restoring the outputs of terminal {} failed: {}; they may still be "
-            "forced: put them back with: {}\n",
-            ft->position, e->what(), undo_cmd);
-      else
-        std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
-                                 ft->type->type);
-    };
-    try {
-      rc = loop(ctx, link, L, only, shown, count, interval, hold, force ? &plan : nullptr);
-    } catch (const Error& e) {
-      // Ctrl-C during an exchange ends the view like Ctrl-C between two samples.
-      if (e.code() != Exit::interrupted) {
-        restore_after_error();
-        throw;
-      }
-      ctx.cancel()->reset();
-    } catch (...) {
-      restore_after_error();
-      throw;
-    }
-    if (force) {
-      if (auto e = restore())
-        throw Error(e->code(),
-                    fmt::format("restoring the outputs of terminal {} ({}) failed: {}", ft->position, ft->type->type,
-                                e->what()),
-                    "they may still be forced: put them back with: " + undo_cmd);
-      if (stdout_reader_gone())
-        std::cerr << fmt::format("kscfg: the reader of stdout went away; terminal {} ({}): outputs restored\n",
-                                 ft->position, ft->type->type);
-      if (ctx.json()) {
-        nlohmann::json j{
-            {"position", ft->position}, {"type", ft->type->type}, {"forced", plan.changes}, {"restored", true}};
-        if (ft->complex) j["channel"] = fch + 1;
-        write_out(j.dump() + "\n");
-      } else {
-        write_out(fmt::format("terminal {} ({}): outputs restored\n", ft->position, ft->type->type));
-      }
-    }
-    return rc;
   }
 
- private:
+  // The outputs `data force` forces on one terminal channel, and how to put them back by hand.
+  struct Force {
+    ForcePlan plan;
+    const TerminalImage* terminal = nullptr;
+    unsigned channel = 0;
+    std::string undo_cmd;
+  };
+
+  // Checks and writes the forced values (noted in the journal first). True when they are left so
+  // (--no-restore) and reported: the command is done.
+  bool start_force(Context& ctx, Link& link, const StationLayout& L, unsigned only, const std::vector<unsigned>& shown,
+                   Force& f) {
+    if (!shown.empty())
+      throw Error(Exit::usage,
+                  fmt::format("-t {} selects {} terminals ({}): data force needs one", ctx.options().selection.text,
+                              shown.size(), fmt::join(shown, ", ")),
+                  "give -t POS ('kscfg data' shows the positions)");
+    if (!only) throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
+    std::vector<std::string> specs(args_.begin() + 1, args_.end());
+    const TerminalImage* ft = f.terminal = &L.terminal(only);
+    const unsigned fch = f.channel;
+    ImageSnapshot before = read_image(link, L);
+    f.plan = plan_force(*ft, fch, specs, before.out);  // checks everything, writes nothing
+    if (!yes_)
+      throw Error(Exit::refused,
+                  fmt::format("forcing outputs of terminal {} ({}) moves what is wired to them; nothing written",
+                              ft->position, ft->type->type),
+                  "add --yes to force them");
+    f.undo_cmd = undo_command(ctx, *ft, fch, f.plan);
+    // kill -9 is the one way out kscfg cannot clean up after: say how to do it by hand before
+    // anything is forced (said after, a kill could come between).
+    if (!no_restore_)
+      std::cerr << fmt::format(
+          "kscfg: terminal {} ({}): forcing outputs; Ctrl-C, SIGTERM, SIGHUP, a closed pipe or "
+          "an error puts them back. If kscfg is killed (kill -9), put them back with: {}\n",
+          ft->position, ft->type->type, f.undo_cmd);
+    // Noted in the session journal before they are written: a kill -9 leaves them for the next
+    // kscfg on this coupler, which names them and puts them back with --yes (data release).
+    if (!no_restore_) journal_force(ctx.journal(), *ft, fch, f.plan);
+    apply_force(link, f.plan);
+    if (!no_restore_) return false;
+    if (ctx.json()) {
+      nlohmann::json j{
+          {"position", ft->position}, {"type", ft->type->type}, {"forced", f.plan.changes}, {"restored", false}};
+      if (ft->complex) j["channel"] = fch + 1;
+      write_out(j.dump() + "\n");
+    } else {
+      write_out(fmt::format("terminal {} ({}): outputs forced and left so (--no-restore)\n", ft->position,
+                            ft->type->type));
+    }
+    return true;
+  }
+
+  // Puts the outputs back, verified, under a shield (base/cancel.hpp): a signal during it says
+  // so at once and does not stop it, a second one abandons it (the Ctrl-C that ended the view
+  // was forgotten with it); a link error is tried again (a Modbus link reconnects). Returns the
+  // error.
+  static std::optional<Error> restore(Context& ctx, Link& link, const Force& f) {
+    ShieldScope shield(ctx.cancel(), fmt::format("restoring the forced outputs of terminal {} ({})",
+                                                 f.terminal->position, f.terminal->type->type));
+    std::optional<Error> failed;
+    for (int attempt = 0; attempt < 3; ++attempt) {
+      try {
+        restore_force(link, f.plan);
+        journal_restored(ctx.journal(), *f.terminal, f.channel, f.plan);
+        failed.reset();
+        break;
+      } catch (const Error& e) {
+        failed = e;
+        if (e.code() != Exit::link) break;
+      }
+    }
+    return failed;
+  }
+
+  static void restore_after_error(Context& ctx, Link& link, const Force& f) {
+    const TerminalImage* ft = f.terminal;
+    if (auto e = restore(ctx, link, f))
+      std::cerr << fmt::format(
+          "kscfg: warning: restoring the outputs of terminal {} failed: {}; they may still be "
+          "forced: put them back with: {}\n",
+          ft->position, e->what(), f.undo_cmd);
+    else
+      std::cerr << fmt::format("kscfg: terminal {} ({}): the forced outputs were restored\n", ft->position,
+                               ft->type->type);
+  }
+
+  // The view ended: the outputs put back, and said so.
+  static void end_force(Context& ctx, Link& link, const Force& f) {
+    const TerminalImage* ft = f.terminal;
+    if (auto e = restore(ctx, link, f))
+      throw Error(e->code(),
+                  fmt::format("restoring the outputs of terminal {} ({}) failed: {}", ft->position, ft->type->type,
+                              e->what()),
+                  "they may still be forced: put them back with: " + f.undo_cmd);
+    if (stdout_reader_gone())
+      std::cerr << fmt::format("kscfg: the reader of stdout went away; terminal {} ({}): outputs restored\n",
+                               ft->position, ft->type->type);
+    if (ctx.json()) {
+      nlohmann::json j{
+          {"position", ft->position}, {"type", ft->type->type}, {"forced", f.plan.changes}, {"restored", true}};
+      if (ft->complex) j["channel"] = f.channel + 1;
+      write_out(j.dump() + "\n");
+    } else {
+      write_out(fmt::format("terminal {} ({}): outputs restored\n", ft->position, ft->type->type));
+    }
+  }
+
   // kscfg data release [--yes]: the outputs a killed `data force` left forced on this coupler (its
   // session journal), put back with --yes.
   int release(Context& ctx) {

@@ -138,92 +138,24 @@ class Map : public Command {
     if (color_ != "auto" && color_ != "always" && color_ != "never")
       throw Error(Exit::usage, fmt::format("invalid value '{}' for --color: expected auto, always or never", color_));
     if (list_) return list_couplers(ctx);
-    auto ce = parse_switch(ce_, "--complete-evaluation");
-    auto mo = parse_switch(motorola_, "--motorola");
-    auto wa = parse_switch(wa_, "--word-alignment");
-    const Catalog& cat = ctx.catalog();
+    Switches sw{parse_switch(ce_, "--complete-evaluation"), parse_switch(motorola_, "--motorola"),
+                parse_switch(wa_, "--word-alignment")};
     const std::string& station_file = ctx.options().station;
     if (!types_.empty() && !station_file.empty())
       throw Error(Exit::usage, "give either terminal types or --station FILE, not both");
     if (!types_.empty() && online_) throw Error(Exit::usage, "--online reads the connected station; drop the types");
-
-    StationLayout L;
-    std::optional<StationLayout> next;  // online: the layout of the coupler's next start, when it differs
-    std::string source;
-    nlohmann::json readings = nlohmann::json::array();
-    std::vector<std::string> notes;
-    if (!types_.empty() || (!station_file.empty() && !online_)) {
-      StationSpec spec;
-      if (!types_.empty()) {
-        spec.origin = "command line";
-        for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}, 0});
-        source = "command line";
-      } else {
-        spec = load_station_arg(station_file, cat);
-        source = station_file;
-      }
-      if (!coupler_.empty()) spec.coupler = coupler_profile(coupler_).name;
-      if (ce) spec.complete_evaluation = ce;
-      if (mo) spec.motorola = mo;
-      if (wa) spec.word_alignment = wa;
-      L = compute_layout(spec, cat);
-    } else {
-      const StationLayout& current = ctx.resolver().layout();
-      // The coupler contradicts the layout (an ADS coupler's image lengths): its offsets are not the
-      // coupler's, so the map is refused as process data is (before, it showed them with exit 0
-      // and nothing said), unless the settings are given here; then the map's layout is
-      // checked against the coupler's lengths itself (below).
-      const bool settings_given = !coupler_.empty() || ce || mo || wa;
-      if (!current.image_refused.empty() && !settings_given)
-        throw Error(Exit::refused, current.image_refused,
-                    current.image_refused_hint +
-                        "; or give them here: kscfg map --online --word-alignment on|off "
-                        "--complete-evaluation on|off");
-      StationSpec spec;
-      if (!station_file.empty()) spec = load_station_arg(station_file, cat);
-      else if (const StationSpec* s = ctx.resolver().discovery().station()) spec = *s;
-      else
-        throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),
-                    "give --station FILE --online, or terminal types for an offline map");
-      spec.coupler = coupler_.empty() ? current.coupler : coupler_profile(coupler_).name;
-      CouplerProfile base = coupler_profile(spec.coupler);
-      if (coupler_.empty()) base.defaults = current.settings;  // what the coupler uses now
-      MappingSettings s = resolve_settings(base, ce, mo, wa);
-      OnlineMap m = map_online(ctx.resolver().library_engine(), current, spec, cat, s, ctx.session_options());
-      L = std::move(m.layout);
-      notes = std::move(m.notes);
-      if (settings_given) {
-        // Settings given: the coupler's image lengths judge the map's layout (ADS), as a --station file's.
-        ctx.resolver().discovery().check_described(L, spec, "the map");
-        if (!L.image_refused.empty()) throw Error(Exit::refused, L.image_refused, L.image_refused_hint);
-      }
-      // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
-      // they give another layout than the one the coupler uses now, the map shows what is in effect
-      // and, after it, what the next start brings.
-      if (coupler_.empty() && !ce && !mo && !wa && !same_layout(L, current)) {
-        next = std::move(L);
-        L = current;
-        notes.push_back(fmt::format(
-            "the terminals' mapping registers give another process image at the coupler's "
-            "next start ({} input and {} output bytes instead of {} and {}): restart the "
-            "coupler ({}) to apply them; the map shows both",
-            next->in_bytes, next->out_bytes, current.in_bytes, current.out_bytes, ctx.port().restart_hint()));
-      }
-      for (const auto& r : m.readings)
-        readings.push_back(
-            {{"position", r.position}, {"channel", r.channel + 1}, {"register", r.reg}, {"value", r.value}});
-      source = ctx.port().describe();
-    }
+    Shown m = !types_.empty() || (!station_file.empty() && !online_) ? offline(ctx, sw) : online(ctx, sw);
+    const StationLayout& L = m.L;
     CouplerProfile p = coupler_profile(L.coupler);
     // Over ADS the image is port 300's and the registers port 100's: the map says so in those terms
     // (index group and offset a TwinCAT PLC program uses), not in Modbus registers.
-    bool ads = transport_facts(ctx.options().port).ads_addressing;
+    const bool ads = transport_facts(ctx.options().port).ads_addressing;
     if (ads) {
       p.ads = true;
       p.modbus = false;
     }
     check_image_limits(L, p);
-    for (const auto& n : notes) std::cerr << "kscfg: note: " << n << '\n';
+    for (const auto& n : m.notes) std::cerr << "kscfg: note: " << n << '\n';
 
     unsigned pos = 0;
     if (ctx.terminal_given()) {
@@ -235,22 +167,126 @@ class Map : public Command {
             "give one plug position or a type the station has once");
       pos = v.front();
     }
-    if (ctx.json()) {
-      nlohmann::json j = map_json(L, p);
-      j["source"] = source;
-      j["online"] = types_.empty() && (station_file.empty() || online_);
-      j["registers_read"] = readings;
-      j["next_start"] = nullptr;
-      if (next) j["next_start"] = map_json(*next, p);
-      if (pos) {
-        (void)L.terminal(pos);
-        j["terminals"] = nlohmann::json::array({j["terminals"].at(pos - 1)});
-        if (next) j["next_start"]["terminals"] = nlohmann::json::array({j["next_start"]["terminals"].at(pos - 1)});
-      }
-      if (ads) j["ads_registers"] = ads_registers_json(L, pos);
-      print_json(j);
-      return 0;
+    if (ctx.json()) show_json(ctx, m, p, pos, ads);
+    else show_text(m, p, pos, ads);
+    return 0;
+  }
+
+ private:
+  // The map to show: the layout in effect, and the one of the coupler's next start when the
+  // terminals' mapping registers give another (online only); where it comes from; the registers
+  // read; notes.
+  struct Shown {
+    StationLayout L;
+    std::optional<StationLayout> next;
+    std::string source;
+    nlohmann::json readings = nlohmann::json::array();
+    std::vector<std::string> notes;
+  };
+  // --complete-evaluation, --motorola, --word-alignment as given.
+  struct Switches {
+    std::optional<bool> ce, mo, wa;
+  };
+
+  // From terminal types on the command line or a station file, without the coupler.
+  Shown offline(Context& ctx, const Switches& sw) const {
+    const Catalog& cat = ctx.catalog();
+    const std::string& station_file = ctx.options().station;
+    const auto& [ce, mo, wa] = sw;
+    Shown m;
+    StationSpec spec;
+    if (!types_.empty()) {
+      spec.origin = "command line";
+      for (const auto& t : types_) spec.terminals.push_back(TerminalSpec{cat.get(t).type, 0, {}, 0});
+      m.source = "command line";
+    } else {
+      spec = load_station_arg(station_file, cat);
+      m.source = station_file;
     }
+    if (!coupler_.empty()) spec.coupler = coupler_profile(coupler_).name;
+    if (ce) spec.complete_evaluation = ce;
+    if (mo) spec.motorola = mo;
+    if (wa) spec.word_alignment = wa;
+    m.L = compute_layout(spec, cat);
+    return m;
+  }
+
+  // From the station behind the port: its layout now, and the mapping registers read.
+  Shown online(Context& ctx, const Switches& sw) const {
+    const Catalog& cat = ctx.catalog();
+    const std::string& station_file = ctx.options().station;
+    const auto& [ce, mo, wa] = sw;
+    Shown r;
+    const StationLayout& current = ctx.resolver().layout();
+    // The coupler contradicts the layout (an ADS coupler's image lengths): its offsets are not the
+    // coupler's, so the map is refused as process data is (before, it showed them with exit 0
+    // and nothing said), unless the settings are given here; then the map's layout is
+    // checked against the coupler's lengths itself (below).
+    const bool settings_given = !coupler_.empty() || ce || mo || wa;
+    if (!current.image_refused.empty() && !settings_given)
+      throw Error(Exit::refused, current.image_refused,
+                  current.image_refused_hint +
+                      "; or give them here: kscfg map --online --word-alignment on|off "
+                      "--complete-evaluation on|off");
+    StationSpec spec;
+    if (!station_file.empty()) spec = load_station_arg(station_file, cat);
+    else if (const StationSpec* s = ctx.resolver().discovery().station()) spec = *s;
+    else
+      throw Error(Exit::usage, fmt::format("the terminals behind '{}' are unknown", ctx.options().port),
+                  "give --station FILE --online, or terminal types for an offline map");
+    spec.coupler = coupler_.empty() ? current.coupler : coupler_profile(coupler_).name;
+    CouplerProfile base = coupler_profile(spec.coupler);
+    if (coupler_.empty()) base.defaults = current.settings;  // what the coupler uses now
+    MappingSettings s = resolve_settings(base, ce, mo, wa);
+    OnlineMap m = map_online(ctx.resolver().library_engine(), current, spec, cat, s, ctx.session_options());
+    r.L = std::move(m.layout);
+    r.notes = std::move(m.notes);
+    if (settings_given) {
+      // Settings given: the coupler's image lengths judge the map's layout (ADS), as a --station file's.
+      ctx.resolver().discovery().check_described(r.L, spec, "the map");
+      if (!r.L.image_refused.empty()) throw Error(Exit::refused, r.L.image_refused, r.L.image_refused_hint);
+    }
+    // The terminals' mapping registers (R34/R35, ...) take effect at the coupler's next start: when
+    // they give another layout than the one the coupler uses now, the map shows what is in effect
+    // and, after it, what the next start brings.
+    if (coupler_.empty() && !ce && !mo && !wa && !same_layout(r.L, current)) {
+      r.next = std::move(r.L);
+      r.L = current;
+      r.notes.push_back(fmt::format(
+          "the terminals' mapping registers give another process image at the coupler's "
+          "next start ({} input and {} output bytes instead of {} and {}): restart the "
+          "coupler ({}) to apply them; the map shows both",
+          r.next->in_bytes, r.next->out_bytes, current.in_bytes, current.out_bytes, ctx.port().restart_hint()));
+    }
+    for (const auto& rd : m.readings)
+      r.readings.push_back(
+          {{"position", rd.position}, {"channel", rd.channel + 1}, {"register", rd.reg}, {"value", rd.value}});
+    r.source = ctx.port().describe();
+    return r;
+  }
+
+  void show_json(Context& ctx, const Shown& m, const CouplerProfile& p, unsigned pos, bool ads) const {
+    const StationLayout& L = m.L;
+    const auto& next = m.next;
+    const std::string& station_file = ctx.options().station;
+    nlohmann::json j = map_json(L, p);
+    j["source"] = m.source;
+    j["online"] = types_.empty() && (station_file.empty() || online_);
+    j["registers_read"] = m.readings;
+    j["next_start"] = nullptr;
+    if (next) j["next_start"] = map_json(*next, p);
+    if (pos) {
+      (void)L.terminal(pos);
+      j["terminals"] = nlohmann::json::array({j["terminals"].at(pos - 1)});
+      if (next) j["next_start"]["terminals"] = nlohmann::json::array({j["next_start"]["terminals"].at(pos - 1)});
+    }
+    if (ads) j["ads_registers"] = ads_registers_json(L, pos);
+    print_json(j);
+  }
+
+  void show_text(const Shown& m, const CouplerProfile& p, unsigned pos, bool ads) const {
+    const StationLayout& L = m.L;
+    const auto& next = m.next;
     bool tty = isatty(STDOUT_FILENO) != 0;
     // auto: colours on a terminal, unless NO_COLOR is set or TERM is dumb; always: colours (and the grid).
     const char* no_color = std::getenv("NO_COLOR");
@@ -265,17 +301,15 @@ class Map : public Command {
       std::cout << render_terminal(L, p, pos);
       if (ads) std::cout << ads_registers_text(L, pos);
       if (next) std::cout << after << render_terminal(*next, p, pos);
-      return 0;
+      return;
     }
     if (next) std::cout << "In effect now:\n";
     std::cout << render_table(L, p);
     if (ads) std::cout << ads_registers_text(L, 0);
     if (next) std::cout << after << render_table(*next, p);
     if (grid_ || tty || color_ == "always") std::cout << '\n' << render_grid(L, color);
-    return 0;
   }
 
- private:
   int list_couplers(Context& ctx) {
     const auto& all = coupler_profiles();
     if (ctx.json()) {

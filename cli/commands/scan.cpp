@@ -94,19 +94,31 @@ class Scan : public Command {
     if (write_ == "-" && ctx.json())
       throw Error(Exit::usage, "--write - and --json both want stdout", "give --write a file name");
     if (!write_.empty()) refuse_to_replace(write_, force_);
-    auto overridden = [&](MappingSettings s) {
-      if (ce) s.complete_evaluation = *ce;
-      if (wa) s.word_alignment = *wa;
-      if (mo) s.motorola = *mo;
-      return s;
-    };
+    PortScanRequest req;
+    if (ce || wa || mo)
+      req.settings = [ce, wa, mo](MappingSettings s) {
+        if (ce) s.complete_evaluation = *ce;
+        if (wa) s.word_alignment = *wa;
+        if (mo) s.motorola = *mo;
+        return s;
+      };
+    PortScan s = scan(ctx, req);
+    const std::string where = ctx.port().describe();
+    if (!write_.empty()) write_station(s, where);
+    for (const auto& n : s.result.notes) std::cerr << "kscfg: note: " << n << '\n';
+    if (write_ == "-") return 0;  // stdout carries the station file
+    if (ctx.json()) show_json(s, where);
+    else show_text(s);
+    return 0;
+  }
+
+ private:
+  // The port's scan, with what it is doing on the terminal: a table-9 coupler's step once it has
+  // taken a moment, a Modbus coupler's walk as a progress bar by input bytes.
+  static PortScan scan(Context& ctx, PortScanRequest& req) {
     Port& port = ctx.port();
-    // What the scan is doing: a table-9 coupler's step on a terminal once it has taken a moment; a
-    // Modbus coupler's walk as a progress bar by input bytes.
     Activity activity(ProgressBar::enabled(ctx));
     ProgressBar bar(ctx, "scan", 0);  // on a terminal only (progress.hpp); units: input bytes
-    PortScanRequest req;
-    if (ce || wa || mo) req.settings = overridden;
     req.status = [&](const std::string& what) {
       activity.say(what.empty() ? "" : fmt::format("scanning coupler at {}: {}", port.describe(), what));
     };
@@ -114,71 +126,78 @@ class Scan : public Command {
     PortScan s = ctx.resolver().scan(req);
     activity.say("");
     bar.finish();
+    return s;
+  }
+
+  // --write FILE: the station found, as a station file.
+  void write_station(const PortScan& s, const std::string& where) const {
+    const ScanResult& r = s.result;
+    if (!r.walked)
+      throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
+                  r.notes.empty() ? "" : r.notes.back());
+    std::string text =
+        fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", where, r.ident);
+    if (!s.table9 && (r.digital_in_bits || r.digital_out_bits))
+      text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
+                          r.digital_out_bits);
+    StationSpec file = r.spec;
+    // A digital terminal from table 9 is known by its bits: the file says so where it names a type.
+    file.comments.resize(file.terminals.size());
+    for (std::size_t i = 0; i < r.layout.terminals.size() && i < file.terminals.size(); ++i)
+      if (const auto& t = r.layout.terminals[i]; t.inferred)
+        file.comments[i] = fmt::format("{} (table 9 gives no type): {} fits, as does {}; name the terminal's type",
+                                       digital_label(t), t.type->type, fits_text(t, 8));
+    text += station_to_toml(file);
+    write_output(write_, text);
+  }
+
+  // What was found, as JSON (docs/json.md) and as text.
+  void show_json(const PortScan& s, const std::string& where) const {
     const ScanResult& r = s.result;
     const auto& r9 = s.r9;
-    if (!write_.empty()) {
-      if (!r.walked)
-        throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
-                    r.notes.empty() ? "" : r.notes.back());
-      std::string text =
-          fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", port.describe(), r.ident);
-      if (!s.table9 && (r.digital_in_bits || r.digital_out_bits))
-        text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
-                            r.digital_out_bits);
-      StationSpec file = r.spec;
-      // A digital terminal from table 9 is known by its bits: the file says so where it names a type.
-      file.comments.resize(file.terminals.size());
-      for (std::size_t i = 0; i < r.layout.terminals.size() && i < file.terminals.size(); ++i)
-        if (const auto& t = r.layout.terminals[i]; t.inferred)
-          file.comments[i] = fmt::format("{} (table 9 gives no type): {} fits, as does {}; name the terminal's type",
-                                         digital_label(t), t.type->type, fits_text(t, 8));
-      text += station_to_toml(file);
-      write_output(write_, text);
-    }
-    for (const auto& n : r.notes) std::cerr << "kscfg: note: " << n << '\n';
-    if (write_ == "-") return 0;  // stdout carries the station file
-    if (ctx.json()) {
-      nlohmann::json terms = nlohmann::json::array();
-      for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
-        const auto& t = r.layout.terminals[i];
-        // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-        nlohmann::json term = {
-            {"position", t.position},
-            {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
-            // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
-            {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
-            {"image", image_json(t)}};
-        if (t.inferred) {
-          term["digital"] = digital_label(t);
-          term["fits"] = t.fits;
-        }
-        if (s.table9) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
-        terms.push_back(std::move(term));
+    nlohmann::json terms = nlohmann::json::array();
+    for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
+      const auto& t = r.layout.terminals[i];
+      // Image placement as info and map give it: image {format, complex, inputs, outputs}.
+      nlohmann::json term = {
+          {"position", t.position},
+          {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
+          // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
+          {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
+          {"image", image_json(t)}};
+      if (t.inferred) {
+        term["digital"] = digital_label(t);
+        term["fits"] = t.fits;
       }
-      print_json({{"port", port.describe()},
-                  {"identification", r.ident},
-                  {"coupler", r.coupler},
-                  {"coupler_known", r.known_coupler},
-                  {"image_bits",
-                   {{"complex_out", r.complex_out_bits},
-                    {"complex_in", r.complex_in_bits},
-                    {"digital_out", r.digital_out_bits},
-                    {"digital_in", r.digital_in_bits}}},
-                  {"watchdog",
-                   {{"preset_ms", r.watchdog_preset ? nlohmann::json(*r.watchdog_preset) : nlohmann::json(nullptr)},
-                    {"retrigger", !r.watchdog_type        ? nlohmann::json(nullptr)
-                                  : *r.watchdog_type == 1 ? nlohmann::json("telegrams")
-                                                          : nlohmann::json("write_telegrams")}}},
-                  {"settings",
-                   {{"complete_evaluation", r.settings.complete_evaluation},
-                    {"motorola", r.settings.motorola},
-                    {"word_alignment", r.settings.word_alignment}}},
-                  {"identified", r.walked},
-                  {"matches", r.matches},
-                  {"terminals", terms},
-                  {"file", write_.empty() ? nlohmann::json(nullptr) : nlohmann::json(write_)}});
-      return 0;
+      if (s.table9) term["r9"] = i < r9.size() && r9[i] ? nlohmann::json(*r9[i]) : nlohmann::json(nullptr);
+      terms.push_back(std::move(term));
     }
+    print_json({{"port", where},
+                {"identification", r.ident},
+                {"coupler", r.coupler},
+                {"coupler_known", r.known_coupler},
+                {"image_bits",
+                 {{"complex_out", r.complex_out_bits},
+                  {"complex_in", r.complex_in_bits},
+                  {"digital_out", r.digital_out_bits},
+                  {"digital_in", r.digital_in_bits}}},
+                {"watchdog",
+                 {{"preset_ms", r.watchdog_preset ? nlohmann::json(*r.watchdog_preset) : nlohmann::json(nullptr)},
+                  {"retrigger", !r.watchdog_type        ? nlohmann::json(nullptr)
+                                : *r.watchdog_type == 1 ? nlohmann::json("telegrams")
+                                                        : nlohmann::json("write_telegrams")}}},
+                {"settings",
+                 {{"complete_evaluation", r.settings.complete_evaluation},
+                  {"motorola", r.settings.motorola},
+                  {"word_alignment", r.settings.word_alignment}}},
+                {"identified", r.walked},
+                {"matches", r.matches},
+                {"terminals", terms},
+                {"file", write_.empty() ? nlohmann::json(nullptr) : nlohmann::json(write_)}});
+  }
+
+  void show_text(const PortScan& s) const {
+    const ScanResult& r = s.result;
     auto yn = [](bool b) { return b ? "on" : "off"; };
     if (r.known_coupler) std::cout << fmt::format("coupler   {} (identification \"{}\")\n", r.coupler, r.ident);
     else
@@ -219,10 +238,8 @@ class Scan : public Command {
       }
     }
     if (!write_.empty()) std::cout << fmt::format("station written to {}\n", write_);
-    return 0;
   }
 
- private:
   std::string write_, ce_, wa_, mo_;
   bool force_ = false;
 };

@@ -66,10 +66,16 @@ class Write : public Command {
     // Before anything is written: the layout this write gives the station at the coupler's next
     // start must leave every terminal its register window (docs/safety.md).
     unsigned pos = ctx.terminal_position(), chan = ctx.options().channel - 1;
-    const TerminalType& ttype = *register_terminal(ctx.resolver().layout(), pos, chan).type;
+    const TerminalType& type = *register_terminal(ctx.resolver().layout(), pos, chan).type;
+    // A command register (catalog `command`) runs a command: no mask, and what it is expected to
+    // do is what the verdict judges.
+    const bool command = type.regs[reg].command;
+    if (command && !mask_.empty())
+      throw Error(Exit::usage,
+                  fmt::format("R{} of {} is a command register: --mask does not apply to a command", reg, type.type));
     std::vector<PlannedWrite> planned;
-    if (ttype.regs[reg].command) {
-      if (auto eff = command_effect(ttype, reg, value))
+    if (command) {
+      if (auto eff = command_effect(type, reg, value))
         for (const auto& [r, v] : eff->expect) planned.push_back({pos, chan, r, v, 0xFFFF, std::nullopt, {}});
     } else {
       planned.push_back({pos, chan, reg, value, mask, std::nullopt, {}});
@@ -82,18 +88,12 @@ class Write : public Command {
     // range), settings left apart, a lost register window: refused as by set and apply.
     Verdict v =
         enforce_verdict(&ctx.resolver().library_engine(), L, ctx.catalog(), ctx.session_options(), planned, force_);
-    const TerminalType& type = *s->terminal().type;
-    if (type.regs[reg].command) {
-      if (!mask_.empty())
-        throw Error(Exit::usage,
-                    fmt::format("R{} of {} is a command register: --mask does not apply to a command", reg, type.type));
-      return run_command_register(ctx, *s, reg, value);
-    }
+    if (command) return run_command_register(ctx, *s, reg, value);
     WriteResult r = s->write(reg, value, mask);  // read-modify-write when a mask is given
     s->close();
     if (r.changed)
       if (std::string n = next_start_note(v.lockout); !n.empty()) std::cerr << "kscfg: note: " << n << '\n';
-    unsigned ch = ctx.options().channel - 1;
+    const unsigned ch = chan;
     if (ctx.json()) {
       nlohmann::json j = terminal_json(s->terminal(), ch);
       j.update({{"register", reg},
