@@ -19,7 +19,7 @@ namespace kscfg {
 namespace {
 
 // One transport: the URI schemes it takes, what is known of it without opening it, its opener.
-// Adding a transport is one row here and one Port (docs/architecture.md, "Ports").
+// Adding a transport is one row here and one Port (docs/architecture.md, sections 3 and 5).
 struct Transport {
   std::vector<std::string> schemes;
   TransportFacts facts;

@@ -90,7 +90,7 @@ struct PortScan {
 // emulator), opened by open_port() from one row of its scheme table (port.cpp). It holds the
 // link (the process image, where kscfg may move it), the port's one register access and engine,
 // and the discovery that finds the station behind it, and it answers everything else that
-// differs by transport. No caller asks which transport it is (docs/architecture.md, "Ports").
+// differs by transport. No caller asks which transport it is (docs/architecture.md, sections 3 and 5).
 class Port {
  public:
   virtual ~Port();
