@@ -36,11 +36,7 @@ class AdsPort : public Port {
     access_ = std::make_unique<AdsAccess>(link_.client(), number, port_session(opt));
     engine_ = std::make_unique<Engine>(*access_);
   }
-  ~AdsPort() override {
-    discovery_.reset();
-    engine_.reset();
-    access_.reset();
-  }
+  ~AdsPort() override { close_before_link(); }
 
   std::string describe() const override { return link_.describe(); }
   Link& image() override { return link_; }

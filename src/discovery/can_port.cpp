@@ -35,11 +35,7 @@ class CanPort : public Port {
     access_ = std::make_unique<SdoAccess>(conn_.sdo(), number, port_session(opt));
     engine_ = std::make_unique<Engine>(*access_);
   }
-  ~CanPort() override {
-    discovery_.reset();
-    engine_.reset();
-    access_.reset();
-  }
+  ~CanPort() override { close_before_link(); }
 
   std::string describe() const override { return conn_.describe(); }
   Link& image() override { conn_.refuse_image(); }

@@ -35,12 +35,7 @@ class EmulatorPort : public Port {
     engine_ = std::make_unique<Engine>(*access_);
     discovery_ = std::make_unique<EmulatorDiscovery>(store_.station());
   }
-  ~EmulatorPort() override {
-    // The discovery, engine and access refer to the link, and it to the store: gone first.
-    discovery_.reset();
-    engine_.reset();
-    access_.reset();
-  }
+  ~EmulatorPort() override { close_before_link(); }
 
   std::string describe() const override { return link_.describe(); }
   Link& image() override { return link_; }

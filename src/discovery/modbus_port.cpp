@@ -40,11 +40,7 @@ class ModbusPort : public Port {
     engine_ = std::make_unique<Engine>(*access_);
     discovery_ = discover_by_scan(link_, *engine_, catalog, so, d);
   }
-  ~ModbusPort() override {
-    discovery_.reset();
-    engine_.reset();
-    access_.reset();
-  }
+  ~ModbusPort() override { close_before_link(); }
 
   std::string describe() const override { return link_.describe(); }
   Link& image() override { return link_; }

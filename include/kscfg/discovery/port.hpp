@@ -150,8 +150,14 @@ class Port {
 
  protected:
   Port() = default;
-  // Set by each transport's opener, in this order (each refers to what is before it); destroyed
-  // in the reverse order, the discovery first.
+  // The discovery, engine and access go, in that order, before the transport's own members they
+  // refer to (the link, the client): every port's destructor calls this first.
+  void close_before_link() noexcept {
+    discovery_.reset();
+    engine_.reset();
+    access_.reset();
+  }
+  // Set by each transport's port, in this order (each refers to what is before it).
   std::unique_ptr<RegisterAccess> access_;
   std::unique_ptr<Engine> engine_;
   std::unique_ptr<StationDiscovery> discovery_;
