@@ -316,12 +316,9 @@ class Data : public Command {
   Pace parse_pace(Context& ctx, bool force) const {
     Pace pace;
     if (once_ && !count_.empty()) throw Error(Exit::usage, "give either --once or --count");
-    pace.count = once_            ? 1
-                 : count_.empty() ? 0
-                                  : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
+    pace.count = once_ ? 1 : count_.empty() ? 0 : static_cast<std::size_t>(parse_uint(count_, 1u << 30, "count"));
     if (!count_.empty() && pace.count == 0) throw Error(Exit::usage, "--count needs at least 1");
-    pace.interval =
-        std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
+    pace.interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
     // A coupler that switches its outputs off after a time without a telegram (ADS port 300):
     // held values are written every interval, so it must be shorter.
     const TransportFacts facts = transport_facts(ctx.options().port);
@@ -365,7 +362,8 @@ class Data : public Command {
                   fmt::format("-t {} selects {} terminals ({}): data force needs one", ctx.options().selection.text,
                               shown.size(), fmt::join(shown, ", ")),
                   "give -t POS ('kscfg data' shows the positions)");
-    if (!only) throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
+    if (!only)
+      throw Error(Exit::usage, "data force needs the terminal: give -t POS", "'kscfg data' shows the positions");
     std::vector<std::string> specs(args_.begin() + 1, args_.end());
     const TerminalImage* ft = f.terminal = &L.terminal(only);
     const unsigned fch = f.channel;
@@ -395,8 +393,8 @@ class Data : public Command {
       if (ft->complex) j["channel"] = fch + 1;
       write_out(j.dump() + "\n");
     } else {
-      write_out(fmt::format("terminal {} ({}): outputs forced and left so (--no-restore)\n", ft->position,
-                            ft->type->type));
+      write_out(
+          fmt::format("terminal {} ({}): outputs forced and left so (--no-restore)\n", ft->position, ft->type->type));
     }
     return true;
   }
@@ -439,10 +437,10 @@ class Data : public Command {
   static void end_force(Context& ctx, Link& link, const Force& f) {
     const TerminalImage* ft = f.terminal;
     if (auto e = restore(ctx, link, f))
-      throw Error(e->code(),
-                  fmt::format("restoring the outputs of terminal {} ({}) failed: {}", ft->position, ft->type->type,
-                              e->what()),
-                  "they may still be forced: put them back with: " + f.undo_cmd);
+      throw Error(
+          e->code(),
+          fmt::format("restoring the outputs of terminal {} ({}) failed: {}", ft->position, ft->type->type, e->what()),
+          "they may still be forced: put them back with: " + f.undo_cmd);
     if (stdout_reader_gone())
       std::cerr << fmt::format("kscfg: the reader of stdout went away; terminal {} ({}): outputs restored\n",
                                ft->position, ft->type->type);

@@ -81,7 +81,8 @@ class Info : public Command {
     Listing list = list_terminals(ctx, L, positions, reads);
     // What the coupler does not report: the end terminal (never on the K-bus's lists), and over
     // Modbus the digital terminals, seen only as bit totals.
-    bool discovered = !ctx.resolver().discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
+    bool discovered =
+        !ctx.resolver().discovery().lays_out_itself() && ctx.options().station.empty() && !ctx.terminal_given();
     std::string digital = L.unidentified_digital();
     if (discovered)
       list.rows.push_back(

@@ -135,8 +135,7 @@ class Scan : public Command {
     if (!r.walked)
       throw Error(Exit::refused, fmt::format("no terminals identified; '{}' not written", write_),
                   r.notes.empty() ? "" : r.notes.back());
-    std::string text =
-        fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", where, r.ident);
+    std::string text = fmt::format("# Station found by 'kscfg scan' on {} (identification \"{}\")\n", where, r.ident);
     if (!s.table9 && (r.digital_in_bits || r.digital_out_bits))
       text += fmt::format("# Digital terminals not listed: {} input bit(s), {} output bit(s).\n", r.digital_in_bits,
                           r.digital_out_bits);
@@ -159,12 +158,11 @@ class Scan : public Command {
     for (std::size_t i = 0; i < r.layout.terminals.size(); ++i) {
       const auto& t = r.layout.terminals[i];
       // Image placement as info and map give it: image {format, complex, inputs, outputs}.
-      nlohmann::json term = {
-          {"position", t.position},
-          {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
-          // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
-          {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
-          {"image", image_json(t)}};
+      nlohmann::json term = {{"position", t.position},
+                             {"type", t.inferred ? nlohmann::json(nullptr) : nlohmann::json(t.type->type)},
+                             // A digital terminal has no R8 (table 9 gives its bits): null, as info says.
+                             {"r8", !t.inferred && i < r.r8.size() ? nlohmann::json(r.r8[i]) : nlohmann::json(nullptr)},
+                             {"image", image_json(t)}};
       if (t.inferred) {
         term["digital"] = digital_label(t);
         term["fits"] = t.fits;
