@@ -124,6 +124,60 @@ void ModbusLink::write_read(std::size_t out_offset, std::span<const std::uint8_t
   }
 }
 
+namespace {
+
+struct Span {
+  std::size_t lo = SIZE_MAX, hi = 0;  // bytes [lo, hi)
+  void add(std::size_t off, std::size_t n) {
+    lo = std::min(lo, off);
+    hi = std::max(hi, off + n);
+  }
+  bool empty() const { return lo >= hi; }
+  std::size_t words() const { return empty() ? 0 : (hi + 1) / 2 - lo / 2; }
+};
+
+// The transfers order[g..end) that go in one request, and the spans it writes (w) and reads (r):
+// as many as fit its limits, and (bridge not SIZE_MAX) as long as a gap carried costs no more
+// than a request of its own.
+std::size_t group_end(std::span<const ImageTransfer> t, const std::vector<std::size_t>& order, std::size_t g,
+                      std::size_t bridge, Span& w, Span& r) {
+  std::size_t end = g;
+  for (; end < order.size(); ++end) {
+    const ImageTransfer& x = t[order[end]];
+    Span w2 = w, r2 = r;
+    if (!x.out.empty()) w2.add(x.out_offset, x.out.size());
+    if (!x.in.empty()) r2.add(x.in_offset, x.in.size());
+    if (end > g) {
+      if (w2.words() > mbmap::kMaxWriteRead || r2.words() > mbmap::kMaxRead) break;
+      std::size_t grown = 2 * (w2.words() - w.words() + r2.words() - r.words());
+      std::size_t own = 2 * ((x.out.empty() ? 0 : (x.out_offset + x.out.size() + 1) / 2 - x.out_offset / 2) +
+                             (x.in.empty() ? 0 : (x.in_offset + x.in.size() + 1) / 2 - x.in_offset / 2));
+      if (bridge != SIZE_MAX && grown > own + bridge) break;
+    }
+    w = w2;
+    r = r2;
+  }
+  return end;
+}
+
+// Peeks ride along where they cost nothing: over TCP anywhere within the read limit (a request
+// costs a round trip, not its bytes), over RTU only inside the span read anyway. Those taken join
+// the group and are marked SIZE_MAX in `peeks`.
+void carry_peeks(std::span<const ImageTransfer> t, std::vector<std::size_t>& peeks, std::size_t bridge, Span& r,
+                 std::vector<std::size_t>& group) {
+  for (std::size_t& i : peeks) {
+    if (i == SIZE_MAX || t[i].in.empty()) continue;
+    Span r2 = r;
+    r2.add(t[i].in_offset, t[i].in.size());
+    if (r2.words() > mbmap::kMaxRead || (bridge != SIZE_MAX && r2.words() != r.words())) continue;
+    r = r2;
+    group.push_back(i);
+    i = SIZE_MAX;
+  }
+}
+
+}  // namespace
+
 void ModbusLink::transfer(std::span<const ImageTransfer> t) {
   // Bytes a request carries beyond the image bytes, request and reply together (FC23 over RTU:
   // 13 + 5 bytes of framing and CRC, 3.5 character times of silence each way): a gap in the image
@@ -136,46 +190,12 @@ void ModbusLink::transfer(std::span<const ImageTransfer> t) {
     return std::min(t[i].out.empty() ? SIZE_MAX : t[i].out_offset, t[i].in.empty() ? SIZE_MAX : t[i].in_offset);
   };
   std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return lo_of(a) < lo_of(b); });
-  struct Span {
-    std::size_t lo = SIZE_MAX, hi = 0;  // bytes [lo, hi)
-    void add(std::size_t off, std::size_t n) {
-      lo = std::min(lo, off);
-      hi = std::max(hi, off + n);
-    }
-    bool empty() const { return lo >= hi; }
-    std::size_t words() const { return empty() ? 0 : (hi + 1) / 2 - lo / 2; }
-  };
   for (std::size_t g = 0; g < order.size();) {
     Span w, r;
-    std::size_t end = g;
-    for (; end < order.size(); ++end) {
-      const ImageTransfer& x = t[order[end]];
-      Span w2 = w, r2 = r;
-      if (!x.out.empty()) w2.add(x.out_offset, x.out.size());
-      if (!x.in.empty()) r2.add(x.in_offset, x.in.size());
-      if (end > g) {
-        if (w2.words() > mbmap::kMaxWriteRead || r2.words() > mbmap::kMaxRead) break;
-        std::size_t grown = 2 * (w2.words() - w.words() + r2.words() - r.words());
-        std::size_t own = 2 * ((x.out.empty() ? 0 : (x.out_offset + x.out.size() + 1) / 2 - x.out_offset / 2) +
-                               (x.in.empty() ? 0 : (x.in_offset + x.in.size() + 1) / 2 - x.in_offset / 2));
-        if (bridge != SIZE_MAX && grown > own + bridge) break;
-      }
-      w = w2;
-      r = r2;
-    }
-    // Peeks ride along where they cost nothing: over TCP anywhere within the read limit (a request
-    // costs a round trip, not its bytes), over RTU only inside the span read anyway.
+    std::size_t end = group_end(t, order, g, bridge, w, r);
     std::vector<std::size_t> group(order.begin() + static_cast<std::ptrdiff_t>(g),
                                    order.begin() + static_cast<std::ptrdiff_t>(end));
-    for (std::size_t& i : peeks) {
-      if (i == SIZE_MAX || t[i].in.empty()) continue;
-      Span r2 = r;
-      r2.add(t[i].in_offset, t[i].in.size());
-      if (r2.words() > mbmap::kMaxRead || (bridge != SIZE_MAX && r2.words() != r.words())) continue;
-      r = r2;
-      group.push_back(i);
-      i = SIZE_MAX;
-    }
+    carry_peeks(t, peeks, bridge, r, group);
     std::vector<std::uint8_t> out;
     if (!w.empty()) {
       // The bytes between the spans keep what the coupler holds (read first when unknown).
