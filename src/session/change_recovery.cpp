@@ -60,154 +60,187 @@ bool fits(const StationLayout& L, const ChangeChannel& c) {
          reaches_registers(L, t, c.channel);
 }
 
+// Where what is found goes: what a person should know to the notices (the trace without them),
+// the rest to the trace.
+struct Voice {
+  const SessionOptions& so;
+  void trace(const std::string& s) const {
+    if (so.trace) so.trace(s);
+  }
+  void say(const std::string& s) const {
+    if (so.notice) so.notice(s);
+    else trace(s);
+  }
+};
+
+// What the terminals hold now: every register of the change (and R8 first: the type is
+// checked). A request the dead process sent just before the kill may still be carried out (a
+// coupler works through a connection's requests after it closed): the registers are read
+// again after a pause until two reads agree (at most kSettleReads), and the change is judged
+// by what they hold then. A read that failed is in `failed` (a link failure or a timeout first).
+std::vector<ChannelReads> settle_reads(Engine& engine, const StationLayout& L, const Change& c,
+                                       const SessionOptions& so, std::optional<Error>& failed) {
+  std::vector<ChannelReads> reads;
+  const auto pause = std::clamp(so.timeout / 4, std::chrono::milliseconds(50), std::chrono::milliseconds(500));
+  for (int round = 0; round < kSettleReads && !failed; ++round) {
+    std::vector<ChannelReads> now;
+    for (const auto& ch : c.channels) {
+      ChannelReads r;
+      r.position = ch.position;
+      r.channel = ch.channel;
+      for (const auto& reg : ch.registers) r.regs.push_back(reg.reg);
+      if (round == 0) r.expect_r8 = L.terminal(ch.position).type->r8;
+      now.push_back(std::move(r));
+    }
+    read_channels(engine, L, now, so);
+    for (const auto& r : now) {
+      if (!r.error) continue;
+      try {
+        std::rethrow_exception(r.error);
+      } catch (const Error& e) {
+        if (e.code() == Exit::interrupted) throw;
+        if (!failed || e.code() == Exit::link || e.code() == Exit::timeout) failed = e;
+      }
+    }
+    const bool same = !reads.empty() && std::equal(reads.begin(), reads.end(), now.begin(),
+                                                   [](const auto& a, const auto& b) { return a.values == b.values; });
+    reads = std::move(now);
+    if (failed || same) break;
+    if (!sleep_for_or_cancelled(pause, so.cancel)) throw Error(Exit::interrupted, "interrupted");
+  }
+  return reads;
+}
+
+// How many of the change's registers hold their old value, their new one, and whether one holds
+// neither.
+struct Tally {
+  std::size_t olds = 0, news = 0, total = 0;
+  bool other = false;
+};
+
+Tally tally(const Change& c, const std::vector<ChannelReads>& reads) {
+  Tally n;
+  for (std::size_t k = 0; k < c.channels.size(); ++k)
+    for (std::size_t i = 0; i < c.channels[k].registers.size(); ++i, ++n.total) {
+      const auto& reg = c.channels[k].registers[i];
+      std::uint16_t v = reads[k].values[i];
+      if (v == reg.before) ++n.olds;
+      else if (v == reg.after) ++n.news;
+      else n.other = true;
+    }
+  return n;
+}
+
+// Half done: rolled back from what each terminal holds, the channels it had not begun too
+// (nothing to write there; read back as they are).
+std::vector<ChannelRollback> roll_back_change(Engine& engine, const StationLayout& L, const Change& c,
+                                              const SessionOptions& so) {
+  std::vector<ChannelRollback> back;
+  for (const auto& ch : c.channels) {
+    ChannelRollback rb;
+    rb.position = ch.position;
+    rb.channel = ch.channel;
+    for (const auto& r : ch.registers) rb.changes.push_back({r.reg, r.before, r.after, true});
+    back.push_back(std::move(rb));
+  }
+  {
+    ShieldScope shield(so.cancel);
+    roll_back_channels(engine, L, back, so);
+  }
+  return back;
+}
+
+// One change of the dead process: false when its journal must stay (for the next kscfg on this
+// port, or for another unit's station).
+bool finish_dead_change(const SessionJournal::Dead& d, const Change& c, Engine& engine, const SessionOptions& so,
+                        const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
+  const Voice v{so};
+  unsigned upto = 0;
+  for (const auto& ch : c.channels) upto = std::max(upto, ch.position);
+  const std::string undo =
+      c.undo.empty() ? "no undo file: 'kscfg dump' shows them" : fmt::format("undo with: {}", c.undo);
+  const StationLayout& L = layout_upto(upto);
+  // A journal is input like any other: a change that does not describe this station (a position
+  // beyond it, another type there) is not touched.
+  auto foreign = std::find_if(c.channels.begin(), c.channels.end(), [&](const auto& ch) { return !fits(L, ch); });
+  if (foreign != c.channels.end()) {
+    v.trace(fmt::format("journal of kscfg process {}: its change of {} is not this station's; not touched", d.pid,
+                        who(*foreign)));
+    return !d.other_unit;  // another unit's station, perhaps: kept for it
+  }
+  std::optional<Error> failed;
+  std::vector<ChannelReads> reads = settle_reads(engine, L, c, so, failed);
+  if (failed) {
+    if (failed->code() == Exit::link || failed->code() == Exit::timeout) {
+      v.say(
+          fmt::format("warning: kscfg process {} ended before it finished a change ({}), and reading it back "
+                      "failed: {}; the next kscfg on this port tries again (session journal)",
+                      d.pid, who(c.channels.front()) + " " + planned(c.channels.front()), failed->what()));
+      return false;
+    }
+    v.trace(fmt::format("journal of kscfg process {}: its change of {}: {}; not touched", d.pid,
+                        who(c.channels.front()), failed->what()));
+    return !d.other_unit;  // another type there: another unit's station, perhaps
+  }
+  const Tally n = tally(c, reads);
+  // What each terminal channel holds: in the line itself for one, a line each for several.
+  auto report = [&](const std::string& head, const std::string& tail) {
+    if (c.channels.size() == 1) {
+      v.say(fmt::format("{} {} with {}; {}", head, who(c.channels[0]), holds(c.channels[0], reads[0].values), tail));
+      return;
+    }
+    v.say(fmt::format("{} these terminals; {}:", head, tail));
+    for (std::size_t k = 0; k < c.channels.size(); ++k)
+      v.say(fmt::format("  {}: {}", who(c.channels[k]), holds(c.channels[k], reads[k].values)));
+  };
+  if (n.olds == n.total) {
+    v.trace(
+        fmt::format("journal of kscfg process {}: its change of {} was not written (every register holds its "
+                    "old value)",
+                    d.pid, who(c.channels.front())));
+    return true;
+  }
+  if (n.news == n.total) {
+    report(fmt::format("note: kscfg process {} ended before it said that its change was done; the change is whole, "
+                       "it left",
+                       d.pid),
+           "every register at its new value (" + undo + ")");
+    return true;
+  }
+  if (n.other) {
+    // A value the change neither found nor wrote: another's since (another master, a person). Not
+    // kscfg's to put back: what each holds is said, and the way back.
+    report(
+        fmt::format("warning: kscfg process {} ended in the middle of a change, which left", d.pid),
+        "a register holds a value that change neither found nor wrote (another master's?): not rolled back; " + undo);
+    return true;
+  }
+  std::vector<ChannelRollback> back = roll_back_change(engine, L, c, so);
+  bool ok = std::all_of(back.begin(), back.end(), [](const ChannelRollback& b) { return !b.error && b.result.ok(); });
+  std::size_t verified = 0;
+  for (const auto& b : back) verified += b.result.verified.size();
+  if (ok) {
+    report(fmt::format("note: kscfg process {} ended in the middle of a change, which left", d.pid),
+           fmt::format("rolled back, every register verified as it was ({} register{} and R31 = 0x0000 read back)",
+                       verified, verified == 1 ? "" : "s"));
+    return true;
+  }
+  std::string bad;
+  for (std::size_t k = 0; k < back.size(); ++k)
+    if (!back[k].result.ok()) bad += (bad.empty() ? "" : "; ") + back[k].result.text(who(c.channels[k]));
+  report(fmt::format("warning: kscfg process {} ended in the middle of a change, which left", d.pid),
+         fmt::format("rolling it back failed ({}); {}; the next kscfg on this port tries again (session journal)", bad,
+                     undo));
+  return false;
+}
+
 }  // namespace
 
 bool finish_dead_changes(SessionJournal::Dead& d, Engine& engine, const SessionOptions& so,
                          const std::function<const StationLayout&(unsigned upto)>& layout_upto) {
-  auto trace = [&](const std::string& s) {
-    if (so.trace) so.trace(s);
-  };
-  auto say = [&](const std::string& s) {
-    if (so.notice) so.notice(s);
-    else trace(s);
-  };
   bool all = true;
-  for (const Change& c : d.changes) {
-    unsigned upto = 0;
-    for (const auto& ch : c.channels) upto = std::max(upto, ch.position);
-    const std::string undo =
-        c.undo.empty() ? "no undo file: 'kscfg dump' shows them" : fmt::format("undo with: {}", c.undo);
-    const StationLayout& L = layout_upto(upto);
-    // A journal is input like any other: a change that does not describe this station (a position
-    // beyond it, another type there) is not touched.
-    auto foreign = std::find_if(c.channels.begin(), c.channels.end(), [&](const auto& ch) { return !fits(L, ch); });
-    if (foreign != c.channels.end()) {
-      trace(fmt::format("journal of kscfg process {}: its change of {} is not this station's; not touched", d.pid,
-                        who(*foreign)));
-      if (d.other_unit) all = false;  // another unit's station, perhaps: kept for it
-      continue;
-    }
-    // What the terminals hold now: every register of the change (and R8 first: the type is
-    // checked). A request the dead process sent just before the kill may still be carried out (a
-    // coupler works through a connection's requests after it closed): the registers are read
-    // again after a pause until two reads agree (at most kSettleReads), and the change is judged
-    // by what they hold then.
-    std::vector<ChannelReads> reads;
-    std::optional<Error> failed;
-    const auto pause = std::clamp(so.timeout / 4, std::chrono::milliseconds(50), std::chrono::milliseconds(500));
-    for (int round = 0; round < kSettleReads && !failed; ++round) {
-      std::vector<ChannelReads> now;
-      for (const auto& ch : c.channels) {
-        ChannelReads r;
-        r.position = ch.position;
-        r.channel = ch.channel;
-        for (const auto& reg : ch.registers) r.regs.push_back(reg.reg);
-        if (round == 0) r.expect_r8 = L.terminal(ch.position).type->r8;
-        now.push_back(std::move(r));
-      }
-      read_channels(engine, L, now, so);
-      for (const auto& r : now) {
-        if (!r.error) continue;
-        try {
-          std::rethrow_exception(r.error);
-        } catch (const Error& e) {
-          if (e.code() == Exit::interrupted) throw;
-          if (!failed || e.code() == Exit::link || e.code() == Exit::timeout) failed = e;
-        }
-      }
-      const bool same = !reads.empty() && std::equal(reads.begin(), reads.end(), now.begin(),
-                                                     [](const auto& a, const auto& b) { return a.values == b.values; });
-      reads = std::move(now);
-      if (failed || same) break;
-      if (!sleep_for_or_cancelled(pause, so.cancel)) throw Error(Exit::interrupted, "interrupted");
-    }
-    if (failed) {
-      if (failed->code() == Exit::link || failed->code() == Exit::timeout) {
-        say(
-            fmt::format("warning: kscfg process {} ended before it finished a change ({}), and reading it back "
-                        "failed: {}; the next kscfg on this port tries again (session journal)",
-                        d.pid, who(c.channels.front()) + " " + planned(c.channels.front()), failed->what()));
-        all = false;
-      } else {
-        trace(fmt::format("journal of kscfg process {}: its change of {}: {}; not touched", d.pid,
-                          who(c.channels.front()), failed->what()));
-        if (d.other_unit) all = false;  // another type there: another unit's station, perhaps
-      }
-      continue;
-    }
-    std::size_t olds = 0, news = 0, total = 0;
-    bool other = false;
-    for (std::size_t k = 0; k < c.channels.size(); ++k)
-      for (std::size_t i = 0; i < c.channels[k].registers.size(); ++i, ++total) {
-        const auto& reg = c.channels[k].registers[i];
-        std::uint16_t v = reads[k].values[i];
-        if (v == reg.before) ++olds;
-        else if (v == reg.after) ++news;
-        else other = true;
-      }
-    // What each terminal channel holds: in the line itself for one, a line each for several.
-    auto report = [&](const std::string& head, const std::string& tail) {
-      if (c.channels.size() == 1) {
-        say(fmt::format("{} {} with {}; {}", head, who(c.channels[0]), holds(c.channels[0], reads[0].values), tail));
-        return;
-      }
-      say(fmt::format("{} these terminals; {}:", head, tail));
-      for (std::size_t k = 0; k < c.channels.size(); ++k)
-        say(fmt::format("  {}: {}", who(c.channels[k]), holds(c.channels[k], reads[k].values)));
-    };
-    if (olds == total) {
-      trace(
-          fmt::format("journal of kscfg process {}: its change of {} was not written (every register holds its "
-                      "old value)",
-                      d.pid, who(c.channels.front())));
-      continue;
-    }
-    if (news == total) {
-      report(fmt::format("note: kscfg process {} ended before it said that its change was done; the change is whole, "
-                         "it left",
-                         d.pid),
-             "every register at its new value (" + undo + ")");
-      continue;
-    }
-    if (other) {
-      // A value the change neither found nor wrote: another's since (another master, a person). Not
-      // kscfg's to put back: what each holds is said, and the way back.
-      report(
-          fmt::format("warning: kscfg process {} ended in the middle of a change, which left", d.pid),
-          "a register holds a value that change neither found nor wrote (another master's?): not rolled back; " + undo);
-      continue;
-    }
-    // Half done: rolled back from what each terminal holds, the channels it had not begun too
-    // (nothing to write there; read back as they are).
-    std::vector<ChannelRollback> back;
-    for (const auto& ch : c.channels) {
-      ChannelRollback rb;
-      rb.position = ch.position;
-      rb.channel = ch.channel;
-      for (const auto& r : ch.registers) rb.changes.push_back({r.reg, r.before, r.after, true});
-      back.push_back(std::move(rb));
-    }
-    {
-      ShieldScope shield(so.cancel);
-      roll_back_channels(engine, L, back, so);
-    }
-    bool ok = std::all_of(back.begin(), back.end(), [](const ChannelRollback& b) { return !b.error && b.result.ok(); });
-    std::size_t verified = 0;
-    for (const auto& b : back) verified += b.result.verified.size();
-    if (ok) {
-      report(fmt::format("note: kscfg process {} ended in the middle of a change, which left", d.pid),
-             fmt::format("rolled back, every register verified as it was ({} register{} and R31 = 0x0000 read back)",
-                         verified, verified == 1 ? "" : "s"));
-      continue;
-    }
-    std::string bad;
-    for (std::size_t k = 0; k < back.size(); ++k)
-      if (!back[k].result.ok()) bad += (bad.empty() ? "" : "; ") + back[k].result.text(who(c.channels[k]));
-    report(fmt::format("warning: kscfg process {} ended in the middle of a change, which left", d.pid),
-           fmt::format("rolling it back failed ({}); {}; the next kscfg on this port tries again (session journal)",
-                       bad, undo));
-    all = false;
-  }
+  for (const Change& c : d.changes)
+    if (!finish_dead_change(d, c, engine, so, layout_upto)) all = false;
   return all;
 }
 
