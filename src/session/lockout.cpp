@@ -131,22 +131,14 @@ std::string LockoutReport::recovery() const {
       ce ? "; or switch complete evaluation on in the fieldbus master's configuration" : "");
 }
 
-LockoutReport check_lockout(Engine* engine, const StationLayout& current, const Catalog& catalog,
-                            const SessionOptions& so, const std::vector<PlannedWrite>& writes) {
-  LockoutReport rep;
-  // Only registers that decide an image can change the layout.
-  std::set<std::pair<unsigned, unsigned>> touched;  // (position, channel)
-  for (const auto& w : writes) {
-    const TerminalImage& t = current.terminal(w.position);
-    auto mregs = mapping_registers(*t.type);
-    if (std::find(mregs.begin(), mregs.end(), w.reg) != mregs.end()) touched.insert({w.position, w.channel});
-  }
-  if (touched.empty()) return rep;
-  rep.checked = true;
+namespace {
 
-  // The registers that decide each channel's image as the terminals hold them now (they may differ
-  // from the layout in use: the coupler reads them at its start).
-  // Every terminal's at once (docs/design.md, "Station engine").
+// The registers that decide each channel's image as the terminals hold them now (they may differ
+// from the layout in use: the coupler reads them at its start); without an engine, or for a
+// channel without a window, values that lay it out as the coupler does now.
+// Every terminal's at once (docs/design.md, "Station engine").
+std::map<std::pair<unsigned, unsigned>, Regs> mapping_now(Engine* engine, const StationLayout& current,
+                                                          const SessionOptions& so) {
   std::map<std::pair<unsigned, unsigned>, Regs> now;
   std::vector<ChannelReads> jobs;
   for (const auto& t : current.terminals) {
@@ -168,6 +160,55 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
     if (j.error) std::rethrow_exception(j.error);
     for (std::size_t k = 0; k < j.regs.size(); ++k) now[{j.position, j.channel}][j.regs[k]] = j.values[k];
   }
+  return now;
+}
+
+// The channels with a register window now that would lose it: none in `after`, or (an image the
+// coupler cannot take) bytes beyond its limit: lost, and the coupler may not start at all.
+void find_lost_windows(LockoutReport& rep, const StationLayout& current, const StationLayout& before,
+                       const StationLayout& after) {
+  const CouplerProfile& profile = coupler_profile(current.coupler);
+  std::size_t lim_in = image_limit(profile, true), lim_out = image_limit(profile, false);
+  bool fit_before = (!lim_in || before.in_bytes <= lim_in) && (!lim_out || before.out_bytes <= lim_out);
+  auto beyond = [&](const ChannelImage& c) {
+    bool in = lim_in && !c.in.empty() && c.in.back().offset >= lim_in;
+    bool out = lim_out && !c.out.empty() && c.out.back().offset >= lim_out;
+    return in || out;
+  };
+  for (const auto& t : current.terminals) {
+    if (!t.type->has_registers) continue;
+    const TerminalImage& a = after.terminal(t.position);
+    for (unsigned ch = 0; ch < t.channels.size(); ++ch) {
+      if (!t.channels[ch].window) continue;  // already without: nothing to lose
+      std::string reason;
+      if (ch >= a.channels.size() || !a.channels[ch].window)
+        reason = ch < a.channels.size() ? a.channels[ch].no_window : "its image is not mapped";
+      else if (fit_before && beyond(a.channels[ch]))
+        reason = fmt::format(
+            "the image would need {} input and {} output bytes, more than the {} maps ({} and {}); "
+            "its bytes would lie beyond the end, and the coupler may not start at all",
+            after.in_bytes, after.out_bytes, profile.name, lim_in, lim_out);
+      if (!reason.empty()) rep.lost.push_back({t.position, ch, who_of(t, ch), reason});
+    }
+  }
+}
+
+}  // namespace
+
+LockoutReport check_lockout(Engine* engine, const StationLayout& current, const Catalog& catalog,
+                            const SessionOptions& so, const std::vector<PlannedWrite>& writes) {
+  LockoutReport rep;
+  // Only registers that decide an image can change the layout.
+  std::set<std::pair<unsigned, unsigned>> touched;  // (position, channel)
+  for (const auto& w : writes) {
+    const TerminalImage& t = current.terminal(w.position);
+    auto mregs = mapping_registers(*t.type);
+    if (std::find(mregs.begin(), mregs.end(), w.reg) != mregs.end()) touched.insert({w.position, w.channel});
+  }
+  if (touched.empty()) return rep;
+  rep.checked = true;
+
+  std::map<std::pair<unsigned, unsigned>, Regs> now = mapping_now(engine, current, so);
   auto next = now;
   for (const auto& w : writes) {
     auto it = next.find({w.position, w.channel});
@@ -209,33 +250,7 @@ LockoutReport check_lockout(Engine* engine, const StationLayout& current, const 
   StationLayout before = compute_layout(spec, catalog, current.settings, source(now));
   StationLayout after = compute_layout(spec, catalog, current.settings, source(next));
   for (auto& c : rep.causes) c.changes_image = !same_image(before.terminal(c.position), after.terminal(c.position));
-
-  // An image the coupler cannot take: the terminals whose bytes lie beyond its limit are lost
-  // (the coupler may not start at all).
-  const CouplerProfile& profile = coupler_profile(current.coupler);
-  std::size_t lim_in = image_limit(profile, true), lim_out = image_limit(profile, false);
-  bool fit_before = (!lim_in || before.in_bytes <= lim_in) && (!lim_out || before.out_bytes <= lim_out);
-  auto beyond = [&](const ChannelImage& c) {
-    bool in = lim_in && !c.in.empty() && c.in.back().offset >= lim_in;
-    bool out = lim_out && !c.out.empty() && c.out.back().offset >= lim_out;
-    return in || out;
-  };
-  for (const auto& t : current.terminals) {
-    if (!t.type->has_registers) continue;
-    const TerminalImage& a = after.terminal(t.position);
-    for (unsigned ch = 0; ch < t.channels.size(); ++ch) {
-      if (!t.channels[ch].window) continue;  // already without: nothing to lose
-      std::string reason;
-      if (ch >= a.channels.size() || !a.channels[ch].window)
-        reason = ch < a.channels.size() ? a.channels[ch].no_window : "its image is not mapped";
-      else if (fit_before && beyond(a.channels[ch]))
-        reason = fmt::format(
-            "the image would need {} input and {} output bytes, more than the {} maps ({} and {}); "
-            "its bytes would lie beyond the end, and the coupler may not start at all",
-            after.in_bytes, after.out_bytes, profile.name, lim_in, lim_out);
-      if (!reason.empty()) rep.lost.push_back({t.position, ch, who_of(t, ch), reason});
-    }
-  }
+  find_lost_windows(rep, current, before, after);
   return rep;
 }
 
