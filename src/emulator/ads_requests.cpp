@@ -141,6 +141,83 @@ std::uint32_t AdsRequestHandler::image(const ams::Header& h, const ams::Request&
   return 0;
 }
 
+// A Read or a Write: of a register (port 100) or of image bytes (port 300). The reply's data.
+std::vector<std::uint8_t> AdsRequestHandler::read_write(const ams::Header& h, std::span<const std::uint8_t> data,
+                                                        AdsReply& rep, std::chrono::steady_clock::time_point now) {
+  auto r = ams::parse_request(h.command, data);
+  if (!r) {
+    rep.what = "malformed request";
+    return ams::result_response(kBadSize);
+  }
+  std::vector<std::uint8_t> out;
+  std::uint32_t result =
+      h.target_port == adsport::kRegisters ? registers(h, *r, out, rep) : image(h, *r, out, rep, now);
+  if (h.target_port == adsport::kRegisters && r->group >= 1 && opt_.register_ms) {
+    // A coupler works on one register access at a time, each taking register_ms.
+    auto due = std::max(now, register_free_) + std::chrono::milliseconds(opt_.register_ms);
+    register_free_ = due;
+    rep.delay_ms = std::max<unsigned>(
+        rep.delay_ms, static_cast<unsigned>(std::chrono::ceil<std::chrono::milliseconds>(due - now).count()));
+  }
+  if (result) rep.what += ": " + ams::error_text(result);
+  return h.command == ams::kRead ? (result ? ams::data_response(result, {}) : ams::data_response(0, out))
+                                 : ams::result_response(result);
+}
+
+// An ADS sum command on port 300 (ams.hpp: 0xF082): each image read and write carried out in
+// order, as one telegram (it retriggers the watchdog once). Any other ReadWrite: not served.
+// The reply's data.
+std::vector<std::uint8_t> AdsRequestHandler::sum_read_write(const ams::Header& h, std::span<const std::uint8_t> data,
+                                                            AdsReply& rep, std::chrono::steady_clock::time_point now) {
+  auto r = ams::parse_request(h.command, data);
+  if (!r || h.target_port != adsport::kProcessData || r->group != ams::kSumReadWrite) {
+    rep.what = "ReadWrite: not supported";
+    return ams::data_response(kNotSupported, {});
+  }
+  auto sub = ams::parse_sum_read_write(r->offset, r->data);
+  // The answers' length, in 64 bits (read lengths near 4 GiB must not wrap it to a small sum): at
+  // most what the request reads, and one telegram's user data, as a coupler sends.
+  std::uint64_t want = 0;
+  if (sub)
+    for (const auto& c : *sub) want += 8 + std::uint64_t{c.read_length};
+  if (!sub || r->read_length < want || want > ams::kMaxUserData) {
+    rep.what = "malformed sum request";
+    return ams::data_response(kBadSize, {});
+  }
+  std::vector<ams::Response> answers;
+  std::vector<std::string> whats;
+  for (const auto& c : *sub) {
+    ams::Header one = h;
+    one.command = c.data.empty() ? ams::kRead : ams::kWrite;
+    ams::Request q{c.group, c.offset, c.read_length, c.data};
+    ams::Response a;
+    AdsReply part;
+    a.result = c.data.empty() || c.read_length == 0 ? image(one, q, a.data, part, now) : kNotSupported;
+    rep.changed = rep.changed || part.changed;
+    whats.push_back(part.what + (a.result ? ": " + ams::error_text(a.result) : ""));
+    answers.push_back(std::move(a));
+  }
+  rep.what = fmt::format("sum of {}: {}", sub->size(), fmt::join(whats, "; "));
+  return ams::sum_read_write_response(answers);
+}
+
+namespace {
+
+// The answer's header: back to the sender, with the request's command and invoke id.
+ams::Header answer_header(const ams::Header& h) {
+  ams::Header a;
+  a.target = h.source;
+  a.target_port = h.source_port;
+  a.source = h.target;
+  a.source_port = h.target_port;
+  a.command = h.command;
+  a.flags = ams::kFlagResponse | ams::kFlagAdsCommand;
+  a.invoke = h.invoke;
+  return a;
+}
+
+}  // namespace
+
 AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chrono::steady_clock::time_point now,
                                    const ams::NetId& self) {
   AdsReply rep;
@@ -156,14 +233,7 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
     trace(fmt::format("frame with state flags 0x{:04X} ignored: not an ADS request", h.flags));
     return rep;
   }
-  ams::Header a;  // the answer goes back to the sender, with the request's command and invoke id
-  a.target = h.source;
-  a.target_port = h.source_port;
-  a.source = h.target;
-  a.source_port = h.target_port;
-  a.command = h.command;
-  a.flags = ams::kFlagResponse | ams::kFlagAdsCommand;
-  a.invoke = h.invoke;
+  ams::Header a = answer_header(h);
   auto ams_error = [&](std::uint32_t code, const std::string& what) {
     a.error = code;
     rep.what = fmt::format("{} from {}: {} ({})", ams::command_name(h.command), ams::format_netid(h.source),
@@ -191,65 +261,8 @@ AdsReply AdsRequestHandler::handle(std::span<const std::uint8_t> bytes, std::chr
       rep.what = "device info";
       break;
     case ams::kRead:
-    case ams::kWrite: {
-      auto r = ams::parse_request(h.command, frame->data);
-      if (!r) {
-        data = ams::result_response(kBadSize);
-        rep.what = "malformed request";
-        break;
-      }
-      std::vector<std::uint8_t> out;
-      std::uint32_t result =
-          h.target_port == adsport::kRegisters ? registers(h, *r, out, rep) : image(h, *r, out, rep, now);
-      if (h.target_port == adsport::kRegisters && r->group >= 1 && opt_.register_ms) {
-        // A coupler works on one register access at a time, each taking register_ms.
-        auto due = std::max(now, register_free_) + std::chrono::milliseconds(opt_.register_ms);
-        register_free_ = due;
-        rep.delay_ms = std::max<unsigned>(
-            rep.delay_ms, static_cast<unsigned>(std::chrono::ceil<std::chrono::milliseconds>(due - now).count()));
-      }
-      if (result) rep.what += ": " + ams::error_text(result);
-      data = h.command == ams::kRead ? (result ? ams::data_response(result, {}) : ams::data_response(0, out))
-                                     : ams::result_response(result);
-      break;
-    }
-    case ams::kReadWrite: {
-      // An ADS sum command on port 300 (ams.hpp: 0xF082): each image read and write carried out in
-      // order, as one telegram (it retriggers the watchdog once). Any other ReadWrite: not served.
-      auto r = ams::parse_request(h.command, frame->data);
-      if (!r || h.target_port != adsport::kProcessData || r->group != ams::kSumReadWrite) {
-        data = ams::data_response(kNotSupported, {});
-        rep.what = "ReadWrite: not supported";
-        break;
-      }
-      auto sub = ams::parse_sum_read_write(r->offset, r->data);
-      // The answers' length, in 64 bits (read lengths near 4 GiB must not wrap it to a small sum): at
-      // most what the request reads, and one telegram's user data, as a coupler sends.
-      std::uint64_t want = 0;
-      if (sub)
-        for (const auto& c : *sub) want += 8 + std::uint64_t{c.read_length};
-      if (!sub || r->read_length < want || want > ams::kMaxUserData) {
-        data = ams::data_response(kBadSize, {});
-        rep.what = "malformed sum request";
-        break;
-      }
-      std::vector<ams::Response> answers;
-      std::vector<std::string> whats;
-      for (const auto& c : *sub) {
-        ams::Header one = h;
-        one.command = c.data.empty() ? ams::kRead : ams::kWrite;
-        ams::Request q{c.group, c.offset, c.read_length, c.data};
-        ams::Response a;
-        AdsReply part;
-        a.result = c.data.empty() || c.read_length == 0 ? image(one, q, a.data, part, now) : kNotSupported;
-        rep.changed = rep.changed || part.changed;
-        whats.push_back(part.what + (a.result ? ": " + ams::error_text(a.result) : ""));
-        answers.push_back(std::move(a));
-      }
-      data = ams::sum_read_write_response(answers);
-      rep.what = fmt::format("sum of {}: {}", sub->size(), fmt::join(whats, "; "));
-      break;
-    }
+    case ams::kWrite: data = read_write(h, frame->data, rep, now); break;
+    case ams::kReadWrite: data = sum_read_write(h, frame->data, rep, now); break;
     default:
       // A BK9050 answered ReadState with "unknown command ID" (as reported to the ads-client library).
       return ams_error(kUnknownCommand, ams::command_name(h.command));

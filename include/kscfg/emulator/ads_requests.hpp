@@ -70,6 +70,11 @@ class AdsRequestHandler {
   std::uint32_t registers(const ams::Header& h, const ams::Request& r, std::vector<std::uint8_t>& out, AdsReply& rep);
   std::uint32_t image(const ams::Header& h, const ams::Request& r, std::vector<std::uint8_t>& out, AdsReply& rep,
                       std::chrono::steady_clock::time_point now);
+  // handle()'s Read or Write, and its ReadWrite (a sum command): the reply's data.
+  std::vector<std::uint8_t> read_write(const ams::Header& h, std::span<const std::uint8_t> data, AdsReply& rep,
+                                       std::chrono::steady_clock::time_point now);
+  std::vector<std::uint8_t> sum_read_write(const ams::Header& h, std::span<const std::uint8_t> data, AdsReply& rep,
+                                           std::chrono::steady_clock::time_point now);
   std::uint16_t table(unsigned table, unsigned reg) const;
   void trace(const std::string& s) const;
 
