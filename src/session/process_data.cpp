@@ -140,6 +140,78 @@ std::vector<int> bit_list(const std::vector<std::uint8_t>& image, std::size_t fi
 
 }  // namespace
 
+namespace {
+
+// A serial terminal's channel: status, control and the data bytes their lengths say (in register
+// mode only through an image with a register control byte of its own); in register mode, the
+// control/status bytes as a register request and acknowledge.
+void decode_serial(nlohmann::json& j, const TerminalImage& t, const ChannelImage& ci, const ImageSnapshot& image,
+                   const Named& in, const Named& out, bool reg) {
+  const TerminalType& type = *t.type;
+  if (auto s = find_serial_image(ci, t.format); s && !(reg && !s->reg_ctrl)) {
+    std::uint16_t st = image.in.at(s->status.offset), ct = image.out.at(s->ctrl.offset);
+    unsigned il = s->word ? image.in.at(s->in_len->offset) : (st & serial::kLenMask) >> serial::kLenShift;
+    unsigned ol = s->word ? image.out.at(s->out_len->offset) : (ct & serial::kLenMask) >> serial::kLenShift;
+    if (s->word) {
+      st = static_cast<std::uint16_t>(st | (il << 8));
+      ct = static_cast<std::uint16_t>(ct | (ol << 8));
+    }
+    j["status"] = ctst_json(type, "status", t.format, st, false);
+    j["control"] = ctst_json(type, "control", t.format, ct, false);
+    std::vector<std::uint8_t> din, dout;
+    for (unsigned i = 0; i < il && i < s->in_data.size(); ++i) din.push_back(image.in.at(s->in_data[i].offset));
+    for (unsigned i = 0; i < ol && i < s->out_data.size(); ++i) dout.push_back(image.out.at(s->out_data[i].offset));
+    j["in_length"] = il;
+    j["out_length"] = ol;
+    j["in_data"] = din;
+    j["out_data"] = dout;
+  }
+  if (reg) {
+    auto c = out.get("CT/ST"), s = in.get("CT/ST");
+    if (s) j["status"] = ctst_json(type, "status", t.format, *s, true);
+    if (c) j["control"] = ctst_json(type, "control", t.format, *c, true);
+  }
+}
+
+// A channel in format `f`: its control/status and, in process-data mode, the values its family
+// has (counter and latch, or an analog word and what the settings make of it).
+void decode_values(nlohmann::json& j, const TerminalImage& t, const ImageFormat* f, const Named& in, const Named& out,
+                   bool reg, const std::array<std::uint16_t, proto::kRegisterCount>* settings) {
+  const TerminalType& type = *t.type;
+  // The control/status byte or word, when mapped.
+  auto word_of = [&](const Named& side) -> std::optional<std::uint16_t> {
+    auto lo = side.get("CT/ST");
+    if (!lo) return std::nullopt;
+    std::uint16_t v = *lo;
+    if (!f->in.empty() && f->in.front().kind == Element::Kind::ctst_word)
+      if (auto hi = side.get(f->in.front().hi)) v = static_cast<std::uint16_t>(v | (*hi << 8));
+    return v;
+  };
+  if (auto s = word_of(in)) j["status"] = ctst_json(type, "status", t.format, *s, reg);
+  if (auto c = word_of(out)) j["control"] = ctst_json(type, "control", t.format, *c, reg);
+  if (reg) return;
+  if (type.family == "encoder" || type.family == "counter") {
+    if (auto v = data_value(f->in, in, 0)) j["counter"] = *v;
+    if (auto v = data_value(f->in, in, 1)) j["latch"] = *v;
+  } else if (type.family == "analog-in" || type.family == "analog-out") {
+    bool input = type.family == "analog-in";
+    if (auto v = data_value(input ? f->in : f->out, input ? in : out, 0)) {
+      auto w = static_cast<std::uint16_t>(*v);
+      j["word"] = type.scale ? type.scale->raw(w) : static_cast<std::int16_t>(w);
+      // What the settings make of it ([[value]]), or the type's one scale.
+      DataValue d = kscfg::data_value(type, settings ? *settings : type.defaults(), w);
+      if (d.known) {
+        j["scaled"] = d.value;
+        j["measured_in"] = d.unit;
+        j["reading"] = d.text();
+      }
+      if (!type.values.empty()) j["settings_read"] = settings != nullptr;
+    }
+  }
+}
+
+}  // namespace
+
 nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSnapshot& image,
                               const std::array<std::uint16_t, proto::kRegisterCount>* settings) {
   const TerminalType& type = *t.type;
@@ -167,64 +239,8 @@ nlohmann::json decode_channel(const TerminalImage& t, unsigned ch, const ImageSn
   const bool reg = in_register_mode(t, ch, image.out) || answers_register(t, ch, image.in);
   j["register_mode"] = reg;
   const ImageFormat* f = format_of(t);
-
-  if (type.is_serial()) {
-    if (auto s = find_serial_image(ci, t.format); s && !(reg && !s->reg_ctrl)) {
-      std::uint16_t st = image.in.at(s->status.offset), ct = image.out.at(s->ctrl.offset);
-      unsigned il = s->word ? image.in.at(s->in_len->offset) : (st & serial::kLenMask) >> serial::kLenShift;
-      unsigned ol = s->word ? image.out.at(s->out_len->offset) : (ct & serial::kLenMask) >> serial::kLenShift;
-      if (s->word) {
-        st = static_cast<std::uint16_t>(st | (il << 8));
-        ct = static_cast<std::uint16_t>(ct | (ol << 8));
-      }
-      j["status"] = ctst_json(type, "status", t.format, st, false);
-      j["control"] = ctst_json(type, "control", t.format, ct, false);
-      std::vector<std::uint8_t> din, dout;
-      for (unsigned i = 0; i < il && i < s->in_data.size(); ++i) din.push_back(image.in.at(s->in_data[i].offset));
-      for (unsigned i = 0; i < ol && i < s->out_data.size(); ++i) dout.push_back(image.out.at(s->out_data[i].offset));
-      j["in_length"] = il;
-      j["out_length"] = ol;
-      j["in_data"] = din;
-      j["out_data"] = dout;
-    }
-    if (reg) {
-      auto c = out.get("CT/ST"), s = in.get("CT/ST");
-      if (s) j["status"] = ctst_json(type, "status", t.format, *s, true);
-      if (c) j["control"] = ctst_json(type, "control", t.format, *c, true);
-    }
-  } else if (f) {
-    // The control/status byte or word, when mapped.
-    auto word_of = [&](const Named& side) -> std::optional<std::uint16_t> {
-      auto lo = side.get("CT/ST");
-      if (!lo) return std::nullopt;
-      std::uint16_t v = *lo;
-      if (!f->in.empty() && f->in.front().kind == Element::Kind::ctst_word)
-        if (auto hi = side.get(f->in.front().hi)) v = static_cast<std::uint16_t>(v | (*hi << 8));
-      return v;
-    };
-    if (auto s = word_of(in)) j["status"] = ctst_json(type, "status", t.format, *s, reg);
-    if (auto c = word_of(out)) j["control"] = ctst_json(type, "control", t.format, *c, reg);
-    if (!reg) {
-      if (type.family == "encoder" || type.family == "counter") {
-        if (auto v = data_value(f->in, in, 0)) j["counter"] = *v;
-        if (auto v = data_value(f->in, in, 1)) j["latch"] = *v;
-      } else if (type.family == "analog-in" || type.family == "analog-out") {
-        bool input = type.family == "analog-in";
-        if (auto v = data_value(input ? f->in : f->out, input ? in : out, 0)) {
-          auto w = static_cast<std::uint16_t>(*v);
-          j["word"] = type.scale ? type.scale->raw(w) : static_cast<std::int16_t>(w);
-          // What the settings make of it ([[value]]), or the type's one scale.
-          DataValue d = kscfg::data_value(type, settings ? *settings : type.defaults(), w);
-          if (d.known) {
-            j["scaled"] = d.value;
-            j["measured_in"] = d.unit;
-            j["reading"] = d.text();
-          }
-          if (!type.values.empty()) j["settings_read"] = settings != nullptr;
-        }
-      }
-    }
-  }
+  if (type.is_serial()) decode_serial(j, t, ci, image, in, out, reg);
+  else if (f) decode_values(j, t, f, in, out, reg, settings);
   j["bytes"] = {{"in", bin}, {"out", bout}};
   return j;
 }
