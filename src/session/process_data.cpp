@@ -327,6 +327,87 @@ std::int64_t parse_int(const std::string& v, const std::string& what) {
   return static_cast<std::int64_t>(parse_uint(v, 65535, what));
 }
 
+// Digital output `name` (1..bits_out) of a digital terminal on or off.
+void force_digital(ForcePlan& p, const TerminalImage& t, const std::string& name, const std::string& value,
+                   const std::string& spec, const std::vector<std::uint8_t>& out) {
+  unsigned n = static_cast<unsigned>(parse_uint(name, 65535, "output number"));
+  if (n < 1 || n > t.bits_out)
+    throw Error(Exit::usage, fmt::format("{} has outputs 1..{}; '{}' is not one", terminal_label(t), t.bits_out, name));
+  bool v = on_off(value, spec);
+  std::size_t bit = t.out_bit + n - 1;
+  std::uint8_t before = static_cast<std::uint8_t>((out.at(bit / 8) >> (bit % 8)) & 1);
+  add(p, bit / 8, static_cast<std::uint8_t>(1u << (bit % 8)), v ? 0xFF : 0x00, out);
+  p.changes.push_back({{"name", name}, {"before", before}, {"after", v ? 1 : 0}});
+  p.undo.push_back(fmt::format("{}={}", n, before ? "on" : "off"));
+}
+
+// An analog output's data word: `value` scaled by the type's scale, or the `word` itself.
+void force_word(ForcePlan& p, const TerminalImage& t, unsigned ch, const std::string& name, const std::string& value,
+                Named& o, const ImageFormat* f, const std::vector<std::uint8_t>& out) {
+  if (t.type->family != "analog-out")
+    throw Error(Exit::usage, fmt::format("'{}' is for analog outputs; {} is {}: force its output bytes by name", name,
+                                         who(t, ch), t.type->family));
+  std::uint16_t word = 0;
+  if (name == "value") {
+    if (!t.type->scale)
+      throw Error(Exit::usage, fmt::format("the catalog gives no scale for {}: force word=N", t.type->type));
+    word = t.type->scale->word(parse_real(value, "value"));
+  } else {
+    word = static_cast<std::uint16_t>(parse_int(value, "data word") & 0xFFFF);
+  }
+  // The elements themselves, not a copy: e points into them after the loop.
+  static const std::vector<Element> kNone;
+  const std::vector<Element>& elements = f ? f->out : kNone;
+  const Element* e = nullptr;
+  for (const auto& x : elements)
+    if (x.kind == Element::Kind::word) {
+      e = &x;
+      break;
+    }
+  if (!e || !o.at.count(e->lo) || !o.at.count(e->hi))
+    throw Error(Exit::refused, fmt::format("{} maps no output data word", who(t, ch)));
+  std::uint16_t before = static_cast<std::uint16_t>(out.at(o.at[e->lo]) | (out.at(o.at[e->hi]) << 8));
+  add(p, o.at[e->lo], 0xFF, static_cast<std::uint8_t>(word & 0xFF), out);
+  add(p, o.at[e->hi], 0xFF, static_cast<std::uint8_t>(word >> 8), out);
+  nlohmann::json c{{"name", name}};
+  if (t.type->scale && name == "value") {
+    c["before"] = t.type->scale->value(before);
+    c["after"] = t.type->scale->value(word);
+    c["measured_in"] = t.type->scale->unit;
+  } else {
+    c["before"] = before;
+    c["after"] = word;
+  }
+  p.changes.push_back(c);
+  p.undo.push_back(fmt::format("word=0x{:04X}", before));
+}
+
+// An output byte of a complex channel by its name (not CT/ST with REG set: that starts register mode).
+void force_byte(ForcePlan& p, const TerminalImage& t, unsigned ch, const std::string& name, const std::string& value,
+                const Named& o, const std::vector<std::uint8_t>& out) {
+  auto it = o.at.find(name);
+  if (it == o.at.end()) {
+    std::vector<std::string> names;
+    for (const auto& [n, off] : o.at) names.push_back(n);
+    auto hint = did_you_mean(name, names);
+    throw Error(
+        Exit::usage, fmt::format("{} has no output byte '{}'{}", who(t, ch), name, hint.empty() ? "" : "; " + hint),
+        names.empty() ? "it maps no output bytes" : "its output bytes: " + [&] {
+          std::string s;
+          for (const auto& n : names) s += (s.empty() ? "" : " ") + n;
+          return s;
+        }());
+  }
+  auto v = static_cast<std::uint8_t>(parse_uint(value, 0xFF, "byte value"));
+  if (name == "CT/ST" && t.type->has_registers && (v & proto::kReg))
+    throw Error(Exit::refused,
+                fmt::format("CT/ST=0x{:02X} has REG set: that starts register mode, not process data", v),
+                "force process-data bits only (bit 7 clear)");
+  add(p, it->second, 0xFF, v, out);
+  p.changes.push_back({{"name", name}, {"before", out.at(it->second)}, {"after", v}});
+  p.undo.push_back(fmt::format("{}=0x{:02X}", name, out.at(it->second)));
+}
+
 }  // namespace
 
 ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std::string>& specs,
@@ -351,81 +432,14 @@ ForcePlan plan_force(const TerminalImage& t, unsigned ch, const std::vector<std:
                   t.complex ? "e.g. value=5.0, word=0x4000, D0=0x12" : "e.g. 1=on 2=off");
     std::string name = spec.substr(0, eq), value = spec.substr(eq + 1);
     if (!t.complex) {
-      unsigned n = static_cast<unsigned>(parse_uint(name, 65535, "output number"));
-      if (n < 1 || n > t.bits_out)
-        throw Error(Exit::usage,
-                    fmt::format("{} has outputs 1..{}; '{}' is not one", terminal_label(t), t.bits_out, name));
-      bool v = on_off(value, spec);
-      std::size_t bit = t.out_bit + n - 1;
-      std::uint8_t before = static_cast<std::uint8_t>((out.at(bit / 8) >> (bit % 8)) & 1);
-      add(p, bit / 8, static_cast<std::uint8_t>(1u << (bit % 8)), v ? 0xFF : 0x00, out);
-      p.changes.push_back({{"name", name}, {"before", before}, {"after", v ? 1 : 0}});
-      p.undo.push_back(fmt::format("{}={}", n, before ? "on" : "off"));
+      force_digital(p, t, name, value, spec, out);
       continue;
     }
     const ChannelImage& ci = t.channels[ch];
     Named o = named(ci.out, out);
     const ImageFormat* f = format_of(t);
-    if (name == "value" || name == "word") {
-      if (t.type->family != "analog-out")
-        throw Error(Exit::usage, fmt::format("'{}' is for analog outputs; {} is {}: force its output bytes by name",
-                                             name, who(t, ch), t.type->family));
-      std::uint16_t word = 0;
-      if (name == "value") {
-        if (!t.type->scale)
-          throw Error(Exit::usage, fmt::format("the catalog gives no scale for {}: force word=N", t.type->type));
-        word = t.type->scale->word(parse_real(value, "value"));
-      } else {
-        word = static_cast<std::uint16_t>(parse_int(value, "data word") & 0xFFFF);
-      }
-      // The elements themselves, not a copy: e points into them after the loop.
-      static const std::vector<Element> kNone;
-      const std::vector<Element>& elements = f ? f->out : kNone;
-      const Element* e = nullptr;
-      for (const auto& x : elements)
-        if (x.kind == Element::Kind::word) {
-          e = &x;
-          break;
-        }
-      if (!e || !o.at.count(e->lo) || !o.at.count(e->hi))
-        throw Error(Exit::refused, fmt::format("{} maps no output data word", who(t, ch)));
-      std::uint16_t before = static_cast<std::uint16_t>(out.at(o.at[e->lo]) | (out.at(o.at[e->hi]) << 8));
-      add(p, o.at[e->lo], 0xFF, static_cast<std::uint8_t>(word & 0xFF), out);
-      add(p, o.at[e->hi], 0xFF, static_cast<std::uint8_t>(word >> 8), out);
-      nlohmann::json c{{"name", name}};
-      if (t.type->scale && name == "value") {
-        c["before"] = t.type->scale->value(before);
-        c["after"] = t.type->scale->value(word);
-        c["measured_in"] = t.type->scale->unit;
-      } else {
-        c["before"] = before;
-        c["after"] = word;
-      }
-      p.changes.push_back(c);
-      p.undo.push_back(fmt::format("word=0x{:04X}", before));
-      continue;
-    }
-    auto it = o.at.find(name);
-    if (it == o.at.end()) {
-      std::vector<std::string> names;
-      for (const auto& [n, off] : o.at) names.push_back(n);
-      auto hint = did_you_mean(name, names);
-      throw Error(
-          Exit::usage, fmt::format("{} has no output byte '{}'{}", who(t, ch), name, hint.empty() ? "" : "; " + hint),
-          names.empty() ? "it maps no output bytes" : "its output bytes: " + [&] {
-            std::string s;
-            for (const auto& n : names) s += (s.empty() ? "" : " ") + n;
-            return s;
-          }());
-    }
-    auto v = static_cast<std::uint8_t>(parse_uint(value, 0xFF, "byte value"));
-    if (name == "CT/ST" && t.type->has_registers && (v & proto::kReg))
-      throw Error(Exit::refused,
-                  fmt::format("CT/ST=0x{:02X} has REG set: that starts register mode, not process data", v),
-                  "force process-data bits only (bit 7 clear)");
-    add(p, it->second, 0xFF, v, out);
-    p.changes.push_back({{"name", name}, {"before", out.at(it->second)}, {"after", v}});
-    p.undo.push_back(fmt::format("{}=0x{:02X}", name, out.at(it->second)));
+    if (name == "value" || name == "word") force_word(p, t, ch, name, value, o, f, out);
+    else force_byte(p, t, ch, name, value, o, out);
   }
   return p;
 }
