@@ -224,6 +224,157 @@ bool walk_as_before(ScanResult& r, Engine& engine, const Catalog& catalog, const
   return false;
 }
 
+// The next terminal as a probe: one channel through the first window its register value can be
+// in, and the windows it can be in (the coupler's alignment's first).
+struct Probe {
+  TerminalImage t;
+  std::vector<RegisterWindow> cands;
+};
+
+// The next terminal's control/status byte, and where its register value can be: after a
+// reserved byte when the coupler aligns words (KL6001 alternative format, KL5101), or right
+// after the control/status byte (KL6001 standard format: CT/ST, D0, D1, ... whatever the
+// alignment, seed KL6001 annex). The terminal's R8 tells which. None when neither window fits in
+// the complex area (co output, ci input bytes).
+std::optional<Probe> next_probe(const ScanResult& r, const ImageFormat& probe, std::size_t out, std::size_t in,
+                                std::size_t co, std::size_t ci) {
+  MappingSettings unaligned = r.settings;
+  unaligned.word_alignment = false;
+  ChannelImage pa = layout_channel(probe, probe_type(), r.settings, {}, out, in);
+  ChannelImage pb = layout_channel(probe, probe_type(), unaligned, {}, out, in);
+  auto fits = [&](const ChannelImage& c) {
+    return c.window && c.window->out_hi < std::max<std::size_t>(co, 1) &&
+           c.window->in_hi < std::max<std::size_t>(ci, 1);
+  };
+  if (!fits(pa)) {
+    if (!fits(pb)) return std::nullopt;
+    pa = pb;
+  }
+  Probe p;
+  p.t.position = static_cast<unsigned>(r.spec.terminals.size() + 1);
+  p.t.type = &probe_type();
+  p.t.complex = true;
+  p.t.out_offset = out;
+  p.t.in_offset = in;
+  p.t.channels.push_back(pa);
+  p.cands.push_back(*pa.window);
+  if (pb.window && !same_window(*pb.window, *pa.window)) p.cands.push_back(*pb.window);
+  return p;
+}
+
+// R8 through the probe's first window, and through the second one when there is one. A terminal
+// that does not answer is named.
+std::vector<std::uint16_t> read_r8(RegisterSession& s, Link& link, const Probe& p) {
+  std::vector<std::uint16_t> values;
+  try {
+    std::uint16_t first = s.read(8);
+    values.push_back(first);
+    if (p.cands.size() > 1) {
+      // The terminal keeps answering R8 while its control byte asks for it: the other
+      // candidate's bytes are in the same input bytes now.
+      const RegisterWindow& probed = p.cands[0];
+      const RegisterWindow& other = p.cands[1];
+      std::size_t lo = std::min({probed.status, other.in_lo, other.in_hi});
+      std::size_t hi = std::max({probed.status, other.in_lo, other.in_hi});
+      std::vector<std::uint8_t> b(hi - lo + 1);
+      link.read_inputs(lo, b);
+      if (proto::is_ack(b[probed.status - lo], 8))
+        values.push_back(static_cast<std::uint16_t>(b[other.in_lo - lo] | (b[other.in_hi - lo] << 8)));
+    }
+  } catch (const Error& e) {
+    s.close();
+    if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
+    throw silent_terminal(p.t.out_offset, e);
+  }
+  return values;
+}
+
+// What R8 told: the type, the window it answered through and its R8 (no type: the catalog knows
+// none of the values read).
+struct Answer {
+  const TerminalType* type = nullptr;
+  RegisterWindow win;
+  std::uint16_t r8 = 0;
+};
+
+Answer identify(const Catalog& catalog, const Probe& p, const std::vector<std::uint16_t>& values) {
+  Answer a;
+  a.win = p.cands[0];
+  a.r8 = values[0];
+  for (std::size_t i = 0; i < values.size() && !a.type; ++i)
+    if ((a.type = catalog.find_by_number(values[i]))) {
+      a.win = p.cands[i];
+      a.r8 = values[i];
+    }
+  return a;
+}
+
+Error unknown_type(const Probe& p, const std::vector<std::uint16_t>& values) {
+  const std::vector<RegisterWindow>& cands = p.cands;
+  std::string seen = fmt::format("{}", values[0]);
+  if (values.size() > 1)
+    seen += fmt::format(" (input bytes {}), or {} (input bytes {})", bytes_text(cands[0].in_lo, cands[0].in_hi),
+                        values[1], bytes_text(cands[1].in_lo, cands[1].in_hi));
+  return Error(Exit::refused,
+               fmt::format("scan: terminal {} (control byte at output byte {}) reports type number {} in R8, which "
+                           "the catalog does not know",
+                           p.t.position, p.t.out_offset, seen),
+               "add its description with --catalog DIR, or describe the station with --station");
+}
+
+// The registers that decide the image, channel by channel (a channel's place depends on the
+// channels before it), into the last terminal's registers. Channel 1 through the window that
+// answered, in the probe's session when that is the window probed.
+void read_mapping_registers(ScanResult& r, Engine& engine, const Catalog& catalog, const SessionOptions& so,
+                            const Probe& p, const Answer& a, std::optional<RegisterSession>& probe_session) {
+  auto mregs = mapping_registers(*a.type);
+  for (unsigned ch = 0; ch < a.type->channels && !mregs.empty(); ++ch) {
+    TerminalImage ti;
+    if (ch == 0) {
+      ti = p.t;
+      ti.type = a.type;
+      ti.channels[0].window = a.win;
+    } else {
+      StationLayout L = scan_layout(r, catalog);
+      const TerminalImage& lt = L.terminal(p.t.position);
+      if (ch >= lt.channels.size() || !lt.channels[ch].window) break;
+      ti = lt;
+    }
+    std::vector<std::uint16_t> values;
+    if (ch == 0 && probe_session && same_window(a.win, p.cands[0])) {
+      values = probe_session->read_then_close(mregs);
+    } else {
+      probe_session.reset();
+      RegisterSession s(engine, ti, ch, so);
+      values = s.read_then_close(mregs);
+    }
+    for (std::size_t i = 0; i < mregs.size(); ++i) r.regs.back()[ch][mregs[i]] = values[i];
+  }
+}
+
+// The last terminal's layout from what it holds must put the window where it answered.
+void check_answered_window(const ScanResult& r, const Catalog& catalog, const Answer& a, unsigned position) {
+  StationLayout L = scan_layout(r, catalog);
+  const TerminalImage& lt = L.terminal(position);
+  if (!lt.channels.empty() && lt.channels[0].window && same_window(*lt.channels[0].window, a.win)) return;
+  std::string regs;
+  for (auto [k, v] : r.regs.back()[0])
+    if (k != 8) regs += fmt::format("{}R{} = 0x{:04X}", regs.empty() ? "" : ", ", k, v);
+  throw Error(
+      Exit::refused,
+      fmt::format("scan: terminal {} ({}) answers with its register value in input bytes {}, but its "
+                  "mapping registers{} put it {}",
+                  position, a.type->type, bytes_text(a.win.in_lo, a.win.in_hi), regs.empty() ? "" : " (" + regs + ")",
+                  lt.channels.empty() || !lt.channels[0].window
+                      ? std::string("nowhere (no control/status byte)")
+                      : "in bytes " + bytes_text(lt.channels[0].window->in_lo, lt.channels[0].window->in_hi)),
+      fmt::format("a coupler lays out its image when it starts: if these registers changed since, "
+                  "restart the coupler; otherwise its mapping settings differ from the {} defaults: "
+                  "give them to 'kscfg scan' (--complete-evaluation, --word-alignment, --motorola), "
+                  "or describe the station with --station",
+                  r.coupler));
+}
+
 }  // namespace
 
 void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, const SessionOptions& so, unsigned upto,
@@ -231,8 +382,6 @@ void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, con
   if (!r.walked || r.complete) return;
   std::size_t co = r.complex_out_bits / 8, ci = r.complex_in_bits / 8;
   const ImageFormat probe = probe_format();
-  MappingSettings unaligned = r.settings;
-  unaligned.word_alignment = false;
   const TerminalType* prev_type = nullptr;  // the terminal walked last, and its window's kind
   bool prev_aligned = true;
   for (unsigned guard = 0; guard < 64; ++guard) {
@@ -250,142 +399,40 @@ void walk(ScanResult& r, Engine& engine, Link& link, const Catalog& catalog, con
     if (progress)
       progress(static_cast<unsigned>(std::min(in, ci)), static_cast<unsigned>(ci),
                fmt::format("terminal {}", r.spec.terminals.size() + 1));
-    // The next terminal's control/status byte, and where its register value can be: after a
-    // reserved byte when the coupler aligns words (KL6001 alternative format, KL5101), or right
-    // after the control/status byte (KL6001 standard format: CT/ST, D0, D1, ... whatever the
-    // alignment, seed KL6001 annex). The terminal's R8 tells which.
-    ChannelImage pa = layout_channel(probe, probe_type(), r.settings, {}, out, in);
-    ChannelImage pb = layout_channel(probe, probe_type(), unaligned, {}, out, in);
-    if (!pa.window || pa.window->out_hi >= std::max<std::size_t>(co, 1) ||
-        pa.window->in_hi >= std::max<std::size_t>(ci, 1)) {
-      if (!pb.window || pb.window->out_hi >= std::max<std::size_t>(co, 1) ||
-          pb.window->in_hi >= std::max<std::size_t>(ci, 1)) {
-        r.notes.push_back(fmt::format("{} output and {} input byte(s) at the end of the complex area fit no terminal",
-                                      co - std::min(co, out), ci - std::min(ci, in)));
-        r.complete = true;
-        break;
-      }
-      pa = pb;
+    std::optional<Probe> p = next_probe(r, probe, out, in, co, ci);
+    if (!p) {
+      r.notes.push_back(fmt::format("{} output and {} input byte(s) at the end of the complex area fit no terminal",
+                                    co - std::min(co, out), ci - std::min(ci, in)));
+      r.complete = true;
+      break;
     }
-    unsigned position = static_cast<unsigned>(r.spec.terminals.size() + 1);
-    TerminalImage t;
-    t.position = position;
-    t.type = &probe_type();
-    t.complex = true;
-    t.out_offset = out;
-    t.in_offset = in;
-    t.channels.push_back(pa);
-    std::vector<RegisterWindow> cands{*pa.window};
-    if (pb.window && !same_window(*pb.window, *pa.window)) cands.push_back(*pb.window);
     if (prev_type) {
-      const RegisterWindow& like = prev_aligned || cands.size() == 1 ? cands[0] : cands[1];
-      if (walk_as_before(r, engine, catalog, so, t, *prev_type, like)) continue;
+      const RegisterWindow& like = prev_aligned || p->cands.size() == 1 ? p->cands[0] : p->cands[1];
+      if (walk_as_before(r, engine, catalog, so, p->t, *prev_type, like)) continue;
     }
-    std::vector<std::uint16_t> values;
     // One session for R8 and, when the terminal answered through the window probed, the registers
     // that decide its image: the channel's bytes are saved and put back once, the last with the
     // poll for the last answer.
-    std::optional<RegisterSession> probe_session(std::in_place, engine, t, 0, so);
-    {
-      RegisterSession& s = *probe_session;
-      try {
-        std::uint16_t first = s.read(8);
-        values.push_back(first);
-        if (cands.size() > 1) {
-          // The terminal keeps answering R8 while its control byte asks for it: the other
-          // candidate's bytes are in the same input bytes now.
-          std::size_t lo = std::min({pa.window->status, cands[1].in_lo, cands[1].in_hi});
-          std::size_t hi = std::max({pa.window->status, cands[1].in_lo, cands[1].in_hi});
-          std::vector<std::uint8_t> b(hi - lo + 1);
-          link.read_inputs(lo, b);
-          if (proto::is_ack(b[pa.window->status - lo], 8))
-            values.push_back(static_cast<std::uint16_t>(b[cands[1].in_lo - lo] | (b[cands[1].in_hi - lo] << 8)));
-        }
-      } catch (const Error& e) {
-        s.close();
-        if (e.code() == Exit::link || e.code() == Exit::interrupted) throw;
-        throw silent_terminal(out, e);
-      }
-    }
-    const TerminalType* type = nullptr;
-    RegisterWindow win = cands[0];
-    std::uint16_t r8 = values[0];
-    for (std::size_t i = 0; i < values.size() && !type; ++i)
-      if ((type = catalog.find_by_number(values[i]))) {
-        win = cands[i];
-        r8 = values[i];
-      }
-    if (!type) {
+    std::optional<RegisterSession> probe_session(std::in_place, engine, p->t, 0, so);
+    std::vector<std::uint16_t> values = read_r8(*probe_session, link, *p);
+    Answer a = identify(catalog, *p, values);
+    if (!a.type) {
       probe_session.reset();
-      std::string seen = fmt::format("{}", values[0]);
-      if (values.size() > 1)
-        seen += fmt::format(" (input bytes {}), or {} (input bytes {})", bytes_text(cands[0].in_lo, cands[0].in_hi),
-                            values[1], bytes_text(cands[1].in_lo, cands[1].in_hi));
-      throw Error(Exit::refused,
-                  fmt::format("scan: terminal {} (control byte at output byte {}) reports type number {} in R8, which "
-                              "the catalog does not know",
-                              position, out, seen),
-                  "add its description with --catalog DIR, or describe the station with --station");
+      throw unknown_type(*p, values);
     }
-    add_scanned_terminal(r, *type, r8, std::vector<std::map<unsigned, std::uint16_t>>(type->channels));
-    r.regs.back()[0][8] = r8;
-    // The registers that decide the image, channel by channel (a channel's place depends on the
-    // channels before it). Channel 1 through the window that answered.
-    auto mregs = mapping_registers(*type);
-    for (unsigned ch = 0; ch < type->channels && !mregs.empty(); ++ch) {
-      TerminalImage ti;
-      if (ch == 0) {
-        ti = t;
-        ti.type = type;
-        ti.channels[0].window = win;
-      } else {
-        StationLayout L = scan_layout(r, catalog);
-        const TerminalImage& lt = L.terminal(position);
-        if (ch >= lt.channels.size() || !lt.channels[ch].window) break;
-        ti = lt;
-      }
-      std::vector<std::uint16_t> values;
-      if (ch == 0 && probe_session && same_window(win, *pa.window)) {
-        values = probe_session->read_then_close(mregs);
-      } else {
-        probe_session.reset();
-        RegisterSession s(engine, ti, ch, so);
-        values = s.read_then_close(mregs);
-      }
-      for (std::size_t i = 0; i < mregs.size(); ++i) r.regs.back()[ch][mregs[i]] = values[i];
-    }
+    add_scanned_terminal(r, *a.type, a.r8, std::vector<std::map<unsigned, std::uint16_t>>(a.type->channels));
+    r.regs.back()[0][8] = a.r8;
+    read_mapping_registers(r, engine, catalog, so, *p, a, probe_session);
     probe_session.reset();
-    // The terminal's layout from what it holds must put the window where it answered.
-    {
-      StationLayout L = scan_layout(r, catalog);
-      const TerminalImage& lt = L.terminal(position);
-      if (lt.channels.empty() || !lt.channels[0].window || !same_window(*lt.channels[0].window, win)) {
-        std::string regs;
-        for (auto [k, v] : r.regs.back()[0])
-          if (k != 8) regs += fmt::format("{}R{} = 0x{:04X}", regs.empty() ? "" : ", ", k, v);
-        throw Error(
-            Exit::refused,
-            fmt::format("scan: terminal {} ({}) answers with its register value in input bytes {}, but its "
-                        "mapping registers{} put it {}",
-                        position, type->type, bytes_text(win.in_lo, win.in_hi), regs.empty() ? "" : " (" + regs + ")",
-                        lt.channels.empty() || !lt.channels[0].window
-                            ? std::string("nowhere (no control/status byte)")
-                            : "in bytes " + bytes_text(lt.channels[0].window->in_lo, lt.channels[0].window->in_hi)),
-            fmt::format("a coupler lays out its image when it starts: if these registers changed since, "
-                        "restart the coupler; otherwise its mapping settings differ from the {} defaults: "
-                        "give them to 'kscfg scan' (--complete-evaluation, --word-alignment, --motorola), "
-                        "or describe the station with --station",
-                        r.coupler));
-      }
-    }
+    check_answered_window(r, catalog, a, p->t.position);
     // The station file keeps only what differs from the type's defaults.
     auto regs = std::move(r.regs.back());
     r.regs.pop_back();
     r.r8.pop_back();
     r.spec.terminals.pop_back();
-    add_scanned_terminal(r, *type, r8, std::move(regs));
-    prev_type = type;
-    prev_aligned = same_window(win, cands[0]);
+    add_scanned_terminal(r, *a.type, a.r8, std::move(regs));
+    prev_type = a.type;
+    prev_aligned = same_window(a.win, p->cands[0]);
   }
   r.layout = scan_layout(r, catalog);
   if (r.complete) {
