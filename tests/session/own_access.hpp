@@ -1,6 +1,6 @@
 // A register access and engine of a test's own over an image link, and a session on them: what a
 // test of the handshake builds. The library has no such session: a port has one access and engine
-// (discovery/port.hpp open_port_uri), and every register operation runs on them.
+// (discovery/port.hpp open_port), and every register operation runs on them.
 #pragma once
 #include <utility>
 

@@ -75,7 +75,7 @@ struct DiscoveryOptions {
 // command needs. With a cache directory, an earlier run's scan is used when the coupler reports
 // the same image lengths (one request; docs/transports/modbus.md section 6), and a scan is kept there, with the
 // terminals' acknowledge latencies, for the next run: the latencies kept are given to the link
-// here, before its first session. Its sessions run on the port's `engine` (open_port_uri).
+// here, before its first session. Its sessions run on the port's `engine` (open_port).
 // Refers to `link` and `engine`: destroy it first.
 std::unique_ptr<StationDiscovery> discover_by_scan(ModbusLink& link, Engine& engine, const Catalog& catalog,
                                                    const SessionOptions& so, DiscoveryOptions opt = {});

@@ -156,7 +156,7 @@ class EmulatorStore {
 };
 
 // The emulated station's image as a Link. The station (or the store that keeps it in its state
-// file, and saves it) is owned by whoever made the link (open_port_uri: the opened port).
+// file, and saves it) is owned by whoever made the link (open_port(): the emulator's Port).
 class EmulatorLink : public Link {
  public:
   explicit EmulatorLink(EmulatedStation& station);  // described as emu:mem

@@ -27,7 +27,7 @@ HandshakeOptions handshake_options(const SessionOptions& so);
 class RegisterSession {
  public:
   // On the port's engine (its one register access: the process-image handshake, or ADS port 100;
-  // discovery/port.hpp open_port_uri). There is no session with an access of its own: two accesses
+  // discovery/port.hpp open_port). There is no session with an access of its own: two accesses
   // on one port would each save and restore a channel's bytes, and over ADS the handshake would
   // write into the output image.
   RegisterSession(Engine& engine, const TerminalImage& terminal, unsigned channel, SessionOptions opt = {});
