@@ -492,10 +492,6 @@ std::vector<AdsClient::Reply> AdsClient::run_batch(std::span<const Call> calls, 
           ++b.finished;
         }
       };
-      if (h.error != 0 && c.may_be_unserved) {
-        finish(Reply{0, {}, h.error});
-        continue;
-      }
       if (h.error != 0) {
         disconnect();
         throw ads_error(h.error, c.port, what_of(index));

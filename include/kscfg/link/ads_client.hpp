@@ -72,14 +72,10 @@ class AdsClient {
     bool repeatable = true;
     unsigned timeout_ms = 0;  // 0: AdsOptions::response_timeout_ms
     std::string what;         // for messages: "reading terminal 3 channel 1 R8"
-    // A command the device may not serve (an ADS sum command): an AMS error in the reply's header
-    // comes back in Reply::ams_error, the connection kept, instead of being thrown.
-    bool may_be_unserved = false;
   };
   struct Reply {
     std::uint32_t result = 0;        // ADS return code (0: done)
     std::vector<std::uint8_t> data;  // Read/ReadWrite: the data; ReadDeviceInfo: version and name
-    std::uint32_t ams_error = 0;     // Call::may_be_unserved: the AMS error of the reply's header
   };
 
   AdsClient(AdsTarget target, AdsOptions opt);
