@@ -149,7 +149,14 @@ class HandshakeAccess final : public RegisterAccess {
   void save(std::vector<Chan*>& chans, std::vector<Program*>& done);
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
+  void plan_request(Chan& c, const RegisterOp& op);  // no request out yet: a look, or op's request
+  void plan_ahead(Chan& c, const Request& r);        // what the poll at the estimate may carry
+  // What the exchange brought channel c (c.act): a look, a request sent, a poll's answer or none.
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
+  void request_sent(Chan& c, Clock::time_point t);
+  void answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done);
+  void not_answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done);
+  static std::uint16_t value_of(const Chan& c);  // the value bytes of c's input
   // After requests went out in the exchange at `sent`, the first polls still waiting go out
   // together, at the latest of their due times within reach (docs/engine.md section 2.2).
   void align_first_polls(Clock::time_point sent);
