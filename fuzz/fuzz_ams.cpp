@@ -24,7 +24,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     auto q = ams::parse_request(cmd, in);
     if (q) FUZZ_CHECK(q->data.size() <= size);
   }
-  // The sum command's codecs (AdsImageLink::transfer, the emulator's 0xF082): the count from the
+  // The sum command's codecs (the emulator's 0xF082): the count from the
   // first two bytes, so huge counts are tried too; what parses stays within the input, and a
   // parsed request encodes back to the same sub-commands.
   if (size >= 2) {

@@ -64,7 +64,7 @@ std::optional<std::vector<std::uint16_t>> read_table9(AdsClient& client, unsigne
 // ReadDeviceInfo on port 100 (name and version) into r.ident. An ADS result other than 0 leaves
 // it unknown, as a Modbus coupler that refuses 0x1000..0x1006.
 void read_device_info(AdsClient& client, ScanResult& r) {
-  AdsClient::Call c{adsport::kRegisters, ams::kReadDeviceInfo, {}, true, 0, "ReadDeviceInfo"};
+  AdsClient::Call c{.port = adsport::kRegisters, .command = ams::kReadDeviceInfo, .data = {}, .what = "ReadDeviceInfo"};
   AdsClient::Reply rep;
   try {
     rep = client.call(c);

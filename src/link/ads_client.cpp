@@ -16,6 +16,7 @@
 #include <cstring>
 #include <deque>
 #include <map>
+#include <memory>
 #include <optional>
 
 #include "kscfg/base/cancel.hpp"
@@ -40,7 +41,15 @@ void check_interrupt(const AdsOptions& o) {
 }  // namespace
 
 struct AdsClient::Batch {
-  explicit Batch(std::size_t n) : first(n), done(n, false), timeouts(n) {}
+  Batch(std::span<const Call> c, unsigned default_timeout_ms)
+      : calls(c), replies(c.size()), first(c.size()), done(c.size(), false), timeouts(c.size()) {
+    for (std::size_t i = 0; i < calls.size(); ++i) {
+      todo.push_back(i);
+      timeouts[i] = milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : default_timeout_ms);
+    }
+  }
+  std::span<const Call> calls;
+  std::vector<Reply> replies;
   Clock::time_point start = Clock::now();
   std::vector<std::optional<Clock::time_point>> first;  // when each call first went out
   std::vector<bool> done;
@@ -51,6 +60,13 @@ struct AdsClient::Batch {
   unsigned turned_away = 0;                      // fresh connections closed before any answer (a full server)
   std::optional<Clock::time_point> busy_since;   // the first of them
   bool full = false;                             // given up because the server is full: not silent
+
+  std::string what_of(std::size_t i) const;  // for messages
+  // The earliest deadline of the calls that went out and wait for an answer (on the connection, or
+  // to be sent again).
+  Clock::time_point earliest() const;
+  std::vector<std::size_t> outstanding() const;  // the calls on the connection, in order
+  void answer(std::size_t i, Reply r);
 };
 
 AdsClient::AdsClient(AdsTarget target, AdsOptions opt) : target_(std::move(target)), opt_(std::move(opt)) {
@@ -103,20 +119,53 @@ void AdsClient::connect(Clock::time_point until) {
   }
 }
 
+namespace {
+
+struct ConnectWait {
+  int err = 0;             // 0: connected
+  bool timed_out = false;  // the connect timeout ran out
+};
+
+// Waits for the non-blocking connect of `fd` to finish within `timeout`. Cancellation closes `fd`
+// and throws Error(interrupted).
+ConnectWait await_connect(int fd, milliseconds timeout, const AdsOptions& o) {
+  auto start = Clock::now();
+  for (;;) {
+    if (cancelled(o)) {
+      ::close(fd);
+      check_interrupt(o);
+    }
+    long long left = timeout.count() - ms_since(start);
+    if (left <= 0) return {ETIMEDOUT, true};
+    pollfd p{fd, POLLOUT, 0};
+    int n = ::poll(&p, 1, static_cast<int>(std::min<long long>(left, kSlice)));
+    if (n < 0 && errno != EINTR) return {errno, false};
+    if (n > 0) {
+      int so = 0;
+      socklen_t sl = sizeof so;
+      getsockopt(fd, SOL_SOCKET, SO_ERROR, &so, &sl);
+      return {so, false};
+    }
+  }
+}
+
+}  // namespace
+
 void AdsClient::connect_once(milliseconds timeout) {
   disconnect();
   connect_errno_ = 0;
-  addrinfo hints{}, *res = nullptr;
+  addrinfo hints{}, *found = nullptr;
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
   std::string service = std::to_string(target_.port);
-  if (int rc = getaddrinfo(target_.host.c_str(), service.c_str(), &hints, &res); rc != 0)
+  if (int rc = getaddrinfo(target_.host.c_str(), service.c_str(), &hints, &found); rc != 0)
     throw Error(Exit::link, fmt::format("cannot resolve host '{}': {}", target_.host, gai_strerror(rc)),
                 "check the host name or give an IP address");
+  std::unique_ptr<addrinfo, void (*)(addrinfo*)> res(found, freeaddrinfo);
   int err = ECONNREFUSED;
   bool timed_out = false;
   const auto began = Clock::now();
-  for (addrinfo* ai = res; ai && fd_ < 0; ai = ai->ai_next) {
+  for (addrinfo* ai = res.get(); ai && fd_ < 0; ai = ai->ai_next) {
     int fd = ::socket(ai->ai_family, ai->ai_socktype | SOCK_CLOEXEC | SOCK_NONBLOCK, ai->ai_protocol);
     if (fd < 0) {
       err = errno;
@@ -128,43 +177,18 @@ void AdsClient::connect_once(milliseconds timeout) {
       ::close(fd);
       continue;
     }
-    auto start = Clock::now();
-    while (rc != 0) {
-      if (cancelled(opt_)) {
-        ::close(fd);
-        freeaddrinfo(res);
-        check_interrupt(opt_);
-      }
-      long long left = timeout.count() - ms_since(start);
-      if (left <= 0) {
-        timed_out = true;
-        err = ETIMEDOUT;
-        break;
-      }
-      pollfd p{fd, POLLOUT, 0};
-      int n = ::poll(&p, 1, static_cast<int>(std::min<long long>(left, kSlice)));
-      if (n < 0 && errno != EINTR) {
-        err = errno;
-        break;
-      }
-      if (n > 0) {
-        int so = 0;
-        socklen_t sl = sizeof so;
-        getsockopt(fd, SOL_SOCKET, SO_ERROR, &so, &sl);
-        if (so != 0) {
-          err = so;
-          break;
-        }
-        rc = 0;
-      }
-    }
     if (rc != 0) {
-      ::close(fd);
-      continue;
+      ConnectWait w = await_connect(fd, timeout, opt_);
+      if (w.err != 0) {
+        err = w.err;
+        if (w.timed_out) timed_out = true;
+        ::close(fd);
+        continue;
+      }
     }
     fd_ = fd;
   }
-  freeaddrinfo(res);
+  res.reset();
   if (fd_ < 0) {
     connect_errno_ = err;
     if (timed_out)
@@ -177,6 +201,10 @@ void AdsClient::connect_once(milliseconds timeout) {
     throw Error(Exit::link, fmt::format("cannot connect to {}: {}", target_.where(), std::strerror(err)),
                 "check the address and the network");
   }
+  connected();
+}
+
+void AdsClient::connected() {
   int one = 1;
   setsockopt(fd_, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
   ++connects_;
@@ -280,13 +308,9 @@ bool AdsClient::receive(int ms) {
 
 std::vector<AdsClient::Reply> AdsClient::transact(std::span<const Call> calls) {
   if (!dead_.empty()) throw Error(Exit::link, dead_, "check that the coupler is running and reachable");
-  Batch b(calls.size());
-  for (std::size_t i = 0; i < calls.size(); ++i) {
-    b.todo.push_back(i);
-    b.timeouts[i] = milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms);
-  }
+  Batch b(calls, opt_.response_timeout_ms);
   try {
-    return run_batch(calls, b);
+    return run_batch(b);
   } catch (const Error& e) {
     if (e.code() == Exit::link || e.code() == Exit::timeout || e.code() == Exit::interrupted) gave_up(b);
     throw;
@@ -307,143 +331,205 @@ void AdsClient::gave_up(const Batch& b) {
     dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
 }
 
-std::vector<AdsClient::Reply> AdsClient::run_batch(std::span<const Call> calls, Batch& b) {
-  std::vector<Reply> replies(calls.size());
-  const milliseconds busy_wait(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
-  auto timeout_of = [&](std::size_t i) {
-    return milliseconds(calls[i].timeout_ms ? calls[i].timeout_ms : opt_.response_timeout_ms);
-  };
-  auto what_of = [&](std::size_t i) {
-    return calls[i].what.empty() ? ams::command_name(calls[i].command) : calls[i].what;
-  };
-  // The earliest deadline of the calls that went out and wait for an answer (on the connection, or
-  // to be sent again).
-  auto earliest = [&] {
-    auto t = Clock::time_point::max();
-    auto take = [&](std::size_t i) {
-      if (b.first[i]) t = std::min(t, *b.first[i] + timeout_of(i));
-    };
-    for (const auto& [id, i] : b.pending) take(i);
-    for (std::size_t i : b.todo) take(i);
-    return t;
-  };
-  auto header_for = [&](const Call& c, std::uint32_t invoke) {
-    ams::Header h;
-    h.target = target_id_;
-    h.target_port = c.port;
-    h.source = source_id_;
-    h.source_port = kSourcePort;
-    h.command = c.command;
-    h.flags = ams::kFlagAdsCommand;
-    h.invoke = invoke;
-    return h;
-  };
-  // The connection went away with calls outstanding. Repeatable ones go out again on a fresh
-  // connection, ahead of the calls not sent yet, within their deadlines; a call that is not
-  // repeatable has an unknown outcome. A connection closed or reset before any answer came on it is
-  // a full server (all its connections in use; serve --ads closes one more at once) or one that
-  // turns this client away: tried again over the busy wait, as a Modbus server that answers busy.
-  auto lost = [&](const Error& why) {
-    disconnect();
-    const bool full = !answered_;
-    auto outstanding = [&] {
-      std::vector<std::size_t> v;
-      for (const auto& [id, i] : b.pending) v.push_back(i);
-      std::sort(v.begin(), v.end());
-      return v;
-    };
-    auto v = outstanding();
-    std::string first_what = what_of(v.empty() ? (b.todo.empty() ? 0 : b.todo.front()) : v.front());
-    auto full_error = [&](const std::string& more) {
-      b.full = true;
-      return Error(Exit::link,
-                   fmt::format("the ADS server at {} is full: it closed the connection before answering, {} "
-                               "time{} in {} ms ({}: {}){}",
-                               target_.where(), b.turned_away + 1, b.turned_away ? "s" : "",
-                               b.busy_since ? ms_since(*b.busy_since) : 0, first_what, why.what(), more),
-                   "all its connections are in use (other ADS clients of the coupler, or kscfg serve "
-                   "--max-connections); close one or try again later");
-    };
-    if (full && !b.busy_since) b.busy_since = Clock::now();
-    for (std::size_t i : v)
-      if (!calls[i].repeatable) {
-        std::string w = calls[i].what.empty() ? "a write" : calls[i].what;
-        if (full) throw full_error(fmt::format("; the outcome of {} is unknown: read the value back", w));
-        throw Error(Exit::link, fmt::format("{} ({}); the outcome of {} is unknown", why.what(), target_.where(), w),
-                    "read the value back to see whether it was written");
-      }
-    auto until = earliest();
-    if (full) {
-      auto pause = busy::pause(b.turned_away + 1);
-      auto next = Clock::now() + pause;
-      if (next - *b.busy_since > busy_wait || next >= until) throw full_error("");
-      ++b.turned_away;
-      if (opt_.trace)
-        opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again in {} ms",
-                               target_.where(), why.what(), pause.count()));
-      if (!sleep_for_or_cancelled(pause, opt_.cancel)) check_interrupt(opt_);
-    } else {
-      if (Clock::now() >= until) throw why;
-      if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), v.size()));
-    }
-    b.pending.clear();
-    for (auto it = v.rbegin(); it != v.rend(); ++it) b.todo.push_front(*it);
-  };
+std::string AdsClient::Batch::what_of(std::size_t i) const {
+  return calls[i].what.empty() ? ams::command_name(calls[i].command) : calls[i].what;
+}
 
-  while (b.finished < calls.size()) {
+Clock::time_point AdsClient::Batch::earliest() const {
+  auto t = Clock::time_point::max();
+  auto take = [&](std::size_t i) {
+    if (first[i]) t = std::min(t, *first[i] + timeouts[i]);
+  };
+  for (const auto& [id, i] : pending) take(i);
+  for (std::size_t i : todo) take(i);
+  return t;
+}
+
+std::vector<std::size_t> AdsClient::Batch::outstanding() const {
+  std::vector<std::size_t> v;
+  for (const auto& [id, i] : pending) v.push_back(i);
+  std::sort(v.begin(), v.end());
+  return v;
+}
+
+void AdsClient::Batch::answer(std::size_t i, Reply r) {
+  replies[i] = std::move(r);
+  if (!done[i]) {
+    done[i] = true;
+    ++finished;
+  }
+}
+
+ams::Header AdsClient::header_for(const Call& c, std::uint32_t invoke) const {
+  ams::Header h;
+  h.target = target_id_;
+  h.target_port = c.port;
+  h.source = source_id_;
+  h.source_port = kSourcePort;
+  h.command = c.command;
+  h.flags = ams::kFlagAdsCommand;
+  h.invoke = invoke;
+  return h;
+}
+
+// The connection went away with calls outstanding. Repeatable ones go out again on a fresh
+// connection, ahead of the calls not sent yet, within their deadlines; a call that is not
+// repeatable has an unknown outcome. A connection closed or reset before any answer came on it is
+// a full server (all its connections in use; serve --ads closes one more at once) or one that
+// turns this client away: tried again over the busy wait, as a Modbus server that answers busy.
+void AdsClient::connection_lost(Batch& b, const Error& why) {
+  disconnect();
+  const bool full = !answered_;
+  const milliseconds busy_wait(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
+  auto v = b.outstanding();
+  std::string first_what = b.what_of(v.empty() ? (b.todo.empty() ? 0 : b.todo.front()) : v.front());
+  auto full_error = [&](const std::string& more) {
+    b.full = true;
+    return Error(Exit::link,
+                 fmt::format("the ADS server at {} is full: it closed the connection before answering, {} "
+                             "time{} in {} ms ({}: {}){}",
+                             target_.where(), b.turned_away + 1, b.turned_away ? "s" : "",
+                             b.busy_since ? ms_since(*b.busy_since) : 0, first_what, why.what(), more),
+                 "all its connections are in use (other ADS clients of the coupler, or kscfg serve "
+                 "--max-connections); close one or try again later");
+  };
+  if (full && !b.busy_since) b.busy_since = Clock::now();
+  for (std::size_t i : v)
+    if (!b.calls[i].repeatable) {
+      std::string w = b.calls[i].what.empty() ? "a write" : b.calls[i].what;
+      if (full) throw full_error(fmt::format("; the outcome of {} is unknown: read the value back", w));
+      throw Error(Exit::link, fmt::format("{} ({}); the outcome of {} is unknown", why.what(), target_.where(), w),
+                  "read the value back to see whether it was written");
+    }
+  auto until = b.earliest();
+  if (full) {
+    auto pause = busy::pause(b.turned_away + 1);
+    auto next = Clock::now() + pause;
+    if (next - *b.busy_since > busy_wait || next >= until) throw full_error("");
+    ++b.turned_away;
+    if (opt_.trace)
+      opt_.trace(fmt::format("ads: {} closed the connection before answering ({}): full? trying again in {} ms",
+                             target_.where(), why.what(), pause.count()));
+    if (!sleep_for_or_cancelled(pause, opt_.cancel)) check_interrupt(opt_);
+  } else {
+    if (Clock::now() >= until) throw why;
+    if (opt_.trace) opt_.trace(fmt::format("ads: {}; sending {} request(s) again", why.what(), v.size()));
+  }
+  b.pending.clear();
+  for (auto it = v.rbegin(); it != v.rend(); ++it) b.todo.push_front(*it);
+}
+
+// A connection idle for longer than the coupler keeps one, or closed by it: open a fresh one.
+void AdsClient::fresh_connection(const Batch& b) {
+  bool idle = fd_ >= 0 && ms_since(last_activity_) + 500 >= static_cast<long long>(opt_.idle_cut_ms);
+  bool was_open = fd_ >= 0;
+  if (fd_ < 0 || idle || peer_closed()) {
+    if (opt_.trace && was_open)
+      opt_.trace(idle ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
+                                    ms_since(last_activity_), opt_.idle_cut_ms)
+                      : std::string("ads: reopening the connection (the coupler closed it)"));
+    connect(b.earliest());
+  }
+}
+
+void AdsClient::fill_window(Batch& b) {
+  // Repeats first, then new calls.
+  while (b.pending.size() < opt_.window && !b.todo.empty()) {
+    std::size_t i = b.todo.front();
+    if (b.pending.empty()) fresh_connection(b);
+    std::uint32_t invoke = next_invoke_++;
+    if (next_invoke_ == 0) next_invoke_ = 1;
+    auto frame = ams::encode(header_for(b.calls[i], invoke), b.calls[i].data);
+    b.todo.pop_front();
+    if (!b.first[i]) b.first[i] = Clock::now();
+    b.pending[invoke] = i;
+    try {
+      send_all(frame);
+    } catch (const Error& e) {
+      if (e.code() == Exit::interrupted) throw;
+      connection_lost(b, e);
+      continue;
+    }
+    ++exchanges_;
+    last_activity_ = Clock::now();
+  }
+}
+
+long long AdsClient::wait_within_deadlines(const Batch& b) const {
+  // The earliest deadline bounds the wait; a call past it is given up, never sent again.
+  long long wait = kSlice;
+  std::optional<std::size_t> late;
+  for (const auto& [id, i] : b.pending) {
+    long long left = std::chrono::duration_cast<milliseconds>(*b.first[i] + b.timeouts[i] - Clock::now()).count();
+    if (left < 0 && !late) late = i;
+    wait = std::min(wait, left);
+  }
+  if (late) {
+    std::size_t i = *late;
+    const Call& c = b.calls[i];
+    throw Error(
+        Exit::link,
+        fmt::format("no answer from {} within {} ms ({})", target_.where(), ms_since(*b.first[i]), b.what_of(i)),
+        c.port != adsport::kRegisters ? "check that the coupler is running and reachable"
+        : b.timeouts[i].count() <= 1000
+            ? "the coupler needs more than 1 s for a register access: --timeout 2000"
+            : "check that the coupler is running and reachable; a register access needs a timeout above "
+              "1 s (--timeout)");
+  }
+  return wait;
+}
+
+void AdsClient::take_frames(Batch& b) {
+  for (;;) {
+    auto fc = ams::check_frame(in_);
+    if (fc.status == ams::FrameCheck::need_more) break;
+    answered_ = true;
+    last_heard_ = Clock::now();
+    silent_ = 0;
+    if (fc.status == ams::FrameCheck::invalid) {
+      disconnect();
+      throw Error(Exit::link, fmt::format("{} does not answer in AMS/TCP: {}", target_.where(), fc.why),
+                  "check that the port is the coupler's AMS/TCP port (48898)");
+    }
+    std::string why;
+    auto frame = ams::decode(std::span<const std::uint8_t>(in_).first(fc.length), &why);
+    in_.erase(in_.begin(), in_.begin() + static_cast<std::ptrdiff_t>(fc.length));
+    if (!frame) {
+      disconnect();
+      throw Error(Exit::link, fmt::format("malformed AMS frame from {}: {}", target_.where(), why));
+    }
+    const ams::Header& h = frame->header;
+    auto it = b.pending.find(h.invoke);
+    if (!h.response() || it == b.pending.end()) {
+      ++strays_;
+      if (opt_.trace)
+        opt_.trace(fmt::format("ads: frame with invoke id {} ({}) ignored: no request of this run waits for it",
+                               h.invoke, h.response() ? "response" : "request"));
+      continue;
+    }
+    std::size_t index = it->second;
+    const Call& c = b.calls[index];
+    b.pending.erase(it);
+    if (h.error != 0) {
+      disconnect();
+      throw ads_error(h.error, c.port, b.what_of(index));
+    }
+    auto r = ams::parse_response(c.command, frame->data);
+    if (h.command != c.command || !r) {
+      disconnect();
+      throw Error(Exit::link,
+                  fmt::format("{} answered {} with a malformed {} response ({} bytes of data)", target_.where(),
+                              b.what_of(index), ams::command_name(h.command), frame->data.size()));
+    }
+    b.answer(index, Reply{r->result, std::move(r->data)});
+  }
+}
+
+std::vector<AdsClient::Reply> AdsClient::run_batch(Batch& b) {
+  while (b.finished < b.calls.size()) {
     check_interrupt(opt_);
-    // Fill the window: repeats first, then new calls.
-    while (b.pending.size() < opt_.window && !b.todo.empty()) {
-      std::size_t i = b.todo.front();
-      if (b.pending.empty()) {
-        // A connection idle for longer than the coupler keeps one, or closed by it: open a fresh one.
-        bool idle = fd_ >= 0 && ms_since(last_activity_) + 500 >= static_cast<long long>(opt_.idle_cut_ms);
-        bool was_open = fd_ >= 0;
-        if (fd_ < 0 || idle || peer_closed()) {
-          if (opt_.trace && was_open)
-            opt_.trace(idle
-                           ? fmt::format("ads: reopening the connection (idle {} ms; the coupler cuts one after {} ms)",
-                                         ms_since(last_activity_), opt_.idle_cut_ms)
-                           : std::string("ads: reopening the connection (the coupler closed it)"));
-          connect(earliest());
-        }
-      }
-      std::uint32_t invoke = next_invoke_++;
-      if (next_invoke_ == 0) next_invoke_ = 1;
-      auto frame = ams::encode(header_for(calls[i], invoke), calls[i].data);
-      b.todo.pop_front();
-      if (!b.first[i]) b.first[i] = Clock::now();
-      b.pending[invoke] = i;
-      try {
-        send_all(frame);
-      } catch (const Error& e) {
-        if (e.code() == Exit::interrupted) throw;
-        lost(e);
-        continue;
-      }
-      ++exchanges_;
-      last_activity_ = Clock::now();
-    }
-    // The earliest deadline bounds the wait; a call past it is given up, never sent again.
-    long long wait = kSlice;
-    std::optional<std::size_t> late;
-    for (const auto& [id, i] : b.pending) {
-      long long left = std::chrono::duration_cast<milliseconds>(*b.first[i] + timeout_of(i) - Clock::now()).count();
-      if (left < 0 && !late) late = i;
-      wait = std::min(wait, left);
-    }
-    if (late) {
-      std::size_t i = *late;
-      const Call& c = calls[i];
-      throw Error(
-          Exit::link,
-          fmt::format("no answer from {} within {} ms ({})", target_.where(), ms_since(*b.first[i]), what_of(i)),
-          c.port != adsport::kRegisters ? "check that the coupler is running and reachable"
-          : timeout_of(i).count() <= 1000
-              ? "the coupler needs more than 1 s for a register access: --timeout 2000"
-              : "check that the coupler is running and reachable; a register access needs a timeout above "
-                "1 s (--timeout)");
-    }
+    fill_window(b);
+    long long wait = wait_within_deadlines(b);
     try {
       if (!receive(static_cast<int>(wait))) continue;
     } catch (const Error& e) {
@@ -451,73 +537,20 @@ std::vector<AdsClient::Reply> AdsClient::run_batch(std::span<const Call> calls, 
         disconnect();
         throw;
       }
-      lost(e);
+      connection_lost(b, e);
       continue;
     }
     last_activity_ = Clock::now();
-    for (;;) {
-      auto fc = ams::check_frame(in_);
-      if (fc.status == ams::FrameCheck::need_more) break;
-      answered_ = true;
-      last_heard_ = Clock::now();
-      silent_ = 0;
-      if (fc.status == ams::FrameCheck::invalid) {
-        disconnect();
-        throw Error(Exit::link, fmt::format("{} does not answer in AMS/TCP: {}", target_.where(), fc.why),
-                    "check that the port is the coupler's AMS/TCP port (48898)");
-      }
-      std::string why;
-      auto frame = ams::decode(std::span<const std::uint8_t>(in_).first(fc.length), &why);
-      in_.erase(in_.begin(), in_.begin() + static_cast<std::ptrdiff_t>(fc.length));
-      if (!frame) {
-        disconnect();
-        throw Error(Exit::link, fmt::format("malformed AMS frame from {}: {}", target_.where(), why));
-      }
-      const ams::Header& h = frame->header;
-      auto it = b.pending.find(h.invoke);
-      if (!h.response() || it == b.pending.end()) {
-        ++strays_;
-        if (opt_.trace)
-          opt_.trace(fmt::format("ads: frame with invoke id {} ({}) ignored: no request of this run waits for it",
-                                 h.invoke, h.response() ? "response" : "request"));
-        continue;
-      }
-      std::size_t index = it->second;
-      const Call& c = calls[index];
-      b.pending.erase(it);
-      auto finish = [&](Reply r) {
-        replies[index] = std::move(r);
-        if (!b.done[index]) {
-          b.done[index] = true;
-          ++b.finished;
-        }
-      };
-      if (h.error != 0 && c.may_be_unserved) {
-        finish(Reply{0, {}, h.error});
-        continue;
-      }
-      if (h.error != 0) {
-        disconnect();
-        throw ads_error(h.error, c.port, what_of(index));
-      }
-      auto r = ams::parse_response(c.command, frame->data);
-      if (h.command != c.command || !r) {
-        disconnect();
-        throw Error(Exit::link,
-                    fmt::format("{} answered {} with a malformed {} response ({} bytes of data)", target_.where(),
-                                what_of(index), ams::command_name(h.command), frame->data.size()));
-      }
-      finish(Reply{r->result, std::move(r->data)});
-    }
+    take_frames(b);
   }
-  return replies;
+  return std::move(b.replies);
 }
 
 AdsClient::Reply AdsClient::call(const Call& c) { return transact(std::span<const Call>(&c, 1)).front(); }
 
 std::vector<std::uint8_t> AdsClient::read(std::uint16_t port, std::uint32_t group, std::uint32_t offset,
                                           std::uint32_t length, const std::string& what) {
-  Call c{port, ams::kRead, ams::read_request(group, offset, length), true, 0, what};
+  Call c{.port = port, .command = ams::kRead, .data = ams::read_request(group, offset, length), .what = what};
   Reply r = call(c);
   if (r.result != 0) throw ads_error(r.result, port, what);
   if (r.data.size() != length)
@@ -528,13 +561,17 @@ std::vector<std::uint8_t> AdsClient::read(std::uint16_t port, std::uint32_t grou
 
 void AdsClient::write(std::uint16_t port, std::uint32_t group, std::uint32_t offset, std::span<const std::uint8_t> data,
                       const std::string& what, bool repeatable) {
-  Call c{port, ams::kWrite, ams::write_request(group, offset, data), repeatable, 0, what};
+  Call c{.port = port,
+         .command = ams::kWrite,
+         .data = ams::write_request(group, offset, data),
+         .repeatable = repeatable,
+         .what = what};
   Reply r = call(c);
   if (r.result != 0) throw ads_error(r.result, port, what);
 }
 
 AdsClient::DeviceInfo AdsClient::device_info(std::uint16_t port) {
-  Call c{port, ams::kReadDeviceInfo, {}, true, 0, "ReadDeviceInfo"};
+  Call c{.port = port, .command = ams::kReadDeviceInfo, .data = {}, .what = "ReadDeviceInfo"};
   Reply r = call(c);
   if (r.result != 0) throw ads_error(r.result, port, "ReadDeviceInfo");
   DeviceInfo d;

@@ -218,136 +218,153 @@ int ModbusClient::wait_reply(Clock::time_point sent, P&& parse) {
 }
 
 template <class F, class P>
+int ModbusClient::attempt(F&& f, P&& parse, Clock::time_point& sent) {
+  if (!dead_.empty())
+    throw Error(Exit::link, dead_,
+                target_.tcp ? "check that the coupler is running and reachable" : "check the line and the coupler");
+  if (cancelled()) throw Error(Exit::interrupted, "interrupted");
+  if (!ctx_) connect();
+  if (drain_) {
+    drain_ = false;
+    drain_late_reply();
+    modbus_flush(ctx_);
+  }
+  ++exchanges_;
+  errno = 0;
+  sent = Clock::now();
+  set_response_timeout(
+      std::min<std::chrono::microseconds>(std::chrono::milliseconds(opt_.response_timeout_ms), kSlice));
+  int rc = f(ctx_);
+  if (rc < 0 && errno == ETIMEDOUT) rc = wait_reply(sent, parse);
+  return rc;
+}
+
+template <class F, class P>
 void ModbusClient::run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused) {
-  unsigned timeouts = 0, others = 0, busy_tries = 0;
-  bool busy = false;  // an attempt was answered "busy" (exception 6)
-  std::optional<Clock::time_point> busy_since;
+  Attempts a;
   for (;;) {
-    if (!dead_.empty())
-      throw Error(Exit::link, dead_,
-                  target_.tcp ? "check that the coupler is running and reachable" : "check the line and the coupler");
-    if (cancelled()) throw Error(Exit::interrupted, "interrupted");
-    if (!ctx_) connect();
-    if (drain_) {
-      drain_ = false;
-      drain_late_reply();
-      modbus_flush(ctx_);
-    }
-    ++exchanges_;
-    errno = 0;
-    auto sent = Clock::now();
-    set_response_timeout(
-        std::min<std::chrono::microseconds>(std::chrono::milliseconds(opt_.response_timeout_ms), kSlice));
-    int rc = f(ctx_);
-    if (rc < 0 && errno == ETIMEDOUT) rc = wait_reply(sent, parse);
-    if (rc >= 0) {
+    Clock::time_point sent;
+    if (attempt(f, parse, sent) >= 0) {
       silent_ = 0;
       return;
     }
     int e = errno;
-    if (e == EINTR && cancelled()) {
-      // Given up on: its reply may still come. TCP leaves it behind with the connection; RTU reads
-      // it off the line before the next request (drain_late_reply).
-      if (opt_.trace)
-        opt_.trace(fmt::format("modbus {}: interrupted after waiting {} ms for the reply ({})", what,
-                               std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - sent).count(),
-                               target_.where()));
-      if (target_.tcp) disconnect();
-      else drain_ = true;
-      // An attempt of it had gone unanswered already: that counts towards a dead link.
-      if (timeouts > 0 && ++silent_ >= 2)
-        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
-      throw Error(Exit::interrupted, "interrupted");
+    if (e == EINTR && cancelled()) interrupted(what, sent, a);
+    if (!try_again(what, addr, count, e, a, refused)) return;
+  }
+}
+
+void ModbusClient::interrupted(const std::string& what, Clock::time_point sent, const Attempts& a) {
+  // Given up on: its reply may still come. TCP leaves it behind with the connection; RTU reads
+  // it off the line before the next request (drain_late_reply).
+  if (opt_.trace)
+    opt_.trace(fmt::format("modbus {}: interrupted after waiting {} ms for the reply ({})", what,
+                           std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - sent).count(),
+                           target_.where()));
+  if (target_.tcp) disconnect();
+  else drain_ = true;
+  // An attempt of it had gone unanswered already: that counts towards a dead link.
+  if (a.timeouts > 0 && ++silent_ >= 2)
+    dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
+  throw Error(Exit::interrupted, "interrupted");
+}
+
+bool ModbusClient::try_again(const std::string& what, std::uint16_t addr, unsigned count, int e, Attempts& a,
+                             bool* refused) {
+  bool timeout = e == ETIMEDOUT;
+  bool transient = is_garbled(e) || e == EMBXSBUSY || is_broken(e);
+  if (opt_.trace) opt_.trace(fmt::format("modbus {}: {} ({})", what, errtext(e), target_.where()));
+  if (is_exception(e) && e != EMBXSBUSY) {
+    silent_ = 0;
+    int code = e - MODBUS_ENOBASE;
+    if (code == 2 && refused) {
+      *refused = true;
+      return false;
     }
-    bool timeout = e == ETIMEDOUT;
-    bool transient = is_garbled(e) || e == EMBXSBUSY || is_broken(e);
-    if (opt_.trace) opt_.trace(fmt::format("modbus {}: {} ({})", what, errtext(e), target_.where()));
-    if (is_exception(e) && e != EMBXSBUSY) {
-      silent_ = 0;
-      int code = e - MODBUS_ENOBASE;
-      if (code == 2 && refused) {
-        *refused = true;
-        return;
-      }
-      std::string hint;
-      if (code == 11 || code == 10) hint = fmt::format("check the unit id (?unit=N; this link uses {})", target_.unit);
-      else if (code == 2) hint = illegal_address_hint(addr, count);
-      else if (code == 4) hint = "the coupler reports a watchdog or K-bus error";
-      throw Error(Exit::link, fmt::format("{} from {} ({})", errtext(e), target_.where(), what), hint);
-    }
-    if (!timeout && !transient)
-      throw Error(Exit::link, fmt::format("{} failed on {}: {}", what, target_.where(), errtext(e)));
-    // Busy (kscfg serve at its connection limit answers busy, then closes the connection): tried
-    // again over the busy wait, the pauses growing (link/busy.hpp).
-    if (e == EMBXSBUSY || (busy && is_broken(e))) {
-      busy = true;
-      silent_ = 0;
-      auto now = Clock::now();
-      if (!busy_since) busy_since = now;
-      auto pause = busy::pause(busy_tries + 1);
-      auto wait = std::chrono::milliseconds(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
-      if (now + pause - *busy_since <= wait) {
-        ++busy_tries;
-        ++retried_;
-        if (is_broken(e)) {
-          broke_ = errtext(e);
-          disconnect();
-        }
-        if (!sleep_for_or_cancelled(pause, opt_.cancel)) throw Error(Exit::interrupted, "interrupted");
-        if (ctx_) modbus_flush(ctx_);
-        continue;
-      }
-      unsigned n = timeouts + others + busy_tries + 1;
-      auto spent = std::chrono::duration_cast<std::chrono::milliseconds>(now - *busy_since).count();
-      if (target_.tcp)
-        // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
-        // and closes the connection, so the attempts after it end in a reset.
-        throw Error(Exit::link,
-                    e == EMBXSBUSY ? fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(),
-                                                 what, n, spent)
-                                   : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {} attempts in "
-                                                 "{} ms)",
-                                                 target_.where(), errtext(e), what, n, spent),
-                    "another master holds the coupler, or a server's connection limit is reached "
-                    "(kscfg serve --max-connections); try again later");
+    std::string hint;
+    if (code == 11 || code == 10) hint = fmt::format("check the unit id (?unit=N; this link uses {})", target_.unit);
+    else if (code == 2) hint = illegal_address_hint(addr, count);
+    else if (code == 4) hint = "the coupler reports a watchdog or K-bus error";
+    throw Error(Exit::link, fmt::format("{} from {} ({})", errtext(e), target_.where(), what), hint);
+  }
+  if (!timeout && !transient)
+    throw Error(Exit::link, fmt::format("{} failed on {}: {}", what, target_.where(), errtext(e)));
+  if (e == EMBXSBUSY || (a.busy && is_broken(e))) {
+    wait_while_busy(what, e, a);
+    return true;
+  }
+  if ((timeout && a.timeouts >= opt_.timeout_retries) || (!timeout && a.others >= opt_.retries)) {
+    std::string attempts = fmt::format("{} attempt{}", a.timeouts + a.others + 1, a.timeouts + a.others ? "s" : "");
+    // No answer at all, attempt after attempt: after the second such request the link is dead.
+    if ((timeout || is_broken(e)) && ++silent_ >= 2)
+      dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
+    if (timeout)
       throw Error(Exit::link,
-                  fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(), what, n, spent),
-                  "another master is writing the outputs");
-    }
-    if ((timeout && timeouts >= opt_.timeout_retries) || (!timeout && others >= opt_.retries)) {
-      std::string attempts = fmt::format("{} attempt{}", timeouts + others + 1, timeouts + others ? "s" : "");
-      // No answer at all, attempt after attempt: after the second such request the link is dead.
-      if ((timeout || is_broken(e)) && ++silent_ >= 2)
-        dead_ = fmt::format("the link to {} is down (no answer to {} requests in a row)", target_.where(), silent_);
-      if (timeout)
-        throw Error(Exit::link,
-                    fmt::format("no answer from {} within {} ms ({}, {})", target_.where(), opt_.response_timeout_ms,
-                                what, attempts),
-                    target_.tcp ? "check that the coupler is running and the unit id (?unit=N)"
-                                : "check the unit id (?unit=N), baud rate, parity and wiring");
-      throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
-                  !target_.tcp   ? "check the line and its termination"
-                  : is_broken(e) ? "the coupler closed the connection: check that it is running and that no other "
-                                   "master holds it"
-                                 : "the replies are not Modbus TCP: check that the port is the coupler's (502)");
-    }
-    (timeout ? timeouts : others)++;
+                  fmt::format("no answer from {} within {} ms ({}, {})", target_.where(), opt_.response_timeout_ms,
+                              what, attempts),
+                  target_.tcp ? "check that the coupler is running and the unit id (?unit=N)"
+                              : "check the unit id (?unit=N), baud rate, parity and wiring");
+    throw Error(Exit::link, fmt::format("{} from {} ({}, {})", errtext(e), target_.where(), what, attempts),
+                !target_.tcp   ? "check the line and its termination"
+                : is_broken(e) ? "the coupler closed the connection: check that it is running and that no other "
+                                 "master holds it"
+                               : "the replies are not Modbus TCP: check that the port is the coupler's (502)");
+  }
+  (timeout ? a.timeouts : a.others)++;
+  ++retried_;
+  // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and
+  // the chain goes on); a fresh connection leaves it behind. Reconnects on the next attempt.
+  if (is_broken(e) || (target_.tcp && (timeout || is_garbled(e)))) {
+    broke_ = errtext(e);
+    disconnect();
+    return true;
+  }
+  // RTU has no transaction id: a reply that comes after the timeout would be taken for the
+  // answer to the next request of the same shape (an input read's bytes as the output image).
+  // After a timeout the line is read until the late reply has passed or it stayed silent.
+  if (timeout && serial_fd_ >= 0) drain_late_reply();
+  // A late or garbled reply may still be on its way: let it arrive, then drop it.
+  std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  modbus_flush(ctx_);
+  return true;
+}
+
+// Busy (kscfg serve at its connection limit answers busy, then closes the connection): tried
+// again over the busy wait, the pauses growing (link/busy.hpp).
+void ModbusClient::wait_while_busy(const std::string& what, int e, Attempts& a) {
+  a.busy = true;
+  silent_ = 0;
+  auto now = Clock::now();
+  if (!a.busy_since) a.busy_since = now;
+  auto pause = busy::pause(a.busy_tries + 1);
+  auto wait = std::chrono::milliseconds(opt_.busy_wait_ms ? opt_.busy_wait_ms : opt_.response_timeout_ms);
+  if (now + pause - *a.busy_since <= wait) {
+    ++a.busy_tries;
     ++retried_;
-    // TCP: a late reply would answer the next request (libmodbus rejects its transaction id, and
-    // the chain goes on); a fresh connection leaves it behind. Reconnects on the next attempt.
-    if (is_broken(e) || (target_.tcp && (timeout || is_garbled(e)))) {
+    if (is_broken(e)) {
       broke_ = errtext(e);
       disconnect();
-      continue;
     }
-    // RTU has no transaction id: a reply that comes after the timeout would be taken for the
-    // answer to the next request of the same shape (an input read's bytes as the output image).
-    // After a timeout the line is read until the late reply has passed or it stayed silent.
-    if (timeout && serial_fd_ >= 0) drain_late_reply();
-    // A late or garbled reply may still be on its way: let it arrive, then drop it.
-    std::this_thread::sleep_for(std::chrono::milliseconds(2));
-    modbus_flush(ctx_);
+    if (!sleep_for_or_cancelled(pause, opt_.cancel)) throw Error(Exit::interrupted, "interrupted");
+    if (ctx_) modbus_flush(ctx_);
+    return;
   }
+  unsigned n = a.timeouts + a.others + a.busy_tries + 1;
+  auto spent = std::chrono::duration_cast<std::chrono::milliseconds>(now - *a.busy_since).count();
+  if (target_.tcp)
+    // A BK9000 answers a second master busy; kscfg serve answers busy at its connection limit
+    // and closes the connection, so the attempts after it end in a reset.
+    throw Error(Exit::link,
+                e == EMBXSBUSY
+                    ? fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(), what, n, spent)
+                    : fmt::format("{} answered busy (Modbus exception 6), then: {} ({}, {} attempts in "
+                                  "{} ms)",
+                                  target_.where(), errtext(e), what, n, spent),
+                "another master holds the coupler, or a server's connection limit is reached "
+                "(kscfg serve --max-connections); try again later");
+  throw Error(Exit::link,
+              fmt::format("{} from {} ({}, {} attempts in {} ms)", errtext(e), target_.where(), what, n, spent),
+              "another master is writing the outputs");
 }
 
 void ModbusClient::drain_late_reply() {

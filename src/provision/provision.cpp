@@ -280,16 +280,10 @@ std::string position_ranges(std::vector<unsigned> v) {
   return out;
 }
 
-}  // namespace
-
-ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
-                       const std::string& coupler, const std::string& backup_path, const Progress& progress,
-                       const BackupInfo& info) {
-  ApplyResult res;
-  res.plan = plan;
-  if (!plan.changes()) return res;
-  // Safety first: the touched registers as they are now, as a station file `restore` can apply;
-  // and the change's intent as the journal keeps it.
+// The backup step of an apply: the touched registers as they are now, as a station file `restore`
+// can apply; and the change's intent as the journal keeps it, with the undo command.
+SessionJournal::Change back_up(const StationLayout& layout, const Plan& plan, const std::string& coupler,
+                               const std::string& backup_path, const BackupInfo& info, ApplyResult& res) {
   SessionJournal::Change intent;
   for (const auto& cp : plan.channels) {
     if (cp.registers.empty()) continue;
@@ -300,11 +294,12 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
   res.undo = intent.undo = saved.undo;
   res.backup_path = backup_path;
   res.rotated = std::move(saved.rotated);
+  return intent;
+}
 
-  // Every terminal's change at once; each is all or nothing on its own (ChangeFailed says how far
-  // its rollback got). If one fails, the others are rolled back too, from what they hold.
+// One change per channel the plan changes; `of`: the plan of each.
+std::vector<ChannelChange> channel_changes(const Plan& plan, std::vector<const ChannelPlan*>& of) {
   std::vector<ChannelChange> jobs;
-  std::vector<const ChannelPlan*> of;
   for (const auto& cp : plan.channels) {
     if (cp.registers.empty()) continue;
     ChannelChange j;
@@ -314,6 +309,157 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
     jobs.push_back(std::move(j));
     of.push_back(&cp);
   }
+  return jobs;
+}
+
+// What the rollback of a failed apply got to, channel by channel.
+struct RollbackTally {
+  std::string cause;  // the first failure's
+  Exit code = Exit::internal;
+  std::size_t verified = 0;
+  std::vector<unsigned> rolled;
+  // Per channel whose rollback failed: its registers, each with why ("could not be read: WHY").
+  std::vector<std::pair<std::string, std::vector<std::pair<std::string, std::string>>>> unverified;
+
+  static std::string who(const ChannelPlan& cp) {
+    return fmt::format("terminal {} ({}){}", cp.position, cp.type,
+                       cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
+  }
+  void account(const ChannelPlan& cp, const RollbackResult& rb) {
+    verified += rb.verified.size();
+    if (std::find(rolled.begin(), rolled.end(), cp.position) == rolled.end()) rolled.push_back(cp.position);
+    if (rb.ok()) return;
+    std::vector<std::pair<std::string, std::string>> regs;
+    for (const auto& u : rb.unverified) {
+      // "R32 (could not be read: WHY)", "R31 (could not be read: WHY; it may be unlocked)",
+      // "R33 (reads 0x0002, was 0x0001)"
+      auto sp = u.find(" (");
+      std::string reg = u.substr(0, sp), why;
+      if (sp != std::string::npos && u.back() == ')') why = u.substr(sp + 2, u.size() - sp - 3);
+      constexpr std::string_view unlocked = "; it may be unlocked";
+      if (why.starts_with("could not be read: ") && why.ends_with(unlocked)) {
+        why.resize(why.size() - unlocked.size());
+        reg += " (the code word: it may be unlocked)";
+      }
+      regs.emplace_back(reg, why);
+    }
+    unverified.emplace_back(who(cp), std::move(regs));
+  }
+  // A channel whose change failed (`error`, from write_channels).
+  void failed(const std::exception_ptr& error, const ChannelPlan& cp) {
+    try {
+      std::rethrow_exception(error);
+    } catch (const ChangeFailed& cf) {
+      if (cause.empty()) {
+        cause = cf.cause();
+        code = cf.cause_code();
+      }
+      account(cp, cf.rollback());
+    } catch (const Error& e) {
+      // Failed before anything was written on this channel (its compare read).
+      if (cause.empty()) {
+        cause = e.what();
+        code = e.code();
+      }
+    }
+  }
+  // The error of a rollback that left registers unverified: `msg` and the undo command first, then
+  // one line per terminal.
+  Error unverified_error(const std::string& msg, const std::string& undo, bool journaled,
+                         const SessionOptions& so) const {
+    // A reason that all share (a dead link) is said once, in the first line (26 registers made one
+    // line of 3,400 characters).
+    std::set<std::string> whys;
+    std::size_t count = 0;
+    for (const auto& [w, regs] : unverified)
+      for (const auto& [r, why] : regs) whys.insert(why), ++count;
+    std::string common = whys.size() == 1 ? *whys.begin() : "";
+    // The link that failed the apply failed the rollback's reads too: said once.
+    std::string common_text = common == "could not be read: " + cause ? "nothing could be read back"
+                              : common.empty()                        ? ""
+                                                                      : common;
+    std::vector<std::string> lines;
+    for (const auto& [w, regs] : unverified) {
+      std::string line;
+      for (std::size_t i = 0; i < regs.size(); ++i) {
+        const auto& [reg, why] = regs[i];
+        line += (i ? ", " : "") + reg;
+        bool last_of_why = i + 1 == regs.size() || regs[i + 1].second != why;
+        if (common.empty() && !why.empty() && last_of_why) line += " (" + why + ")";
+      }
+      lines.push_back(fmt::format("{}: {}", w, line));
+    }
+    return Error(Exit::unverified,
+                 fmt::format("{}; rollback failed{}: undo with '{}' when the terminal{} answer{} again; {} register{} "
+                             "may hold the new value{} (read them with 'kscfg dump'){}:",
+                             msg, common_text.empty() ? "" : " (" + common_text + ")", undo,
+                             unverified.size() == 1 ? "" : "s", unverified.size() == 1 ? "s" : "", count,
+                             count == 1 ? "" : "s", count == 1 ? "" : "s",
+                             // The change stays in the journal (6.2): the next kscfg rolls it back.
+                             journaled ? "; the next kscfg on this port rolls them back (session journal)"
+                             : so.journal && so.journal->enabled()
+                                 ? "; the next kscfg on this port relocks them and ends register mode (session journal)"
+                                 : ""))
+        .with_details(std::move(lines));
+  }
+};
+
+// A failed apply: the channels done are rolled back, from what they hold (those that failed rolled
+// their own back); throws what happened.
+[[noreturn]] void roll_back_apply(Engine& engine, const StationLayout& layout, const std::vector<ChannelChange>& jobs,
+                                  const std::vector<const ChannelPlan*>& of, const SessionOptions& so,
+                                  unsigned journaled, const std::string& undoing, const ApplyResult& res,
+                                  const std::string& backup_path) {
+  RollbackTally t;
+  std::vector<ChannelRollback> back;
+  std::vector<const ChannelPlan*> back_of;
+  for (std::size_t n = 0; n < jobs.size(); ++n) {
+    if (!jobs[n].error) {
+      // Done: roll it back, from what it holds.
+      ChannelRollback rb;
+      rb.position = jobs[n].position;
+      rb.channel = jobs[n].channel;
+      for (const auto& rc : of[n]->registers) rb.changes.push_back({rc.reg, rc.from, rc.to, true});
+      back.push_back(std::move(rb));
+      back_of.push_back(of[n]);
+      continue;
+    }
+    t.failed(jobs[n].error, *of[n]);
+  }
+  {
+    ShieldScope shield(so.cancel, undoing);
+    roll_back_channels(engine, layout, back, so);
+  }
+  for (std::size_t n = 0; n < back.size(); ++n) t.account(*back_of[n], back[n].result);
+  // Rolled back and verified everywhere: whole again. Otherwise the journal keeps the change, and
+  // the next kscfg on the coupler rolls it back from what the terminals hold.
+  if (journaled && t.unverified.empty()) so.journal->end_change(journaled);
+  std::sort(t.rolled.begin(), t.rolled.end());
+  std::string terms;
+  for (unsigned p : t.rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
+  std::string msg = fmt::format("apply failed: {}", t.cause);
+  if (!t.unverified.empty()) throw t.unverified_error(msg, res.undo, journaled != 0, so);
+  if (t.rolled.empty()) throw Error(t.code, msg + "; nothing was written", "the backup is " + backup_path);
+  throw Error(t.code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),
+              fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", t.verified,
+                          t.verified == 1 ? "" : "s", backup_path));
+}
+
+}  // namespace
+
+ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& plan, const SessionOptions& so,
+                       const std::string& coupler, const std::string& backup_path, const Progress& progress,
+                       const BackupInfo& info) {
+  ApplyResult res;
+  res.plan = plan;
+  if (!plan.changes()) return res;
+  // Safety first: the backup, before anything is written.
+  SessionJournal::Change intent = back_up(layout, plan, coupler, backup_path, info, res);
+
+  // Every terminal's change at once; each is all or nothing on its own (ChangeFailed says how far
+  // its rollback got). If one fails, the others are rolled back too, from what they hold.
+  std::vector<const ChannelPlan*> of;
+  std::vector<ChannelChange> jobs = channel_changes(plan, of);
   StationProgress tick;
   if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
   // The first Ctrl-C says at once what it undoes (base/cancel.hpp); the rollback below runs under
@@ -335,118 +481,7 @@ ApplyResult apply_plan(Engine& engine, const StationLayout& layout, const Plan& 
     res.changed = true;
     return res;
   }
-
-  std::string cause;
-  Exit code = Exit::internal;
-  std::size_t verified = 0;
-  std::vector<unsigned> rolled;
-  auto who = [](const ChannelPlan& cp) {
-    return fmt::format("terminal {} ({}){}", cp.position, cp.type,
-                       cp.channel ? fmt::format(" channel {}", cp.channel + 1) : "");
-  };
-  // Per channel whose rollback failed: its registers, each with why ("could not be read: WHY").
-  std::vector<std::pair<std::string, std::vector<std::pair<std::string, std::string>>>> unverified;
-  auto account = [&](const ChannelPlan& cp, const RollbackResult& rb) {
-    verified += rb.verified.size();
-    if (std::find(rolled.begin(), rolled.end(), cp.position) == rolled.end()) rolled.push_back(cp.position);
-    if (rb.ok()) return;
-    std::vector<std::pair<std::string, std::string>> regs;
-    for (const auto& u : rb.unverified) {
-      // "R32 (could not be read: WHY)", "R31 (could not be read: WHY; it may be unlocked)",
-      // "R33 (reads 0x0002, was 0x0001)"
-      auto sp = u.find(" (");
-      std::string reg = u.substr(0, sp), why;
-      if (sp != std::string::npos && u.back() == ')') why = u.substr(sp + 2, u.size() - sp - 3);
-      constexpr std::string_view unlocked = "; it may be unlocked";
-      if (why.starts_with("could not be read: ") && why.ends_with(unlocked)) {
-        why.resize(why.size() - unlocked.size());
-        reg += " (the code word: it may be unlocked)";
-      }
-      regs.emplace_back(reg, why);
-    }
-    unverified.emplace_back(who(cp), std::move(regs));
-  };
-  std::vector<ChannelRollback> back;
-  std::vector<const ChannelPlan*> back_of;
-  for (std::size_t n = 0; n < jobs.size(); ++n) {
-    if (!jobs[n].error) {
-      // Done: roll it back, from what it holds.
-      ChannelRollback rb;
-      rb.position = jobs[n].position;
-      rb.channel = jobs[n].channel;
-      for (const auto& rc : of[n]->registers) rb.changes.push_back({rc.reg, rc.from, rc.to, true});
-      back.push_back(std::move(rb));
-      back_of.push_back(of[n]);
-      continue;
-    }
-    try {
-      std::rethrow_exception(jobs[n].error);
-    } catch (const ChangeFailed& cf) {
-      if (cause.empty()) {
-        cause = cf.cause();
-        code = cf.cause_code();
-      }
-      account(*of[n], cf.rollback());
-    } catch (const Error& e) {
-      // Failed before anything was written on this channel (its compare read).
-      if (cause.empty()) {
-        cause = e.what();
-        code = e.code();
-      }
-    }
-  }
-  {
-    ShieldScope shield(so.cancel, undoing);
-    roll_back_channels(engine, layout, back, so);
-  }
-  for (std::size_t n = 0; n < back.size(); ++n) account(*back_of[n], back[n].result);
-  // Rolled back and verified everywhere: whole again. Otherwise the journal keeps the change, and
-  // the next kscfg on the coupler rolls it back from what the terminals hold.
-  if (journaled && unverified.empty()) so.journal->end_change(journaled);
-  std::sort(rolled.begin(), rolled.end());
-  std::string terms;
-  for (unsigned p : rolled) terms += fmt::format("{}{}", terms.empty() ? "" : ", ", p);
-  std::string msg = fmt::format("apply failed: {}", cause);
-  if (!unverified.empty()) {
-    // The undo command first, then one line per terminal; a reason that all share (a dead link) is
-    // said once, in the first line (26 registers made one line of 3,400 characters).
-    std::set<std::string> whys;
-    std::size_t count = 0;
-    for (const auto& [w, regs] : unverified)
-      for (const auto& [r, why] : regs) whys.insert(why), ++count;
-    std::string common = whys.size() == 1 ? *whys.begin() : "";
-    // The link that failed the apply failed the rollback's reads too: said once.
-    std::string common_text = common == "could not be read: " + cause ? "nothing could be read back"
-                              : common.empty()                        ? ""
-                                                                      : common;
-    std::vector<std::string> lines;
-    for (const auto& [w, regs] : unverified) {
-      std::string line;
-      for (std::size_t i = 0; i < regs.size(); ++i) {
-        const auto& [reg, why] = regs[i];
-        line += (i ? ", " : "") + reg;
-        bool last_of_why = i + 1 == regs.size() || regs[i + 1].second != why;
-        if (common.empty() && !why.empty() && last_of_why) line += " (" + why + ")";
-      }
-      lines.push_back(fmt::format("{}: {}", w, line));
-    }
-    throw Error(Exit::unverified,
-                fmt::format("{}; rollback failed{}: undo with '{}' when the terminal{} answer{} again; {} register{} "
-                            "may hold the new value{} (read them with 'kscfg dump'){}:",
-                            msg, common_text.empty() ? "" : " (" + common_text + ")", res.undo,
-                            unverified.size() == 1 ? "" : "s", unverified.size() == 1 ? "s" : "", count,
-                            count == 1 ? "" : "s", count == 1 ? "" : "s",
-                            // The change stays in the journal (6.2): the next kscfg rolls it back.
-                            journaled ? "; the next kscfg on this port rolls them back (session journal)"
-                            : so.journal && so.journal->enabled()
-                                ? "; the next kscfg on this port relocks them and ends register mode (session journal)"
-                                : ""))
-        .with_details(std::move(lines));
-  }
-  if (rolled.empty()) throw Error(code, msg + "; nothing was written", "the backup is " + backup_path);
-  throw Error(code, fmt::format("{}; rolled back terminal(s) {}", msg, terms),
-              fmt::format("the station is as it was: verified by reading {} register{}; the backup is {}", verified,
-                          verified == 1 ? "" : "s", backup_path));
+  roll_back_apply(engine, layout, jobs, of, so, journaled, undoing, res, backup_path);
 }
 
 }  // namespace kscfg

@@ -304,7 +304,7 @@ Task<void> Channel::lock() {
   maybe_unlocked_ = false;
 }
 
-Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> changes, bool then_close) {
+bool Channel::check_masked(const std::vector<MaskedChange>& changes) const {
   bool protected_candidate = false;
   for (const auto& c : changes) {
     check_writable(c.reg);
@@ -315,6 +315,38 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
                   fmt::format("run the command with 'kscfg write R{} VALUE'", c.reg));
     protected_candidate = protected_candidate || proto::is_protected(c.reg) || term_.type->regs[c.reg].code_word;
   }
+  return protected_candidate;
+}
+
+unsigned Channel::note_change(const std::vector<WriteResult>& change) {
+  // Before the first write: the undo file where the command keeps one, and the change's intent in
+  // the journal (a change of several registers: a kill -9 in its middle leaves it half done, and
+  // the next kscfg rolls it back from what the terminal holds, docs/safety.md section 2).
+  SessionJournal::Change intent;
+  intent.channels.push_back({term_.position, key_.channel, term_.type->type, {}});
+  for (const auto& w : change) intent.channels.back().registers.push_back({w.reg, w.before, w.after});
+  if (opt_.save_undo) intent.undo = opt_.save_undo(intent);
+  unsigned journaled = 0;
+  if (!opt_.change_journaled && change.size() >= 2 && opt_.journal) journaled = opt_.journal->begin_change(intent);
+  return journaled;
+}
+
+void Channel::check_read_back(const std::vector<WriteResult>& change, const std::vector<std::uint16_t>& got, bool r31) {
+  for (std::size_t i = 0; i < change.size(); ++i)
+    if (got[i] != change[i].after)
+      throw Error(Exit::verify,
+                  fmt::format("{}: R{} reads back 0x{:04X} after writing 0x{:04X}", who(), change[i].reg, got[i],
+                              change[i].after),
+                  "the terminal did not take the value (write protection, or a value it rejects)");
+  if (r31) {
+    if (got.back() != 0)
+      throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), got.back()));
+    maybe_unlocked_ = false;
+  }
+}
+
+Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> changes, bool then_close) {
+  bool protected_candidate = check_masked(changes);
   co_await begin();
   // Compare first (decision 6): only registers whose value differs are written. The read is also
   // the "read" of read-modify-write. R31 goes first (was it left unlocked?), so that the status
@@ -351,31 +383,13 @@ Task<std::vector<WriteResult>> Channel::write_masked(std::vector<MaskedChange> c
     }
   if (change.empty()) co_return results;
 
-  // Before the first write: the undo file where the command keeps one, and the change's intent in
-  // the journal (a change of several registers: a kill -9 in its middle leaves it half done, and
-  // the next kscfg rolls it back from what the terminal holds, docs/safety.md section 2).
-  SessionJournal::Change intent;
-  intent.channels.push_back({term_.position, key_.channel, term_.type->type, {}});
-  for (const auto& w : change) intent.channels.back().registers.push_back({w.reg, w.before, w.after});
-  if (opt_.save_undo) intent.undo = opt_.save_undo(intent);
-  unsigned journaled = 0;
-  if (!opt_.change_journaled && change.size() >= 2 && opt_.journal) journaled = opt_.journal->begin_change(intent);
+  const unsigned journaled = note_change(change);
 
   std::optional<Error> failure;
   try {
     bool r31 = any_protected && !skips_unlock(opt_);
     std::vector<std::uint16_t> got = co_await write_change(change, r31, then_close);
-    for (std::size_t i = 0; i < change.size(); ++i)
-      if (got[i] != change[i].after)
-        throw Error(Exit::verify,
-                    fmt::format("{}: R{} reads back 0x{:04X} after writing 0x{:04X}", who(), change[i].reg, got[i],
-                                change[i].after),
-                    "the terminal did not take the value (write protection, or a value it rejects)");
-    if (r31) {
-      if (got.back() != 0)
-        throw Error(Exit::verify, fmt::format("{} still reads R31 = 0x{:04X} after locking", who(), got.back()));
-      maybe_unlocked_ = false;
-    }
+    check_read_back(change, got, r31);
   } catch (const Error& e) {
     failure = e;
   }

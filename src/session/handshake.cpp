@@ -293,26 +293,38 @@ std::vector<Program*> HandshakeAccess::advance() {
   if (std::all_of(chans_.begin(), chans_.end(),
                   [](const auto& kv) { return !kv.second.prog || kv.second.prog->shielded; }))
     cleanup.emplace(opt_.cancel);
+  if (save_fresh(done)) return done;
+  auto due = Clock::time_point::max();
+  std::vector<Chan*> act = plan_all(Clock::now(), due, done);
+  if (act.empty()) {
+    if (done.empty() && due != Clock::time_point::max()) sleep_until(due);
+    return done;
+  }
+  exchange(act, done);
+  return done;
+}
+
+bool HandshakeAccess::save_fresh(std::vector<Program*>& done) {
   // Channels whose work begins: their process-data bytes saved, in one request where they fit.
   std::vector<Chan*> fresh;
   for (auto& [k, c] : chans_)
     if (c.prog && !c.ready) fresh.push_back(&c);
-  if (!fresh.empty()) {
-    try {
-      save(fresh, done);
-      link_free_ = Clock::now();
-    } catch (const Error& e) {
-      for (Chan* c : fresh)
-        if (!c->ready) fail(*c, e, done);
-      return done;
-    }
+  if (fresh.empty()) return false;
+  try {
+    save(fresh, done);
+    link_free_ = Clock::now();
+  } catch (const Error& e) {
     for (Chan* c : fresh)
-      if (c->ready && c->prog && c->prog->ops.empty() && !c->prog->close_after) finish(*c, done);
-    return done;
+      if (!c->ready) fail(*c, e, done);
+    return true;
   }
+  for (Chan* c : fresh)
+    if (c->ready && c->prog && c->prog->ops.empty() && !c->prog->close_after) finish(*c, done);
+  return true;
+}
 
-  auto now = Clock::now();
-  auto due = Clock::time_point::max();
+std::vector<HandshakeAccess::Chan*> HandshakeAccess::plan_all(Clock::time_point now, Clock::time_point& due,
+                                                              std::vector<Program*>& done) {
   std::vector<Chan*> act;
   for (auto& [k, c] : chans_) {
     c.act = Act::none;
@@ -337,10 +349,10 @@ std::vector<Program*> HandshakeAccess::advance() {
     }
     if (c.act != Act::none) act.push_back(&c);
   }
-  if (act.empty()) {
-    if (done.empty() && due != Clock::time_point::max()) sleep_until(due);
-    return done;
-  }
+  return act;
+}
+
+std::vector<ImageTransfer> HandshakeAccess::transfers(const std::vector<Chan*>& act, std::vector<Chan*>& peeks) {
   std::vector<ImageTransfer> xs;
   xs.reserve(act.size());
   for (Chan* c : act) {
@@ -360,7 +372,6 @@ std::vector<Program*> HandshakeAccess::advance() {
   // where the link carries them at no cost. An answer there is taken at once, so terminals whose
   // answers came at different times (a coupler with random latency, a probe) meet again in one
   // exchange instead of each polling on its own (docs/engine.md section 2).
-  std::vector<Chan*> peeks;
   if (link_.pipelines())
     for (auto& [k, c] : chans_) {
       c.peeked = false;
@@ -374,6 +385,12 @@ std::vector<Program*> HandshakeAccess::advance() {
       xs.push_back(x);
       peeks.push_back(&c);
     }
+  return xs;
+}
+
+void HandshakeAccess::exchange(const std::vector<Chan*>& act, std::vector<Program*>& done) {
+  std::vector<Chan*> peeks;
+  std::vector<ImageTransfer> xs = transfers(act, peeks);
   auto t = Clock::now();
   // Clean-up (only shielded programs in this exchange) runs under a shield: the first signal does
   // not cut the link's waits short, a second one does (base/cancel.hpp).
@@ -394,13 +411,12 @@ std::vector<Program*> HandshakeAccess::advance() {
       if (c->act == Act::close && ++c->close_fails < kCloseAttempts) continue;
       fail(*c, e, done);
     }
-    return done;
+    return;
   }
   for (Chan* c : act) result(*c, t, done);
   for (Chan* c : peeks)
     if (c->peeked && c->prog && c->req) peek_result(*c, t, done);
   align_first_polls(t);
-  return done;
 }
 
 void HandshakeAccess::close_now(ChannelKey key, bool quiet) noexcept {

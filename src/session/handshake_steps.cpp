@@ -23,6 +23,52 @@ microseconds us(Clock::duration d) { return std::chrono::duration_cast<microseco
 
 }  // namespace
 
+// No request in the control byte yet: a look at the status, or the request for `op`.
+void HandshakeAccess::plan_request(Chan& c, const RegisterOp& op) {
+  if (!c.last_status) {
+    // The status is unknown: look before trusting an acknowledge (decision 2). On a link that
+    // pipelines, a read's look goes with its request: the read part shows the status as it was.
+    if (!op.write && link_.pipelines()) {
+      put_request(c, false, op.reg, 0);
+      c.look_with_send = true;
+      c.act = Act::send;
+    } else {
+      c.act = Act::look;
+    }
+    return;
+  }
+  if (proto::is_ack(*c.last_status, op.reg)) {
+    // The status already acknowledges this register: ask for another one first, so that the
+    // acknowledge waited for is a visible change.
+    unsigned other = op.reg == 8 ? 9 : 8;
+    note_trace(
+        fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(c), *c.last_status, op.reg, other));
+    put_request(c, false, other, 0);
+    c.act = Act::send;
+    c.probe_next = true;
+    return;
+  }
+  put_request(c, op.write, op.reg, op.value);
+  c.act = Act::send;
+}
+
+// The poll at the estimate for request `r` may carry the next request, or the restore.
+void HandshakeAccess::plan_ahead(Chan& c, const Request& r) {
+  const Program& p = *c.prog;
+  const std::size_t n = next_op(c);
+  const RegisterOp* next = n < p.ops.size() ? &p.ops[n] : nullptr;
+  if (next && next->reg != r.reg && (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
+    put_request(c, next->write, next->reg, next->value);  // read-ahead (or write-ahead)
+    c.with_ahead = true;
+  } else if (!next && !r.write && p.close_after && !c.found.leftover && c.users == 1) {
+    // The bytes this work changed (the control byte, the value bytes of its writes) go back with
+    // the poll for the last answer: a read changes nothing on the terminal; if it came too early,
+    // it is asked again.
+    put_restore(c, false);
+    c.with_restore = true;
+  }
+}
+
 void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& due) {
   Program& p = *c.prog;
   c.with_ahead = c.with_restore = c.look_with_send = false;
@@ -35,31 +81,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   }
   const RegisterOp& op = p.ops[k];
   if (!c.req) {
-    if (!c.last_status) {
-      // The status is unknown: look before trusting an acknowledge (decision 2). On a link that
-      // pipelines, a read's look goes with its request: the read part shows the status as it was.
-      if (!op.write && link_.pipelines()) {
-        put_request(c, false, op.reg, 0);
-        c.look_with_send = true;
-        c.act = Act::send;
-      } else {
-        c.act = Act::look;
-      }
-      return;
-    }
-    if (proto::is_ack(*c.last_status, op.reg)) {
-      // The status already acknowledges this register: ask for another one first, so that the
-      // acknowledge waited for is a visible change.
-      unsigned other = op.reg == 8 ? 9 : 8;
-      note_trace(fmt::format("{}: status 0x{:02X} already acks R{}; reading R{} first", who(c), *c.last_status, op.reg,
-                             other));
-      put_request(c, false, other, 0);
-      c.act = Act::send;
-      c.probe_next = true;
-      return;
-    }
-    put_request(c, op.write, op.reg, op.value);
-    c.act = Act::send;
+    plan_request(c, op);
     return;
   }
   // A request is in the control byte: poll once its answer is due.
@@ -94,20 +116,7 @@ void HandshakeAccess::plan(Chan& c, Clock::time_point now, Clock::time_point& du
   // came too early). A write goes ahead only if the request it may replace can be done again after
   // it: never the code word (a relock ahead would make the write before it fail).
   bool replaceable = !r.write || op.repeatable;
-  if (replaceable && !r.probe && speculate && !c.ahead) {
-    const std::size_t n = next_op(c);
-    const RegisterOp* next = n < p.ops.size() ? &p.ops[n] : nullptr;
-    if (next && next->reg != r.reg && (!next->write || (next->repeatable && next->reg != proto::kCodeWordRegister))) {
-      put_request(c, next->write, next->reg, next->value);  // read-ahead (or write-ahead)
-      c.with_ahead = true;
-    } else if (!next && !r.write && p.close_after && !c.found.leftover && c.users == 1) {
-      // The bytes this work changed (the control byte, the value bytes of its writes) go back with
-      // the poll for the last answer: a read changes nothing on the terminal; if it came too early,
-      // it is asked again.
-      put_restore(c, false);
-      c.with_restore = true;
-    }
-  }
+  if (replaceable && !r.probe && speculate && !c.ahead) plan_ahead(c, r);
 }
 
 std::size_t HandshakeAccess::next_op(const Chan& c) { return c.prog->values.size() + (c.stash ? 2 : 1); }
@@ -165,90 +174,106 @@ void HandshakeAccess::peek_result(Chan& c, Clock::time_point t, std::vector<Prog
   result(c, t, done);
 }
 
+std::uint16_t HandshakeAccess::value_of(const Chan& c) {
+  return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8));
+}
+
 void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>& done) {
-  auto status = [&] { return c.in[c.w.status - c.in_lo]; };
-  auto value = [&] { return static_cast<std::uint16_t>(c.in[c.w.in_lo - c.in_lo] | (c.in[c.w.in_hi - c.in_lo] << 8)); };
   Program& p = *c.prog;
   switch (c.act) {
     case Act::none: return;
-    case Act::look: c.last_status = status(); return;
+    case Act::look: c.last_status = c.in[c.w.status - c.in_lo]; return;
     case Act::close:
       closed_now(c);
       p.closed = true;
       finish(c, done);
       return;
-    case Act::send: {
-      std::uint8_t ctrl = c.shadow[c.w.ctrl - c.out_lo];
-      unsigned reg = ctrl & proto::kAddrMask;
-      bool probe = c.probe_next;
-      c.probe_next = false;
-      if (c.look_with_send && proto::is_ack(status(), reg)) {
-        // The status acknowledged this register before the request went out: no new answer can be
-        // told from it. The next plan asks for another register first.
-        c.last_status = status();
-        return;
-      }
-      const RegisterOp& op = p.ops[p.values.size()];
-      Request r = sent_request(c, !probe && op.write, reg, op.value, t);
-      r.probe = probe;
-      c.req = r;
-      c.last_status.reset();
-      return;
-    }
+    case Act::send: request_sent(c, t); return;
     case Act::poll: break;
   }
   c.last_poll = t;
   Request& r = *c.req;
   ++r.polls;
-  std::uint8_t st = status();
-  bool timed = link_.pipelines() && c.timing;
-  bool known = timed && r.ack.known();
-  if (proto::is_ack(st, r.reg)) {
-    if (!r.probe) {
-      // A poll that went out late (this process not scheduled, a sleep overshot) times the load.
-      const auto planned = std::max(c.due, poll_floor_);
-      const bool late = timed && t - planned > ack_late_slack(r.ack);
-      if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout, late);
-      if (opt_.trace)
-        opt_.trace(fmt::format(
-            "{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
-            r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
-            r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value(), r.polls, r.polls == 1 ? "" : "s",
-            c.timing
-                ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
-                              late ? fmt::format(" (the poll {} us late: not learned)", us(t - planned).count()) : "")
-                : "",
-            c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[next_op(c)].reg) : "",
-            c.with_restore ? ", control byte restored with the poll" : ""));
-      p.values.push_back(value());
-#ifdef KSCFG_TEST_HOOKS
-      if (r.write && opt_.after_write) opt_.after_write(r.reg);
-#endif
-      if (c.stash) {  // the next op, read out of turn: its turn now
-        p.values.push_back(*c.stash);
-        c.stash.reset();
-      }
-      if (p.progress) p.progress(p.values.size());
-    }
-    if (c.with_restore) {
-      c.last_status.reset();  // back in process data: look again before a next request
-      closed_now(c);
-      p.closed = true;
-    } else {
-      c.last_status = st;
-    }
-    if (c.with_ahead) {
-      const RegisterOp& n = p.ops[p.values.size()];
-      c.req = sent_request(c, n.write, n.reg, n.value, t);
-    } else if (c.ahead) {
-      c.req = *c.ahead;
-      c.ahead.reset();
-    } else {
-      c.req.reset();
-    }
-    if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) finish(c, done);
+  std::uint8_t st = c.in[c.w.status - c.in_lo];
+  if (proto::is_ack(st, r.reg)) answered(c, t, st, done);
+  else not_answered(c, t, st, done);
+}
+
+void HandshakeAccess::request_sent(Chan& c, Clock::time_point t) {
+  Program& p = *c.prog;
+  const std::uint8_t status = c.in[c.w.status - c.in_lo];
+  std::uint8_t ctrl = c.shadow[c.w.ctrl - c.out_lo];
+  unsigned reg = ctrl & proto::kAddrMask;
+  bool probe = c.probe_next;
+  c.probe_next = false;
+  if (c.look_with_send && proto::is_ack(status, reg)) {
+    // The status acknowledged this register before the request went out: no new answer can be
+    // told from it. The next plan asks for another register first.
+    c.last_status = status;
     return;
   }
+  const RegisterOp& op = p.ops[p.values.size()];
+  Request r = sent_request(c, !probe && op.write, reg, op.value, t);
+  r.probe = probe;
+  c.req = r;
+  c.last_status.reset();
+}
+
+// A poll that found the request answered (status `st`): the value taken, the next request moved up.
+void HandshakeAccess::answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done) {
+  Program& p = *c.prog;
+  Request& r = *c.req;
+  bool timed = link_.pipelines() && c.timing;
+  if (!r.probe) {
+    // A poll that went out late (this process not scheduled, a sleep overshot) times the load.
+    const auto planned = std::max(c.due, poll_floor_);
+    const bool late = timed && t - planned > ack_late_slack(r.ack);
+    if (timed) ack_seen(*c.timing, r.ack, r.polls, us(t - r.sent), opt_.timeout, late);
+    if (opt_.trace)
+      opt_.trace(fmt::format(
+          "{}: {} R{:<2} ctrl 0x{:02X}{} -> status 0x{:02X} value 0x{:04X} ({} poll{}{}{}{})", who(c),
+          r.write ? "write" : "read ", r.reg, proto::control_byte(r.write, r.reg),
+          r.write ? fmt::format(" value 0x{:04X}", r.value) : "", st, value_of(c), r.polls, r.polls == 1 ? "" : "s",
+          c.timing
+              ? fmt::format(", {} us after the request{}", us(t - r.sent).count(),
+                            late ? fmt::format(" (the poll {} us late: not learned)", us(t - planned).count()) : "")
+              : "",
+          c.with_ahead ? fmt::format(", R{} requested ahead", p.ops[next_op(c)].reg) : "",
+          c.with_restore ? ", control byte restored with the poll" : ""));
+    p.values.push_back(value_of(c));
+#ifdef KSCFG_TEST_HOOKS
+    if (r.write && opt_.after_write) opt_.after_write(r.reg);
+#endif
+    if (c.stash) {  // the next op, read out of turn: its turn now
+      p.values.push_back(*c.stash);
+      c.stash.reset();
+    }
+    if (p.progress) p.progress(p.values.size());
+  }
+  if (c.with_restore) {
+    c.last_status.reset();  // back in process data: look again before a next request
+    closed_now(c);
+    p.closed = true;
+  } else {
+    c.last_status = st;
+  }
+  if (c.with_ahead) {
+    const RegisterOp& n = p.ops[p.values.size()];
+    c.req = sent_request(c, n.write, n.reg, n.value, t);
+  } else if (c.ahead) {
+    c.req = *c.ahead;
+    c.ahead.reset();
+  } else {
+    c.req.reset();
+  }
+  if (p.values.size() == p.ops.size() && (!p.close_after || p.closed)) finish(c, done);
+}
+
+// A poll that found no answer yet (status `st`): asked again, or given up once the timeout passed.
+void HandshakeAccess::not_answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done) {
+  Program& p = *c.prog;
+  Request& r = *c.req;
+  bool known = link_.pipelines() && c.timing && r.ack.known();
   // Not answered yet: the first poll at the estimate came too early (ack_latency.hpp).
   if (r.polls == 1 && known) ack_early(*c.timing, r.ack);
   if (c.with_restore) {
@@ -275,7 +300,7 @@ void HandshakeAccess::result(Chan& c, Clock::time_point t, std::vector<Program*>
     const bool keep =
         !c.ahead->write && !r.write && !c.stash && c.ahead_status && !proto::is_ack(*c.ahead_status, c.ahead->reg);
     if (keep) {
-      c.stash = value();
+      c.stash = value_of(c);
       note_trace(fmt::format("{}: R{} answered before R{} (value 0x{:04X} kept); asking R{} again", who(c),
                              c.ahead->reg, r.reg, *c.stash, r.reg));
     } else {

@@ -6,9 +6,6 @@
 //   ads_probe URI write TERMINAL CHANNEL REG VALUE
 //   ads_probe URI table TABLE FIRST COUNT
 //   ads_probe URI info                                                 ReadDeviceInfo on port 100
-//   ads_probe URI exchange wOFFSET=HEX ... rOFFSET+COUNT ...           AdsImageLink::transfer() twice on
-//       port 300: each wOFFSET=HEX writes those output bytes, each rOFFSET+COUNT reads input bytes;
-//       one line per read ("r0 12345678") and on stderr the requests each transfer took
 // TERMINAL is the port-100 terminal number, CHANNEL 0-based. On stderr: requests, connections and
 // the time taken. Errors: "ads_probe: error: ..." and kscfg's exit code.
 #include <fmt/format.h>
@@ -20,7 +17,7 @@
 
 #include "kscfg/base/error.hpp"
 #include "kscfg/base/parse.hpp"
-#include "kscfg/link/ads_link.hpp"
+#include "kscfg/link/ads_client.hpp"
 #include "kscfg/link/ads_registers.hpp"
 #include "kscfg/link/port_uri.hpp"
 
@@ -31,7 +28,7 @@ int main(int argc, char** argv) {
   bool sequential = false;
   std::erase_if(a, [&](const std::string& s) { return s == "--sequential" ? (sequential = true) : false; });
   try {
-    if (a.size() < 2) throw Error(Exit::usage, "usage: ads_probe URI read|write|table|info|exchange ...");
+    if (a.size() < 2) throw Error(Exit::usage, "usage: ads_probe URI read|write|table|info ...");
     auto num = [&](std::size_t i, unsigned long long max) {
       return static_cast<unsigned>(parse_uint(a.at(i), max, "number"));
     };
@@ -58,49 +55,11 @@ int main(int argc, char** argv) {
       unsigned table = num(2, 127), first = num(3, 255), count = num(4, 256);
       auto v = access.read_table(table, first, count);
       for (unsigned i = 0; i < v.size(); ++i) std::cout << fmt::format("{} 0x{:04X}\n", first + i, v[i]);
-    } else if (cmd == "exchange") {
-      AdsImageLink link(ads_target(parse_port_uri(a[0]), a[0]), o);
-      std::vector<std::vector<std::uint8_t>> bytes;
-      std::vector<ImageTransfer> xs;
-      bytes.reserve(a.size());
-      for (std::size_t i = 2; i < a.size(); ++i) {
-        const std::string& x = a[i];
-        ImageTransfer t;
-        if (x.size() > 1 && x[0] == 'w' && x.find('=') != std::string::npos) {
-          std::string hex = x.substr(x.find('=') + 1);
-          auto& b = bytes.emplace_back();
-          for (std::size_t k = 0; k + 1 < hex.size(); k += 2)
-            b.push_back(static_cast<std::uint8_t>(parse_uint("0x" + hex.substr(k, 2), 255, "byte")));
-          t.out_offset = parse_uint(x.substr(1, x.find('=') - 1), 511, "offset");
-          t.out = b;
-        } else if (x.size() > 1 && x[0] == 'r' && x.find('+') != std::string::npos) {
-          t.in_offset = parse_uint(x.substr(1, x.find('+') - 1), 511, "offset");
-          auto& b = bytes.emplace_back(parse_uint(x.substr(x.find('+') + 1), 512, "count"), 0);
-          t.in = b;
-        } else {
-          throw Error(Exit::usage, "exchange: wOFFSET=HEX or rOFFSET+COUNT");
-        }
-        xs.push_back(t);
-      }
-      for (int round = 1; round <= 2; ++round) {
-        std::size_t before = link.exchanges();
-        link.transfer(xs);
-        std::cerr << fmt::format("ads_probe: transfer {}: {} request(s){}\n", round, link.exchanges() - before,
-                                 link.sums() ? ", sum commands" : ", one per span");
-      }
-      for (const auto& t : xs) {
-        if (t.in.empty()) continue;
-        std::string hex;
-        for (auto b : t.in) hex += fmt::format("{:02X}", b);
-        std::cout << fmt::format("r{} {}\n", t.in_offset, hex);
-      }
-      std::cerr << fmt::format("ads_probe: {} connection(s)\n", link.client().connects());
-      return 0;
     } else if (cmd == "info") {
       auto d = client.device_info(adsport::kRegisters);
       std::cout << fmt::format("{} {}.{}.{}\n", d.name, d.major, d.minor, d.build);
     } else {
-      throw Error(Exit::usage, "usage: ads_probe URI read|write|table|info|exchange ...");
+      throw Error(Exit::usage, "usage: ads_probe URI read|write|table|info ...");
     }
     auto us = std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::steady_clock::now() - t0).count();
     std::cerr << fmt::format("ads_probe: {} request(s), {} connection(s), {:.2f} ms\n", client.exchanges(),

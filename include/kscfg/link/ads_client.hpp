@@ -72,14 +72,10 @@ class AdsClient {
     bool repeatable = true;
     unsigned timeout_ms = 0;  // 0: AdsOptions::response_timeout_ms
     std::string what;         // for messages: "reading terminal 3 channel 1 R8"
-    // A command the device may not serve (an ADS sum command): an AMS error in the reply's header
-    // comes back in Reply::ams_error, the connection kept, instead of being thrown.
-    bool may_be_unserved = false;
   };
   struct Reply {
     std::uint32_t result = 0;        // ADS return code (0: done)
     std::vector<std::uint8_t> data;  // Read/ReadWrite: the data; ReadDeviceInfo: version and name
-    std::uint32_t ams_error = 0;     // Call::may_be_unserved: the AMS error of the reply's header
   };
 
   AdsClient(AdsTarget target, AdsOptions opt);
@@ -142,7 +138,18 @@ class AdsClient {
   // connect timeout and by `until` (a call's deadline; default: none).
   void connect(std::chrono::steady_clock::time_point until = std::chrono::steady_clock::time_point::max());
   void connect_once(std::chrono::milliseconds timeout);
-  std::vector<Reply> run_batch(std::span<const Call> calls, Batch& b);
+  void connected();  // a connection just made: its socket options and the NetIds used on it
+  // Runs every call of `b` to its reply: the window filled, the replies taken as they come.
+  std::vector<Reply> run_batch(Batch& b);
+  // The connection handling of a batch: a fresh connection before the first call goes out on an
+  // idle or closed one; one lost with calls outstanding (sent again, or given up).
+  void fresh_connection(const Batch& b);
+  void connection_lost(Batch& b, const Error& why);
+  void fill_window(Batch& b);  // sends calls while the window has room
+  // How long to wait for bytes: until the earliest deadline (50 ms at most); throws for a call past it.
+  long long wait_within_deadlines(const Batch& b) const;
+  void take_frames(Batch& b);  // the complete frames received: the replies they carry
+  ams::Header header_for(const Call& c, std::uint32_t invoke) const;
   // A batch given up: counts towards the dead-link rule when nothing was heard while it waited.
   void gave_up(const Batch& b);
   void disconnect();

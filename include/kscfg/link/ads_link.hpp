@@ -34,17 +34,6 @@ class AdsImageLink : public Link {
   void read_inputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void read_outputs(std::size_t offset, std::span<std::uint8_t> dst) override;
   void write_outputs(std::size_t offset, std::span<const std::uint8_t> src) override;
-  // The requests of one exchange are in flight together: a read sees the image as the coupler
-  // held it before the terminals saw the writes.
-  bool pipelines() const override { return true; }
-  // One ADS sum command (ReadWrite 0xF082 on port 300: ams.hpp) that writes each transfer's output
-  // span (ADS writes only the bytes given: nothing between the spans is touched) and then reads one
-  // span covering every input span and peek (an ADS read costs its bytes, not a request). A coupler
-  // that does not serve it (ADS error 0x701 or 0x702, AMS error 0x8 or 0xB) is asked once: from
-  // then on each span is a request of its own, all of them in flight together on the connection.
-  void transfer(std::span<const ImageTransfer> t) override;
-  // Whether the coupler is still taken to serve sum commands (false once it refused one).
-  bool sums() const { return sums_; }
   std::chrono::microseconds poll_gap(unsigned poll_number) const override;
   std::size_t exchanges() const override { return client_.exchanges(); }
 
@@ -54,7 +43,6 @@ class AdsImageLink : public Link {
   void count() { exchanges_ = client_.exchanges(); }
   OwnerLock lock_;  // declared before the client: released after it has closed
   AdsClient client_;
-  bool sums_ = true;
 };
 
 }  // namespace kscfg

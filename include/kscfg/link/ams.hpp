@@ -116,12 +116,12 @@ std::optional<Request> parse_request(std::uint16_t command, std::span<const std:
 // ADS sum commands: several reads and writes in one ReadWrite request, whose index group says
 // which sum and whose index offset is the number of sub-commands (Beckhoff "ADS-sum command",
 // https://infosys.beckhoff.com/content/1033/tc3_adsdll2/124835083.html: 0xF080 reads, 0xF081
-// writes, 0xF082 reads and writes). kscfg sends 0xF082: the write data carries N x (index group,
+// writes, 0xF082 reads and writes). The emulator serves 0xF082: the write data carries N x (index group,
 // index offset, read length, write length), then every sub-command's write data in order; the
 // answer carries N x (result, length read), then every sub-command's data read in order. The
 // sub-commands are carried out in order. Not in the BK9000's documented ADS services: a coupler
-// that does not serve it answers ADS error 0x701 or 0x702, or AMS error 0x8 (AdsImageLink falls
-// back to one request per span).
+// that does not serve it answers ADS error 0x701 or 0x702, or AMS error 0x8. kscfg's own client
+// sends no sum command; the request side of the codec is kept beside the parse the server uses.
 constexpr std::uint32_t kSumRead = 0xF080, kSumWrite = 0xF081, kSumReadWrite = 0xF082;
 struct SumCall {
   std::uint32_t group = 0, offset = 0;

@@ -140,6 +140,21 @@ class ModbusClient : public ModbusRegisters {
   // of kSlice: between two, cancellation (ModbusOptions::cancel) ends it.
   template <class F, class P>
   void run(const std::string& what, std::uint16_t addr, unsigned count, F&& f, P&& parse, bool* refused = nullptr);
+  // The retry state of one request.
+  struct Attempts {
+    unsigned timeouts = 0, others = 0, busy_tries = 0;
+    bool busy = false;  // an attempt was answered "busy" (exception 6)
+    std::optional<std::chrono::steady_clock::time_point> busy_since;
+  };
+  // One attempt of a request (`sent`: when it went out). Returns f's result: >= 0, or -1 with errno.
+  template <class F, class P>
+  int attempt(F&& f, P&& parse, std::chrono::steady_clock::time_point& sent);
+  // The retry policy, for an attempt that failed with errno `e`: true to try again (after what
+  // that takes: a fresh connection, a drained line, a busy pause), false when `refused` was set;
+  // throws when the request is given up.
+  bool try_again(const std::string& what, std::uint16_t addr, unsigned count, int e, Attempts& a, bool* refused);
+  void wait_while_busy(const std::string& what, int e, Attempts& a);  // busy: a pause, or throws
+  [[noreturn]] void interrupted(const std::string& what, std::chrono::steady_clock::time_point sent, const Attempts& a);
   // After the first slice passed without a reply: waits on for it (modbus_receive_confirmation)
   // until the response timeout, slice by slice. Returns f's result: >= 0, or -1 with errno.
   template <class P>

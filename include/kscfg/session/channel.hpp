@@ -227,6 +227,11 @@ class Channel {
   Task<void> relock_write();
   // write_masked's change as one program; returns the read-back values (the registers, then R31).
   Task<std::vector<std::uint16_t>> write_change(const std::vector<WriteResult>& change, bool lock, bool then_close);
+  // write_masked's steps: the changes checked (true: one may need the code word), the change noted
+  // before its first write (the journal's id of it, 0: none), the read-back judged (throws).
+  bool check_masked(const std::vector<MaskedChange>& changes) const;
+  unsigned note_change(const std::vector<WriteResult>& change);
+  void check_read_back(const std::vector<WriteResult>& change, const std::vector<std::uint16_t>& got, bool r31);
   bool closable_with_read() const;
 
   Engine& engine_;

@@ -147,9 +147,22 @@ class HandshakeAccess final : public RegisterAccess {
   bool watch_found(Chan& c);
   Request sent_request(Chan& c, bool write, unsigned reg, std::uint16_t value, Clock::time_point t) const;
   void save(std::vector<Chan*>& chans, std::vector<Program*>& done);
+  // advance() in steps: the channels whose work begins saved (true: that was this advance), every
+  // channel's next step planned (those that act in this exchange), the exchange built and run.
+  bool save_fresh(std::vector<Program*>& done);
+  std::vector<Chan*> plan_all(Clock::time_point now, Clock::time_point& due, std::vector<Program*>& done);
+  std::vector<ImageTransfer> transfers(const std::vector<Chan*>& act, std::vector<Chan*>& peeks);
+  void exchange(const std::vector<Chan*>& act, std::vector<Program*>& done);
   // What channel c does in the next exchange (c.act), or when it next has something to do (due).
   void plan(Chan& c, Clock::time_point now, Clock::time_point& due);
+  void plan_request(Chan& c, const RegisterOp& op);  // no request out yet: a look, or op's request
+  void plan_ahead(Chan& c, const Request& r);        // what the poll at the estimate may carry
+  // What the exchange brought channel c (c.act): a look, a request sent, a poll's answer or none.
   void result(Chan& c, Clock::time_point t, std::vector<Program*>& done);
+  void request_sent(Chan& c, Clock::time_point t);
+  void answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done);
+  void not_answered(Chan& c, Clock::time_point t, std::uint8_t st, std::vector<Program*>& done);
+  static std::uint16_t value_of(const Chan& c);  // the value bytes of c's input
   // After requests went out in the exchange at `sent`, the first polls still waiting go out
   // together, at the latest of their due times within reach (docs/engine.md section 2.2).
   void align_first_polls(Clock::time_point sent);

@@ -1,21 +1,18 @@
 // SdoAccess: direct register access over CANopen SDO (docs/transports/canopen.md), the third
-// implementation of the register-access seam (access.hpp). A CANopen coupler (BK5120/BK515x,
+// implementation of the register-access seam (access.hpp): DirectAccess (direct_access.hpp) with
+// its requests over SDO (SdoRequests). A CANopen coupler (BK5120/BK515x,
 // LC5100, BC5150, a CX8050's CAN interface) reads and writes a terminal's registers itself through
 // the objects 0x4500/0x4501 (link/can_registers.hpp): no handshake, no byte of the process image
-// (the PDOs the bus's master owns) touched, so nothing is saved or put back. As over ADS
-// (ads_access.hpp; the bookkeeping of both in direct_channels.hpp), the session journal notes each
-// channel the code word is written to, before it goes out, and leaves it once the channel is locked
-// again or its work ended with every request answered: a kscfg killed in between leaves the entry,
-// and the next kscfg on this coupler relocks the channel if R31 still holds the code word
-// (recovery.cpp). The safety rules above the seam (session/channel.hpp) are the same as over the
-// handshake.
+// (the PDOs the bus's master owns) touched, so nothing is saved or put back. The journal and the
+// safety rules are those of every direct access (direct_access.hpp).
 //
 // One request at a time: the coupler has one SDO server (object 0x1200 only) and its default SDO
 // channel carries one transfer at a time, and a register access through it is a download and then
 // uploads of the same entry, which a second transfer would interleave with (the coupler answers
 // 0x06010021 "function still active" to an access while the previous one runs). So whole-station
-// work cannot keep several requests in flight here: every advance() runs the next request of one
-// channel to its end, the channels taken in turn (round robin), and returns what finished.
+// work cannot keep several requests in flight here: SdoRequests carries one request an exchange, so
+// every advance() runs the next request of one channel to its end, the channels taken in turn
+// (round robin), and returns what finished.
 //
 // A read's uploads go at the terminal's pace, by the acknowledge plan of the Modbus
 // handshake (session/ack_latency.hpp): one AckTiming per terminal position, the first upload once
@@ -28,36 +25,29 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "kscfg/link/can_registers.hpp"
 #include "kscfg/link/sdo.hpp"
-#include "kscfg/session/access.hpp"
 #include "kscfg/session/ack_latency.hpp"
-#include "kscfg/session/channel.hpp"
-#include "kscfg/session/direct_channels.hpp"
+#include "kscfg/session/direct_access.hpp"
 
 namespace kscfg {
 
-class SdoAccess final : public RegisterAccess {
+// Register requests over SDO (canreg::Registers), one at a time, reads paced per terminal.
+class SdoRequests final : public DirectRequests {
  public:
-  // `number(position)`: the terminal's 0x4501 sub-index (canreg::terminal_number; 0: it has none).
-  // From `so`: the timeout (each register request's, overall), cancellation, the journal and the
-  // after-write hook.
-  SdoAccess(SdoClient& client, std::function<unsigned(unsigned position)> number, const SessionOptions& so);
+  // `timeout`: each register request's, overall.
+  SdoRequests(SdoClient& client, std::chrono::milliseconds timeout);
 
   std::string describe() const override;
-  void open(const TerminalImage& t, unsigned channel) override;
-  ChannelFound found(ChannelKey key) const override { return chans_.found(key); }
-  void adopt_dead(ChannelKey key, const SessionJournal::Entry&, long pid) override { chans_.adopt_dead(key, pid); }
-  void submit(Program& p) override { chans_.submit(p); }
-  std::vector<Program*> advance() override;
-  bool busy() const override { return chans_.busy(); }
-  void close_now(ChannelKey key, bool) noexcept override { chans_.close_now(key); }
-  void lock_unverified(ChannelKey key) noexcept override { chans_.lock_unverified(key); }
-  void close_all() noexcept override { chans_.close_all(); }
   std::size_t exchanges() const override { return client_.exchanges(); }
+  std::size_t in_flight() const override { return 1; }
+  std::string number_name() const override { return "sub-index of object 0x4501"; }
+  // A request the coupler refused (an abort) is answered with its error; any other error throws.
+  std::vector<DirectAnswer> run(std::span<const DirectRequest> requests) override;
   // How fast the terminal at `position` answered its reads in this run (nullptr: none read yet).
   const AckTiming* timing(unsigned position) const {
     auto it = timings_.find(position);
@@ -65,23 +55,24 @@ class SdoAccess final : public RegisterAccess {
   }
 
  private:
-  struct Chan : DirectChannel {  // erased once its last user closed it
-    unsigned terminal = 0;       // 0x4501 sub-index
-  };
-  // Runs the next request of `c` (one SDO register access); false when it failed (p.error set).
-  void run_next(ChannelKey key, Chan& c, std::vector<Program*>& done);
   SdoClient& client_;
   canreg::Registers regs_;
-  std::function<unsigned(unsigned)> number_;
-  CancelToken* cancel_;
-#ifdef KSCFG_TEST_HOOKS
-  std::function<void(unsigned reg)> after_write_;  // SessionOptions::after_write
-#endif
-  DirectChannels<Chan> chans_;                                // and their journal entries
   std::map<unsigned, AckTiming> timings_;                     // how fast each terminal's reads are answered (this run)
   std::map<unsigned, std::chrono::microseconds> first_wait_;  // each one's wait when first known (this run)
   std::chrono::milliseconds timeout_;
-  ChannelKey last_{};  // the channel served last: the next one after it goes first
+};
+
+class SdoAccess final : public DirectAccess {
+ public:
+  // `number(position)`: the terminal's 0x4501 sub-index (canreg::terminal_number; 0: it has none).
+  // From `so`: the timeout (each register request's, overall), cancellation, the journal and the
+  // after-write hook.
+  SdoAccess(SdoClient& client, std::function<unsigned(unsigned position)> number, const SessionOptions& so)
+      : DirectAccess(std::make_unique<SdoRequests>(client, so.timeout), std::move(number), so) {}
+  // How fast the terminal at `position` answered its reads in this run (nullptr: none read yet).
+  const AckTiming* timing(unsigned position) const {
+    return static_cast<const SdoRequests&>(requests()).timing(position);
+  }
 };
 
 }  // namespace kscfg
