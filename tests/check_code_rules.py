@@ -7,8 +7,7 @@
     why, instead of naming the issue that asked for it.
 (b) No function longer than MAX_FUNCTION_LINES lines (the line of its opening brace to the line of
     its closing brace) in FUNCTION_PATHS, unless one of the 6 lines above its signature holds a
-    comment with the words "one piece" that says why it is one. Report-only while
-    FUNCTION_RULE_ENFORCED is False.
+    comment with the words "one piece" that says why it is one. Enforced (FUNCTION_RULE_ENFORCED).
 (c) cli/ does not know transports: it includes no "kscfg/link/" header, and does not look at a port
     URI's scheme (`.scheme`, `parse_port_uri`, a transport's name "emu", "ads", "tcp", "rtu",
     "slcan", "socketcan" compared with == or !=): what differs by transport is the Port's
@@ -37,7 +36,7 @@ ISSUE_RE = re.compile(r"\bissues?\s*#?\s*\d+|\btest_issue_?\d+", re.I)
 FUNCTION_PATHS = ("src", "include", "cli")
 MAX_FUNCTION_LINES = 80
 EXCUSE_LINES = 6
-FUNCTION_RULE_ENFORCED = False
+FUNCTION_RULE_ENFORCED = True
 
 CLI_PATHS = ("cli",)
 CLI_TRANSPORT_RULE_ENFORCED = True

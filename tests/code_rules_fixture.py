@@ -71,8 +71,7 @@ def main():
     case("issue number in tests/", {"tests/t.cpp": "// issue 4 item 2\nint t();\n"}, [], 1,
          "tests/t.cpp:1: names an issue")
     # (b) long functions
-    case("long function, report-only", {"src/long.cpp": long_function("big")}, [], 0,
-         "report: (function length, not enforced yet) src/long.cpp:1: big is 90 lines")
+    case("long function", {"src/long.cpp": long_function("big")}, [], 1, "src/long.cpp:1: big is 90 lines")
     case("long function, enforced", {"src/long.cpp": long_function("big")}, ["--enforce-all"], 1,
          "src/long.cpp:1: big is 90 lines (over 80)")
     case("long member function in a class, enforced",

@@ -144,10 +144,13 @@ std::string count_hint(const StationSpec& desired, const StationLayout& layout) 
 
 }  // namespace
 
-Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
-               const SessionOptions& so, const Progress& progress) {
+namespace {
+
+// The file's composition against the station: the same types at the same positions (a digital
+// terminal the coupler knows only by its bits, ADS table 9: the file names which one), and every
+// register it names writable. Before anything is read.
+void check_composition(const StationLayout& layout, const StationSpec& desired, const Catalog& catalog) {
   auto where = [&](int line) { return line ? fmt::format("{}:{}: ", desired.origin, line) : desired.origin + ": "; };
-  // 1. Composition: same types at the same positions, before anything else.
   if (desired.terminals.size() != layout.terminals.size()) {
     throw Error(Exit::refused,
                 fmt::format("{}describes {} terminal{}, the station has {}", where(0), desired.terminals.size(),
@@ -157,14 +160,12 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
     const auto& have = layout.terminals[i];
-    // A digital terminal the coupler knows only by its bits (ADS table 9): the file names which one.
     if (!fits_type(have, catalog.get(want.type).type))
       throw Error(Exit::refused,
                   fmt::format("{}position {} is {} in the file but {} in the station", where(want.line), i + 1,
                               want.type, have.inferred ? digital_label(have) : have.type->type),
                   "nothing was written");
   }
-  // 2. Every register the file names must be writable.
   for (const auto& want : desired.terminals) {
     const TerminalType& type = catalog.get(want.type);
     for (const auto& ch : want.channels)
@@ -181,15 +182,17 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
                                                                 : "read-only"));
       }
   }
-  // A raw register the file also sets by a named parameter: both must say the same (an edited
-  // backup), or the parameter would win without a word.
-  check_settings_agree(desired, catalog);
-  // 3. Read what the file configures, every channel at once, and compare.
-  struct Want {
-    std::size_t terminal;
-    unsigned channel;
-  };
-  std::vector<Want> wants;
+}
+
+// A channel the file configures: the terminal's index in the file and the channel.
+struct Want {
+  std::size_t terminal;
+  unsigned channel;
+};
+
+// The reads of every channel the file configures: the registers it names and those of its named
+// parameters.
+std::vector<ChannelReads> reads_of(const StationLayout& layout, const StationSpec& desired, std::vector<Want>& wants) {
   std::vector<ChannelReads> jobs;
   for (std::size_t i = 0; i < desired.terminals.size(); ++i) {
     const auto& want = desired.terminals[i];
@@ -213,6 +216,48 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
       wants.push_back({i, ch});
     }
   }
+  return jobs;
+}
+
+// One channel's plan: what the file asks against what it read.
+ChannelPlan plan_channel(const TerminalImage& have, const ChannelSpec& cs, unsigned channel, const ChannelReads& read) {
+  const TerminalType& type = *have.type;
+  ChannelPlan cp;
+  cp.position = have.position;
+  cp.channel = channel;
+  cp.type = type.type;
+  std::map<unsigned, std::uint16_t> cur;
+  for (std::size_t k = 0; k < read.regs.size(); ++k) cur[read.regs[k]] = read.values[k];
+  std::map<unsigned, std::uint16_t> next = cur;
+  for (const auto& [r, v] : cs.registers) next[r] = v;
+  for (const auto& p : cs.params) {
+    const ParamDef* pd = type.param(p.name);
+    next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
+    if (pd->reg_hi) next[*pd->reg_hi] = encode_param_hi(*pd, p.value);
+  }
+  for (const auto& p : cs.params) {
+    const ParamDef* pd = type.param(p.name);
+    auto hi = [&](std::map<unsigned, std::uint16_t>& m) { return pd->reg_hi ? m[*pd->reg_hi] : std::uint16_t{0}; };
+    std::string from = decode_param(*pd, cur[pd->reg], hi(cur)), to = decode_param(*pd, next[pd->reg], hi(next));
+    if (from != to) cp.params.push_back({p.name, from, to});
+  }
+  for (unsigned r : read.regs)
+    if (cur[r] != next[r]) cp.registers.push_back({r, cur[r], next[r]});
+  return cp;
+}
+
+}  // namespace
+
+Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& desired, const Catalog& catalog,
+               const SessionOptions& so, const Progress& progress) {
+  // 1. Composition and writable registers, before anything else.
+  check_composition(layout, desired, catalog);
+  // A raw register the file also sets by a named parameter: both must say the same (an edited
+  // backup), or the parameter would win without a word.
+  check_settings_agree(desired, catalog);
+  // 2. Read what the file configures, every channel at once, and compare.
+  std::vector<Want> wants;
+  std::vector<ChannelReads> jobs = reads_of(layout, desired, wants);
   StationProgress tick;
   if (progress) tick = [&](unsigned done, unsigned total) { progress(done, total, "registers"); };
   read_channels(engine, layout, jobs, so, tick);
@@ -221,31 +266,8 @@ Plan make_plan(Engine& engine, const StationLayout& layout, const StationSpec& d
   Plan plan;
   for (std::size_t n = 0; n < jobs.size(); ++n) {
     const auto& want = desired.terminals[wants[n].terminal];
-    const TerminalImage& have = layout.terminals[wants[n].terminal];
-    const TerminalType& type = *have.type;
-    const ChannelSpec& cs = want.channels[wants[n].channel];
-    ChannelPlan cp;
-    cp.position = have.position;
-    cp.channel = wants[n].channel;
-    cp.type = type.type;
-    std::map<unsigned, std::uint16_t> cur;
-    for (std::size_t k = 0; k < jobs[n].regs.size(); ++k) cur[jobs[n].regs[k]] = jobs[n].values[k];
-    std::map<unsigned, std::uint16_t> next = cur;
-    for (const auto& [r, v] : cs.registers) next[r] = v;
-    for (const auto& p : cs.params) {
-      const ParamDef* pd = type.param(p.name);
-      next[pd->reg] = encode_param(*pd, p.value, next[pd->reg]);
-      if (pd->reg_hi) next[*pd->reg_hi] = encode_param_hi(*pd, p.value);
-    }
-    for (const auto& p : cs.params) {
-      const ParamDef* pd = type.param(p.name);
-      auto hi = [&](std::map<unsigned, std::uint16_t>& m) { return pd->reg_hi ? m[*pd->reg_hi] : std::uint16_t{0}; };
-      std::string from = decode_param(*pd, cur[pd->reg], hi(cur)), to = decode_param(*pd, next[pd->reg], hi(next));
-      if (from != to) cp.params.push_back({p.name, from, to});
-    }
-    for (unsigned r : jobs[n].regs)
-      if (cur[r] != next[r]) cp.registers.push_back({r, cur[r], next[r]});
-    plan.channels.push_back(std::move(cp));
+    plan.channels.push_back(
+        plan_channel(layout.terminals[wants[n].terminal], want.channels[wants[n].channel], wants[n].channel, jobs[n]));
   }
   return plan;
 }
