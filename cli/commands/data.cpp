@@ -321,8 +321,8 @@ class Data : public Command {
     pace.interval = std::chrono::milliseconds(interval_.empty() ? 500 : parse_uint(interval_, 3600000, "interval"));
     // A coupler that switches its outputs off after a time without a telegram (ADS port 300):
     // held values are written every interval, so it must be shorter.
-    const TransportFacts facts = transport_facts(ctx.options().port);
-    if (force && facts.output_watchdog_ms && pace.interval >= std::chrono::milliseconds(facts.output_watchdog_ms))
+    const TransportFacts facts = force ? transport_facts(ctx.options().port) : TransportFacts{};
+    if (facts.output_watchdog_ms && pace.interval >= std::chrono::milliseconds(facts.output_watchdog_ms))
       throw Error(Exit::usage,
                   fmt::format("--interval {} ms: over {} the coupler switches the outputs off after {} ms without a "
                               "telegram, so forced values would drop between two writes",
