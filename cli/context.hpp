@@ -55,7 +55,6 @@ class Context {
 
   // The port named by --port (opened on first use): everything that differs by transport.
   Port& port() { return resolver().port(); }
-  bool link_open() const { return resolver_ != nullptr; }
   // The station this run works on (StationResolver: the port opened on first use, --station, the
   // layout, sessions; its library_engine() for a library call that may open sessions on any
   // terminal closes the session kept from checking the selected terminal's R8).
